@@ -1,0 +1,1 @@
+//! Trajectory evaluation: association, alignment, ATE, RPE, drift.

@@ -1,0 +1,16 @@
+//! rigslam: the SLAM core.
+//!
+//! Follow one frame through the modules in this order: sensor samples come
+//! from `rigslam_drivers` (re-exported as [`sensors`]); [`dataset`] reads
+//! and writes recorded sequences; [`camera`] projects and unprojects;
+//! [`trajectory`] holds timestamped poses; [`eval`] scores an estimate
+//! against ground truth; [`simulate`] renders synthetic sequences.
+
+pub use rigslam_drivers as sensors;
+
+pub mod camera;
+pub mod dataset;
+pub mod eval;
+pub mod rig;
+pub mod simulate;
+pub mod trajectory;

@@ -1,0 +1,50 @@
+//! The rig's calibration as the rest of the core sees it: each camera's
+//! model and mounting, the IMU's mounting and noise. Readers fill these
+//! from Kalibr/EuRoC YAML; the simulator writes them back out.
+
+use nalgebra::Isometry3;
+
+use crate::camera::CameraModel;
+
+/// One camera of the rig.
+#[allow(non_snake_case)]
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraCalibration {
+    pub model: CameraModel,
+    /// Maps camera coordinates into the body (IMU) frame (EuRoC's `T_BS`).
+    pub T_body_cam: Isometry3<f64>,
+    pub rate_hz: f64,
+}
+
+/// Continuous-time IMU noise, Kalibr convention, SI units.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImuNoise {
+    /// rad/s/sqrt(Hz)
+    pub gyroscope_noise_density: f64,
+    /// rad/s^2/sqrt(Hz)
+    pub gyroscope_random_walk: f64,
+    /// m/s^2/sqrt(Hz)
+    pub accelerometer_noise_density: f64,
+    /// m/s^3/sqrt(Hz)
+    pub accelerometer_random_walk: f64,
+}
+
+impl ImuNoise {
+    /// The ADIS16448 values EuRoC ships in `imu0/sensor.yaml`.
+    pub const EUROC_ADIS16448: ImuNoise = ImuNoise {
+        gyroscope_noise_density: 1.6968e-04,
+        gyroscope_random_walk: 1.9393e-05,
+        accelerometer_noise_density: 2.0e-3,
+        accelerometer_random_walk: 3.0e-3,
+    };
+}
+
+/// The IMU: where it sits and how noisy it is.
+#[allow(non_snake_case)]
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImuCalibration {
+    /// Maps IMU coordinates into the body frame (identity when the body is the IMU).
+    pub T_body_imu: Isometry3<f64>,
+    pub rate_hz: f64,
+    pub noise: ImuNoise,
+}

@@ -1,0 +1,1 @@
+//! Synthetic sequences: scene, renderer, IMU synthesis, EuRoC output.

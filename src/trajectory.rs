@@ -1,0 +1,77 @@
+//! Timestamped poses: what datasets hold as ground truth, what the pipeline
+//! writes out and what the evaluation compares.
+
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+
+/// The pose of the body (IMU) frame in the world frame at one instant.
+#[allow(non_snake_case)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StampedPose {
+    pub t_ns: i64,
+    /// Maps body coordinates into the world frame.
+    pub T_world_body: Isometry3<f64>,
+}
+
+impl StampedPose {
+    pub fn new(t_ns: i64, position: Vector3<f64>, orientation: UnitQuaternion<f64>) -> Self {
+        Self {
+            t_ns,
+            T_world_body: Isometry3::from_parts(Translation3::from(position), orientation),
+        }
+    }
+    pub fn position(&self) -> Vector3<f64> {
+        self.T_world_body.translation.vector
+    }
+    pub fn orientation(&self) -> UnitQuaternion<f64> {
+        self.T_world_body.rotation
+    }
+    pub fn t_s(&self) -> f64 {
+        self.t_ns as f64 * 1e-9
+    }
+}
+
+/// Poses in increasing time order.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Trajectory {
+    pub poses: Vec<StampedPose>,
+}
+
+impl Trajectory {
+    pub fn new(poses: Vec<StampedPose>) -> Self {
+        Self { poses }
+    }
+    pub fn len(&self) -> usize {
+        self.poses.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.poses.is_empty()
+    }
+    /// Sum of the distances between consecutive positions, m.
+    pub fn path_length_m(&self) -> f64 {
+        self.poses
+            .windows(2)
+            .map(|w| (w[1].position() - w[0].position()).norm())
+            .sum()
+    }
+    /// True when stamps strictly increase.
+    pub fn is_time_ordered(&self) -> bool {
+        self.poses.windows(2).all(|w| w[0].t_ns < w[1].t_ns)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn path_length_sums_segments() {
+        let q = UnitQuaternion::identity();
+        let t = Trajectory::new(vec![
+            StampedPose::new(0, Vector3::new(0.0, 0.0, 0.0), q),
+            StampedPose::new(1, Vector3::new(3.0, 4.0, 0.0), q),
+            StampedPose::new(2, Vector3::new(3.0, 4.0, 2.0), q),
+        ]);
+        assert!((t.path_length_m() - 7.0).abs() < 1e-12);
+        assert!(t.is_time_ordered());
+    }
+}
