@@ -1,41 +1,134 @@
 //! Camera models: how a 3-D point in the camera frame lands on the image
-//! and back. Pinhole with OpenCV radial-tangential distortion today; the
-//! enum leaves room for an equidistant (fisheye) model.
+//! and back.
+//!
+//! Two models, both as Kalibr names them and OpenCV implements them:
+//!
+//! - [`PinholeRadtan`]: pinhole with radial-tangential (Brown-Conrady)
+//!   distortion, k1 k2 p1 p2 k3 (Kalibr `pinhole` + `radtan`; EuRoC's
+//!   VI-Sensor).
+//! - [`PinholeEquidistant`]: pinhole with the equidistant fisheye
+//!   distortion of Kannala and Brandt, k1..k4 on the angle of incidence
+//!   (Kalibr `pinhole` + `equidistant`, OpenCV `fisheye`).
+//!
+//! Each model has a *fold* limit beyond which its distortion polynomial
+//! stops being monotone and the image folds back on itself; `project`
+//! refuses points beyond it and `unproject` returns only rays inside it.
+//!
+//! Every model offers `project`, `unproject` (a ray on the z = 1 plane),
+//! `project_with_jacobians` (pixel w.r.t. point and intrinsics; the
+//! intrinsic vector's length is model-specific, so it lives on the model
+//! type) and `unproject_with_jacobian` (ray w.r.t. pixel). The enum
+//! exposes the model-independent ones. A new model (e.g. double sphere)
+//! is one more variant and one more file.
 
+pub mod equidistant;
+mod polynomial;
 pub mod radtan;
 
-use nalgebra::{Vector2, Vector3};
+#[cfg(test)]
+mod finite_difference;
 
+use nalgebra::{Matrix2x3, Matrix3x2, Vector2, Vector3};
+
+pub use equidistant::PinholeEquidistant;
 pub use radtan::PinholeRadtan;
+
+/// Why camera parameters were rejected. Readers wrap it with the file and
+/// field the values came from.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum CameraError {
+    #[error("image size {width}x{height}: both sides must be non-zero")]
+    EmptyImage { width: u32, height: u32 },
+    #[error("camera parameter `{name}` = {value} is not a finite number")]
+    NotFinite { name: &'static str, value: f64 },
+    #[error("focal length `{name}` = {value} must be positive")]
+    NonPositiveFocalLength { name: &'static str, value: f64 },
+    #[error("`{field}` lists {got} values, expected {expected}")]
+    WrongLength {
+        field: &'static str,
+        expected: &'static str,
+        got: usize,
+    },
+}
 
 /// A calibrated camera, whatever its projection model.
 #[derive(Debug, Clone, PartialEq)]
 pub enum CameraModel {
     PinholeRadtan(PinholeRadtan),
+    PinholeEquidistant(PinholeEquidistant),
 }
 
 impl CameraModel {
-    /// Pixel of a point in the camera frame (z forward); `None` behind the camera.
+    /// Pixel of a point in the camera frame (z forward); `None` behind the
+    /// camera or beyond the model's fold limit.
     pub fn project(&self, p_cam: &Vector3<f64>) -> Option<Vector2<f64>> {
         match self {
             CameraModel::PinholeRadtan(c) => c.project(p_cam),
+            CameraModel::PinholeEquidistant(c) => c.project(p_cam),
         }
     }
+
+    /// Pixel and its Jacobian with respect to the point in the camera
+    /// frame (2x3).
+    pub fn project_with_point_jacobian(
+        &self,
+        p_cam: &Vector3<f64>,
+    ) -> Option<(Vector2<f64>, Matrix2x3<f64>)> {
+        match self {
+            CameraModel::PinholeRadtan(c) => c
+                .project_with_jacobians(p_cam)
+                .map(|(px, d_point, _)| (px, d_point)),
+            CameraModel::PinholeEquidistant(c) => c
+                .project_with_jacobians(p_cam)
+                .map(|(px, d_point, _)| (px, d_point)),
+        }
+    }
+
     /// Ray through a pixel as a point on the z = 1 plane; `None` where the
     /// model cannot be inverted.
     pub fn unproject(&self, px: &Vector2<f64>) -> Option<Vector3<f64>> {
         match self {
             CameraModel::PinholeRadtan(c) => c.unproject(px),
+            CameraModel::PinholeEquidistant(c) => c.unproject(px),
         }
     }
+
+    /// Ray through a pixel (z = 1) and its Jacobian with respect to the
+    /// pixel (3x2, last row zero), e.g. to propagate a pixel covariance
+    /// onto the ray.
+    pub fn unproject_with_jacobian(
+        &self,
+        px: &Vector2<f64>,
+    ) -> Option<(Vector3<f64>, Matrix3x2<f64>)> {
+        match self {
+            CameraModel::PinholeRadtan(c) => c.unproject_with_jacobian(px),
+            CameraModel::PinholeEquidistant(c) => c.unproject_with_jacobian(px),
+        }
+    }
+
     pub fn width(&self) -> u32 {
         match self {
             CameraModel::PinholeRadtan(c) => c.width,
+            CameraModel::PinholeEquidistant(c) => c.width(),
         }
     }
+
     pub fn height(&self) -> u32 {
         match self {
             CameraModel::PinholeRadtan(c) => c.height,
+            CameraModel::PinholeEquidistant(c) => c.height(),
         }
+    }
+}
+
+impl From<PinholeRadtan> for CameraModel {
+    fn from(camera: PinholeRadtan) -> Self {
+        CameraModel::PinholeRadtan(camera)
+    }
+}
+
+impl From<PinholeEquidistant> for CameraModel {
+    fn from(camera: PinholeEquidistant) -> Self {
+        CameraModel::PinholeEquidistant(camera)
     }
 }
