@@ -18,8 +18,12 @@
 //!
 //! The distortion is radial only, so it is invertible exactly where
 //! `theta -> theta_d` increases:
-//! `d theta_d / d theta = 1 + 3 k1 theta^2 + 5 k2 theta^4 + 7 k3 theta^6
-//! + 9 k4 theta^8 > 0`. The first zero of that derivative (the fold angle)
+//!
+//! ```text
+//! d theta_d / d theta = 1 + 3 k1 theta^2 + 5 k2 theta^4 + 7 k3 theta^6 + 9 k4 theta^8 > 0.
+//! ```
+//!
+//! The first zero of that derivative (the fold angle)
 //! and the z = 1 plane's own limit of 90 degrees bound the valid angles;
 //! [`PinholeEquidistant::max_valid_theta`] returns the smaller. Rays are
 //! returned on the z = 1 plane like every model here, so fields of view
@@ -193,7 +197,7 @@ impl PinholeEquidistant {
     /// Normalised coordinates of a point in front of the camera and
     /// inside the valid angle.
     fn normalise(&self, p_cam: &Vector3<f64>) -> Option<Vector2<f64>> {
-        if !(p_cam.z > f64::EPSILON) {
+        if p_cam.z.is_nan() || p_cam.z <= f64::EPSILON {
             return None;
         }
         let xn = Vector2::new(p_cam.x / p_cam.z, p_cam.y / p_cam.z);
@@ -289,5 +293,237 @@ impl PinholeEquidistant {
         let mut jacobian = Matrix3x2::zeros();
         jacobian.fixed_view_mut::<2, 2>(0, 0).copy_from(&dxn_dpx);
         Some((ray, jacobian))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::camera::finite_difference::{central_difference, max_relative_error};
+    use nalgebra::SVector;
+
+    /// A 512x512 fisheye with the parameters TUM VI publishes for its
+    /// Kalibr `equidistant` cam0 (quoted from memory, not read from a
+    /// file: the tests only need a realistic strong fisheye).
+    const PINHOLE: [f64; 4] = [190.978, 190.973, 254.932, 256.897];
+    const DISTORTION: [f64; 4] = [
+        0.0034823894022493434,
+        0.0007150348452162257,
+        -0.0020532361418706202,
+        0.00020293673591811182,
+    ];
+
+    fn fisheye() -> PinholeEquidistant {
+        PinholeEquidistant::new(512, 512, PINHOLE, DISTORTION).expect("valid parameters")
+    }
+
+    /// Pixels over the image on a 16 px grid plus its corners that have a
+    /// ray (corners of a fisheye image can lie beyond 90 degrees).
+    fn pixels_with_rays(camera: &PinholeEquidistant, step: usize) -> Vec<Vector2<f64>> {
+        let (w, h) = (camera.width as f64, camera.height as f64);
+        let mut pixels = vec![
+            Vector2::new(-0.5, -0.5),
+            Vector2::new(w - 0.5, -0.5),
+            Vector2::new(-0.5, h - 0.5),
+            Vector2::new(w - 0.5, h - 0.5),
+            Vector2::new(camera.cx, camera.cy),
+            Vector2::new(camera.cx + 1e-10, camera.cy),
+        ];
+        for u in (0..camera.width).step_by(step) {
+            for v in (0..camera.height).step_by(step) {
+                pixels.push(Vector2::new(u as f64, v as f64));
+            }
+        }
+        pixels
+    }
+
+    #[test]
+    fn new_and_from_kalibr_validate_parameters() {
+        assert_eq!(
+            PinholeEquidistant::new(0, 512, PINHOLE, DISTORTION),
+            Err(CameraError::EmptyImage {
+                width: 0,
+                height: 512
+            })
+        );
+        let err = PinholeEquidistant::new(512, 512, PINHOLE, [0.0, f64::NAN, 0.0, 0.0]);
+        assert!(
+            matches!(err, Err(CameraError::NotFinite { name: "k2", .. })),
+            "{err:?}"
+        );
+        let err = PinholeEquidistant::new(512, 512, [-1.0, 1.0, 0.0, 0.0], DISTORTION);
+        assert!(
+            matches!(
+                err,
+                Err(CameraError::NonPositiveFocalLength { name: "fx", .. })
+            ),
+            "{err:?}"
+        );
+        let err = PinholeEquidistant::from_kalibr(512, 512, &PINHOLE, &DISTORTION[..3]);
+        assert!(
+            matches!(
+                err,
+                Err(CameraError::WrongLength {
+                    field: "distortion_coefficients",
+                    got: 3,
+                    ..
+                })
+            ),
+            "{err:?}"
+        );
+        let camera = PinholeEquidistant::from_kalibr(512, 512, &PINHOLE, &DISTORTION)
+            .expect("valid parameters");
+        assert_eq!(camera.pinhole(), PINHOLE);
+        assert_eq!(camera.distortion(), DISTORTION);
+        assert_eq!((camera.width(), camera.height()), (512, 512));
+    }
+
+    /// Reference pixels from OpenCV 5.0.0 (opencv-python-headless
+    /// 5.0.0.93), `cv2.fisheye.projectPoints(pts, zeros(3), zeros(3), K, D)`
+    /// with K and D as above; run once, numbers pasted here.
+    #[test]
+    fn project_agrees_with_opencv_fisheye_project_points() {
+        let points = [
+            Vector3::new(0.3, -0.2, 1.0),
+            Vector3::new(-1.1, -0.7, 1.3),
+            Vector3::new(2.0, 1.5, 2.5),
+            Vector3::new(0.0, 0.0, 4.0),
+            Vector3::new(-0.4, 0.9, 0.8),
+        ];
+        let opencv = [
+            (309.94330248437797, 220.22375851197825),
+            (127.90028132693391, 176.0607500030655),
+            (375.1631239489516, 347.06798213106924),
+            (254.932, 256.897),
+            (185.85194686973188, 412.3230502230888),
+        ];
+        let camera = fisheye();
+        for (p, (u, v)) in points.iter().zip(opencv) {
+            let px = camera.project(p).expect("in front of the camera");
+            assert!(
+                (px - Vector2::new(u, v)).norm() < 1e-6,
+                "{p:?}: {px:?} vs ({u}, {v})"
+            );
+        }
+    }
+
+    #[test]
+    fn unproject_round_trips_every_pixel_with_a_ray() {
+        let camera = fisheye();
+        let (theta_d_max, _) = camera.theta_d_and_slope(camera.max_valid_theta());
+        let mut round_tripped = 0;
+        for px in pixels_with_rays(&camera, 1) {
+            let target = Vector2::new(
+                (px.x - camera.cx) / camera.fx,
+                (px.y - camera.cy) / camera.fy,
+            );
+            match camera.unproject(&px) {
+                Some(ray) => {
+                    let back = camera.project(&ray).expect("unprojected ray projects");
+                    assert!((back - px).norm() < 1e-6, "{px:?} -> {back:?}");
+                    round_tripped += 1;
+                }
+                // Only pixels beyond the image of the 90-degree circle lack a ray.
+                None => assert!(target.norm() >= theta_d_max * (1.0 - 1e-9), "{px:?}"),
+            }
+        }
+        assert!(round_tripped > 512 * 512 / 2);
+    }
+
+    #[test]
+    fn fold_angle_matches_the_closed_form_for_k1_only() {
+        // d theta_d / d theta = 1 + 3 k1 theta^2 vanishes at 1/sqrt(3|k1|).
+        let camera = PinholeEquidistant::new(512, 512, PINHOLE, [-0.5, 0.0, 0.0, 0.0])
+            .expect("valid parameters");
+        let expected = 1.0 / 1.5_f64.sqrt();
+        assert!((camera.max_valid_theta() - expected).abs() < 1e-14);
+        let inside = Vector3::new((0.99 * expected).tan(), 0.0, 1.0);
+        let beyond = Vector3::new((1.01 * expected).tan(), 0.0, 1.0);
+        assert!(camera.project(&inside).is_some());
+        assert!(camera.project(&beyond).is_none());
+        // A pixel beyond the fold's image has no ray.
+        let (theta_d_max, _) = camera.theta_d_and_slope(expected);
+        let px = Vector2::new(camera.cx + 1.01 * theta_d_max * camera.fx, camera.cy);
+        assert_eq!(camera.unproject(&px), None);
+        // Without a fold the z = 1 plane's 90 degrees is the limit.
+        assert_eq!(fisheye().max_valid_theta(), FRAC_PI_2);
+        assert!(fisheye().project(&Vector3::new(1.0, 0.0, 0.0)).is_none());
+    }
+
+    #[test]
+    fn point_and_intrinsics_jacobians_match_finite_differences() {
+        let camera = fisheye();
+        let parameters = SVector::<f64, 8>::from_row_slice(&[
+            PINHOLE[0],
+            PINHOLE[1],
+            PINHOLE[2],
+            PINHOLE[3],
+            DISTORTION[0],
+            DISTORTION[1],
+            DISTORTION[2],
+            DISTORTION[3],
+        ]);
+        let (mut worst_point, mut worst_intrinsics) = (0.0_f64, 0.0_f64);
+        for px in pixels_with_rays(&camera, 16) {
+            let Some(ray) = camera.unproject(&px) else {
+                continue;
+            };
+            for depth_m in [0.4, 3.0, 25.0] {
+                let p = ray * depth_m;
+                let (_, d_point, d_intrinsics) =
+                    camera.project_with_jacobians(&p).expect("projects");
+                let numeric = central_difference(
+                    |q: &SVector<f64, 3>| camera.project(q).expect("neighbour projects"),
+                    &p,
+                    1e-6,
+                );
+                worst_point = worst_point.max(max_relative_error(&d_point, &numeric, 1.0));
+                let numeric = central_difference(
+                    |q: &SVector<f64, 8>| {
+                        let perturbed = PinholeEquidistant::new(
+                            512,
+                            512,
+                            [q[0], q[1], q[2], q[3]],
+                            [q[4], q[5], q[6], q[7]],
+                        )
+                        .expect("perturbed parameters are valid");
+                        perturbed.project(&p).expect("neighbour projects")
+                    },
+                    &parameters,
+                    1e-6,
+                );
+                worst_intrinsics =
+                    worst_intrinsics.max(max_relative_error(&d_intrinsics, &numeric, 1.0));
+            }
+        }
+        assert!(worst_point < 1e-6, "d px / d point: {worst_point:e}");
+        assert!(
+            worst_intrinsics < 1e-6,
+            "d px / d intrinsics: {worst_intrinsics:e}"
+        );
+    }
+
+    #[test]
+    fn unproject_jacobian_matches_finite_differences() {
+        let camera = fisheye();
+        let mut worst = 0.0_f64;
+        for px in pixels_with_rays(&camera, 8) {
+            // Stay clear of the 90-degree circle where rays go to infinity.
+            let Some(ray) = camera.unproject(&px) else {
+                continue;
+            };
+            if ray.xy().norm().atan() > 1.3 {
+                continue;
+            }
+            let (same, analytic) = camera.unproject_with_jacobian(&px).expect("unprojects");
+            assert_eq!(same, ray);
+            let numeric = central_difference(
+                |q: &SVector<f64, 2>| camera.unproject(q).expect("neighbour unprojects"),
+                &px,
+                1e-2 / px.abs().max().max(1.0),
+            );
+            worst = worst.max(max_relative_error(&analytic, &numeric, 1e-4));
+        }
+        assert!(worst < 1e-6, "d ray / d px: {worst:e}");
     }
 }

@@ -132,3 +132,58 @@ impl From<PinholeEquidistant> for CameraModel {
         CameraModel::PinholeEquidistant(camera)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The enum forwards to each model: same pixels, rays and Jacobians.
+    #[test]
+    fn enum_forwards_to_the_model() {
+        let radtan = PinholeRadtan::new(
+            752,
+            480,
+            [458.654, 457.296, 367.215, 248.375],
+            [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05, 0.0],
+        )
+        .expect("valid parameters");
+        let fisheye = PinholeEquidistant::new(
+            512,
+            512,
+            [190.978, 190.973, 254.932, 256.897],
+            [0.0035, 0.0007, -0.0021, 0.0002],
+        )
+        .expect("valid parameters");
+        let p = Vector3::new(0.4, -0.3, 2.0);
+        let px = Vector2::new(100.0, 50.0);
+
+        let model = CameraModel::from(radtan.clone());
+        assert_eq!((model.width(), model.height()), (752, 480));
+        assert_eq!(model.project(&p), radtan.project(&p));
+        let (pixel, d_point, _) = radtan.project_with_jacobians(&p).expect("projects");
+        assert_eq!(
+            model.project_with_point_jacobian(&p),
+            Some((pixel, d_point))
+        );
+        assert_eq!(model.unproject(&px), radtan.unproject(&px));
+        assert_eq!(
+            model.unproject_with_jacobian(&px),
+            radtan.unproject_with_jacobian(&px)
+        );
+
+        let model = CameraModel::from(fisheye.clone());
+        assert_eq!((model.width(), model.height()), (512, 512));
+        assert_eq!(model.project(&p), fisheye.project(&p));
+        let (pixel, d_point, _) = fisheye.project_with_jacobians(&p).expect("projects");
+        assert_eq!(
+            model.project_with_point_jacobian(&p),
+            Some((pixel, d_point))
+        );
+        assert_eq!(model.unproject(&px), fisheye.unproject(&px));
+        assert_eq!(
+            model.unproject_with_jacobian(&px),
+            fisheye.unproject_with_jacobian(&px)
+        );
+        assert!(model.unproject(&px).is_some());
+    }
+}

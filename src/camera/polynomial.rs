@@ -48,7 +48,7 @@ pub(crate) fn root_magnitude_bound(coeffs: &[f64]) -> Option<f64> {
 /// A polynomial that is identically zero is reported as having none.
 pub(crate) fn roots_in(coeffs: &[f64], lo: f64, hi: f64) -> Vec<f64> {
     let p = trimmed(coeffs);
-    if p.len() <= 1 || !(lo <= hi) {
+    if p.len() <= 1 || lo.is_nan() || hi.is_nan() || lo > hi {
         return Vec::new();
     }
     // Breakpoints: the interval ends and the stationary points inside.
