@@ -43,6 +43,8 @@ pub enum CameraError {
     NotFinite { name: &'static str, value: f64 },
     #[error("focal length `{name}` = {value} must be positive")]
     NonPositiveFocalLength { name: &'static str, value: f64 },
+    #[error("distortion model `{name}` is not one of radtan, radial-tangential, equidistant")]
+    UnknownDistortionModel { name: String },
     #[error("`{field}` lists {got} values, expected {expected}")]
     WrongLength {
         field: &'static str,
@@ -59,6 +61,55 @@ pub enum CameraModel {
 }
 
 impl CameraModel {
+    /// A pinhole camera from Kalibr/EuRoC lists, its distortion named as
+    /// Kalibr (`radtan`, `equidistant`) or EuRoC's `sensor.yaml`
+    /// (`radial-tangential`) names it. See [`PinholeRadtan::from_kalibr`]
+    /// and [`PinholeEquidistant::from_kalibr`] for the lists.
+    pub fn from_kalibr(
+        width: u32,
+        height: u32,
+        distortion_model: &str,
+        intrinsics: &[f64],
+        distortion: &[f64],
+    ) -> Result<Self, CameraError> {
+        match distortion_model {
+            "radtan" | "radial-tangential" => {
+                PinholeRadtan::from_kalibr(width, height, intrinsics, distortion).map(Self::from)
+            }
+            "equidistant" => PinholeEquidistant::from_kalibr(width, height, intrinsics, distortion)
+                .map(Self::from),
+            other => Err(CameraError::UnknownDistortionModel {
+                name: other.to_owned(),
+            }),
+        }
+    }
+
+    /// Kalibr's name of the distortion model: `radtan` or `equidistant`
+    /// (EuRoC's `sensor.yaml` spells the first `radial-tangential`).
+    pub fn kalibr_distortion_model(&self) -> &'static str {
+        match self {
+            CameraModel::PinholeRadtan(_) => "radtan",
+            CameraModel::PinholeEquidistant(_) => "equidistant",
+        }
+    }
+
+    /// fx, fy, cx, cy in pixels.
+    pub fn pinhole(&self) -> [f64; 4] {
+        match self {
+            CameraModel::PinholeRadtan(c) => [c.fx, c.fy, c.cx, c.cy],
+            CameraModel::PinholeEquidistant(c) => c.pinhole(),
+        }
+    }
+
+    /// Distortion coefficients in the model's own order: k1 k2 p1 p2 k3
+    /// (radtan, five even when k3 = 0) or k1 k2 k3 k4 (equidistant).
+    pub fn distortion_coefficients(&self) -> Vec<f64> {
+        match self {
+            CameraModel::PinholeRadtan(c) => c.distortion.to_vec(),
+            CameraModel::PinholeEquidistant(c) => c.distortion().to_vec(),
+        }
+    }
+
     /// Pixel of a point in the camera frame (z forward); `None` behind the
     /// camera or beyond the model's fold limit.
     pub fn project(&self, p_cam: &Vector3<f64>) -> Option<Vector2<f64>> {
@@ -185,5 +236,35 @@ mod tests {
             fisheye.unproject_with_jacobian(&px)
         );
         assert!(model.unproject(&px).is_some());
+    }
+
+    #[test]
+    fn from_kalibr_dispatches_on_the_model_name() {
+        let pinhole = [458.654, 457.296, 367.215, 248.375];
+        let four = [-0.28, 0.07, 0.0002, 0.00002];
+        for name in ["radtan", "radial-tangential"] {
+            let model = CameraModel::from_kalibr(752, 480, name, &pinhole, &four).expect("valid");
+            let expected = PinholeRadtan::from_kalibr(752, 480, &pinhole, &four).expect("valid");
+            assert_eq!(model, CameraModel::PinholeRadtan(expected));
+            assert_eq!(model.kalibr_distortion_model(), "radtan");
+            assert_eq!(model.pinhole(), pinhole);
+            assert_eq!(
+                model.distortion_coefficients(),
+                [-0.28, 0.07, 0.0002, 0.00002, 0.0]
+            );
+        }
+        let model =
+            CameraModel::from_kalibr(752, 480, "equidistant", &pinhole, &four).expect("valid");
+        assert_eq!(model.kalibr_distortion_model(), "equidistant");
+        assert_eq!(model.distortion_coefficients(), four);
+        assert_eq!(
+            CameraModel::from_kalibr(752, 480, "fov", &pinhole, &four),
+            Err(CameraError::UnknownDistortionModel { name: "fov".into() })
+        );
+        // Errors of the model's own constructor come through.
+        assert!(matches!(
+            CameraModel::from_kalibr(752, 480, "equidistant", &pinhole, &four[..2]),
+            Err(CameraError::WrongLength { got: 2, .. })
+        ));
     }
 }
