@@ -197,8 +197,8 @@ fn read_times(path: &Path) -> Result<Vec<i64>, DatasetError> {
     let mut stamps = Vec::new();
     let mut lines = Vec::new();
     for (line_no, line) in data_lines(&text) {
-        let [t_s]: [f64; 1] = parse_fields(path, line_no, line, ' ')?;
-        stamps.push(seconds_to_ns(path, line_no, t_s)?);
+        let [_t_s]: [f64; 1] = parse_fields(path, line_no, line, ' ')?;
+        stamps.push(seconds_to_ns(path, line_no, line)?);
         lines.push(line_no);
     }
     check_increasing(path, lines.into_iter().zip(stamps.iter().copied()))?;
