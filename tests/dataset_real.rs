@@ -121,7 +121,11 @@ fn euroc_calibration_matches_the_yaml() {
     let Some(data) = data_dir() else { return };
     let ds = EurocDataset::open(&data.join("euroc/V1_01_micro")).expect("opens");
     let intrinsics = |i: usize| {
-        let CameraModel::PinholeRadtan(c) = &ds.cameras[i].calibration.model;
+        #[allow(irrefutable_let_patterns)] // more models are coming
+        let CameraModel::PinholeRadtan(c) = &ds.cameras[i].calibration.model
+        else {
+            panic!("expected a pinhole-radtan camera");
+        };
         c.clone()
     };
     let c0 = intrinsics(0);
@@ -281,7 +285,11 @@ fn kitti_seq_a_reads_with_ten_hz_stamps() {
     let seq = KittiSequence::open(&root).expect("opens");
     assert!(seq.image_dir.ends_with("image_l"));
     assert_eq!(seq.frames.len(), 51);
-    let CameraModel::PinholeRadtan(c) = &seq.camera.model;
+    #[allow(irrefutable_let_patterns)] // more models are coming
+    let CameraModel::PinholeRadtan(c) = &seq.camera.model
+    else {
+        panic!("expected a pinhole-radtan camera");
+    };
     assert_eq!(
         [c.fx, c.fy, c.cx, c.cy],
         [707.0912, 707.0912, 601.8873, 183.1104]

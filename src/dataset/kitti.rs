@@ -82,7 +82,9 @@ impl KittiSequence {
                 .collect()
         };
         let rate_hz = match (stamps_ns.first(), stamps_ns.last()) {
-            (Some(a), Some(b)) if b > a => (stamps_ns.len() - 1) as f64 / ((b - a) as f64 * 1e-9),
+            (Some(&a), Some(&b)) if b > a => {
+                (stamps_ns.len() - 1) as f64 / ((b as f64 - a as f64) * 1e-9)
+            }
             _ => 1e9 / KITTI_FRAME_PERIOD_NS as f64,
         };
 
@@ -284,7 +286,11 @@ mod tests {
         )
         .expect("poses");
         let seq = KittiSequence::open(dir.path()).expect("open");
-        let CameraModel::PinholeRadtan(c) = &seq.camera.model;
+        #[allow(irrefutable_let_patterns)] // more models are coming
+        let CameraModel::PinholeRadtan(c) = &seq.camera.model
+        else {
+            panic!("expected a pinhole-radtan camera");
+        };
         assert_eq!(
             [c.fx, c.fy, c.cx, c.cy],
             [707.0912, 707.0912, 601.8873, 183.1104]

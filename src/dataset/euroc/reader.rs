@@ -450,4 +450,51 @@ mod tests {
         let err = EurocDataset::open(&dir.path().join("nowhere")).expect_err("absent");
         assert!(matches!(err, DatasetError::Layout { .. }), "{err}");
     }
+
+    /// Truncations and flipped bytes in every file of a small dataset:
+    /// opening and loading may fail, but must return errors, not panic.
+    #[test]
+    fn corrupted_files_never_panic() {
+        use rand::{Rng, SeedableRng};
+        let dir = tempfile::tempdir().expect("temp dir");
+        write_dataset(dir.path());
+        let mav0 = dir.path().join("mav0");
+        let mut files = Vec::new();
+        for sub in ["cam0", "cam1", "imu0", GROUNDTRUTH_DIR] {
+            files.push(mav0.join(sub).join("data.csv"));
+            files.push(mav0.join(sub).join("sensor.yaml"));
+        }
+        files.push(mav0.join("cam0/data/1403715273262142976.png"));
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let mut failures = 0;
+        for file in &files {
+            let original = std::fs::read(file).expect("original");
+            for trial in 0..12 {
+                let mut bytes = original.clone();
+                if trial % 2 == 0 {
+                    bytes.truncate(rng.gen_range(0..bytes.len()));
+                } else {
+                    for _ in 0..rng.gen_range(1..8) {
+                        let i = rng.gen_range(0..bytes.len());
+                        bytes[i] = rng.gen();
+                    }
+                }
+                std::fs::write(file, &bytes).expect("corrupt");
+                match EurocDataset::open(dir.path()) {
+                    Ok(ds) => {
+                        for cam in &ds.cameras {
+                            for i in 0..cam.frames.len() {
+                                failures += usize::from(cam.load(i).is_err());
+                            }
+                        }
+                    }
+                    Err(_) => failures += 1,
+                }
+            }
+            std::fs::write(file, &original).expect("restore");
+        }
+        // Most corruptions must be caught (a flipped digit can still parse).
+        assert!(failures > files.len() * 6, "{failures}");
+        assert!(EurocDataset::open(dir.path()).is_ok());
+    }
 }

@@ -115,8 +115,13 @@ pub fn read_imu_yaml(path: &Path) -> Result<ImuCalibration, DatasetError> {
 /// A camera `sensor.yaml` in EuRoC's layout. Numbers are printed in their
 /// shortest exact form, so reading the file back gives the same values.
 /// k3 is written only when it is not zero (Kalibr's radtan has four).
-pub fn camera_yaml(name: &str, calib: &CameraCalibration) -> String {
-    let CameraModel::PinholeRadtan(c) = &calib.model;
+/// `None` for camera models this writer does not know yet.
+pub fn camera_yaml(name: &str, calib: &CameraCalibration) -> Option<String> {
+    #[allow(irrefutable_let_patterns)] // more models are coming
+    let CameraModel::PinholeRadtan(c) = &calib.model
+    else {
+        return None;
+    };
     let d = c.distortion;
     let coefficients = if d[4] == 0.0 { &d[..4] } else { &d[..] };
     let mut s = String::new();
@@ -135,7 +140,7 @@ pub fn camera_yaml(name: &str, calib: &CameraCalibration) -> String {
     );
     s.push_str("distortion_model: radial-tangential\n");
     let _ = writeln!(s, "distortion_coefficients: [{}]", join(coefficients));
-    s
+    Some(s)
 }
 
 /// An IMU `sensor.yaml` in EuRoC's layout with Kalibr's noise names.
@@ -390,7 +395,11 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
     fn reads_euroc_camera_yaml() {
         let dir = tempfile::tempdir().expect("temp dir");
         let calib = read_camera_yaml(&write(dir.path(), EUROC_CAM0)).expect("valid yaml");
-        let CameraModel::PinholeRadtan(c) = &calib.model;
+        #[allow(irrefutable_let_patterns)] // more models are coming
+        let CameraModel::PinholeRadtan(c) = &calib.model
+        else {
+            panic!("expected a pinhole-radtan camera");
+        };
         assert_eq!((c.width, c.height), (752, 480));
         assert_eq!(
             [c.fx, c.fy, c.cx, c.cy],
@@ -416,11 +425,18 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
         let dir = tempfile::tempdir().expect("temp dir");
         let calib = read_camera_yaml(&write(dir.path(), EUROC_CAM0)).expect("valid yaml");
         let mut with_k3 = calib.clone();
-        let CameraModel::PinholeRadtan(c) = &mut with_k3.model;
+        #[allow(irrefutable_let_patterns)] // more models are coming
+        let CameraModel::PinholeRadtan(c) = &mut with_k3.model
+        else {
+            panic!("expected a pinhole-radtan camera");
+        };
         c.distortion[4] = -0.0123;
         for original in [calib, with_k3] {
-            let back = read_camera_yaml(&write(dir.path(), &camera_yaml("cam0", &original)))
-                .expect("written yaml reads");
+            let back = read_camera_yaml(&write(
+                dir.path(),
+                &camera_yaml("cam0", &original).expect("radtan"),
+            ))
+            .expect("written yaml reads");
             assert_eq!(back.model, original.model);
             assert_eq!(back.rate_hz, original.rate_hz);
             assert_eq!(back.T_body_cam.translation, original.T_body_cam.translation);

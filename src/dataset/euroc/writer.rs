@@ -56,7 +56,14 @@ impl EurocWriter {
         calib: &CameraCalibration,
     ) -> Result<(), DatasetError> {
         let path = self.camera_stream(name)?.dir.join("sensor.yaml");
-        std::fs::write(&path, camera_yaml(name, calib)).map_err(|e| DatasetError::io(&path, e))
+        let yaml = camera_yaml(name, calib).ok_or_else(|| {
+            DatasetError::bad_field(
+                &path,
+                "camera_model",
+                "only pinhole radial-tangential cameras are written",
+            )
+        })?;
+        std::fs::write(&path, yaml).map_err(|e| DatasetError::io(&path, e))
     }
 
     /// Writes `mav0/<name>/data/<t_ns>.png` and its `data.csv` row. Stamps
