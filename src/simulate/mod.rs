@@ -1,1 +1,12 @@
-//! Synthetic sequences: scene, renderer, IMU synthesis, EuRoC output.
+//! Synthetic sequences: scene, renderer, motion, IMU synthesis, EuRoC output.
+//!
+//! The data's way: [`motion`] gives the body's pose and derivatives at any
+//! instant; [`scene`] (with [`texture`]) is the world; [`render`] turns a
+//! camera pose into an image through the real camera model; [`imu_synth`]
+//! turns the motion into IMU samples.
+
+pub mod imu_synth;
+pub mod motion;
+pub mod render;
+pub mod scene;
+pub mod texture;
