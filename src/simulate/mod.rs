@@ -5,6 +5,7 @@
 //! camera pose into an image through the real camera model; [`imu_synth`]
 //! turns the motion into IMU samples.
 
+pub mod euroc_rig;
 pub mod imu_synth;
 pub mod motion;
 pub mod render;

@@ -170,7 +170,16 @@ impl Scene {
     /// `inv_d` is the componentwise reciprocal of `d`.
     #[inline]
     pub fn intersect(&self, o: [f32; 3], inv_d: [f32; 3]) -> Hit {
-        // Leaving the room: along each axis the plane ahead of the ray.
+        let mut best = self.intersect_room(o, inv_d);
+        for k in 0..self.boxes.len() {
+            self.intersect_box(k, o, inv_d, &mut best);
+        }
+        best
+    }
+
+    /// Where the ray leaves the room: along each axis the plane ahead of it.
+    #[inline]
+    pub fn intersect_room(&self, o: [f32; 3], inv_d: [f32; 3]) -> Hit {
         let mut best = Hit {
             t_m: f32::INFINITY,
             surface: 0,
@@ -191,41 +200,69 @@ impl Scene {
                 };
             }
         }
-        for (k, b) in self.boxes.iter().enumerate() {
-            let mut t_near = f32::NEG_INFINITY;
-            let mut t_far = best.t_m;
-            let mut near_axis = 0;
-            for a in 0..3 {
-                let t1 = (b.min_m[a] - o[a]) * inv_d[a];
-                let t2 = (b.max_m[a] - o[a]) * inv_d[a];
-                let lo = t1.min(t2);
-                let hi = t1.max(t2);
-                if lo > t_near {
-                    t_near = lo;
-                    near_axis = a;
-                }
-                t_far = t_far.min(hi);
-            }
-            if t_near <= t_far && t_near > 0.0 {
-                // Entering through the face the ray meets first: the low
-                // face when travelling towards +axis.
-                let side = if inv_d[near_axis] > 0.0 { 0 } else { 1 };
-                best = Hit {
-                    t_m: t_near,
-                    surface: 6 * (k + 1) + 2 * near_axis + side,
-                    axis: near_axis,
-                };
-            }
-        }
         best
     }
 
+    /// Replaces `best` by box `k`'s entry point when the ray meets the box
+    /// in front of `o` and before `best`.
+    #[inline]
+    pub fn intersect_box(&self, k: usize, o: [f32; 3], inv_d: [f32; 3], best: &mut Hit) {
+        let b = &self.boxes[k];
+        let mut t_near = f32::NEG_INFINITY;
+        let mut t_far = best.t_m;
+        let mut near_axis = 0;
+        for a in 0..3 {
+            let t1 = (b.min_m[a] - o[a]) * inv_d[a];
+            let t2 = (b.max_m[a] - o[a]) * inv_d[a];
+            let lo = t1.min(t2);
+            let hi = t1.max(t2);
+            if lo > t_near {
+                t_near = lo;
+                near_axis = a;
+            }
+            t_far = t_far.min(hi);
+        }
+        if t_near <= t_far && t_near > 0.0 {
+            // Entering through the face met first: the low face when
+            // travelling towards +axis.
+            let side = if inv_d[near_axis] > 0.0 { 0 } else { 1 };
+            *best = Hit {
+                t_m: t_near,
+                surface: 6 * (k + 1) + 2 * near_axis + side,
+                axis: near_axis,
+            };
+        }
+    }
+
     /// Grey level seen along the unit ray `d` from `o`, for a pixel whose
-    /// rays spread by `footprint_rad` (radians per pixel).
+    /// rays spread by `footprint_rad` (radians per pixel), testing every box.
     #[inline]
     pub fn shade(&self, o: [f32; 3], d: [f32; 3], footprint_rad: f32) -> f32 {
         let inv_d = [1.0 / d[0], 1.0 / d[1], 1.0 / d[2]];
         let hit = self.intersect(o, inv_d);
+        self.radiance(o, d, hit, footprint_rad)
+    }
+
+    /// As [`Scene::shade`], testing only the boxes listed in `candidates`
+    /// (those that may lie in the pixel's direction).
+    #[inline]
+    pub fn shade_among(
+        &self,
+        o: [f32; 3],
+        d: [f32; 3],
+        footprint_rad: f32,
+        candidates: &[u16],
+    ) -> f32 {
+        let inv_d = [1.0 / d[0], 1.0 / d[1], 1.0 / d[2]];
+        let mut hit = self.intersect_room(o, inv_d);
+        for &k in candidates {
+            self.intersect_box(k as usize, o, inv_d, &mut hit);
+        }
+        self.radiance(o, d, hit, footprint_rad)
+    }
+
+    #[inline]
+    fn radiance(&self, o: [f32; 3], d: [f32; 3], hit: Hit, footprint_rad: f32) -> f32 {
         let surface = &self.surfaces[hit.surface];
         let (ua, va) = ((hit.axis + 1) % 3, (hit.axis + 2) % 3);
         let u = o[ua] + hit.t_m * d[ua] - surface.origin_uv_m[0];
@@ -235,6 +272,16 @@ impl Scene {
         let cos = d[hit.axis].abs().max(0.05);
         let footprint_m = hit.t_m * footprint_rad / cos;
         surface.texture.sample(u, v, footprint_m) * surface.gain
+    }
+
+    /// Centre and radius of box `k`'s bounding sphere.
+    pub fn box_sphere(&self, k: usize) -> ([f32; 3], f32) {
+        let b = &self.boxes[k];
+        let c: [f32; 3] = std::array::from_fn(|a| 0.5 * (b.min_m[a] + b.max_m[a]));
+        let r2: f32 = (0..3)
+            .map(|a| (0.5 * (b.max_m[a] - b.min_m[a])).powi(2))
+            .sum();
+        (c, r2.sqrt())
     }
 }
 
