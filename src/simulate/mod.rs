@@ -10,4 +10,7 @@ pub mod imu_synth;
 pub mod motion;
 pub mod render;
 pub mod scene;
+pub mod sequence;
 pub mod texture;
+
+pub use sequence::{simulate, ImuSource, SimConfig, SimError, SimReport};
