@@ -3,7 +3,8 @@
 //! The data's way: [`motion`] gives the body's pose and derivatives at any
 //! instant; [`scene`] (with [`texture`]) is the world; [`render`] turns a
 //! camera pose into an image through the real camera model; [`imu_synth`]
-//! turns the motion into IMU samples.
+//! turns the motion into IMU samples; [`sequence`] puts them together and
+//! writes a EuRoC ASL dataset ([`simulate`]).
 
 pub mod euroc_rig;
 pub mod imu_synth;
