@@ -1,0 +1,1 @@
+//! Pictures of an evaluation: placeholder replaced below.
