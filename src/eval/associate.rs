@@ -30,17 +30,20 @@ impl MatchedPoses {
 
 /// Pairs each pose of the estimate with the ground-truth pose nearest in
 /// time, at most `max_dt_ns` away, after adding `t_offset_ns` to the
-/// estimate's stamps. One-to-one: no pose is used twice.
+/// estimate's stamps. One-to-one between distinct stamps.
 ///
 /// The rule mirrors evo's `associate_trajectories` (evo 1.38,
 /// `core/sync.py`) so that matched-pose counts and metrics agree with it:
 /// the trajectory with fewer poses drives the search, each of its stamps
 /// takes the nearest stamp of the other, a tie goes to the earlier stamp,
-/// and a difference equal to the limit is accepted. evo may give one pose
-/// of the denser trajectory to two poses of the sparser one when the
-/// sparser one is locally denser; here the closer of the two keeps it and
-/// the other is dropped, which never happens for a ground truth sampled
-/// faster than the estimate.
+/// and a difference equal to the limit is accepted.
+///
+/// evo may give one pose of the denser trajectory to two poses of the
+/// sparser one. When their stamps differ (the sparser trajectory is
+/// locally denser) only the nearer keeps it here, so no true pose stands
+/// for two different instants. When their stamps are equal (a file with a
+/// repeated stamp, like the V1_02 sample estimate evo ships, 4 times) both
+/// keep it, as in evo: both claim to be the pose at that instant.
 pub fn associate(
     estimate: &Trajectory,
     ground_truth: &Trajectory,
@@ -68,21 +71,26 @@ pub fn associate(
     } else {
         (&gt_t_ns, &est_t_ns)
     };
-    // (short index, long index, |dt|) per accepted match; at most one entry
-    // per long index.
-    let mut taken_by: Vec<Option<usize>> = vec![None; long.len()];
-    let mut matches: Vec<Option<(usize, i64)>> = vec![None; short.len()];
-    for (i, &t) in short.iter().enumerate() {
-        let Some((j, dt)) = nearest(long, t, max_dt_ns) else {
-            continue;
-        };
-        match taken_by[j] {
-            Some(k) if matches[k].expect("taken_by points at a match").1 <= dt => continue,
-            Some(k) => matches[k] = None,
-            None => {}
+    // Per pose of the sparser side: (index in the denser side, |dt|).
+    let mut matches: Vec<Option<(usize, i64)>> =
+        short.iter().map(|&t| nearest(long, t, max_dt_ns)).collect();
+    // One-to-one: of the stamps that claim the same pose, the nearest (the
+    // earlier on a tie) keeps it, with any pose that has exactly its stamp.
+    let mut best_claim: Vec<Option<(i64, i64)>> = vec![None; long.len()];
+    for (i, m) in matches.iter().enumerate() {
+        if let Some((j, dt)) = *m {
+            if best_claim[j].map_or(true, |(best_dt, _)| dt < best_dt) {
+                best_claim[j] = Some((dt, short[i]));
+            }
         }
-        taken_by[j] = Some(i);
-        matches[i] = Some((j, dt));
+    }
+    for (i, m) in matches.iter_mut().enumerate() {
+        if let Some((j, _)) = *m {
+            let (_, best_t_ns) = best_claim[j].expect("every claim was recorded");
+            if short[i] != best_t_ns {
+                *m = None;
+            }
+        }
     }
 
     let mut out = MatchedPoses::default();
@@ -188,6 +196,15 @@ mod tests {
         let m = associate(&est, &gt, 10 * MS, 0).expect("matches");
         assert_eq!(m.est_index, vec![1, 2, 3]);
         assert_eq!(m.gt_index, vec![0, 2, 3]);
+    }
+
+    #[test]
+    fn repeated_stamps_share_their_partner() {
+        let gt = traj(&[0, 5 * MS, 10 * MS, 15 * MS, 20 * MS]);
+        let est = traj(&[MS, 11 * MS, 11 * MS, 19 * MS]);
+        let m = associate(&est, &gt, 10 * MS, 0).expect("matches");
+        assert_eq!(m.est_index, vec![0, 1, 2, 3]);
+        assert_eq!(m.gt_index, vec![0, 2, 2, 4]);
     }
 
     #[test]

@@ -148,22 +148,22 @@ pub fn rpe_over_distance(
     let travelled_m = cumulative_path_m(&gt_positions);
     let mut out = RpeOverDistance::default();
     for i in 0..travelled_m.len().saturating_sub(1) {
+        // Distances from i to every later pose, non-decreasing; evo takes
+        // the first index minimising |d - delta|, computed in this order
+        // (subtract, then compare) so that boundary cases round alike.
         let later = &travelled_m[i + 1..];
-        let target_m = travelled_m[i] + delta_m;
-        // `later` is non-decreasing: the closest value is beside the first
-        // one at or past the target; then take its first occurrence.
-        let k = later.partition_point(|&d| d < target_m);
-        let closest = [k.checked_sub(1), (k < later.len()).then_some(k)]
-            .into_iter()
-            .flatten()
-            .min_by(|&a, &b| {
-                (later[a] - target_m)
-                    .abs()
-                    .total_cmp(&(later[b] - target_m).abs())
-                    .then(a.cmp(&b))
-            })
-            .expect("later holds at least one pose");
-        let first = later.partition_point(|&d| d < later[closest]);
+        let off_by = |k: usize| ((later[k] - travelled_m[i]) - delta_m).abs();
+        // The minimum is beside the first distance at or past delta.
+        let k = later.partition_point(|&d| d - travelled_m[i] < delta_m);
+        let mut first = match k.checked_sub(1) {
+            Some(before) if k == later.len() || off_by(before) <= off_by(k) => before,
+            _ => k,
+        };
+        // evo takes the first index with the minimal value: walk back over
+        // a plateau (poses that did not move).
+        while first > 0 && off_by(first - 1) == off_by(first) {
+            first -= 1;
+        }
         let distance_m = later[first] - travelled_m[i];
         if (distance_m - delta_m).abs() > tol_m {
             continue;
