@@ -213,7 +213,7 @@ impl EvalReport {
     /// A short aligned table for people.
     pub fn to_table(&self) -> String {
         let opt = |v: Option<f64>, unit: &str| match v {
-            Some(v) => format!("{v:.6} {unit}"),
+            Some(v) => format!("{v:.6} {unit}").trim_end().to_string(),
             None => "n/a".to_string(),
         };
         let rows: Vec<(&str, String)> = vec![
@@ -240,7 +240,7 @@ impl EvalReport {
             (
                 "RPE per 1 m",
                 format!(
-                    "{} , {}  ({} pairs)",
+                    "{}, {}  ({} pairs)",
                     opt(self.rpe_trans_m_per_m, "m/m"),
                     opt(self.rpe_rot_deg_per_m, "deg/m"),
                     self.rpe_pairs_1m
@@ -249,7 +249,7 @@ impl EvalReport {
             (
                 "RPE per frame",
                 format!(
-                    "{} , {}",
+                    "{}, {}",
                     opt(self.rpe_trans_m_per_frame, "m"),
                     opt(self.rpe_rot_deg_per_frame, "deg")
                 ),
