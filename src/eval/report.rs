@@ -153,10 +153,11 @@ pub fn evaluate(
         .iter()
         .map(|p| p.position())
         .collect();
-    let path_length_m = path_length_m(&true_path);
+    let true_path_m = path_length_m(&true_path);
+    // Both lengths over the matched poses, so that sampling shortens them alike.
     let path_scale = if options.scale_by_path {
-        let est_len = super::metrics::path_length_m(&est_positions);
-        let gt_len = super::metrics::path_length_m(&gt_positions);
+        let est_len = path_length_m(&est_positions);
+        let gt_len = path_length_m(&gt_positions);
         if est_len > 0.0 {
             gt_len / est_len
         } else {
@@ -168,7 +169,7 @@ pub fn evaluate(
     let final_drift_pct = final_drift_pct(
         &matched.T_world_est,
         &matched.T_world_gt,
-        path_length_m,
+        true_path_m,
         path_scale,
     )
     .filter(|d| d.is_finite());
@@ -181,7 +182,7 @@ pub fn evaluate(
         max_dt_ms: options.max_dt_ns as f64 * 1e-6,
         t_offset_s: options.t_offset_ns as f64 * 1e-9,
         duration_s: (matched.t_ns[matched.len() - 1] - matched.t_ns[0]) as f64 * 1e-9,
-        path_length_m,
+        path_length_m: true_path_m,
         ate_rmse_m: ate.rmse,
         ate_mean_m: ate.mean,
         ate_median_m: ate.median,
