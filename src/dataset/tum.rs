@@ -7,26 +7,38 @@ use std::path::Path;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
 use super::error::DatasetError;
-use super::text::{data_lines, parse_fields};
+use super::text::{check_not_decreasing, data_lines, parse_fields, parse_seconds_ns, read_text};
 use crate::trajectory::{StampedPose, Trajectory};
 
-/// Reads a TUM file. Seconds are converted to i64 ns, rounding to the
-/// nearest nanosecond (f64 seconds keep about 0.2 us near 1.4e9 s).
+/// Reads a TUM file. Stamps may repeat but not go back: published
+/// estimates repeat a stamp now and then (evo's V1_02 sample does, 4
+/// times) and evo keeps both poses, so we do too. Stamps are converted from their decimal text to i64
+/// ns exactly (rounding only digits past the nanosecond): going through
+/// f64 would lose about 0.2 us near 1.4e9 s.
 pub fn read_tum(path: &Path) -> Result<Trajectory, DatasetError> {
-    let text = std::fs::read_to_string(path).map_err(|e| DatasetError::io(path, e))?;
+    let text = read_text(path)?;
     let mut poses = Vec::new();
+    let mut stamps = Vec::new();
     for (line_no, line) in data_lines(&text) {
         let f: [f64; 8] = parse_fields(path, line_no, line, ' ')?;
         let q = Quaternion::new(f[7], f[4], f[5], f[6]);
         let orientation = unit_quaternion(path, line_no, q)?;
-        let t_ns = seconds_to_ns(path, line_no, f[0])?;
+        if !f.iter().all(|v| v.is_finite()) {
+            return Err(DatasetError::malformed(path, line_no, "non-finite value"));
+        }
+        let stamp = line
+            .split_whitespace()
+            .next()
+            .expect("8 fields were parsed");
+        let t_ns = seconds_to_ns(path, line_no, stamp)?;
+        stamps.push((line_no, t_ns));
         poses.push(StampedPose::new(
             t_ns,
             Vector3::new(f[1], f[2], f[3]),
             orientation,
         ));
     }
-    check_ordered(path, &poses)?;
+    check_not_decreasing(path, stamps)?;
     Ok(Trajectory::new(poses))
 }
 
@@ -39,11 +51,13 @@ pub fn write_tum(path: &Path, trajectory: &Trajectory) -> Result<(), DatasetErro
     for p in &trajectory.poses {
         let t = p.position();
         let q = p.orientation();
-        let secs = p.t_ns.div_euclid(1_000_000_000);
-        let nanos = p.t_ns.rem_euclid(1_000_000_000);
+        // Sign apart: -0.5 s must print as -0.500000000, not -1.500000000.
+        let sign = if p.t_ns < 0 { "-" } else { "" };
+        let secs = p.t_ns.unsigned_abs() / 1_000_000_000;
+        let nanos = p.t_ns.unsigned_abs() % 1_000_000_000;
         writeln!(
             out,
-            "{secs}.{nanos:09} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9}",
+            "{sign}{secs}.{nanos:09} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9}",
             t.x, t.y, t.z, q.i, q.j, q.k, q.w
         )
         .map_err(io)?;
@@ -68,33 +82,15 @@ pub(crate) fn unit_quaternion(
     Ok(UnitQuaternion::from_quaternion(q))
 }
 
-pub(crate) fn seconds_to_ns(path: &Path, line: usize, t_s: f64) -> Result<i64, DatasetError> {
-    let ns = (t_s * 1e9).round();
-    if !ns.is_finite() || ns.abs() > i64::MAX as f64 {
-        return Err(DatasetError::malformed(
+/// A stamp in decimal seconds as exact nanoseconds.
+pub(crate) fn seconds_to_ns(path: &Path, line: usize, field: &str) -> Result<i64, DatasetError> {
+    parse_seconds_ns(field).ok_or_else(|| {
+        DatasetError::malformed(
             path,
             line,
-            format!("timestamp {t_s} s out of range"),
-        ));
-    }
-    Ok(ns as i64)
-}
-
-/// Poses must move forward in time; evaluation and association depend on it.
-pub(crate) fn check_ordered(path: &Path, poses: &[StampedPose]) -> Result<(), DatasetError> {
-    match poses.windows(2).position(|w| w[1].t_ns <= w[0].t_ns) {
-        Some(i) => Err(DatasetError::malformed(
-            path,
-            0,
-            format!(
-                "timestamps do not increase at pose {} ({} ns after {} ns)",
-                i + 1,
-                poses[i + 1].t_ns,
-                poses[i].t_ns
-            ),
-        )),
-        None => Ok(()),
-    }
+            format!("timestamp {field:?} is not a finite number of seconds in range"),
+        )
+    })
 }
 
 #[cfg(test)]
@@ -107,6 +103,8 @@ mod tests {
         let path = dir.path().join("t.tum");
         let q = UnitQuaternion::from_euler_angles(0.1, -0.2, 0.3);
         let traj = Trajectory::new(vec![
+            StampedPose::new(-1_500_000_001, Vector3::new(0.5, 0.0, 0.0), q),
+            StampedPose::new(-499_999_999, Vector3::new(0.5, 0.0, 0.0), q),
             StampedPose::new(1_403_715_273_262_142_976, Vector3::new(1.0, 2.0, 3.0), q),
             StampedPose::new(
                 1_403_715_273_312_143_104,
@@ -116,10 +114,9 @@ mod tests {
         ]);
         write_tum(&path, &traj).expect("write");
         let back = read_tum(&path).expect("read");
-        assert_eq!(back.len(), 2);
+        assert_eq!(back.len(), 4);
         for (a, b) in traj.poses.iter().zip(&back.poses) {
-            // f64 seconds near 1.4e9 resolve ~0.24 us.
-            assert!((a.t_ns - b.t_ns).abs() < 500);
+            assert_eq!(a.t_ns, b.t_ns);
             assert!((a.position() - b.position()).norm() < 1e-8);
             assert!(a.orientation().angle_to(&b.orientation()) < 1e-8);
         }
@@ -141,10 +138,20 @@ mod tests {
             .to_string()
             .contains("norm"));
         std::fs::write(&path, "2.0 0 0 0 0 0 0 1\n1.0 0 0 0 0 0 0 1\n").expect("write");
-        assert!(read_tum(&path)
-            .expect_err("order")
-            .to_string()
-            .contains("do not increase"));
+        let err = read_tum(&path).expect_err("order").to_string();
+        assert!(
+            err.contains("bad.tum:2: timestamp 1000000000 ns goes back"),
+            "{err}"
+        );
+        // A repeated stamp is kept, as evo keeps it.
+        std::fs::write(
+            &path,
+            "1.0 0 0 0 0 0 0 1\n1.0 1 0 0 0 0 0 1\n2 0 0 0 0 0 0 1\n",
+        )
+        .expect("write");
+        let t = read_tum(&path).expect("repeated stamp");
+        assert_eq!(t.len(), 3);
+        assert_eq!(t.poses[1].position().x, 1.0);
         assert!(read_tum(&dir.path().join("missing.tum"))
             .expect_err("missing")
             .to_string()

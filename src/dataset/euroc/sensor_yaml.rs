@@ -1,0 +1,568 @@
+//! EuRoC / Kalibr `sensor.yaml` files: a camera's pinhole-radtan
+//! intrinsics and `T_BS`, or an IMU's `T_BS`, rate and continuous-time
+//! noise. They begin with OpenCV's `%YAML:1.0` directive, which YAML
+//! parsers reject, so directive lines are dropped before parsing.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use nalgebra::{Isometry3, Matrix3, Matrix4, Rotation3, Translation3, UnitQuaternion};
+use serde_yaml::Value;
+
+use crate::camera::{CameraModel, PinholeRadtan};
+use crate::dataset::error::DatasetError;
+use crate::dataset::text::read_text;
+use crate::rig::{CameraCalibration, ImuCalibration, ImuNoise};
+
+/// How far `R^T R` may be from identity in a file's `T_BS` (EuRoC prints
+/// 12 digits; Kalibr 16).
+const ROTATION_TOLERANCE: f64 = 1e-6;
+
+/// Reads a camera `sensor.yaml`.
+pub fn read_camera_yaml(path: &Path) -> Result<CameraCalibration, DatasetError> {
+    let doc = load(path)?;
+    let f = Fields { path, doc: &doc };
+    let camera_model = f.string("camera_model")?;
+    if camera_model != "pinhole" {
+        return Err(f.bad(
+            "camera_model",
+            format!("{camera_model:?} is not supported (only \"pinhole\")"),
+        ));
+    }
+    let distortion_model = f.string("distortion_model")?;
+    if !matches!(
+        distortion_model.as_str(),
+        "radial-tangential" | "radtan" | "plumb_bob"
+    ) {
+        return Err(f.bad(
+            "distortion_model",
+            format!("{distortion_model:?} is not supported (radial-tangential, radtan)"),
+        ));
+    }
+    let resolution = f.numbers("resolution")?;
+    let (width, height) = match resolution[..] {
+        [w, h] if is_positive_int(w) && is_positive_int(h) => (w as u32, h as u32),
+        _ => {
+            return Err(f.bad(
+                "resolution",
+                format!("expected two positive integers [width, height], found {resolution:?}"),
+            ))
+        }
+    };
+    let intrinsics = f.numbers("intrinsics")?;
+    let [fx, fy, cx, cy] = match intrinsics[..] {
+        [fx, fy, cx, cy] if fx > 0.0 && fy > 0.0 && cx.is_finite() && cy.is_finite() => {
+            [fx, fy, cx, cy]
+        }
+        _ => {
+            return Err(f.bad(
+                "intrinsics",
+                format!("expected [fu, fv, cu, cv] with positive finite focal lengths, found {intrinsics:?}"),
+            ))
+        }
+    };
+    if !fx.is_finite() || !fy.is_finite() {
+        return Err(f.bad("intrinsics", "focal lengths must be finite"));
+    }
+    let coefficients = f.numbers("distortion_coefficients")?;
+    let distortion = match coefficients[..] {
+        [k1, k2, p1, p2] => [k1, k2, p1, p2, 0.0],
+        [k1, k2, p1, p2, k3] => [k1, k2, p1, p2, k3],
+        _ => {
+            return Err(f.bad(
+                "distortion_coefficients",
+                format!(
+                    "expected 4 (k1 k2 p1 p2) or 5 (.. k3) numbers, found {}",
+                    coefficients.len()
+                ),
+            ))
+        }
+    };
+    if !distortion.iter().all(|v| v.is_finite()) {
+        return Err(f.bad("distortion_coefficients", "values must be finite"));
+    }
+    Ok(CameraCalibration {
+        model: CameraModel::PinholeRadtan(PinholeRadtan {
+            width,
+            height,
+            fx,
+            fy,
+            cx,
+            cy,
+            distortion,
+        }),
+        T_body_cam: f.transform("T_BS")?,
+        rate_hz: f.positive("rate_hz")?,
+    })
+}
+
+/// Reads an IMU `sensor.yaml` with Kalibr's noise names.
+pub fn read_imu_yaml(path: &Path) -> Result<ImuCalibration, DatasetError> {
+    let doc = load(path)?;
+    let f = Fields { path, doc: &doc };
+    Ok(ImuCalibration {
+        T_body_imu: f.transform("T_BS")?,
+        rate_hz: f.positive("rate_hz")?,
+        noise: ImuNoise {
+            gyroscope_noise_density: f.positive("gyroscope_noise_density")?,
+            gyroscope_random_walk: f.positive("gyroscope_random_walk")?,
+            accelerometer_noise_density: f.positive("accelerometer_noise_density")?,
+            accelerometer_random_walk: f.positive("accelerometer_random_walk")?,
+        },
+    })
+}
+
+/// A camera `sensor.yaml` in EuRoC's layout. Numbers are printed in their
+/// shortest exact form, so reading the file back gives the same values.
+/// k3 is written only when it is not zero (Kalibr's radtan has four).
+/// `None` for camera models this writer does not know yet.
+pub fn camera_yaml(name: &str, calib: &CameraCalibration) -> Option<String> {
+    #[allow(irrefutable_let_patterns)] // more models are coming
+    let CameraModel::PinholeRadtan(c) = &calib.model
+    else {
+        return None;
+    };
+    let d = c.distortion;
+    let coefficients = if d[4] == 0.0 { &d[..4] } else { &d[..] };
+    let mut s = String::new();
+    s.push_str("%YAML:1.0\n# General sensor definitions.\nsensor_type: camera\n");
+    let _ = writeln!(s, "comment: {name}, written by rigslam\n");
+    s.push_str("# Sensor extrinsics wrt. the body-frame.\n");
+    s.push_str(&transform_yaml("T_BS", &calib.T_body_cam));
+    s.push_str("\n# Camera specific definitions.\n");
+    let _ = writeln!(s, "rate_hz: {}", calib.rate_hz);
+    let _ = writeln!(s, "resolution: [{}, {}]", c.width, c.height);
+    s.push_str("camera_model: pinhole\n");
+    let _ = writeln!(
+        s,
+        "intrinsics: [{}, {}, {}, {}] #fu, fv, cu, cv",
+        c.fx, c.fy, c.cx, c.cy
+    );
+    s.push_str("distortion_model: radial-tangential\n");
+    let _ = writeln!(s, "distortion_coefficients: [{}]", join(coefficients));
+    Some(s)
+}
+
+/// An IMU `sensor.yaml` in EuRoC's layout with Kalibr's noise names.
+pub fn imu_yaml(calib: &ImuCalibration) -> String {
+    let n = &calib.noise;
+    let mut s = String::new();
+    s.push_str("%YAML:1.0\nsensor_type: imu\ncomment: IMU, written by rigslam\n\n");
+    s.push_str("# Sensor extrinsics wrt. the body-frame.\n");
+    s.push_str(&transform_yaml("T_BS", &calib.T_body_imu));
+    let _ = writeln!(s, "rate_hz: {}\n", calib.rate_hz);
+    s.push_str("# inertial sensor noise model parameters (continuous time)\n");
+    let _ = writeln!(
+        s,
+        "gyroscope_noise_density: {}     # [ rad / s / sqrt(Hz) ]",
+        n.gyroscope_noise_density
+    );
+    let _ = writeln!(
+        s,
+        "gyroscope_random_walk: {}       # [ rad / s^2 / sqrt(Hz) ]",
+        n.gyroscope_random_walk
+    );
+    let _ = writeln!(
+        s,
+        "accelerometer_noise_density: {} # [ m / s^2 / sqrt(Hz) ]",
+        n.accelerometer_noise_density
+    );
+    let _ = writeln!(
+        s,
+        "accelerometer_random_walk: {}   # [ m / s^3 / sqrt(Hz) ]",
+        n.accelerometer_random_walk
+    );
+    s
+}
+
+/// The `sensor.yaml` of a ground-truth folder: identity `T_BS`.
+pub fn groundtruth_yaml() -> String {
+    let mut s = String::from(
+        "%YAML:1.0\nsensor_type: visual-inertial\ncomment: ground truth, written by rigslam\n\n",
+    );
+    s.push_str(&transform_yaml("T_BS", &Isometry3::identity()));
+    s
+}
+
+fn transform_yaml(key: &str, t: &Isometry3<f64>) -> String {
+    let m = t.to_homogeneous();
+    let rows: Vec<String> = (0..4)
+        .map(|r| join(&[m[(r, 0)], m[(r, 1)], m[(r, 2)], m[(r, 3)]]))
+        .collect();
+    format!(
+        "{key}:\n  cols: 4\n  rows: 4\n  data: [{},\n         {},\n         {},\n         {}]\n",
+        rows[0], rows[1], rows[2], rows[3]
+    )
+}
+
+fn join(values: &[f64]) -> String {
+    values
+        .iter()
+        .map(|v| v.to_string())
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+fn is_positive_int(v: f64) -> bool {
+    v >= 1.0 && v <= u32::MAX as f64 && v.fract() == 0.0
+}
+
+/// Parses a YAML file after dropping `%` directive lines.
+fn load(path: &Path) -> Result<Value, DatasetError> {
+    let text = read_text(path)?;
+    let body: String = text
+        .lines()
+        .map(|l| if l.starts_with('%') { "" } else { l })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let doc: Value = serde_yaml::from_str(&body).map_err(|e| {
+        let line = e.location().map_or(0, |l| l.line());
+        DatasetError::malformed(path, line, format!("not valid YAML: {e}"))
+    })?;
+    if !doc.is_mapping() {
+        return Err(DatasetError::malformed(path, 1, "expected a YAML mapping"));
+    }
+    Ok(doc)
+}
+
+/// Typed access to a parsed YAML mapping, each error naming the field.
+struct Fields<'a> {
+    path: &'a Path,
+    doc: &'a Value,
+}
+
+impl Fields<'_> {
+    fn bad(&self, field: &str, message: impl Into<String>) -> DatasetError {
+        DatasetError::bad_field(self.path, field, message)
+    }
+
+    fn get(&self, field: &str) -> Result<&Value, DatasetError> {
+        match self.doc.get(field) {
+            Some(v) => Ok(untag(v)),
+            None => Err(self.bad(field, "missing")),
+        }
+    }
+
+    fn string(&self, field: &str) -> Result<String, DatasetError> {
+        self.get(field)?
+            .as_str()
+            .map(str::to_owned)
+            .ok_or_else(|| self.bad(field, "expected a string"))
+    }
+
+    fn number(&self, field: &str) -> Result<f64, DatasetError> {
+        as_number(self.get(field)?).ok_or_else(|| self.bad(field, "expected a number"))
+    }
+
+    fn positive(&self, field: &str) -> Result<f64, DatasetError> {
+        let v = self.number(field)?;
+        if v.is_finite() && v > 0.0 {
+            Ok(v)
+        } else {
+            Err(self.bad(
+                field,
+                format!("expected a positive finite number, found {v}"),
+            ))
+        }
+    }
+
+    fn numbers(&self, field: &str) -> Result<Vec<f64>, DatasetError> {
+        numbers_of(self.get(field)?).ok_or_else(|| self.bad(field, "expected a list of numbers"))
+    }
+
+    /// A 4x4 rigid transform, either `{rows: 4, cols: 4, data: [16]}` or a
+    /// list of 16 numbers or of four rows of four.
+    fn transform(&self, field: &str) -> Result<Isometry3<f64>, DatasetError> {
+        let v = self.get(field)?;
+        let data = match v.get("data") {
+            Some(d) => {
+                for key in ["rows", "cols"] {
+                    if let Some(n) = v.get(key) {
+                        if as_number(untag(n)) != Some(4.0) {
+                            return Err(self.bad(field, format!("`{key}` must be 4")));
+                        }
+                    }
+                }
+                numbers_of(untag(d))
+            }
+            None => numbers_of(v).or_else(|| {
+                let rows = v.as_sequence()?;
+                let mut out = Vec::new();
+                for r in rows {
+                    out.extend(numbers_of(untag(r))?);
+                }
+                Some(out)
+            }),
+        }
+        .ok_or_else(|| self.bad(field, "expected a 4x4 matrix (rows, cols, data)"))?;
+        rigid_from_row_major(&data).map_err(|m| self.bad(field, m))
+    }
+}
+
+/// Checks and converts 16 row-major numbers into a rigid transform.
+pub fn rigid_from_row_major(data: &[f64]) -> Result<Isometry3<f64>, String> {
+    if data.len() != 16 {
+        return Err(format!("expected 16 numbers, found {}", data.len()));
+    }
+    if !data.iter().all(|v| v.is_finite()) {
+        return Err("values must be finite".into());
+    }
+    let m = Matrix4::from_row_slice(data);
+    let last = m.row(3);
+    if (last - nalgebra::RowVector4::new(0.0, 0.0, 0.0, 1.0)).amax() > 1e-9 {
+        return Err(format!("last row must be [0, 0, 0, 1], found {last}"));
+    }
+    let r: Matrix3<f64> = m.fixed_view::<3, 3>(0, 0).into_owned();
+    rigid_from_parts(&r, m[(0, 3)], m[(1, 3)], m[(2, 3)], ROTATION_TOLERANCE)
+}
+
+/// A rotation matrix (checked for orthonormality within `tolerance` and
+/// for handedness, then projected onto SO(3)) and a translation as a
+/// rigid transform.
+pub fn rigid_from_parts(
+    r: &Matrix3<f64>,
+    x: f64,
+    y: f64,
+    z: f64,
+    tolerance: f64,
+) -> Result<Isometry3<f64>, String> {
+    let orthonormality = (r.transpose() * r - Matrix3::identity()).amax();
+    // NaN fails the first test too.
+    if orthonormality.is_nan() || orthonormality > tolerance || r.determinant() <= 0.0 {
+        return Err(format!(
+            "rotation part is not a rotation (|R^T R - I| = {orthonormality:.2e}, det = {:.6})",
+            r.determinant()
+        ));
+    }
+    let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_eps(
+        r,
+        1e-15,
+        100,
+        Rotation3::identity(),
+    ));
+    Ok(Isometry3::from_parts(Translation3::new(x, y, z), rotation))
+}
+
+fn untag(v: &Value) -> &Value {
+    match v {
+        Value::Tagged(t) => untag(&t.value),
+        other => other,
+    }
+}
+
+fn as_number(v: &Value) -> Option<f64> {
+    match untag(v) {
+        Value::Number(n) => n.as_f64(),
+        Value::String(s) => s.trim().parse().ok(),
+        _ => None,
+    }
+}
+
+fn numbers_of(v: &Value) -> Option<Vec<f64>> {
+    untag(v).as_sequence()?.iter().map(as_number).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const EUROC_CAM0: &str = "%YAML:1.0
+# General sensor definitions.
+sensor_type: camera
+comment: VI-Sensor cam0 (MT9M034)
+T_BS:
+  cols: 4
+  rows: 4
+  data: [0.0148655429818, -0.999880929698, 0.00414029679422, -0.0216401454975,
+         0.999557249008, 0.0149672133247, 0.025715529948, -0.064676986768,
+        -0.0257744366974, 0.00375618835797, 0.999660727178, 0.00981073058949,
+         0.0, 0.0, 0.0, 1.0]
+rate_hz: 20
+resolution: [752, 480]
+camera_model: pinhole
+intrinsics: [458.654, 457.296, 367.215, 248.375] #fu, fv, cu, cv
+distortion_model: radial-tangential
+distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
+";
+
+    fn write(dir: &Path, text: &str) -> std::path::PathBuf {
+        let path = dir.join("sensor.yaml");
+        std::fs::write(&path, text).expect("write yaml");
+        path
+    }
+
+    #[test]
+    fn reads_euroc_camera_yaml() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let calib = read_camera_yaml(&write(dir.path(), EUROC_CAM0)).expect("valid yaml");
+        #[allow(irrefutable_let_patterns)] // more models are coming
+        let CameraModel::PinholeRadtan(c) = &calib.model
+        else {
+            panic!("expected a pinhole-radtan camera");
+        };
+        assert_eq!((c.width, c.height), (752, 480));
+        assert_eq!(
+            [c.fx, c.fy, c.cx, c.cy],
+            [458.654, 457.296, 367.215, 248.375]
+        );
+        assert_eq!(
+            c.distortion,
+            [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05, 0.0]
+        );
+        assert_eq!(calib.rate_hz, 20.0);
+        let t = calib.T_body_cam.translation.vector;
+        assert_eq!(
+            [t.x, t.y, t.z],
+            [-0.0216401454975, -0.064676986768, 0.00981073058949]
+        );
+        let r = calib.T_body_cam.rotation.to_rotation_matrix();
+        assert!((r[(1, 0)] - 0.999557249008).abs() < 1e-9);
+        assert!((r[(0, 1)] + 0.999880929698).abs() < 1e-9);
+    }
+
+    #[test]
+    fn camera_yaml_round_trips() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let calib = read_camera_yaml(&write(dir.path(), EUROC_CAM0)).expect("valid yaml");
+        let mut with_k3 = calib.clone();
+        #[allow(irrefutable_let_patterns)] // more models are coming
+        let CameraModel::PinholeRadtan(c) = &mut with_k3.model
+        else {
+            panic!("expected a pinhole-radtan camera");
+        };
+        c.distortion[4] = -0.0123;
+        for original in [calib, with_k3] {
+            let back = read_camera_yaml(&write(
+                dir.path(),
+                &camera_yaml("cam0", &original).expect("radtan"),
+            ))
+            .expect("written yaml reads");
+            assert_eq!(back.model, original.model);
+            assert_eq!(back.rate_hz, original.rate_hz);
+            assert_eq!(back.T_body_cam.translation, original.T_body_cam.translation);
+            assert!(
+                back.T_body_cam
+                    .rotation
+                    .angle_to(&original.T_body_cam.rotation)
+                    < 1e-15
+            );
+        }
+    }
+
+    #[test]
+    fn imu_yaml_round_trips() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let calib = ImuCalibration {
+            T_body_imu: Isometry3::from_parts(
+                Translation3::new(0.01, -0.02, 0.3),
+                UnitQuaternion::from_euler_angles(0.1, 0.2, -0.3),
+            ),
+            rate_hz: 200.0,
+            noise: ImuNoise::EUROC_ADIS16448,
+        };
+        let back = read_imu_yaml(&write(dir.path(), &imu_yaml(&calib))).expect("reads");
+        assert_eq!(back.noise, calib.noise);
+        assert_eq!(back.rate_hz, 200.0);
+        assert!(
+            back.T_body_imu
+                .rotation
+                .angle_to(&calib.T_body_imu.rotation)
+                < 1e-15
+        );
+        assert_eq!(back.T_body_imu.translation, calib.T_body_imu.translation);
+    }
+
+    /// Each broken variant must fail with an error naming the field.
+    #[test]
+    fn bad_fields_are_named() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let cases: [(&str, &str, &str); 12] = [
+            ("resolution: [752, 480]", "resolution: [752]", "resolution"),
+            (
+                "resolution: [752, 480]",
+                "resolution: [752, -480]",
+                "resolution",
+            ),
+            (
+                "resolution: [752, 480]",
+                "resolution: [752.5, 480]",
+                "resolution",
+            ),
+            (
+                "intrinsics: [458.654, 457.296, 367.215, 248.375]",
+                "intrinsics: [458.654, 457.296, 367.215]",
+                "intrinsics",
+            ),
+            (
+                "intrinsics: [458.654, 457.296, 367.215, 248.375]",
+                "intrinsics: [458.654, .nan, 367.215, 1]",
+                "intrinsics",
+            ),
+            (
+                "camera_model: pinhole",
+                "camera_model: omni",
+                "camera_model",
+            ),
+            (
+                "distortion_model: radial-tangential",
+                "distortion_model: equidistant",
+                "distortion_model",
+            ),
+            (", 1.76187114e-05]", "]", "distortion_coefficients"),
+            ("0.0, 0.0, 0.0, 1.0]", "0.0, 0.0, 1.0, 1.0]", "T_BS"),
+            (
+                "0.0148655429818, -0.999880929698",
+                "0.5, -0.999880929698",
+                "T_BS",
+            ),
+            ("0.0, 0.0, 0.0, 1.0]", "0.0, 0.0, 1.0]", "T_BS"),
+            ("rate_hz: 20", "rate_hz: zero", "rate_hz"),
+        ];
+        for (from, to, field) in cases {
+            assert!(EUROC_CAM0.contains(from), "{from}");
+            let path = write(dir.path(), &EUROC_CAM0.replace(from, to));
+            let err = read_camera_yaml(&path).expect_err(to);
+            assert!(
+                matches!(&err, DatasetError::BadField { field: f, .. } if f == field),
+                "{to}: {err}"
+            );
+        }
+        // Missing fields: cut the field's text (for T_BS its whole block).
+        for (field, from, to) in [
+            ("T_BS", "T_BS:", "rate_hz:"),
+            ("rate_hz", "rate_hz:", "resolution:"),
+            ("intrinsics", "intrinsics:", "distortion_model:"),
+            ("resolution", "resolution:", "camera_model:"),
+        ] {
+            let (a, b) = (
+                EUROC_CAM0.find(from).expect("in text"),
+                EUROC_CAM0.find(to).expect("in text"),
+            );
+            let text = format!("{}{}", &EUROC_CAM0[..a], &EUROC_CAM0[b..]);
+            let err = read_camera_yaml(&write(dir.path(), &text)).expect_err(field);
+            assert!(
+                matches!(&err, DatasetError::BadField { field: f, message, .. } if f == field && message == "missing"),
+                "{field}: {err}"
+            );
+        }
+    }
+
+    #[test]
+    fn broken_yaml_is_an_error_not_a_panic() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        for text in [
+            "",
+            "%YAML:1.0\n",
+            "just a string",
+            "T_BS: [1, 2\nrate_hz: 20",
+            &EUROC_CAM0[..EUROC_CAM0.len() / 2],
+            "\u{0}\u{1}\u{2}garbage: [",
+        ] {
+            let path = write(dir.path(), text);
+            assert!(read_camera_yaml(&path).is_err(), "{text:?}");
+            assert!(read_imu_yaml(&path).is_err(), "{text:?}");
+        }
+        std::fs::write(dir.path().join("bin.yaml"), [0xffu8, 0xfe, 0x00, 0x80]).expect("write");
+        assert!(read_camera_yaml(&dir.path().join("bin.yaml")).is_err());
+    }
+}
