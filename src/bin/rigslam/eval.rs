@@ -88,5 +88,5 @@ pub fn run(args: EvalArgs) -> anyhow::Result<()> {
 }
 
 fn load(path: &Path, what: &str) -> anyhow::Result<Trajectory> {
-    rigslam::dataset::read_tum(path).with_context(|| format!("reading the {what}"))
+    rigslam::dataset::read_trajectory_any(path).with_context(|| format!("reading the {what}"))
 }
