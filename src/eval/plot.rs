@@ -7,6 +7,7 @@ use std::path::Path;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
+use super::align::Alignment;
 use super::error::EvalError;
 use super::report::Evaluation;
 
@@ -71,12 +72,13 @@ fn draw_top_view<DB: DrawingBackend>(
     let (x_range, y_range) =
         equal_aspect_ranges(truth.iter().chain(&estimate), area.dim_in_pixel());
     let r = &ev.report;
+    let aligned = match r.align {
+        Alignment::None => "without alignment".to_string(),
+        other => format!("after {} alignment", other.name()),
+    };
     let caption = format!(
-        "Top view after {} alignment: ATE rmse {:.3} m over {:.1} m, {} poses",
-        r.align.name(),
-        r.ate_rmse_m,
-        r.path_length_m,
-        r.matched_poses
+        "Top view {aligned}: ATE rmse {:.3} m over {:.1} m, {} poses",
+        r.ate_rmse_m, r.path_length_m, r.matched_poses
     );
     let mut chart = ChartBuilder::on(area)
         .caption(caption, ("sans-serif", 24))

@@ -2,6 +2,7 @@
 
 use clap::{Parser, Subcommand};
 
+mod demo;
 mod eval;
 mod simulate;
 
@@ -18,6 +19,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Run the main job on a generated sequence: simulate, read back, estimate, score (the README's first command).
+    Demo(demo::DemoArgs),
     /// Score an estimated trajectory against ground truth (ATE, RPE, scale, final drift).
     Eval(eval::EvalArgs),
     /// Render a synthetic EuRoC-layout dataset (images, IMU, ground truth, calibration).
@@ -32,6 +35,7 @@ fn main() -> anyhow::Result<()> {
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {
+        Command::Demo(args) => demo::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Simulate(args) => simulate::run(args),
     }
