@@ -215,6 +215,14 @@ fn euroc_groundtruth_files_read_and_agree() {
     let v1_02 = read_euroc_groundtruth(&gt_dir.join("V1_02_groundtruth.csv")).expect("V1_02");
     assert_eq!(v1_02.len(), 16702);
     assert_eq!(v1_02[0].t_ns, 1403715524907143168);
+    // The IMU csv next to it, given as ground truth, is refused at its
+    // header rather than at its first row.
+    let err = read_euroc_groundtruth(&gt_dir.join("V1_02_imu0.csv")).expect_err("imu csv");
+    assert!(
+        err.to_string()
+            .contains("V1_02_imu0.csv:1: header has 7 columns, as in an IMU csv"),
+        "{err}"
+    );
 
     // read_trajectory_any tells each format from its content.
     let any_csv = read_trajectory_any(&gt_dir.join("V1_01_gt_camrate.csv")).expect("csv");
