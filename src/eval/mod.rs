@@ -1,1 +1,18 @@
 //! Trajectory evaluation: association, alignment, ATE, RPE, drift.
+//!
+//! An estimate is scored in this order: [`associate`] pairs its poses with
+//! ground-truth poses by time; [`align`] fits the requested transformation;
+//! [`metrics`] computes the errors; [`report`] gathers them into the numbers
+//! `rigslam eval` prints; [`plot`] draws them.
+
+pub mod align;
+pub mod associate;
+pub mod error;
+pub mod metrics;
+pub mod plot;
+pub mod report;
+
+pub use align::{Alignment, Sim3};
+pub use associate::{associate, MatchedPoses};
+pub use error::EvalError;
+pub use report::{evaluate, EvalOptions, EvalReport};

@@ -1,1 +1,17 @@
-//! Synthetic sequences: scene, renderer, IMU synthesis, EuRoC output.
+//! Synthetic sequences: scene, renderer, motion, IMU synthesis, EuRoC output.
+//!
+//! The data's way: [`motion`] gives the body's pose and derivatives at any
+//! instant; [`scene`] (with [`texture`]) is the world; [`render`] turns a
+//! camera pose into an image through the real camera model; [`imu_synth`]
+//! turns the motion into IMU samples; [`sequence`] puts them together and
+//! writes a EuRoC ASL dataset ([`simulate`]).
+
+pub mod euroc_rig;
+pub mod imu_synth;
+pub mod motion;
+pub mod render;
+pub mod scene;
+pub mod sequence;
+pub mod texture;
+
+pub use sequence::{simulate, ImuSource, SimConfig, SimError, SimReport};

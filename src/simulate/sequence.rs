@@ -1,0 +1,618 @@
+//! A whole synthetic sequence: motion, room sized to contain it, IMU, and
+//! the EuRoC ASL dataset written through [`crate::dataset::EurocWriter`].
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use nalgebra::Vector3;
+
+use super::euroc_rig::{euroc_cam0, euroc_cam1, euroc_imu0};
+use super::imu_synth::{synthesize, ImuSynthConfig};
+use super::motion::{BuiltinMotion, Motion, MotionError, SplineMotion};
+use super::render::{RenderOptions, Renderer};
+use super::scene::{Aabb, Scene, SceneConfig};
+use super::texture::hash3;
+use crate::dataset::{
+    read_euroc_groundtruth, read_euroc_imu_csv, read_trajectory_any, DatasetError, EurocWriter,
+    GroundTruthState,
+};
+use crate::imu::ImuBiases;
+use crate::rig::{CameraCalibration, ImuNoise};
+use crate::sensors::{Image, ImuSample};
+
+/// Where the IMU samples come from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ImuSource {
+    /// Synthesised from the motion, with noise and bias random walk.
+    Synthetic,
+    /// Copied from a real EuRoC `imu0/data.csv`-style log over the
+    /// trajectory's span; the trajectory must be that log's ground truth.
+    Real(PathBuf),
+}
+
+/// Everything `simulate` needs; [`Default`] is EuRoC's rig on the built-in motion.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimConfig {
+    /// Ground truth to follow (EuRoC csv, TUM, ...); `None` for the built-in motion.
+    pub trajectory: Option<PathBuf>,
+    /// Length of the sequence; `None` = 30 s built-in or the whole file.
+    pub duration_s: Option<f64>,
+    pub imu: ImuSource,
+    pub stereo: bool,
+    pub seed: u64,
+    pub camera_rate_hz: f64,
+    pub imu_rate_hz: f64,
+    pub cam0: CameraCalibration,
+    pub cam1: CameraCalibration,
+    /// Synthetic IMU noise; `None` gives ideal measurements (biases stay at
+    /// their initial values).
+    pub imu_noise: Option<ImuNoise>,
+    pub initial_biases: ImuBiases,
+    pub render: RenderOptions,
+    pub box_count: usize,
+    pub texel_m: f32,
+    /// Knot spacing of the spline fitted to a trajectory file, s.
+    pub knot_spacing_s: f64,
+    /// Progress bar on stderr (shown only when it is a terminal).
+    pub show_progress: bool,
+}
+
+/// Built-in motion starts here (1 s), so no stamp is 0.
+pub const BUILTIN_START_NS: i64 = 1_000_000_000;
+/// Built-in sequence length when none is given, s.
+pub const BUILTIN_DURATION_S: f64 = 30.0;
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        Self {
+            trajectory: None,
+            duration_s: None,
+            imu: ImuSource::Synthetic,
+            stereo: false,
+            seed: 0,
+            camera_rate_hz: 20.0,
+            imu_rate_hz: 200.0,
+            cam0: euroc_cam0(),
+            cam1: euroc_cam1(),
+            imu_noise: Some(ImuNoise::EUROC_ADIS16448),
+            initial_biases: ImuSynthConfig::default().initial_biases,
+            render: RenderOptions::default(),
+            box_count: 12,
+            texel_m: 0.005,
+            knot_spacing_s: 0.05,
+            show_progress: true,
+        }
+    }
+}
+
+/// What was written and how fast.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct SimReport {
+    /// Camera stamps (stereo pairs count once).
+    pub frames: usize,
+    /// Images written (frames times cameras).
+    pub images: usize,
+    pub imu_samples: usize,
+    pub duration_s: f64,
+    pub path_length_m: f64,
+    pub room_size_m: [f64; 3],
+    pub boxes: usize,
+    /// Scene generation (textures) plus ray tables, s.
+    pub setup_s: f64,
+    /// Ray casting only, s.
+    pub render_s: f64,
+    /// Images per second of ray casting alone, wall clock (one thread).
+    pub render_fps: f64,
+    /// Images per second of ray casting per CPU-second of the rendering
+    /// thread (Linux schedstat): the speed on one unloaded core.
+    pub render_cpu_fps: Option<f64>,
+    /// PNG encoding and file writing of the images, s.
+    pub write_s: f64,
+    /// Images per second including PNG encoding and writing.
+    pub render_write_fps: f64,
+    pub total_s: f64,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    #[error(transparent)]
+    Dataset(#[from] DatasetError),
+    #[error("{path}: cannot follow this trajectory: {source}")]
+    Motion {
+        path: PathBuf,
+        #[source]
+        source: MotionError,
+    },
+    #[error("{path}: no IMU samples inside the trajectory's span [{start_ns}, {end_ns}] ns")]
+    NoImuInSpan {
+        path: PathBuf,
+        start_ns: i64,
+        end_ns: i64,
+    },
+    #[error("invalid configuration: {0}")]
+    Config(String),
+}
+
+fn check_config(config: &SimConfig) -> Result<(), SimError> {
+    let positive = |name: &str, v: f64| {
+        if v.is_finite() && v > 0.0 {
+            Ok(())
+        } else {
+            Err(SimError::Config(format!(
+                "{name} must be positive and finite, got {v}"
+            )))
+        }
+    };
+    if let Some(d) = config.duration_s {
+        positive("duration_s", d)?;
+    }
+    positive("camera_rate_hz", config.camera_rate_hz)?;
+    positive("imu_rate_hz", config.imu_rate_hz)?;
+    positive("texel_m", config.texel_m as f64)?;
+    if config.box_count > super::render::MAX_BOXES {
+        return Err(SimError::Config(format!(
+            "box_count must be at most {}, got {}",
+            super::render::MAX_BOXES,
+            config.box_count
+        )));
+    }
+    if matches!(config.imu, ImuSource::Real(_)) && config.trajectory.is_none() {
+        return Err(SimError::Config(
+            "a real IMU log needs its own ground-truth trajectory (--trajectory)".into(),
+        ));
+    }
+    Ok(())
+}
+
+/// The motion to follow, clipped to the requested duration.
+fn build_motion(config: &SimConfig) -> Result<(Motion, i64, i64), SimError> {
+    let motion = match &config.trajectory {
+        None => Motion::Builtin(BuiltinMotion::standard(
+            BUILTIN_START_NS,
+            config.duration_s.unwrap_or(BUILTIN_DURATION_S),
+        )),
+        Some(path) => {
+            let trajectory = read_trajectory_any(path)?;
+            Motion::Spline(
+                SplineMotion::fit(&trajectory, config.knot_spacing_s).map_err(|source| {
+                    SimError::Motion {
+                        path: path.clone(),
+                        source,
+                    }
+                })?,
+            )
+        }
+    };
+    let start_ns = motion.start_ns();
+    let end_ns = match config.duration_s {
+        Some(d) => (start_ns + (d * 1e9).round() as i64).min(motion.end_ns()),
+        None => motion.end_ns(),
+    };
+    Ok((motion, start_ns, end_ns))
+}
+
+/// A room around everything the cameras pass through: the trajectory's
+/// bounding box plus 2 m sideways, 1 m below and 1.2 m above, at least
+/// 6 x 6 x 3 m; boxes keep 0.5 m away from the trajectory.
+fn room_around(
+    motion: &Motion,
+    start_ns: i64,
+    end_ns: i64,
+    cams: &[&CameraCalibration],
+) -> (Aabb, Aabb) {
+    let mut lo = Vector3::repeat(f64::INFINITY);
+    let mut hi = Vector3::repeat(f64::NEG_INFINITY);
+    let step_ns = 10_000_000;
+    let mut t = start_ns;
+    while t <= end_ns + step_ns {
+        let pose = motion.state(t.min(end_ns)).T_world_body;
+        for p in std::iter::once(pose.translation.vector).chain(
+            cams.iter()
+                .map(|c| (pose * c.T_body_cam).translation.vector),
+        ) {
+            lo = lo.inf(&p);
+            hi = hi.sup(&p);
+        }
+        t += step_ns;
+    }
+    let mut room_lo = lo - Vector3::new(2.0, 2.0, 1.0);
+    let mut room_hi = hi + Vector3::new(2.0, 2.0, 1.2);
+    for (a, min_size) in [6.0, 6.0, 3.0].into_iter().enumerate() {
+        let grow = (min_size - (room_hi[a] - room_lo[a])).max(0.0) / 2.0;
+        room_lo[a] -= grow;
+        room_hi[a] += grow;
+    }
+    let f = |v: Vector3<f64>| [v.x as f32, v.y as f32, v.z as f32];
+    let keep = Aabb::new(f(lo), f(hi)).expanded(0.5);
+    (Aabb::new(f(room_lo), f(room_hi)), keep)
+}
+
+/// IMU samples and the true bias at each.
+fn imu_stream(
+    config: &SimConfig,
+    motion: &Motion,
+    start_ns: i64,
+    end_ns: i64,
+) -> Result<(Vec<ImuSample>, Vec<ImuBiases>), SimError> {
+    match &config.imu {
+        ImuSource::Synthetic => {
+            let imu = synthesize(
+                motion,
+                start_ns,
+                end_ns,
+                &ImuSynthConfig {
+                    rate_hz: config.imu_rate_hz,
+                    noise: config.imu_noise,
+                    initial_biases: config.initial_biases,
+                    seed: hash3(config.seed, 0x1A1, 0xB1A5),
+                },
+            );
+            Ok((imu.samples, imu.biases))
+        }
+        ImuSource::Real(path) => {
+            let samples: Vec<ImuSample> = read_euroc_imu_csv(path)?
+                .samples
+                .into_iter()
+                .filter(|s| (start_ns..=end_ns).contains(&s.t_ns))
+                .collect();
+            if samples.is_empty() {
+                return Err(SimError::NoImuInSpan {
+                    path: path.clone(),
+                    start_ns,
+                    end_ns,
+                });
+            }
+            // Biases from the ground truth when it carries them (EuRoC csv),
+            // at the nearest earlier ground-truth stamp; zero otherwise.
+            let gt_path = config.trajectory.as_ref().expect("checked in check_config");
+            let gt = match read_euroc_groundtruth(gt_path) {
+                Ok(gt) => gt,
+                Err(e) => {
+                    tracing::warn!(
+                        "{}: no biases in the ground truth ({e}); recording zero biases",
+                        gt_path.display()
+                    );
+                    Vec::new()
+                }
+            };
+            let biases = samples
+                .iter()
+                .map(|s| {
+                    let k = gt.partition_point(|g| g.t_ns <= s.t_ns);
+                    gt.get(k.saturating_sub(1))
+                        .map_or(ImuBiases::default(), |g| ImuBiases {
+                            gyro_rad_s: g.gyro_bias_rad_s,
+                            accel_m_s2: g.accel_bias_m_s2,
+                        })
+                })
+                .collect();
+            Ok((samples, biases))
+        }
+    }
+}
+
+/// CPU time of the calling thread, s, from `/proc/thread-self/schedstat`
+/// (its first field is ns on CPU); `None` where that file does not exist.
+fn thread_cpu_s() -> Option<f64> {
+    let text = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    let ns: u64 = text.split_whitespace().next()?.parse().ok()?;
+    Some(ns as f64 * 1e-9)
+}
+
+/// Renders and writes the dataset `config` describes under `out` (which
+/// then holds `mav0/`).
+pub fn simulate(config: &SimConfig, out: &Path) -> Result<SimReport, SimError> {
+    let started = Instant::now();
+    check_config(config)?;
+    let (motion, start_ns, end_ns) = build_motion(config)?;
+    let mut cams = vec![&config.cam0];
+    if config.stereo {
+        cams.push(&config.cam1);
+    }
+    let (room, keep_clear) = room_around(&motion, start_ns, end_ns, &cams);
+    let scene = Scene::generate(&SceneConfig {
+        seed: config.seed,
+        room,
+        keep_clear,
+        box_count: config.box_count,
+        texel_m: config.texel_m,
+    });
+    let renderers: Vec<Renderer> = cams
+        .iter()
+        .map(|c| Renderer::new(&c.model, config.render))
+        .collect();
+    let setup_s = started.elapsed().as_secs_f64();
+
+    let mut writer = EurocWriter::create(out)?;
+    for (k, cam) in cams.iter().enumerate() {
+        let mut calib = (*cam).clone();
+        calib.rate_hz = config.camera_rate_hz;
+        writer.write_camera(&format!("cam{k}"), &calib)?;
+    }
+
+    let period_ns = (1e9 / config.camera_rate_hz).round() as i64;
+    let frames = ((end_ns - start_ns) / period_ns + 1) as usize;
+    let progress = if config.show_progress && std::io::stderr().is_terminal() {
+        indicatif::ProgressBar::new(frames as u64).with_style(
+            indicatif::ProgressStyle::with_template(
+                "{msg} {bar:40} {pos}/{len} frames, {per_sec}, eta {eta}",
+            )
+            .expect("template is valid"),
+        )
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    progress.set_message("rendering");
+    let (width, height) = (renderers[0].width(), renderers[0].height());
+    let mut buffer = vec![0u8; width * height];
+    let (mut render_s, mut write_s) = (0.0, 0.0);
+    let mut render_cpu_s = Some(0.0);
+    for frame in 0..frames {
+        let t_ns = start_ns + frame as i64 * period_ns;
+        let pose = motion.state(t_ns).T_world_body;
+        for (k, (cam, renderer)) in cams.iter().zip(&renderers).enumerate() {
+            if buffer.len() != renderer.width() * renderer.height() {
+                buffer.resize(renderer.width() * renderer.height(), 0);
+            }
+            let cpu0 = thread_cpu_s();
+            let t0 = Instant::now();
+            let noise_seed = hash3(frame as u64, k as u64, config.seed);
+            renderer.render_into(&scene, &(pose * cam.T_body_cam), noise_seed, &mut buffer);
+            let t1 = Instant::now();
+            render_cpu_s = match (render_cpu_s, cpu0, thread_cpu_s()) {
+                (Some(total), Some(a), Some(b)) => Some(total + (b - a)),
+                _ => None,
+            };
+            let image = Image::mono8(
+                renderer.width() as u32,
+                renderer.height() as u32,
+                buffer.clone(),
+            )
+            .expect("buffer matches the renderer's size");
+            writer.add_image(&format!("cam{k}"), t_ns, &image)?;
+            render_s += (t1 - t0).as_secs_f64();
+            write_s += t1.elapsed().as_secs_f64();
+        }
+        progress.inc(1);
+    }
+    progress.finish_and_clear();
+
+    let (samples, biases) = imu_stream(config, &motion, start_ns, end_ns)?;
+    let mut imu_calib = euroc_imu0();
+    imu_calib.rate_hz = config.imu_rate_hz;
+    if let Some(noise) = config.imu_noise {
+        imu_calib.noise = noise;
+    }
+    writer.write_imu(&imu_calib, &samples)?;
+    let groundtruth: Vec<GroundTruthState> = samples
+        .iter()
+        .zip(&biases)
+        .map(|(s, b)| {
+            let state = motion.state(s.t_ns);
+            GroundTruthState {
+                t_ns: s.t_ns,
+                T_world_body: state.T_world_body,
+                velocity_m_s: state.velocity_world_m_s,
+                gyro_bias_rad_s: b.gyro_rad_s,
+                accel_bias_m_s2: b.accel_m_s2,
+            }
+        })
+        .collect();
+    let path_length_m: f64 = groundtruth
+        .windows(2)
+        .map(|w| {
+            (w[1].T_world_body.translation.vector - w[0].T_world_body.translation.vector).norm()
+        })
+        .sum();
+    writer.write_groundtruth(&groundtruth)?;
+    writer.finish()?;
+
+    let images = frames * cams.len();
+    let size = |a: usize| (room.max_m[a] - room.min_m[a]) as f64;
+    Ok(SimReport {
+        frames,
+        images,
+        imu_samples: samples.len(),
+        duration_s: (end_ns - start_ns) as f64 * 1e-9,
+        path_length_m,
+        room_size_m: [size(0), size(1), size(2)],
+        boxes: scene.boxes.len(),
+        setup_s,
+        render_s,
+        render_fps: images as f64 / render_s.max(1e-12),
+        render_cpu_fps: render_cpu_s.map(|s| images as f64 / s.max(1e-12)),
+        write_s,
+        render_write_fps: images as f64 / (render_s + write_s).max(1e-12),
+        total_s: started.elapsed().as_secs_f64(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::dataset::EurocDataset;
+
+    /// `../shared/data`, or `$RIGSLAM_SHARED_DATA` when set (git worktrees
+    /// do not sit beside `shared/`). `None` (skip) when missing, unless
+    /// `CI` is set: there a missing data folder fails the test.
+    fn data_dir() -> Option<PathBuf> {
+        let dir = std::env::var_os("RIGSLAM_SHARED_DATA")
+            .map(PathBuf::from)
+            .unwrap_or_else(|| {
+                PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data"))
+            });
+        if dir.is_dir() {
+            return Some(dir);
+        }
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "CI is set but the shared data folder {} is missing",
+            dir.display()
+        );
+        eprintln!("skipping: {} is missing", dir.display());
+        None
+    }
+
+    fn quick(seed: u64, duration_s: f64, stereo: bool) -> SimConfig {
+        SimConfig {
+            duration_s: Some(duration_s),
+            stereo,
+            seed,
+            show_progress: false,
+            // Coarser texels keep scene generation quick in tests.
+            texel_m: 0.01,
+            ..SimConfig::default()
+        }
+    }
+
+    /// Every file under `dir` with its bytes, sorted by path.
+    fn files(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+        let mut out = Vec::new();
+        let mut stack = vec![dir.to_path_buf()];
+        while let Some(d) = stack.pop() {
+            for entry in std::fs::read_dir(&d).unwrap() {
+                let p = entry.unwrap().path();
+                if p.is_dir() {
+                    stack.push(p);
+                } else {
+                    let bytes = std::fs::read(&p).unwrap();
+                    out.push((p.strip_prefix(dir).unwrap().to_path_buf(), bytes));
+                }
+            }
+        }
+        out.sort();
+        out
+    }
+
+    #[test]
+    fn dataset_reads_back_through_the_euroc_reader() {
+        let dir = tempfile::tempdir().unwrap();
+        let config = quick(3, 2.0, true);
+        let report = simulate(&config, dir.path()).unwrap();
+        assert_eq!(report.frames, 41);
+        assert_eq!(report.images, 82);
+        assert_eq!(report.imu_samples, 401);
+        let ds = EurocDataset::open(dir.path()).unwrap();
+        assert_eq!(ds.cameras.len(), 2);
+        for cam in &ds.cameras {
+            assert_eq!(cam.frames.len(), 41);
+            assert_eq!(cam.missing_images(), 0);
+            let frame = cam.load(40).unwrap().expect("image present");
+            assert_eq!((frame.image.width(), frame.image.height()), (752, 480));
+            assert_eq!(frame.t_ns, BUILTIN_START_NS + 2_000_000_000);
+        }
+        assert_eq!(ds.cameras[0].calibration.model, config.cam0.model);
+        let t_err = (ds.cameras[1].calibration.T_body_cam.translation.vector
+            - config.cam1.T_body_cam.translation.vector)
+            .norm();
+        assert!(t_err < 1e-9);
+        let imu = ds.imu.expect("imu0 written");
+        assert_eq!(imu.samples.len(), 401);
+        assert_eq!(imu.calibration.noise, ImuNoise::EUROC_ADIS16448);
+        let gt = ds.groundtruth.expect("ground truth written");
+        assert_eq!(gt.len(), 401);
+        // Ground truth is the motion the images were rendered along.
+        let motion = Motion::Builtin(BuiltinMotion::standard(BUILTIN_START_NS, 2.0));
+        for g in gt.iter().step_by(37) {
+            let truth = motion.state(g.t_ns);
+            assert!(
+                (g.T_world_body.translation.vector - truth.T_world_body.translation.vector).norm()
+                    < 1e-6
+            );
+            assert!(
+                g.T_world_body
+                    .rotation
+                    .angle_to(&truth.T_world_body.rotation)
+                    < 1e-6
+            );
+            assert!((g.velocity_m_s - truth.velocity_world_m_s).norm() < 1e-6);
+        }
+        assert!((gt[0].gyro_bias_rad_s - config.initial_biases.gyro_rad_s).norm() < 1e-9);
+        // The biases walk.
+        assert!(gt[400].accel_bias_m_s2 != gt[0].accel_bias_m_s2);
+    }
+
+    #[test]
+    fn same_seed_gives_identical_files_other_seed_differs() {
+        let dirs: Vec<_> = (0..3).map(|_| tempfile::tempdir().unwrap()).collect();
+        for (dir, seed) in dirs.iter().zip([7, 7, 8]) {
+            simulate(&quick(seed, 0.5, false), dir.path()).unwrap();
+        }
+        let [a, b, c] = [0, 1, 2].map(|k| files(dirs[k].path()));
+        assert!(a.len() > 10);
+        assert!(a == b, "same seed, different bytes");
+        let imu = |f: &[(PathBuf, Vec<u8>)]| {
+            f.iter()
+                .find(|(p, _)| p.ends_with("imu0/data.csv"))
+                .expect("imu csv")
+                .1
+                .clone()
+        };
+        assert_ne!(imu(&a), imu(&c));
+        let pngs_equal = a
+            .iter()
+            .zip(&c)
+            .filter(|((p, x), (_, y))| p.extension().is_some_and(|e| e == "png") && x == y)
+            .count();
+        assert_eq!(pngs_equal, 0, "a different seed must change every image");
+    }
+
+    #[test]
+    fn real_imu_is_copied_with_ground_truth_biases() {
+        let Some(data) = data_dir() else { return };
+        let gt_path = data.join("euroc/ground_truth/V1_02_groundtruth.csv");
+        let imu_path = data.join("euroc/ground_truth/V1_02_imu0.csv");
+        let dir = tempfile::tempdir().unwrap();
+        let config = SimConfig {
+            trajectory: Some(gt_path.clone()),
+            imu: ImuSource::Real(imu_path.clone()),
+            ..quick(1, 1.0, false)
+        };
+        let report = simulate(&config, dir.path()).unwrap();
+        assert_eq!(report.frames, 21);
+        let ds = EurocDataset::open(dir.path()).unwrap();
+        let written = ds.imu.unwrap().samples;
+        let real = read_euroc_imu_csv(&imu_path).unwrap().samples;
+        let first = real
+            .iter()
+            .position(|s| s.t_ns == written[0].t_ns)
+            .expect("a real stamp");
+        assert_eq!(&real[first..first + written.len()], &written[..]);
+        assert!((195..=201).contains(&written.len()), "{}", written.len());
+        let truth = read_euroc_groundtruth(&gt_path).unwrap();
+        let gt = ds.groundtruth.unwrap();
+        for g in gt.iter().step_by(50) {
+            let k = truth.partition_point(|s| s.t_ns <= g.t_ns) - 1;
+            assert_eq!(g.gyro_bias_rad_s, truth[k].gyro_bias_rad_s);
+            // The spline follows the recorded positions to within a few mm.
+            let near = truth[k].T_world_body.translation.vector;
+            assert!((g.T_world_body.translation.vector - near).norm() < 0.01);
+        }
+    }
+
+    #[test]
+    fn bad_configuration_is_a_typed_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let real_without_gt = SimConfig {
+            imu: ImuSource::Real(PathBuf::from("imu.csv")),
+            ..quick(0, 1.0, false)
+        };
+        assert!(matches!(
+            simulate(&real_without_gt, dir.path()),
+            Err(SimError::Config(_))
+        ));
+        assert!(matches!(
+            simulate(&quick(0, -1.0, false), dir.path()),
+            Err(SimError::Config(_))
+        ));
+        let missing = SimConfig {
+            trajectory: Some(dir.path().join("nope.csv")),
+            ..quick(0, 1.0, false)
+        };
+        assert!(matches!(
+            simulate(&missing, dir.path()),
+            Err(SimError::Dataset(_))
+        ));
+    }
+}
