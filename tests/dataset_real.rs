@@ -240,6 +240,7 @@ fn euroc_groundtruth_files_read_and_agree() {
         .filter(|w| w[0].t_ns == w[1].t_ns)
         .count();
     assert_eq!(repeats, 4);
+    assert!(est.is_non_decreasing() && !est.is_time_ordered());
     assert_eq!(est.poses[431].t_ns, 1_403_715_572_212_143_183);
 
     // The 200 Hz file writes x, y, z, w: read as TUM it must describe the
