@@ -30,7 +30,12 @@ impl StampedPose {
     }
 }
 
-/// Poses in increasing time order.
+/// Poses in time order. Stamps never decrease but may repeat: TUM
+/// estimates repeat one now and then and the readers keep both poses, as
+/// evo does (see [`crate::dataset::read_tum`]). EuRoC ground truth and
+/// what the pipeline writes strictly increase; code that divides by the
+/// time between neighbours (interpolation, spline fitting) checks
+/// [`Self::is_time_ordered`].
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Trajectory {
     pub poses: Vec<StampedPose>,
@@ -53,9 +58,15 @@ impl Trajectory {
             .map(|w| (w[1].position() - w[0].position()).norm())
             .sum()
     }
-    /// True when stamps strictly increase.
+    /// True when stamps strictly increase: no two poses share a stamp,
+    /// so every gap between neighbours is positive.
     pub fn is_time_ordered(&self) -> bool {
         self.poses.windows(2).all(|w| w[0].t_ns < w[1].t_ns)
+    }
+    /// True when stamps never go back; repeats allowed. This is what every
+    /// reader guarantees.
+    pub fn is_non_decreasing(&self) -> bool {
+        self.poses.windows(2).all(|w| w[0].t_ns <= w[1].t_ns)
     }
 }
 
@@ -72,6 +83,27 @@ mod tests {
             StampedPose::new(2, Vector3::new(3.0, 4.0, 2.0), q),
         ]);
         assert!((t.path_length_m() - 7.0).abs() < 1e-12);
-        assert!(t.is_time_ordered());
+    }
+
+    #[test]
+    fn strict_and_non_decreasing_order_differ_on_repeats() {
+        let q = UnitQuaternion::identity();
+        let at = |stamps: &[i64]| {
+            Trajectory::new(
+                stamps
+                    .iter()
+                    .map(|&t_ns| StampedPose::new(t_ns, Vector3::zeros(), q))
+                    .collect(),
+            )
+        };
+        let increasing = at(&[0, 1, 2]);
+        assert!(increasing.is_time_ordered() && increasing.is_non_decreasing());
+        let repeated = at(&[0, 1, 1, 2]);
+        assert!(!repeated.is_time_ordered() && repeated.is_non_decreasing());
+        let backwards = at(&[0, 2, 1]);
+        assert!(!backwards.is_time_ordered() && !backwards.is_non_decreasing());
+        for trivial in [at(&[]), at(&[5])] {
+            assert!(trivial.is_time_ordered() && trivial.is_non_decreasing());
+        }
     }
 }

@@ -215,6 +215,14 @@ fn euroc_groundtruth_files_read_and_agree() {
     let v1_02 = read_euroc_groundtruth(&gt_dir.join("V1_02_groundtruth.csv")).expect("V1_02");
     assert_eq!(v1_02.len(), 16702);
     assert_eq!(v1_02[0].t_ns, 1403715524907143168);
+    // The IMU csv next to it, given as ground truth, is refused at its
+    // header rather than at its first row.
+    let err = read_euroc_groundtruth(&gt_dir.join("V1_02_imu0.csv")).expect_err("imu csv");
+    assert!(
+        err.to_string()
+            .contains("V1_02_imu0.csv:1: header has 7 columns, as in an IMU csv"),
+        "{err}"
+    );
 
     // read_trajectory_any tells each format from its content.
     let any_csv = read_trajectory_any(&gt_dir.join("V1_01_gt_camrate.csv")).expect("csv");
@@ -232,6 +240,7 @@ fn euroc_groundtruth_files_read_and_agree() {
         .filter(|w| w[0].t_ns == w[1].t_ns)
         .count();
     assert_eq!(repeats, 4);
+    assert!(est.is_non_decreasing() && !est.is_time_ordered());
     assert_eq!(est.poses[431].t_ns, 1_403_715_572_212_143_183);
 
     // The 200 Hz file writes x, y, z, w: read as TUM it must describe the

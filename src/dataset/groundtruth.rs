@@ -8,7 +8,7 @@ use std::path::Path;
 use nalgebra::{Isometry3, Quaternion, Translation3, Vector3};
 
 use super::error::DatasetError;
-use super::text::{check_increasing, data_lines, parse_stamped_row, read_text};
+use super::text::{check_euroc_header, check_increasing, data_lines, parse_stamped_row, read_text};
 use super::tum::unit_quaternion;
 use crate::trajectory::{StampedPose, Trajectory};
 
@@ -47,9 +47,17 @@ pub fn groundtruth_trajectory(states: &[GroundTruthState]) -> Trajectory {
     Trajectory::new(states.iter().map(GroundTruthState::pose).collect())
 }
 
-/// Reads a 17-column EuRoC ground-truth CSV. Stamps must increase.
+/// Reads a 17-column EuRoC ground-truth CSV. Stamps must increase. A `#`
+/// header, when there is one, must have 17 columns.
 pub fn read_euroc_groundtruth(path: &Path) -> Result<Vec<GroundTruthState>, DatasetError> {
     let text = read_text(path)?;
+    check_euroc_header(
+        path,
+        &text,
+        &[17],
+        "17 columns (t_ns, p xyz, q wxyz, v xyz, gyro bias xyz, accel bias xyz) \
+         for EuRoC ground truth",
+    )?;
     let mut states = Vec::new();
     let mut stamps = Vec::new();
     for (line_no, line) in data_lines(&text) {
@@ -74,9 +82,16 @@ pub fn read_euroc_groundtruth(path: &Path) -> Result<Vec<GroundTruthState>, Data
 
 /// Reads the poses of a EuRoC-style CSV: the 17-column ground truth or
 /// the 8-column `t[ns], p xyz, q wxyz` that some tools write. Every row
-/// must have the first row's column count.
+/// must have the first row's column count; a `#` header, when there is
+/// one, must have 17 or 8 columns.
 pub fn read_euroc_trajectory(path: &Path) -> Result<Trajectory, DatasetError> {
     let text = read_text(path)?;
+    check_euroc_header(
+        path,
+        &text,
+        &[17, 8],
+        "17 (ground truth) or 8 (t_ns, p xyz, q wxyz) columns for a EuRoC trajectory",
+    )?;
     let columns = data_lines(&text)
         .next()
         .map(|(_, l)| l.split(',').count())
@@ -204,10 +219,18 @@ mod tests {
         // q = (w 0, z 1): a half turn about z.
         let r = t.poses[1].orientation() * Vector3::x();
         assert!((r - Vector3::new(-1.0, 0.0, 0.0)).norm() < 1e-15);
-        // 17-column reader refuses the 8-column file, naming the line.
+        // The 17-column reader refuses the 8-column file at its header...
         let err = read_euroc_groundtruth(&path).expect_err("8 columns");
         assert!(
-            err.to_string().contains("est.csv:2: expected 17 fields"),
+            err.to_string()
+                .contains("est.csv:1: header has 8 columns, as in a pose csv"),
+            "{err}"
+        );
+        // ... or, without one, at its first row.
+        std::fs::write(&path, "10,1,2,3,1,0,0,0\n").expect("write");
+        let err = read_euroc_groundtruth(&path).expect_err("8 columns");
+        assert!(
+            err.to_string().contains("est.csv:1: expected 17 fields"),
             "{err}"
         );
     }
@@ -248,8 +271,27 @@ mod tests {
             "#timestamp [ns],w_x,w_y,w_z,a_x,a_y,a_z\n1,0,0,0,0,0,9.8\n",
         )
         .expect("write");
-        let err = read_euroc_trajectory(&path).expect_err("imu file");
-        assert!(err.to_string().contains("17 (ground truth) or 8"), "{err}");
+        for err in [
+            read_euroc_trajectory(&path).expect_err("imu file"),
+            read_euroc_groundtruth(&path)
+                .map(|_| ())
+                .expect_err("imu file"),
+        ] {
+            let message = err.to_string();
+            assert!(
+                message.contains("gt.csv:1: header has 7 columns, as in an IMU csv"),
+                "{message}"
+            );
+            assert!(message.contains("; expected 17 "), "{message}");
+        }
+        // The same rows without a header still fail, at their first row.
+        std::fs::write(&path, "1,0,0,0,0,0,9.8\n").expect("write");
+        let err = read_euroc_trajectory(&path).expect_err("imu rows");
+        assert!(
+            err.to_string()
+                .contains("gt.csv:1: expected 17 (ground truth) or 8"),
+            "{err}"
+        );
 
         // Garbage bytes.
         std::fs::write(&path, [0x89u8, b'P', b'N', b'G', 0, 0xff, b'\n', 3]).expect("write");

@@ -136,6 +136,49 @@ pub fn check_not_decreasing(
     Ok(())
 }
 
+/// EuRoC's CSVs by column count, to say what a misplaced file looks like.
+const EUROC_CSV_KINDS: [(usize, &str); 4] = [
+    (2, "a camera's data.csv (t, filename)"),
+    (7, "an IMU csv (t, gyro xyz, accel xyz)"),
+    (8, "a pose csv (t, p xyz, q wxyz)"),
+    (17, "a ground-truth csv (t, p, q, v, gyro and accel biases)"),
+];
+
+/// Checks the column count of a `#` header on line 1 of a EuRoC CSV, so a
+/// file given in place of another (an IMU csv as ground truth) is refused
+/// at line 1 saying what was `expected`, rather than at line 2 with a bare
+/// field count. Files without a header pass, and so does a `#` line
+/// without a comma: free text, not a column list.
+pub fn check_euroc_header(
+    path: &Path,
+    text: &str,
+    expected_columns: &[usize],
+    expected: &str,
+) -> Result<(), DatasetError> {
+    let Some(first) = text.lines().next() else {
+        return Ok(());
+    };
+    let Some(header) = first.trim().strip_prefix('#') else {
+        return Ok(());
+    };
+    if !header.contains(',') {
+        return Ok(());
+    }
+    let columns = header.split(',').count();
+    if expected_columns.contains(&columns) {
+        return Ok(());
+    }
+    let looks_like = EUROC_CSV_KINDS
+        .iter()
+        .find(|(n, _)| *n == columns)
+        .map_or(String::new(), |(_, kind)| format!(", as in {kind}"));
+    Err(DatasetError::malformed(
+        path,
+        1,
+        format!("header has {columns} columns{looks_like}; expected {expected}"),
+    ))
+}
+
 /// Reads a whole text file, naming it in the error.
 pub fn read_text(path: &Path) -> Result<String, DatasetError> {
     let bytes = std::fs::read(path).map_err(|e| DatasetError::io(path, e))?;
@@ -251,6 +294,31 @@ mod tests {
         std::fs::write(&path, b"1,2\n3,4\n\xff\xfe\x00garbage").expect("write");
         let err = read_text(&path).expect_err("garbage");
         assert!(err.to_string().contains("bin.csv:3: not UTF-8"), "{err}");
+    }
+
+    #[test]
+    fn euroc_header_column_count_is_checked() {
+        let p = Path::new("gt.csv");
+        let check = |text: &str| check_euroc_header(p, text, &[17, 8], "17 or 8 columns");
+        // No header, a matching one (with a Windows line end), free text.
+        assert!(check("1,2,3\n").is_ok());
+        assert!(check("").is_ok());
+        assert!(check("#t,x,y,z,qw,qx,qy,qz\r\n1,0,0,0,1,0,0,0\n").is_ok());
+        assert!(check("# written by a logger\n1,2\n").is_ok());
+        // A header on line 2 is not line 1's: data rows report it.
+        assert!(check("1,2\n#a,b\n").is_ok());
+        let err = check("#timestamp [ns],w_x,w_y,w_z,a_x,a_y,a_z\n1,0,0,0,0,0,9.8\n")
+            .expect_err("imu header");
+        assert_eq!(
+            err.to_string(),
+            "gt.csv:1: header has 7 columns, as in an IMU csv (t, gyro xyz, accel xyz); \
+             expected 17 or 8 columns"
+        );
+        let err = check("#a,b,c\n").expect_err("unknown kind");
+        assert_eq!(
+            err.to_string(),
+            "gt.csv:1: header has 3 columns; expected 17 or 8 columns"
+        );
     }
 
     #[test]

@@ -4,7 +4,9 @@ use std::io::Write;
 use std::path::Path;
 
 use crate::dataset::error::DatasetError;
-use crate::dataset::text::{check_increasing, data_lines, parse_stamped_row, read_text};
+use crate::dataset::text::{
+    check_euroc_header, check_increasing, data_lines, parse_stamped_row, read_text,
+};
 use crate::sensors::ImuSample;
 
 /// EuRoC's IMU column header.
@@ -24,9 +26,16 @@ pub struct ImuCsv {
 }
 
 /// Reads an IMU CSV. Rows with the wrong field count or non-numbers are
-/// errors naming the line; stamps must increase.
+/// errors naming the line; stamps must increase. A `#` header, when
+/// there is one, must have 7 columns.
 pub fn read_euroc_imu_csv(path: &Path) -> Result<ImuCsv, DatasetError> {
     let text = read_text(path)?;
+    check_euroc_header(
+        path,
+        &text,
+        &[7],
+        "7 columns (t_ns, gyro xyz, accel xyz) for an IMU csv",
+    )?;
     let mut out = ImuCsv::default();
     let mut stamps = Vec::new();
     for (line_no, line) in data_lines(&text) {

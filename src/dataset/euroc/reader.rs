@@ -9,7 +9,9 @@ use super::{camera_number, GROUNDTRUTH_DIR, IMU_DIR};
 use crate::dataset::error::DatasetError;
 use crate::dataset::groundtruth::{read_euroc_groundtruth, GroundTruthState};
 use crate::dataset::image_file::read_png;
-use crate::dataset::text::{check_increasing, data_lines, parse_stamp_ns, read_text};
+use crate::dataset::text::{
+    check_euroc_header, check_increasing, data_lines, parse_stamp_ns, read_text,
+};
 use crate::rig::{CameraCalibration, ImuCalibration};
 use crate::sensors::{Frame, ImuSample};
 
@@ -169,6 +171,12 @@ fn camera_dirs(root: &Path) -> Result<Vec<(u8, PathBuf)>, DatasetError> {
 fn read_camera(dir: &Path, number: u8) -> Result<EurocCamera, DatasetError> {
     let csv_path = dir.join("data.csv");
     let text = read_text(&csv_path)?;
+    check_euroc_header(
+        &csv_path,
+        &text,
+        &[2],
+        "2 columns (t_ns, filename) for a camera's data.csv",
+    )?;
     let image_dir = dir.join("data");
     let mut frames = Vec::new();
     let mut stamps = Vec::new();
@@ -426,6 +434,22 @@ mod tests {
                 mav0.join("imu0/data.csv"),
                 b"1,2,3\n".to_vec(),
                 "imu0/data.csv:1: expected 7 fields",
+            ),
+            // Each CSV swapped for another's: refused at the header.
+            (
+                mav0.join("cam0/data.csv"),
+                std::fs::read(mav0.join("imu0/data.csv")).expect("imu csv"),
+                "cam0/data.csv:1: header has 7 columns, as in an IMU csv",
+            ),
+            (
+                mav0.join("imu0/data.csv"),
+                std::fs::read(mav0.join("cam1/data.csv")).expect("camera csv"),
+                "imu0/data.csv:1: header has 2 columns, as in a camera's data.csv",
+            ),
+            (
+                mav0.join("state_groundtruth_estimate0/data.csv"),
+                std::fs::read(mav0.join("imu0/data.csv")).expect("imu csv"),
+                "state_groundtruth_estimate0/data.csv:1: header has 7 columns",
             ),
             (
                 mav0.join("state_groundtruth_estimate0/data.csv"),

@@ -1,6 +1,6 @@
-//! EuRoC / Kalibr `sensor.yaml` files: a camera's pinhole-radtan
-//! intrinsics and `T_BS`, or an IMU's `T_BS`, rate and continuous-time
-//! noise. They begin with OpenCV's `%YAML:1.0` directive, which YAML
+//! EuRoC / Kalibr `sensor.yaml` files: a camera's pinhole intrinsics
+//! (radial-tangential or equidistant distortion) and `T_BS`, or an IMU's
+//! `T_BS`, rate and continuous-time noise. They begin with OpenCV's `%YAML:1.0` directive, which YAML
 //! parsers reject, so directive lines are dropped before parsing.
 
 use std::fmt::Write as _;
@@ -9,7 +9,7 @@ use std::path::Path;
 use nalgebra::{Isometry3, Matrix3, Matrix4, Rotation3, Translation3, UnitQuaternion};
 use serde_yaml::Value;
 
-use crate::camera::{CameraModel, PinholeRadtan};
+use crate::camera::{CameraError, CameraModel};
 use crate::dataset::error::DatasetError;
 use crate::dataset::text::read_text;
 use crate::rig::{CameraCalibration, ImuCalibration, ImuNoise};
@@ -29,19 +29,14 @@ pub fn read_camera_yaml(path: &Path) -> Result<CameraCalibration, DatasetError> 
             format!("{camera_model:?} is not supported (only \"pinhole\")"),
         ));
     }
-    let distortion_model = f.string("distortion_model")?;
-    if !matches!(
-        distortion_model.as_str(),
-        "radial-tangential" | "radtan" | "plumb_bob"
-    ) {
-        return Err(f.bad(
-            "distortion_model",
-            format!("{distortion_model:?} is not supported (radial-tangential, radtan)"),
-        ));
-    }
+    // ROS's camera_info calls radial-tangential `plumb_bob`.
+    let distortion_model = match f.string("distortion_model")?.as_str() {
+        "plumb_bob" => "radtan".to_owned(),
+        other => other.to_owned(),
+    };
     let resolution = f.numbers("resolution")?;
     let (width, height) = match resolution[..] {
-        [w, h] if is_positive_int(w) && is_positive_int(h) => (w as u32, h as u32),
+        [w, h] if is_u32(w) && is_u32(h) => (w as u32, h as u32),
         _ => {
             return Err(f.bad(
                 "resolution",
@@ -50,47 +45,13 @@ pub fn read_camera_yaml(path: &Path) -> Result<CameraCalibration, DatasetError> 
         }
     };
     let intrinsics = f.numbers("intrinsics")?;
-    let [fx, fy, cx, cy] = match intrinsics[..] {
-        [fx, fy, cx, cy] if fx > 0.0 && fy > 0.0 && cx.is_finite() && cy.is_finite() => {
-            [fx, fy, cx, cy]
-        }
-        _ => {
-            return Err(f.bad(
-                "intrinsics",
-                format!("expected [fu, fv, cu, cv] with positive finite focal lengths, found {intrinsics:?}"),
-            ))
-        }
-    };
-    if !fx.is_finite() || !fy.is_finite() {
-        return Err(f.bad("intrinsics", "focal lengths must be finite"));
-    }
     let coefficients = f.numbers("distortion_coefficients")?;
-    let distortion = match coefficients[..] {
-        [k1, k2, p1, p2] => [k1, k2, p1, p2, 0.0],
-        [k1, k2, p1, p2, k3] => [k1, k2, p1, p2, k3],
-        _ => {
-            return Err(f.bad(
-                "distortion_coefficients",
-                format!(
-                    "expected 4 (k1 k2 p1 p2) or 5 (.. k3) numbers, found {}",
-                    coefficients.len()
-                ),
-            ))
-        }
-    };
-    if !distortion.iter().all(|v| v.is_finite()) {
-        return Err(f.bad("distortion_coefficients", "values must be finite"));
-    }
+    // The camera constructor checks sizes, finiteness and focal lengths.
+    let model =
+        CameraModel::from_kalibr(width, height, &distortion_model, &intrinsics, &coefficients)
+            .map_err(|e| f.bad(camera_error_field(&e), e.to_string()))?;
     Ok(CameraCalibration {
-        model: CameraModel::PinholeRadtan(PinholeRadtan {
-            width,
-            height,
-            fx,
-            fy,
-            cx,
-            cy,
-            distortion,
-        }),
+        model,
         T_body_cam: f.transform("T_BS")?,
         rate_hz: f.positive("rate_hz")?,
     })
@@ -114,16 +75,22 @@ pub fn read_imu_yaml(path: &Path) -> Result<ImuCalibration, DatasetError> {
 
 /// A camera `sensor.yaml` in EuRoC's layout. Numbers are printed in their
 /// shortest exact form, so reading the file back gives the same values.
-/// k3 is written only when it is not zero (Kalibr's radtan has four).
-/// `None` for camera models this writer does not know yet.
-pub fn camera_yaml(name: &str, calib: &CameraCalibration) -> Option<String> {
-    #[allow(irrefutable_let_patterns)] // more models are coming
-    let CameraModel::PinholeRadtan(c) = &calib.model
-    else {
-        return None;
+/// Radial-tangential is written with EuRoC's name and its k3 only when it
+/// is not zero (Kalibr's radtan has four); equidistant with Kalibr's name
+/// and k1..k4.
+pub fn camera_yaml(name: &str, calib: &CameraCalibration) -> String {
+    let model = &calib.model;
+    let mut coefficients = model.distortion_coefficients();
+    let distortion_model = match model {
+        CameraModel::PinholeRadtan(_) => {
+            if coefficients[4] == 0.0 {
+                coefficients.truncate(4);
+            }
+            "radial-tangential"
+        }
+        CameraModel::PinholeEquidistant(_) => model.kalibr_distortion_model(),
     };
-    let d = c.distortion;
-    let coefficients = if d[4] == 0.0 { &d[..4] } else { &d[..] };
+    let [fx, fy, cx, cy] = model.pinhole();
     let mut s = String::new();
     s.push_str("%YAML:1.0\n# General sensor definitions.\nsensor_type: camera\n");
     let _ = writeln!(s, "comment: {name}, written by rigslam\n");
@@ -131,16 +98,12 @@ pub fn camera_yaml(name: &str, calib: &CameraCalibration) -> Option<String> {
     s.push_str(&transform_yaml("T_BS", &calib.T_body_cam));
     s.push_str("\n# Camera specific definitions.\n");
     let _ = writeln!(s, "rate_hz: {}", calib.rate_hz);
-    let _ = writeln!(s, "resolution: [{}, {}]", c.width, c.height);
+    let _ = writeln!(s, "resolution: [{}, {}]", model.width(), model.height());
     s.push_str("camera_model: pinhole\n");
-    let _ = writeln!(
-        s,
-        "intrinsics: [{}, {}, {}, {}] #fu, fv, cu, cv",
-        c.fx, c.fy, c.cx, c.cy
-    );
-    s.push_str("distortion_model: radial-tangential\n");
-    let _ = writeln!(s, "distortion_coefficients: [{}]", join(coefficients));
-    Some(s)
+    let _ = writeln!(s, "intrinsics: [{fx}, {fy}, {cx}, {cy}] #fu, fv, cu, cv");
+    let _ = writeln!(s, "distortion_model: {distortion_model}");
+    let _ = writeln!(s, "distortion_coefficients: [{}]", join(&coefficients));
+    s
 }
 
 /// An IMU `sensor.yaml` in EuRoC's layout with Kalibr's noise names.
@@ -203,8 +166,27 @@ fn join(values: &[f64]) -> String {
         .join(", ")
 }
 
-fn is_positive_int(v: f64) -> bool {
-    v >= 1.0 && v <= u32::MAX as f64 && v.fract() == 0.0
+/// A whole number that fits a `u32`; zero is left to the camera
+/// constructor, which names it.
+fn is_u32(v: f64) -> bool {
+    v >= 0.0 && v <= u32::MAX as f64 && v.fract() == 0.0
+}
+
+/// The `sensor.yaml` field a rejected camera parameter came from.
+fn camera_error_field(e: &CameraError) -> &'static str {
+    match e {
+        CameraError::EmptyImage { .. } => "resolution",
+        CameraError::UnknownDistortionModel { .. } => "distortion_model",
+        CameraError::WrongLength { field, .. } => field,
+        CameraError::NonPositiveFocalLength { .. } => "intrinsics",
+        CameraError::NotFinite { name, .. } => {
+            if matches!(*name, "fx" | "fy" | "cx" | "cy") {
+                "intrinsics"
+            } else {
+                "distortion_coefficients"
+            }
+        }
+    }
 }
 
 /// Parses a YAML file after dropping `%` directive lines.
@@ -395,9 +377,7 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
     fn reads_euroc_camera_yaml() {
         let dir = tempfile::tempdir().expect("temp dir");
         let calib = read_camera_yaml(&write(dir.path(), EUROC_CAM0)).expect("valid yaml");
-        #[allow(irrefutable_let_patterns)] // more models are coming
-        let CameraModel::PinholeRadtan(c) = &calib.model
-        else {
+        let CameraModel::PinholeRadtan(c) = &calib.model else {
             panic!("expected a pinhole-radtan camera");
         };
         assert_eq!((c.width, c.height), (752, 480));
@@ -425,18 +405,35 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
         let dir = tempfile::tempdir().expect("temp dir");
         let calib = read_camera_yaml(&write(dir.path(), EUROC_CAM0)).expect("valid yaml");
         let mut with_k3 = calib.clone();
-        #[allow(irrefutable_let_patterns)] // more models are coming
-        let CameraModel::PinholeRadtan(c) = &mut with_k3.model
-        else {
+        let CameraModel::PinholeRadtan(c) = &mut with_k3.model else {
             panic!("expected a pinhole-radtan camera");
         };
         c.distortion[4] = -0.0123;
-        for original in [calib, with_k3] {
-            let back = read_camera_yaml(&write(
-                dir.path(),
-                &camera_yaml("cam0", &original).expect("radtan"),
-            ))
-            .expect("written yaml reads");
+        // Kalibr's calibration of the TUM-VI fisheye cam0.
+        let fisheye = CameraCalibration {
+            model: CameraModel::from_kalibr(
+                512,
+                512,
+                "equidistant",
+                &[
+                    190.97847715128717,
+                    190.9733070521226,
+                    254.93170605935475,
+                    256.8974428996504,
+                ],
+                &[
+                    0.0034823894022493434,
+                    0.0007150348452162257,
+                    -0.0020532361418706202,
+                    0.00020293673591811182,
+                ],
+            )
+            .expect("valid fisheye"),
+            ..calib.clone()
+        };
+        for original in [calib, with_k3, fisheye] {
+            let text = camera_yaml("cam0", &original);
+            let back = read_camera_yaml(&write(dir.path(), &text)).expect("written yaml reads");
             assert_eq!(back.model, original.model);
             assert_eq!(back.rate_hz, original.rate_hz);
             assert_eq!(back.T_body_cam.translation, original.T_body_cam.translation);
@@ -447,6 +444,29 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
                     < 1e-15
             );
         }
+    }
+
+    /// The model named in the file decides the variant and how many
+    /// coefficients it takes; ROS's `plumb_bob` is radial-tangential.
+    #[test]
+    fn distortion_model_selects_the_camera() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let radtan = read_camera_yaml(&write(dir.path(), EUROC_CAM0)).expect("radtan");
+        let text = EUROC_CAM0.replace("radial-tangential", "plumb_bob");
+        let plumb_bob = read_camera_yaml(&write(dir.path(), &text)).expect("plumb_bob");
+        assert_eq!(plumb_bob.model, radtan.model);
+
+        let text = EUROC_CAM0.replace("radial-tangential", "equidistant");
+        let fisheye = read_camera_yaml(&write(dir.path(), &text)).expect("equidistant");
+        let CameraModel::PinholeEquidistant(c) = &fisheye.model else {
+            panic!("expected a pinhole-equidistant camera");
+        };
+        assert_eq!(c.pinhole(), [458.654, 457.296, 367.215, 248.375]);
+        assert_eq!(
+            c.distortion(),
+            [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
+        );
+        assert!(camera_yaml("cam0", &fisheye).contains("distortion_model: equidistant\n"));
     }
 
     #[test]
@@ -476,7 +496,7 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
     #[test]
     fn bad_fields_are_named() {
         let dir = tempfile::tempdir().expect("temp dir");
-        let cases: [(&str, &str, &str); 12] = [
+        let cases: [(&str, &str, &str); 18] = [
             ("resolution: [752, 480]", "resolution: [752]", "resolution"),
             (
                 "resolution: [752, 480]",
@@ -505,8 +525,31 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
             ),
             (
                 "distortion_model: radial-tangential",
-                "distortion_model: equidistant",
+                "distortion_model: fov",
                 "distortion_model",
+            ),
+            (
+                "distortion_model: radial-tangential",
+                "distortion_model: [radtan]",
+                "distortion_model",
+            ),
+            ("resolution: [752, 480]", "resolution: [0, 480]", "resolution"),
+            (
+                "intrinsics: [458.654, 457.296, 367.215, 248.375]",
+                "intrinsics: [458.654, -457.296, 367.215, 248.375]",
+                "intrinsics",
+            ),
+            (
+                "intrinsics: [458.654, 457.296, 367.215, 248.375]",
+                "intrinsics: [458.654, 457.296, .inf, 248.375]",
+                "intrinsics",
+            ),
+            (", 1.76187114e-05]", ", .nan]", "distortion_coefficients"),
+            // Equidistant takes exactly four.
+            (
+                "distortion_model: radial-tangential\ndistortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]",
+                "distortion_model: equidistant\ndistortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05, 0.1]",
+                "distortion_coefficients",
             ),
             (", 1.76187114e-05]", "]", "distortion_coefficients"),
             ("0.0, 0.0, 0.0, 1.0]", "0.0, 0.0, 1.0, 1.0]", "T_BS"),

@@ -56,13 +56,7 @@ impl EurocWriter {
         calib: &CameraCalibration,
     ) -> Result<(), DatasetError> {
         let path = self.camera_stream(name)?.dir.join("sensor.yaml");
-        let yaml = camera_yaml(name, calib).ok_or_else(|| {
-            DatasetError::bad_field(
-                &path,
-                "camera_model",
-                "only pinhole radial-tangential cameras are written",
-            )
-        })?;
+        let yaml = camera_yaml(name, calib);
         std::fs::write(&path, yaml).map_err(|e| DatasetError::io(&path, e))
     }
 
