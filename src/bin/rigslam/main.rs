@@ -2,6 +2,7 @@
 
 use clap::{Parser, Subcommand};
 
+mod bench;
 mod demo;
 mod eval;
 mod simulate;
@@ -19,6 +20,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Measure one stage (front end, essential matrix) on real data.
+    Bench(bench::BenchArgs),
     /// Run the main job on a generated sequence: simulate, read back, estimate, score (the README's first command).
     Demo(demo::DemoArgs),
     /// Score an estimated trajectory against ground truth (ATE, RPE, scale, final drift).
@@ -35,6 +38,7 @@ fn main() -> anyhow::Result<()> {
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {
+        Command::Bench(args) => bench::run(args),
         Command::Demo(args) => demo::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Simulate(args) => simulate::run(args),
