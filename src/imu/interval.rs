@@ -250,3 +250,125 @@ impl ImuInterval<'_> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Matrix3, Vector3};
+
+    fn s(t_ns: i64, x: f64) -> ImuSample {
+        ImuSample {
+            t_ns,
+            gyro_rad_s: [x, 2.0 * x, -x],
+            accel_m_s2: [0.0, x, 9.81],
+        }
+    }
+
+    #[test]
+    fn clean_stream_cuts_intervals_with_context() {
+        let raw: Vec<_> = (0..20).map(|k| s(k * 5_000_000, k as f64)).collect();
+        let stream = ImuStream::from_samples(ImuIntrinsics::IDENTITY, &raw);
+        let iv = stream
+            .interval(12_000_000, 50_000_000, &IntervalConfig::default())
+            .expect("covered");
+        // Covering samples 2 (10 ms) and 10 (50 ms), one more on each side.
+        assert_eq!(iv.samples.first().map(|x| x.t_ns), Some(5_000_000));
+        assert_eq!(iv.samples.last().map(|x| x.t_ns), Some(55_000_000));
+        assert!(iv.report.reliable);
+        assert_eq!(iv.report.longest_gap_ns, 5_000_000);
+        // A stamp between samples is interpolated linearly.
+        let mid = iv.sample_at(12_000_000).expect("inside");
+        assert!((mid.gyro_rad_s[1] - 2.0 * 2.4).abs() < 1e-12);
+        assert_eq!(iv.sample_at(15_000_000), Some(raw[3]));
+        assert_eq!(iv.sample_at(0), None);
+        assert!(matches!(
+            stream.interval(50, 50, &IntervalConfig::default()),
+            Err(IntervalError::Empty { .. })
+        ));
+        assert!(matches!(
+            stream.interval(-1, 50, &IntervalConfig::default()),
+            Err(IntervalError::StartNotCovered { .. })
+        ));
+        assert!(matches!(
+            stream.interval(0, 95_000_001, &IntervalConfig::default()),
+            Err(IntervalError::EndNotCovered { .. })
+        ));
+    }
+
+    #[test]
+    fn bad_samples_are_counted_in_their_interval_and_mark_it_unreliable() {
+        let mut raw: Vec<_> = (0..40).map(|k| s(k * 5_000_000, k as f64)).collect();
+        raw[5].accel_m_s2[0] = f64::NAN; // in [0, 50] ms
+        raw[7].t_ns = raw[6].t_ns; // repeated, in [0, 50] ms
+        raw[8].t_ns = 1_000_000; // backwards, in [0, 50] ms
+        raw.drain(25..31); // a 35 ms gap between 120 and 155 ms
+        let stream = ImuStream::from_samples(ImuIntrinsics::IDENTITY, &raw);
+        assert_eq!(stream.rejected().len(), 3);
+        assert_eq!(stream.samples().len(), raw.len() - 3);
+        let config = IntervalConfig::default();
+        let first = stream.interval(0, 50_000_000, &config).expect("covered");
+        assert_eq!(
+            (
+                first.report.not_finite,
+                first.report.repeated_stamps,
+                first.report.backwards_stamps
+            ),
+            (1, 1, 1)
+        );
+        assert!(!first.report.reliable);
+        assert_eq!(first.report.longest_gap_ns, 15_000_000); // 20 -> 35 ms, two missing
+        let clean = stream
+            .interval(50_000_000, 100_000_000, &config)
+            .expect("covered");
+        assert_eq!(
+            clean.report,
+            IntervalReport {
+                longest_gap_ns: 5_000_000,
+                reliable: true,
+                ..Default::default()
+            }
+        );
+        let gap = stream
+            .interval(100_000_000, 170_000_000, &config)
+            .expect("covered");
+        assert_eq!(
+            (gap.report.long_gaps, gap.report.longest_gap_ns),
+            (1, 35_000_000)
+        );
+        assert!(!gap.report.reliable);
+        // The preintegrated interval carries the flag.
+        let pre = crate::imu::Preintegrator::new(
+            crate::imu::IntegrationScheme::Quadratic,
+            crate::rig::ImuNoise::EUROC_ADIS16448,
+        )
+        .integrate_interval(&gap, &Default::default())
+        .expect("integrable");
+        assert!(!pre.reliable && pre.delta_v_m_s.iter().all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn intrinsics_are_applied_on_push_and_old_samples_dropped() {
+        let intrinsics = ImuIntrinsics {
+            accel_scale: Matrix3::identity() * 2.0,
+            gyro_offset_rad_s: Vector3::new(0.5, 0.0, 0.0),
+            ..ImuIntrinsics::IDENTITY
+        };
+        let mut stream = ImuStream::new(intrinsics);
+        for k in 0..10 {
+            assert!(stream.push(&s(k * 5_000_000, 1.0)));
+        }
+        assert!(!stream.push(&s(0, 1.0)));
+        assert_eq!(stream.samples()[0].accel_m_s2, [0.0, 2.0, 19.62]);
+        assert_eq!(stream.samples()[0].gyro_rad_s, [1.5, 2.0, -1.0]);
+        stream.discard_before(22_000_000);
+        // Keeps 15 ms (one before the sample at or before 22 ms) onwards.
+        assert_eq!(stream.samples()[0].t_ns, 15_000_000);
+        // The rejected sample arrived after 45 ms, inside what is kept.
+        assert_eq!(stream.rejected().len(), 1);
+        stream.discard_before(60_000_000);
+        assert_eq!(stream.rejected().len(), 1);
+        assert!(stream
+            .interval(40_000_000, 45_000_000, &IntervalConfig::default())
+            .is_ok());
+    }
+}

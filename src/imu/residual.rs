@@ -114,3 +114,145 @@ pub fn imu_residual(
         d_gravity,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::imu::preintegration::{IntegrationScheme, Preintegrator};
+    use crate::rig::ImuNoise;
+    use crate::sensors::ImuSample;
+    use nalgebra::UnitQuaternion;
+
+    fn preintegrated() -> Preintegrated {
+        let samples: Vec<ImuSample> = (-1..=22)
+            .map(|k| {
+                let t = k as f64 * 0.005;
+                ImuSample {
+                    t_ns: k * 5_000_000,
+                    gyro_rad_s: [0.4 * (4.0 * t).sin(), 0.9, -0.6 + t],
+                    accel_m_s2: [1.0 + t, 9.0 * (2.0 * t).cos(), 2.0 * (3.0 * t).sin()],
+                }
+            })
+            .collect();
+        let biases = ImuBiases {
+            gyro_rad_s: Vector3::new(0.01, 0.02, -0.01),
+            accel_m_s2: Vector3::new(0.05, -0.1, 0.02),
+        };
+        Preintegrator::new(IntegrationScheme::Quadratic, ImuNoise::EUROC_ADIS16448)
+            .integrate(&samples, 2_000_000, 101_000_000, &biases)
+            .expect("covered")
+    }
+
+    fn state(seed: f64) -> NavState {
+        NavState {
+            t_ns: 0,
+            R_world_body: UnitQuaternion::from_scaled_axis(Vector3::new(0.3, -1.1, 2.0) * seed),
+            position_world_m: Vector3::new(1.0, -2.0, 0.5) * seed,
+            velocity_world_m_s: Vector3::new(0.3, 0.2, -0.4) / seed,
+        }
+    }
+
+    fn perturb(s: &NavState, k: usize, eps: f64) -> NavState {
+        let mut d = Vector3::zeros();
+        d[k % 3] = eps;
+        let mut out = *s;
+        match k / 3 {
+            0 => out.R_world_body = s.R_world_body * UnitQuaternion::from_scaled_axis(d),
+            1 => out.velocity_world_m_s += d,
+            _ => out.position_world_m += d,
+        }
+        out
+    }
+
+    /// Biases away from the integration point, so the bias Jacobians are
+    /// tested where the correction is not the identity.
+    fn biases_i(pre: &Preintegrated) -> ImuBiases {
+        ImuBiases {
+            gyro_rad_s: pre.biases.gyro_rad_s + Vector3::new(3e-3, -2e-3, 4e-3),
+            accel_m_s2: pre.biases.accel_m_s2 + Vector3::new(0.03, 0.01, -0.02),
+        }
+    }
+
+    fn check(analytic: &SMatrix<f64, 9, 1>, numeric: &SMatrix<f64, 9, 1>, what: &str) {
+        let err = (analytic - numeric).norm();
+        assert!(
+            err < 1e-7 * (1.0 + analytic.norm()),
+            "{what}: analytic {analytic} numeric {numeric}"
+        );
+    }
+
+    #[test]
+    fn jacobians_match_finite_differences() {
+        let pre = preintegrated();
+        let g = Vector3::new(0.1, -0.2, -9.81);
+        let (si, sj) = (state(0.7), state(1.3));
+        let b = biases_i(&pre);
+        let res = imu_residual(&pre, &si, &sj, &b, &g);
+        let eps = 1e-6;
+        for k in 0..9 {
+            let f = |s: &NavState| imu_residual(&pre, s, &sj, &b, &g).residual;
+            let num = (f(&perturb(&si, k, eps)) - f(&perturb(&si, k, -eps))) / (2.0 * eps);
+            check(
+                &res.d_state_i.column(k).into_owned(),
+                &num,
+                &format!("state i {k}"),
+            );
+            let f = |s: &NavState| imu_residual(&pre, &si, s, &b, &g).residual;
+            let num = (f(&perturb(&sj, k, eps)) - f(&perturb(&sj, k, -eps))) / (2.0 * eps);
+            check(
+                &res.d_state_j.column(k).into_owned(),
+                &num,
+                &format!("state j {k}"),
+            );
+        }
+        for k in 0..6 {
+            let f = |sign: f64| {
+                let mut bb = b;
+                if k < 3 {
+                    bb.gyro_rad_s[k] += sign * eps;
+                } else {
+                    bb.accel_m_s2[k - 3] += sign * eps;
+                }
+                imu_residual(&pre, &si, &sj, &bb, &g).residual
+            };
+            let num = (f(1.0) - f(-1.0)) / (2.0 * eps);
+            check(
+                &res.d_biases.column(k).into_owned(),
+                &num,
+                &format!("bias {k}"),
+            );
+        }
+        for k in 0..3 {
+            let f = |sign: f64| {
+                let mut gg = g;
+                gg[k] += sign * eps;
+                imu_residual(&pre, &si, &sj, &b, &gg).residual
+            };
+            let num = (f(1.0) - f(-1.0)) / (2.0 * eps);
+            check(
+                &res.d_gravity.column(k).into_owned(),
+                &num,
+                &format!("gravity {k}"),
+            );
+        }
+        // The residual is far from zero here, so the tests are not trivial.
+        assert!(res.residual.fixed_rows::<3>(0).norm() > 0.5);
+    }
+
+    #[test]
+    fn predicted_state_has_zero_residual() {
+        let pre = preintegrated();
+        let g = Vector3::new(0.0, 0.0, -9.81);
+        let si = state(0.9);
+        let b = biases_i(&pre);
+        let sj = pre.predict(&si, &b, &g);
+        let res = imu_residual(&pre, &si, &sj, &b, &g);
+        assert!(res.residual.norm() < 1e-12, "{}", res.residual);
+        // And a shifted end state shows up in the right rows.
+        let mut moved = sj;
+        moved.position_world_m += Vector3::new(0.0, 0.01, 0.0);
+        let res = imu_residual(&pre, &si, &moved, &b, &g);
+        assert!(res.residual.fixed_rows::<6>(0).norm() < 1e-12);
+        assert!((res.residual.fixed_rows::<3>(6).norm() - 0.01).abs() < 1e-12);
+    }
+}
