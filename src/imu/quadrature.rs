@@ -82,22 +82,27 @@ pub fn interpolating_rule(nodes: &[usize], tau_s: &[f64], h_s: f64) -> StepRule 
 pub const MAX_SPACING_RATIO: f64 = 4.0;
 
 /// Chooses the three nodes for the raw step `[t_k, t_k+1]` among the
-/// samples `0..len`: the triple reaching back (k-1, k, k+1) or forward
-/// (k, k+1, k+2), whichever is better conditioned, or `None` when neither
-/// exists or both are too uneven.
+/// samples `0..len`: the triple reaching back (k-1, k, k+1), or, where it
+/// does not exist or is too uneven, the one reaching forward (k, k+1, k+2);
+/// `None` when neither is usable. Preferring one side consistently matters:
+/// with the back triple on every step, each interior sample's weights over
+/// the three steps it touches sum to exactly its share of time (5/12 + 8/12
+/// - 1/12 on even spacing), whereas switching sides from step to step (as
+/// picking the "better" of two near-equal spacings would) gives samples
+/// weights from 1/3 to 3/2 and amplifies noise and vibration.
 pub fn choose_triple(t_ns: impl Fn(usize) -> i64, k: usize, len: usize) -> Option<[usize; 3]> {
-    let ratio = |a: usize| {
+    let usable = |a: usize| {
         let h0 = (t_ns(a + 1) - t_ns(a)) as f64;
         let h1 = (t_ns(a + 2) - t_ns(a + 1)) as f64;
-        h0.max(h1) / h0.min(h1)
+        h0.max(h1) / h0.min(h1) <= MAX_SPACING_RATIO
     };
-    let back = (k >= 1 && k + 1 < len).then(|| (k - 1, ratio(k - 1)));
-    let forward = (k + 2 < len).then(|| (k, ratio(k)));
-    let best = match (back, forward) {
-        (Some(b), Some(f)) => Some(if f.1 < b.1 { f } else { b }),
-        (b, f) => b.or(f),
-    }?;
-    (best.1 <= MAX_SPACING_RATIO).then(|| [best.0, best.0 + 1, best.0 + 2])
+    if k >= 1 && k + 1 < len && usable(k - 1) {
+        Some([k - 1, k, k + 1])
+    } else if k + 2 < len && usable(k) {
+        Some([k, k + 1, k + 2])
+    } else {
+        None
+    }
 }
 
 #[cfg(test)]
@@ -140,15 +145,17 @@ mod tests {
     }
 
     #[test]
-    fn triple_choice_prefers_even_spacing_and_refuses_bad_ones() {
-        let t = [0, 5, 10, 11, 16];
+    fn triple_choice_reaches_back_and_refuses_bad_spacing() {
+        let t = [0, 5, 10, 11, 16, 21];
         let at = |i: usize| t[i] as i64;
-        // Step 1 (5..10): back (0,1,2) even, forward (1,2,3) ratio 5.
-        assert_eq!(choose_triple(at, 1, 5), Some([0, 1, 2]));
+        // Step 1 (5..10): back (0,1,2) even.
+        assert_eq!(choose_triple(at, 1, 6), Some([0, 1, 2]));
         // Step 0 has no back triple: forward (0,1,2).
-        assert_eq!(choose_triple(at, 0, 5), Some([0, 1, 2]));
+        assert_eq!(choose_triple(at, 0, 6), Some([0, 1, 2]));
         // Step 2 (10..11): back ratio 5, forward (2,3,4) ratio 5: refused.
-        assert_eq!(choose_triple(at, 2, 5), None);
+        assert_eq!(choose_triple(at, 2, 6), None);
+        // Step 3 (11..16): back (2,3,4) ratio 5, forward (3,4,5) even.
+        assert_eq!(choose_triple(at, 3, 6), Some([3, 4, 5]));
         // Two samples only: nothing.
         assert_eq!(choose_triple(at, 0, 2), None);
     }
