@@ -13,5 +13,6 @@ pub mod dataset;
 pub mod eval;
 pub mod imu;
 pub mod rig;
+pub mod shared_data;
 pub mod simulate;
 pub mod trajectory;
