@@ -19,18 +19,16 @@ use rigslam::rig::ImuNoise;
 
 type Matrix9 = SMatrix<f64, 9, 9>;
 
+/// A file under the shared data folder; `None` (skip) when missing unless
+/// `CI` is set, where a missing folder or file fails the test.
 fn shared(relative: &str) -> Option<PathBuf> {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/data")
-        .join(relative);
-    if path.exists() {
-        Some(path)
-    } else if std::env::var_os("CI").is_some() {
-        panic!("{} is missing and CI is set", path.display());
-    } else {
-        eprintln!("skipping: {} is missing", path.display());
-        None
-    }
+    let path = rigslam::shared_data::shared_data_dir()?.join(relative);
+    assert!(
+        path.exists() || std::env::var_os("CI").is_none(),
+        "{} is missing and CI is set",
+        path.display()
+    );
+    path.exists().then_some(path)
 }
 
 fn biases(gt: &GroundTruthState) -> ImuBiases {

@@ -47,6 +47,33 @@ pub fn log(r: &Matrix3<f64>) -> Vector3<f64> {
     }
 }
 
+/// `(Exp(phi), J_r(phi))` sharing one sine, cosine and `[phi]x^2`.
+#[inline]
+pub fn exp_and_right_jacobian(phi: &Vector3<f64>) -> (Matrix3<f64>, Matrix3<f64>) {
+    let angle2 = phi.norm_squared();
+    let k = hat(phi);
+    let k2 = k * k;
+    let (a, b, c, d) = if angle2 < SMALL_ANGLE_RAD * SMALL_ANGLE_RAD {
+        (
+            1.0 - angle2 / 6.0,
+            0.5 - angle2 / 24.0,
+            0.5 - angle2 / 24.0,
+            1.0 / 6.0 - angle2 / 120.0,
+        )
+    } else {
+        let angle = angle2.sqrt();
+        let (sin, cos) = angle.sin_cos();
+        (
+            sin / angle,
+            (1.0 - cos) / angle2,
+            (1.0 - cos) / angle2,
+            (angle - sin) / (angle2 * angle),
+        )
+    };
+    let identity = Matrix3::identity();
+    (identity + k * a + k2 * b, identity - k * c + k2 * d)
+}
+
 /// Right Jacobian: `Exp(phi + d) ~ Exp(phi) Exp(J_r(phi) d)`.
 #[inline]
 pub fn right_jacobian(phi: &Vector3<f64>) -> Matrix3<f64> {
@@ -107,6 +134,8 @@ mod tests {
         for phi in phis() {
             let jr = right_jacobian(&phi);
             assert!((jr * right_jacobian_inverse(&phi) - Matrix3::identity()).norm() < 1e-12);
+            let (e, j) = exp_and_right_jacobian(&phi);
+            assert!((e - exp(&phi)).norm() < 1e-15 && (j - jr).norm() < 1e-15);
             for k in 0..3 {
                 let d = Vector3::ith(k, eps);
                 // Exp(phi)^T Exp(phi + d) = Exp(J_r d)
