@@ -256,8 +256,9 @@ impl Preintegrator {
         let (rot_end, jac_end) = (rot, jac);
         if needs_nodes {
             self.fill_outer_nodes(samples, k0, k1, t_start_ns, t_end_ns, &bg, rot_end, jac_end);
-            for k in k0.saturating_sub(1)..(k1 + 2).min(n) {
-                let a = Vector3::from(samples[k].accel_m_s2) - ba;
+            let used = k0.saturating_sub(1)..(k1 + 2).min(n);
+            for (k, sample) in samples.iter().enumerate().take(used.end).skip(used.start) {
+                let a = Vector3::from(sample.accel_m_s2) - ba;
                 let r = &self.node_rot[k];
                 self.node_force[k] = r * a;
                 self.node_force_bg[k] = -(r * hat(&a)) * self.node_jac[k];
@@ -330,14 +331,14 @@ impl Preintegrator {
             dv += inc_v;
         }
         let mut covariance = Matrix9::zeros();
-        for r in 0..3 {
-            for c in r..3 {
+        for (r, row) in cov.iter().enumerate() {
+            for (c, block) in row.iter().enumerate().skip(r) {
                 covariance
                     .fixed_view_mut::<3, 3>(3 * r, 3 * c)
-                    .copy_from(&cov[r][c]);
+                    .copy_from(block);
                 covariance
                     .fixed_view_mut::<3, 3>(3 * c, 3 * r)
-                    .copy_from(&cov[r][c].transpose());
+                    .copy_from(&block.transpose());
             }
         }
         Ok(Preintegrated {

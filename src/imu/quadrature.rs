@@ -86,8 +86,8 @@ pub const MAX_SPACING_RATIO: f64 = 4.0;
 /// does not exist or is too uneven, the one reaching forward (k, k+1, k+2);
 /// `None` when neither is usable. Preferring one side consistently matters:
 /// with the back triple on every step, each interior sample's weights over
-/// the three steps it touches sum to exactly its share of time (5/12 + 8/12
-/// - 1/12 on even spacing), whereas switching sides from step to step (as
+/// the three steps it touches sum to exactly its share of time (on even
+/// spacing 5/12 + 8/12 + (-1/12) of a step), whereas switching sides from step to step (as
 /// picking the "better" of two near-equal spacings would) gives samples
 /// weights from 1/3 to 3/2 and amplifies noise and vibration.
 pub fn choose_triple(t_ns: impl Fn(usize) -> i64, k: usize, len: usize) -> Option<[usize; 3]> {
