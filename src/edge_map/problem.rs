@@ -96,4 +96,31 @@ impl MapProblem {
         }
         components
     }
+
+    /// The sub-problem of the reference's connected component, landmarks
+    /// renumbered in their old order; also returns the old id of each new id.
+    pub fn reference_component(&self) -> (MapProblem, Vec<u32>) {
+        let mut keep = self.components().swap_remove(0);
+        keep.sort_unstable();
+        let mut new_id = vec![u32::MAX; self.landmark_count as usize];
+        for (k, &old) in keep.iter().enumerate() {
+            new_id[old as usize] = k as u32;
+        }
+        let edges = self
+            .edges
+            .iter()
+            .filter(|e| new_id[e.i as usize] != u32::MAX)
+            .map(|e| MapEdge {
+                i: new_id[e.i as usize],
+                j: new_id[e.j as usize],
+                ..*e
+            })
+            .collect();
+        let problem = MapProblem {
+            landmark_count: keep.len() as u32,
+            reference: new_id[self.reference as usize],
+            edges,
+        };
+        (problem, keep)
+    }
 }

@@ -23,7 +23,9 @@ use super::problem::MapProblem;
 /// Parameters of a simulated mapping run.
 #[derive(Clone, Debug)]
 pub struct CityOptions {
-    /// Landmarks to create; the run stops when the last is created and seen.
+    /// Landmarks to create; the run stops when the last is created. The map
+    /// keeps those connected to the reference (a few crowded-out ones may
+    /// be missing from large runs).
     pub landmarks: usize,
     pub block_m: f64,
     /// Landmarks per metre of street (both sides together).
@@ -230,9 +232,12 @@ pub fn simulate_city(options: &CityOptions) -> SimulatedMap {
         node = next;
     }
     map.reserve_landmarks(truth.len() as u32);
+    // A landmark crowded out of every frame's nearest `max_visible` has no
+    // edge; keep the part of the map connected to the reference.
+    let (problem, kept) = MapProblem::from_edge_map(&map, 0).reference_component();
     SimulatedMap {
-        problem: MapProblem::from_edge_map(&map, 0),
-        truth_m: truth,
+        problem,
+        truth_m: kept.iter().map(|&old| truth[old as usize]).collect(),
         frames,
         measurements,
         fuse_ms,

@@ -62,6 +62,8 @@ pub struct SolveReport {
     pub assemble_ms: f64,
     /// Ordering + symbolic analysis; 0 when the cached one was reused.
     pub symbolic_ms: f64,
+    /// Fill-reducing ordering of the landmark graph (part of `symbolic_ms`).
+    pub order_ms: f64,
     /// Symbolic (when done) + numeric factorisation.
     pub factor_ms: f64,
     pub solve_ms: f64,
@@ -226,6 +228,7 @@ impl EdgeMapSolver {
         if !reuse {
             let t = Instant::now();
             let (fwd, inv) = block_amd_ordering(laplacian)?;
+            report.order_ms = ms_since(t);
             let perm = faer::perm::PermRef::new_checked(&fwd, &inv, dim);
             let symbolic = factorize_symbolic_cholesky(
                 pattern,

@@ -25,6 +25,19 @@ enum MapCommand {
     Generate(GenerateArgs),
     /// Accuracy and cost of edge policies on one simulated drive.
     Policies(PoliciesArgs),
+    /// Exact landmark covariance (eq. 59) against the sub-matrix approximation.
+    Covariance(CovarianceArgs),
+}
+
+#[derive(clap::Args)]
+struct CovarianceArgs {
+    #[arg(long, default_value_t = 10_000)]
+    landmarks: usize,
+    /// Landmarks taken as visible: the nearest to the middle landmark.
+    #[arg(long, default_value_t = 30)]
+    visible: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -90,6 +103,7 @@ pub fn run(args: MapArgs) -> anyhow::Result<()> {
         MapCommand::Solve(a) => solve(a),
         MapCommand::Generate(a) => generate(a),
         MapCommand::Policies(a) => policies(a),
+        MapCommand::Covariance(a) => covariance(a),
     }
 }
 
@@ -134,6 +148,7 @@ fn solve(args: SolveArgs) -> anyhow::Result<()> {
             "solve_ms": report.solve_ms,
             "total_ms": report.total_ms,
             "symbolic_ms": report.symbolic_ms,
+            "order_ms": report.order_ms,
             "read_ms": read_ms,
             "method": report.method,
             "factor_nnz": report.factor_nnz,
@@ -242,6 +257,56 @@ fn policies(args: PoliciesArgs) -> anyhow::Result<()> {
                 r["edge_rmse_m"].as_f64().unwrap_or(0.0)
             );
         }
+    }
+    Ok(())
+}
+
+fn covariance(args: CovarianceArgs) -> anyhow::Result<()> {
+    use rigslam::edge_map::covariance::{exact_covariance, submatrix_covariance};
+    use rigslam::edge_map::BlockLaplacian;
+    let sim = simulate_city(&CityOptions {
+        landmarks: args.landmarks,
+        seed: args.seed,
+        ..Default::default()
+    });
+    let mut solver = EdgeMapSolver::new(SolverChoice::Cholesky, 1);
+    solver.solve(&sim.problem)?;
+    let centre = sim.truth_m[sim.truth_m.len() / 2];
+    let mut by_distance: Vec<(f64, u32)> = sim
+        .truth_m
+        .iter()
+        .enumerate()
+        .map(|(id, p)| ((p - centre).norm(), id as u32))
+        .filter(|(_, id)| *id != sim.problem.reference)
+        .collect();
+    by_distance.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let visible: Vec<u32> = by_distance.iter().take(args.visible).map(|v| v.1).collect();
+    let t = Instant::now();
+    let exact = exact_covariance(
+        solver.factor().expect("Cholesky solve keeps its factor"),
+        &sim.problem,
+        &visible,
+    );
+    let exact_ms = t.elapsed().as_secs_f64() * 1e3;
+    let laplacian = BlockLaplacian::assemble(&sim.problem);
+    println!("{} landmarks, {} visible around landmark {}; exact blocks by solving 3m columns: {exact_ms:.1} ms", args.landmarks, visible.len(), sim.truth_m.len() / 2);
+    println!("| sub-matrix rings | visible dim | ms | rel. Frobenius diff | trace ratio approx/exact | mean marginal sigma approx / exact m |");
+    println!("|---|---|---|---|---|---|");
+    let sigma = |m: &nalgebra::DMatrix<f64>| {
+        (0..m.nrows()).map(|k| m[(k, k)].sqrt()).sum::<f64>() / m.nrows() as f64
+    };
+    for hops in [0usize, 1, 2, 4, 8] {
+        let t = Instant::now();
+        let approx = submatrix_covariance(&laplacian, &sim.problem, &visible, hops);
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        println!(
+            "| {hops} | {} | {ms:.1} | {:.3} | {:.4} | {:.4} / {:.4} |",
+            approx.nrows(),
+            (&approx - &exact).norm() / exact.norm(),
+            approx.trace() / exact.trace(),
+            sigma(&approx),
+            sigma(&exact)
+        );
     }
     Ok(())
 }
