@@ -10,6 +10,7 @@ pub use rigslam_drivers as sensors;
 
 pub mod camera;
 pub mod dataset;
+pub mod edge_map;
 pub mod eval;
 pub mod imu;
 pub mod rig;
