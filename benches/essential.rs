@@ -13,7 +13,9 @@ const MATCHES: &str = concat!(
     "/../shared/data/kitti/seq_a_matches.txt"
 );
 
-fn kitti_pairs() -> Option<(f64, Vec<(Vec<Vector2<f64>>, Vec<Vector2<f64>>)>)> {
+type Pair = (Vec<Vector2<f64>>, Vec<Vector2<f64>>);
+
+fn kitti_pairs() -> Option<(f64, Vec<Pair>)> {
     let path = Path::new(MATCHES);
     let file = read_matches(path).ok()?;
     let camera = file.camera(path).ok()?;

@@ -163,6 +163,7 @@ fn axpy<const N: usize>(alpha: f64, x: &[f64; N], y: &mut [f64; N]) {
 /// Four vectors spanning the null space of the 5×9 constraint matrix, by
 /// Gauss-Jordan elimination with full pivoting, then orthonormalised.
 /// `None` when the five constraints are not independent.
+#[allow(clippy::needless_range_loop)] // index arithmetic over a pivoted matrix
 fn null_space(q1: &[Vector3<f64>; 5], q2: &[Vector3<f64>; 5]) -> Option<[[f64; 9]; 4]> {
     let mut a = [[0.0; 9]; 5];
     for (row, (p1, p2)) in a.iter_mut().zip(q1.iter().zip(q2)) {
@@ -233,6 +234,7 @@ fn null_space(q1: &[Vector3<f64>; 5], q2: &[Vector3<f64>; 5]) -> Option<[[f64; 9
 
 /// The ten cubic constraints (Nistér eq. 3-4) on `E = xX + yY + zZ + W`,
 /// one row per equation over the [`CUBIC`] monomials.
+#[allow(clippy::needless_range_loop)] // entries of E, E Eᵀ by (row, column)
 fn constraint_matrix(basis: &[[f64; 9]; 4]) -> [Cubic; 10] {
     // e[r][c] is entry (r, c) of E as a linear polynomial in x, y, z, 1.
     let mut e = [[[0.0; 4]; 3]; 3];
@@ -408,7 +410,8 @@ fn polish_essential(basis: &[Matrix3<f64>; 4], c0: nalgebra::Vector4<f64>) -> Ma
         let c_next = (c - step).normalize();
         let e_next = assemble(&c_next);
         let r_next = essential_residual(&e_next);
-        if !(r_next.norm_squared() < r.norm_squared()) {
+        // Also stops on NaN.
+        if r_next.norm_squared().partial_cmp(&r.norm_squared()) != Some(std::cmp::Ordering::Less) {
             break;
         }
         (c, e, r) = (c_next, e_next, r_next);

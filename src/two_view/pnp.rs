@@ -273,6 +273,7 @@ mod tests {
     use crate::two_view::test_scenes::{random_pose, rotation_angle};
     use rand::Rng;
 
+    #[allow(clippy::type_complexity)] // test fixture: truth and observations
     fn scene(
         rng: &mut ChaCha8Rng,
         n: usize,

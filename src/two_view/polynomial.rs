@@ -278,12 +278,10 @@ mod tests {
     fn from_roots(roots: &[f64]) -> Coefficients {
         let mut p = [0.0; MAX_DEGREE + 1];
         p[0] = 1.0;
-        let mut deg = 0;
-        for &r in roots {
+        for (deg, &r) in roots.iter().enumerate() {
             let mut next = [0.0; MAX_DEGREE + 1];
             multiply(&p, deg, &[-r, 1.0], 1, &mut next);
             p = next;
-            deg += 1;
         }
         p
     }

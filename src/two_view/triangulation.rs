@@ -154,7 +154,10 @@ pub fn triangulate(
     let ray1 = Vector3::new(c1.x, c1.y, 1.0);
     let ray2_in_c1 = rotation_c2_c1.tr_mul(&Vector3::new(c2.x, c2.y, 1.0));
     let parallax_rad = ray1.angle(&ray2_in_c1);
-    if !(parallax_rad >= config.min_parallax_rad) {
+    // NaN parallax is refused too.
+    if parallax_rad.partial_cmp(&config.min_parallax_rad) == Some(std::cmp::Ordering::Less)
+        || parallax_rad.is_nan()
+    {
         return Err(TriangulationFailure::LowParallax { parallax_rad });
     }
     let point_c1 = triangulate_linear(rotation_c2_c1, t_c2_c1, &c1, &c2)
