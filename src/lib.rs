@@ -4,7 +4,8 @@
 //! from `rigslam_drivers` (re-exported as [`sensors`]); [`dataset`] reads
 //! and writes recorded sequences; [`camera`] projects and unprojects;
 //! [`trajectory`] holds timestamped poses; [`eval`] scores an estimate
-//! against ground truth; [`simulate`] renders synthetic sequences.
+//! against ground truth; [`simulate`] renders synthetic sequences;
+//! [`two_view`] estimates relative and absolute poses from correspondences.
 
 pub use rigslam_drivers as sensors;
 
@@ -17,3 +18,4 @@ pub mod rig;
 pub mod shared_data;
 pub mod simulate;
 pub mod trajectory;
+pub mod two_view;
