@@ -3,8 +3,10 @@
 use clap::{Parser, Subcommand};
 
 mod bench;
+mod camera;
 mod demo;
 mod eval;
+mod imu;
 mod map;
 mod simulate;
 
@@ -25,10 +27,14 @@ enum Command {
     Bench(bench::BenchArgs),
     /// Run the main job on a generated sequence: simulate, read back, estimate, score (the README's first command).
     Demo(demo::DemoArgs),
+    /// Read a V4L2 or Aravis camera: identity, format, rate, drops; optionally record.
+    Camera(camera::CameraArgs),
     /// Score an estimated trajectory against ground truth (ATE, RPE, scale, final drift).
     Eval(eval::EvalArgs),
     /// Solve, generate and compare edge-map problems (the absolute stage's map, A L = B).
     Map(map::MapArgs),
+    /// Read a YEI 3-Space IMU: identity, rate, jitter, error counters; optionally record.
+    Imu(imu::ImuArgs),
     /// Render a synthetic EuRoC-layout dataset (images, IMU, ground truth, calibration).
     Simulate(simulate::SimulateArgs),
 }
@@ -72,8 +78,10 @@ fn run() -> anyhow::Result<()> {
         .init();
     match Cli::parse().command {
         Command::Bench(args) => bench::run(args),
+        Command::Camera(args) => camera::run(args),
         Command::Demo(args) => demo::run(args),
         Command::Eval(args) => eval::run(args),
+        Command::Imu(args) => imu::run(args),
         Command::Map(args) => map::run(args),
         Command::Simulate(args) => simulate::run(args),
     }
