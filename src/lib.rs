@@ -11,6 +11,7 @@ pub use rigslam_drivers as sensors;
 pub mod camera;
 pub mod dataset;
 pub mod eval;
+pub mod features;
 pub mod imu;
 pub mod rig;
 pub mod simulate;
