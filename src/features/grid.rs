@@ -34,11 +34,13 @@ const CELL_CAPACITY: usize = 4;
 pub struct GridSelector {
     config: GridConfig,
     bucket_counts: Vec<u16>,
-    taken: Vec<bool>,
+    /// (rank in bucket, candidate index), sorted.
+    order: Vec<(u16, u32)>,
     mask_cells: Vec<[[f32; 2]; CELL_CAPACITY]>,
     mask_fill: Vec<u8>,
     mask_cols: usize,
     mask_rows: usize,
+    mask_cell_px: f32,
 }
 
 impl GridSelector {
@@ -75,43 +77,32 @@ impl GridSelector {
         let (bx, by) = (width.div_ceil(bucket), height.div_ceil(bucket));
         self.bucket_counts.clear();
         self.bucket_counts.resize(bx * by, 0);
-        self.taken.clear();
-        self.taken.resize(candidates.len(), false);
+        // Rank of each candidate within its bucket (0 = the bucket's best);
+        // taking candidates by (rank, score) gives every bucket its best
+        // before any bucket its second, and so on.
+        self.order.clear();
+        for (i, c) in candidates.iter().enumerate() {
+            let b = (c.y as usize / bucket).min(by - 1) * bx + (c.x as usize / bucket).min(bx - 1);
+            let rank = self.bucket_counts[b];
+            self.bucket_counts[b] = rank.saturating_add(1);
+            self.order.push((rank, i as u32));
+        }
+        self.order.sort_unstable();
         self.reset_mask(width, height);
         for p in tracked {
             self.mask_insert(*p);
         }
-        let mut cap = 1u16;
-        loop {
-            let before = out.len();
-            let mut skipped_for_cap = false;
-            for (i, c) in candidates.iter().enumerate() {
-                if out.len() == budget {
-                    return;
-                }
-                if self.taken[i] {
-                    continue;
-                }
-                let b =
-                    (c.y as usize / bucket).min(by - 1) * bx + (c.x as usize / bucket).min(bx - 1);
-                if self.bucket_counts[b] >= cap {
-                    skipped_for_cap = true;
-                    continue;
-                }
-                let p = [c.x as f32, c.y as f32];
-                if self.mask_blocks(p) {
-                    self.taken[i] = true; // never acceptable any more
-                    continue;
-                }
-                self.taken[i] = true;
-                self.bucket_counts[b] += 1;
-                self.mask_insert(p);
-                out.push(*c);
-            }
-            if !skipped_for_cap || (out.len() == before && cap as usize > candidates.len()) {
+        for k in 0..self.order.len() {
+            if out.len() == budget {
                 return;
             }
-            cap += 1;
+            let c = candidates[self.order[k].1 as usize];
+            let p = [c.x as f32, c.y as f32];
+            if self.mask_blocks(p) {
+                continue;
+            }
+            self.mask_insert(p);
+            out.push(c);
         }
     }
 
@@ -123,6 +114,7 @@ impl GridSelector {
             return;
         }
         let cell = d.ceil() as usize;
+        self.mask_cell_px = cell as f32;
         self.mask_cols = width.div_ceil(cell) + 1;
         self.mask_rows = height.div_ceil(cell) + 1;
         self.mask_fill.clear();
@@ -135,7 +127,7 @@ impl GridSelector {
         if self.mask_cols == 0 || !(p[0] >= 0.0 && p[1] >= 0.0) {
             return None;
         }
-        let cell = self.config.min_distance_px.ceil();
+        let cell = self.mask_cell_px;
         let (cx, cy) = ((p[0] / cell) as usize, (p[1] / cell) as usize);
         (cx < self.mask_cols && cy < self.mask_rows).then_some((cx, cy))
     }

@@ -9,15 +9,22 @@
 //!
 //! [`Image`]: crate::sensors::Image
 
+pub mod brief_pattern;
+pub mod corners;
 pub mod fast;
 pub mod grid;
 pub mod klt;
+pub mod matching;
+pub mod orb;
 pub mod pyramid;
 pub mod score;
 
+pub use corners::{CornerConfig, CornerDetector};
 pub use fast::{detect_fast9, Corner};
 pub use grid::{GridConfig, GridSelector};
 pub use klt::{predict_from_rotation, KltConfig, KltTracker, TrackStatus};
+pub use matching::{hamming, match_descriptors, Match, MatchConfig, Matcher, SearchWindow};
+pub use orb::{Descriptor, Keypoint, OrbConfig, OrbExtractor};
 
 pub use pyramid::{GreyImage, Pyramid, PyramidConfig};
 pub use score::{harris_score, shi_tomasi_score};
