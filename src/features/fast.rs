@@ -49,7 +49,7 @@ pub struct FastScratch {
     width: usize,
     height: usize,
     candidates: Vec<Corner>,
-    flags: Vec<u8>,
+    row_candidates: Vec<u32>,
 }
 
 /// True when `mask` (16 bits, circular) holds 9 contiguous set bits.
@@ -88,6 +88,56 @@ fn arc_score(diffs: &[i16; 16]) -> u16 {
     (best - 1).max(0) as u16
 }
 
+/// The compass pre-test on 16 pixels at a time for x in [x0, x1); pushes
+/// the x of every pixel that passes and returns where the vector loop
+/// stopped (the caller finishes the row).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "sse2")]
+unsafe fn pretest_sse2(
+    up: &[u8],
+    mid: &[u8],
+    down: &[u8],
+    x0: usize,
+    x1: usize,
+    threshold: u8,
+    out: &mut Vec<u32>,
+) -> usize {
+    use std::arch::x86_64::*;
+    let t = _mm_set1_epi8(threshold as i8);
+    let zero = _mm_setzero_si128();
+    let load = |row: &[u8], x: usize| _mm_loadu_si128(row.as_ptr().add(x) as *const __m128i);
+    let mut x = x0;
+    while x + 16 <= x1 {
+        let c = load(mid, x);
+        let hi = _mm_adds_epu8(c, t);
+        let lo = _mm_subs_epu8(c, t);
+        let ring = [
+            load(up, x),
+            load(mid, x + 3),
+            load(down, x),
+            load(mid, x - 3),
+        ];
+        // 0xFF where a compass pixel is NOT brighter / NOT darker.
+        let not_bright = ring.map(|p| _mm_cmpeq_epi8(_mm_subs_epu8(p, hi), zero));
+        let not_dark = ring.map(|p| _mm_cmpeq_epi8(_mm_subs_epu8(lo, p), zero));
+        // No adjacent pair both brighter: every pair has a "not".
+        let no_pair = |m: [__m128i; 4]| {
+            _mm_and_si128(
+                _mm_and_si128(_mm_or_si128(m[0], m[1]), _mm_or_si128(m[1], m[2])),
+                _mm_and_si128(_mm_or_si128(m[2], m[3]), _mm_or_si128(m[3], m[0])),
+            )
+        };
+        let reject = _mm_and_si128(no_pair(not_bright), no_pair(not_dark));
+        let mut pass = !(_mm_movemask_epi8(reject) as u32) & 0xffff;
+        while pass != 0 {
+            out.push((x + pass.trailing_zeros() as usize) as u32);
+            pass &= pass - 1;
+        }
+        x += 16;
+    }
+    x
+}
+
 /// Detects FAST-9 corners at least `border` pixels (>= 3) from every edge,
 /// with 3x3 non-maximum suppression on the FAST score. Appends to `out`
 /// (cleared first). Allocates nothing once `scratch` has seen this size.
@@ -110,7 +160,6 @@ pub fn detect_fast9(
         scratch.width = w;
         scratch.height = h;
     }
-    scratch.flags.resize(w, 0);
     scratch.candidates.clear();
     let offsets: [isize; 16] = CIRCLE.map(|(dx, dy)| dy as isize * w as isize + dx as isize);
     let t = threshold;
@@ -121,9 +170,15 @@ pub fn detect_fast9(
         let down = image.row(y + 3);
         let (x0, x1) = (border, w - border);
         // Pre-test: two adjacent compass pixels both brighter or both darker.
-        let flags = &mut scratch.flags[x0..x1];
-        for (i, f) in flags.iter_mut().enumerate() {
-            let x = x0 + i;
+        scratch.row_candidates.clear();
+        // SAFETY: SSE2 is part of the x86_64 baseline; loads stay in the
+        // rows: x - 3 >= 0 and x + 3 + 16 <= x1 + 3 <= w.
+        #[cfg(target_arch = "x86_64")]
+        let vector_end =
+            unsafe { pretest_sse2(up, mid, down, x0, x1, t, &mut scratch.row_candidates) };
+        #[cfg(not(target_arch = "x86_64"))]
+        let vector_end = x0;
+        for x in vector_end..x1 {
             let c = mid[x];
             let hi = c.saturating_add(t);
             let lo = c.saturating_sub(t);
@@ -137,13 +192,12 @@ pub fn detect_fast9(
                 | (((s < lo) as u8) << 2)
                 | (((wv < lo) as u8) << 3);
             let adjacent = |m: u8| (m & (m >> 1 | m << 3)) & 0xf;
-            *f = adjacent(b) | adjacent(d);
-        }
-        for (i, &f) in scratch.flags[x0..x1].iter().enumerate() {
-            if f == 0 {
-                continue;
+            if adjacent(b) | adjacent(d) != 0 {
+                scratch.row_candidates.push(x as u32);
             }
-            let x = x0 + i;
+        }
+        for &x in &scratch.row_candidates {
+            let x = x as usize;
             let centre_index = y * w + x;
             let c = i16::from(data[centre_index]);
             let mut diffs = [0i16; 16];

@@ -43,7 +43,10 @@ pub struct KltConfig {
     /// After the translation converges at level 0, refine an affine warp
     /// of the window (inverse compositional, Baker & Matthews sec. 3.2 with
     /// the affine warp of their eq. 1): removes the bias that rotation and
-    /// scale change within the window leave in a translation-only fit.
+    /// scale change within the window leave in a translation-only fit
+    /// (0.06 px mean at 1 degree of roll; < 0.01 px with it, klt tests).
+    /// Off by default, as in OpenCV: it runs on the forward pass only but
+    /// still doubles its cost, and on KITTI it keeps slightly fewer tracks.
     pub affine_refinement: bool,
     /// Largest accepted std(I(x + d) - T(x)) / std(T) over the window at
     /// level 0 after convergence (a brightness offset does not count);
@@ -63,7 +66,7 @@ impl Default for KltConfig {
             epsilon_px: 0.01,
             min_eigenvalue: 1e-2,
             fb_threshold_px: Some(1.0),
-            affine_refinement: true,
+            affine_refinement: false,
             max_residual: None,
         }
     }
@@ -103,6 +106,8 @@ pub struct KltTracker {
     /// Standard deviation of I - T over the window in the last iteration
     /// divided by the template's own standard deviation.
     last_residual_ratio: f32,
+    /// True while tracking forward (affine refinement runs only then).
+    forward_pass: bool,
     /// Standard deviation of the current template, grey levels.
     template_spread: f32,
 }
@@ -131,6 +136,7 @@ impl KltTracker {
             back_points: Vec::new(),
             back_status: Vec::new(),
             last_residual_ratio: 0.0,
+            forward_pass: true,
             template_spread: 1.0,
         })
     }
@@ -152,7 +158,11 @@ impl KltTracker {
         cur_points: &mut Vec<[f32; 2]>,
         status: &mut Vec<TrackStatus>,
     ) {
+        self.forward_pass = true;
         self.track_one_way(prev, cur, prev_points, predicted, cur_points, status);
+        // The way back only checks consistency to within a pixel: the
+        // translation fit is enough there.
+        self.forward_pass = false;
         let Some(threshold) = self.config.fb_threshold_px else {
             return;
         };
@@ -182,7 +192,42 @@ impl KltTracker {
         self.back_status = back_status;
     }
 
+    /// One direction, compiled for AVX2 + FMA when the CPU has them
+    /// (checked at run time; the window loops then use 8-wide vectors).
     fn track_one_way(
+        &mut self,
+        from: &Pyramid,
+        to: &Pyramid,
+        points: &[[f32; 2]],
+        predicted: Option<&[[f32; 2]]>,
+        out: &mut Vec<[f32; 2]>,
+        status: &mut Vec<TrackStatus>,
+    ) {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: the CPU has AVX2 and FMA, checked just above.
+            return unsafe { self.track_one_way_avx2(from, to, points, predicted, out, status) };
+        }
+        self.track_one_way_generic(from, to, points, predicted, out, status)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn track_one_way_avx2(
+        &mut self,
+        from: &Pyramid,
+        to: &Pyramid,
+        points: &[[f32; 2]],
+        predicted: Option<&[[f32; 2]]>,
+        out: &mut Vec<[f32; 2]>,
+        status: &mut Vec<TrackStatus>,
+    ) {
+        self.track_one_way_generic(from, to, points, predicted, out, status)
+    }
+
+    #[inline(always)]
+    fn track_one_way_generic(
         &mut self,
         from: &Pyramid,
         to: &Pyramid,
@@ -211,6 +256,7 @@ impl KltTracker {
     }
 
     /// One feature through the pyramid; level-0 result and status.
+    #[inline(always)]
     fn track_point(
         &mut self,
         from: &Pyramid,
@@ -241,7 +287,7 @@ impl KltTracker {
                 d = [2.0 * d[0], 2.0 * d[1]];
             }
         }
-        if self.config.affine_refinement {
+        if self.forward_pass && self.config.affine_refinement {
             if let Some(t) = self.refine_affine(to.level(0), p, d) {
                 d = t;
             }
@@ -261,26 +307,54 @@ impl KltTracker {
     /// `track_level` left for level 0. Returns the refined translation of
     /// the window centre, or `None` (keep `d`) when the window leaves the
     /// image or the fit is ill-conditioned.
+    #[inline(always)]
     fn refine_affine(&mut self, to: &GreyImage, p: [f32; 2], d: [f32; 2]) -> Option<[f32; 2]> {
         let h = self.config.half_window_px as isize;
         let n = self.config.half_window_px * 2 + 1;
         // Steepest-descent images for p = (a11-1, a21, a12, a22-1, tx, ty):
         // grad T * dW/dp = [gx u, gy u, gx v, gy v, gx, gy].
-        let mut hessian = Matrix6::<f64>::zeros();
+        // H = sum sd sd^T: every entry is a moment sum g_a g_b u^i v^j
+        // (i + j <= 2) of one of the three gradient products; per row (v
+        // fixed) the sums over u need only 1, u, u^2.
         let np = padded(n);
-        for k in (0..n).flat_map(|j| (0..n).map(move |i| j * np + i)) {
-            let (gx, gy) = (self.grad_x[k], self.grad_y[k]);
-            let (u, v) = ((k % np) as isize - h, (k / np) as isize - h);
-            let sd = Vector6::new(
-                f64::from(gx) * u as f64,
-                f64::from(gy) * u as f64,
-                f64::from(gx) * v as f64,
-                f64::from(gy) * v as f64,
-                f64::from(gx),
-                f64::from(gy),
-            );
-            hessian += sd * sd.transpose();
+        // m[g][q]: g in (xx, xy, yy), q in (1, u, v, uu, uv, vv).
+        let mut m = [[0f64; 6]; 3];
+        for j in 0..n {
+            let v = (j as isize - h) as f32;
+            let mut row = [[0f32; 3]; 3]; // [g][1, u, uu]
+            for i in 0..n {
+                let k = j * np + i;
+                let (gx, gy) = (self.grad_x[k], self.grad_y[k]);
+                let u = (i as isize - h) as f32;
+                for (g, value) in [gx * gx, gx * gy, gy * gy].into_iter().enumerate() {
+                    row[g][0] += value;
+                    row[g][1] += value * u;
+                    row[g][2] += value * u * u;
+                }
+            }
+            let v = f64::from(v);
+            for g in 0..3 {
+                let [s0, s1, s2] = row[g].map(f64::from);
+                m[g][0] += s0;
+                m[g][1] += s1;
+                m[g][2] += s0 * v;
+                m[g][3] += s2;
+                m[g][4] += s1 * v;
+                m[g][5] += s0 * v * v;
+            }
         }
+        let (xx, xy, yy) = (m[0], m[1], m[2]);
+        let (one, u, v, uu, uv, vv) = (0, 1, 2, 3, 4, 5);
+        // sd = [gx u, gy u, gx v, gy v, gx, gy].
+        #[rustfmt::skip]
+        let hessian = Matrix6::<f64>::new(
+            xx[uu], xy[uu], xx[uv], xy[uv], xx[u], xy[u],
+            xy[uu], yy[uu], xy[uv], yy[uv], xy[u], yy[u],
+            xx[uv], xy[uv], xx[vv], xy[vv], xx[v], xy[v],
+            xy[uv], yy[uv], xy[vv], yy[vv], xy[v], yy[v],
+            xx[u],  xy[u],  xx[v],  xy[v],  xx[one], xy[one],
+            xy[u],  yy[u],  xy[v],  yy[v],  xy[one], yy[one],
+        );
         let inverse: Matrix6<f32> = hessian.try_inverse()?.cast();
         // Current warp x' = p + A x + t, x relative to the feature.
         let mut a = Matrix2::<f32>::identity();
@@ -312,6 +386,7 @@ impl KltTracker {
     }
 
     /// sum of SD^T e over the window warped by (A, t) about `p`.
+    #[inline(always)]
     fn affine_residual_products(
         &self,
         image: &GreyImage,
@@ -366,6 +441,7 @@ impl KltTracker {
     }
 
     /// Gauss-Newton at one level from displacement `d`.
+    #[inline(always)]
     fn track_level(
         &mut self,
         from: &GreyImage,
@@ -454,6 +530,7 @@ enum LevelResult {
 
 /// Bilinear samples of the `size` x `size` window whose top-left sample is
 /// at (x0, y0); false when it needs a pixel outside the image.
+#[inline(always)]
 fn sample_window(image: &GreyImage, origin: [f32; 2], size: usize, out: &mut [f32]) -> bool {
     let Some((ix, iy, w)) = bilinear_setup(image, origin, size) else {
         return false;
@@ -474,6 +551,7 @@ fn sample_window(image: &GreyImage, origin: [f32; 2], size: usize, out: &mut [f3
 
 /// sums over the window of grad T * e, e and e^2 for e = I(x) - T(x), I
 /// sampled bilinearly with top-left at `origin`; `None` outside the image.
+#[inline(always)]
 fn residual_gradient_products(
     image: &GreyImage,
     origin: [f32; 2],

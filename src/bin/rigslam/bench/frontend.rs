@@ -33,6 +33,11 @@ pub struct FrontendArgs {
     /// Passes over the frames; the fastest counts (less noise on a busy machine).
     #[arg(long, default_value_t = 1)]
     repeat: usize,
+    /// Spread KLT corners over buckets of this size, px. Off by default:
+    /// the peer's goodFeaturesToTrack takes the strongest corners anywhere
+    /// (10 px apart), and so does this bench unless told otherwise.
+    #[arg(long)]
+    bucket_px: Option<usize>,
     /// Print one JSON object instead of text.
     #[arg(long)]
     json: bool,
@@ -45,44 +50,101 @@ struct FrontendReport {
     klt_tracks_mean: f64,
     orb_ms_per_frame: f64,
     orb_features_mean: f64,
+    /// The same runs timed by the thread's own CPU time: on a shared,
+    /// busy machine this is the steadier number to compare with the peer.
+    klt_cpu_ms_per_frame: f64,
+    orb_cpu_ms_per_frame: f64,
+}
+
+/// Wall and CPU seconds of one timed run.
+#[derive(Clone, Copy)]
+struct Timing {
+    wall_s: f64,
+    cpu_s: f64,
+}
+
+impl Timing {
+    fn best(self, other: Timing) -> Timing {
+        Timing {
+            wall_s: self.wall_s.min(other.wall_s),
+            cpu_s: self.cpu_s.min(other.cpu_s),
+        }
+    }
+}
+
+const NO_TIMING: Timing = Timing {
+    wall_s: f64::INFINITY,
+    cpu_s: f64::INFINITY,
+};
+
+/// CPU time this thread has run, s (Linux schedstat; 0 elsewhere).
+fn thread_cpu_s() -> f64 {
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()
+        .and_then(|s| s.split_whitespace().next()?.parse::<u64>().ok())
+        .map_or(0.0, |ns| ns as f64 * 1e-9)
+}
+
+/// Starts both clocks; `stop` gives the elapsed [`Timing`].
+struct Clocks {
+    wall: Instant,
+    cpu_s: f64,
+}
+
+impl Clocks {
+    fn start() -> Self {
+        Self {
+            wall: Instant::now(),
+            cpu_s: thread_cpu_s(),
+        }
+    }
+    fn stop(&self) -> Timing {
+        Timing {
+            wall_s: self.wall.elapsed().as_secs_f64(),
+            cpu_s: thread_cpu_s() - self.cpu_s,
+        }
+    }
 }
 
 pub fn run(args: FrontendArgs) -> anyhow::Result<()> {
     let frames = load_frames(&args.images)?;
     let repeat = args.repeat.max(1);
-    let mut best_klt_s = f64::INFINITY;
+    let mut best_klt = NO_TIMING;
     let mut tracks = Vec::new();
     for _ in 0..repeat {
-        let (seconds, counts) = run_klt(&frames)?;
-        best_klt_s = best_klt_s.min(seconds);
+        let (timing, counts) = run_klt(&frames, args.bucket_px)?;
+        best_klt = best_klt.best(timing);
         tracks = counts;
     }
-    let mut best_orb_s = f64::INFINITY;
+    let mut best_orb = NO_TIMING;
     let mut features = Vec::new();
     for _ in 0..repeat {
-        let (seconds, counts) = run_orb(&frames)?;
-        best_orb_s = best_orb_s.min(seconds);
+        let (timing, counts) = run_orb(&frames)?;
+        best_orb = best_orb.best(timing);
         features = counts;
     }
+    let pairs = (frames.len() - 1) as f64;
     let mean = |v: &[usize]| v.iter().sum::<usize>() as f64 / v.len().max(1) as f64;
     let report = FrontendReport {
         frames: frames.len(),
-        klt_ms_per_frame: 1e3 * best_klt_s / (frames.len() - 1) as f64,
+        klt_ms_per_frame: 1e3 * best_klt.wall_s / pairs,
         klt_tracks_mean: mean(&tracks),
-        orb_ms_per_frame: 1e3 * best_orb_s / frames.len() as f64,
+        orb_ms_per_frame: 1e3 * best_orb.wall_s / frames.len() as f64,
         orb_features_mean: mean(&features),
+        klt_cpu_ms_per_frame: 1e3 * best_klt.cpu_s / pairs,
+        orb_cpu_ms_per_frame: 1e3 * best_orb.cpu_s / frames.len() as f64,
     };
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
         println!("{} frames from {}", report.frames, args.images.display());
         println!(
-            "KLT detect+track: {:.2} ms/frame, {:.1} tracks survive (of {KLT_CORNERS} detected)",
-            report.klt_ms_per_frame, report.klt_tracks_mean
+            "KLT detect+track: {:.2} ms/frame ({:.2} ms CPU), {:.1} tracks survive (of {KLT_CORNERS} detected)",
+            report.klt_ms_per_frame, report.klt_cpu_ms_per_frame, report.klt_tracks_mean
         );
         println!(
-            "ORB(1000):        {:.2} ms/frame, {:.1} features",
-            report.orb_ms_per_frame, report.orb_features_mean
+            "ORB(1000):        {:.2} ms/frame ({:.2} ms CPU), {:.1} features",
+            report.orb_ms_per_frame, report.orb_cpu_ms_per_frame, report.orb_features_mean
         );
     }
     Ok(())
@@ -114,69 +176,65 @@ fn load_frames(dir: &Path) -> anyhow::Result<Vec<Image>> {
         .collect()
 }
 
-/// Seconds for the whole sequence and surviving tracks per pair.
-fn run_klt(frames: &[Image]) -> anyhow::Result<(f64, Vec<usize>)> {
+/// Time for the whole sequence and surviving tracks per pair.
+fn run_klt(frames: &[Image], bucket_px: Option<usize>) -> anyhow::Result<(Timing, Vec<usize>)> {
     let mut prev = Pyramid::new(PyramidConfig::klt())?;
     let mut cur = Pyramid::new(PyramidConfig::klt())?;
     let mut corner_config = CornerConfig::default();
-    if let Some(v) = std::env::var("RIGSLAM_BUCKET")
-        .ok()
-        .and_then(|v| v.parse().ok())
-    {
-        corner_config.grid.bucket_px = v;
-    }
+    corner_config.grid.bucket_px = bucket_px.unwrap_or(usize::MAX);
     let mut detector = CornerDetector::new(corner_config);
-    let mut klt_config = KltConfig::default();
-    if let Ok(v) = std::env::var("RIGSLAM_KLT_RESIDUAL") {
-        klt_config.max_residual = v.parse().ok();
-    }
-    if std::env::var_os("RIGSLAM_KLT_NO_AFFINE").is_some() {
-        klt_config.affine_refinement = false;
-    }
+    let klt_config = KltConfig::default();
     let mut tracker = KltTracker::new(klt_config)?;
     let mut corners: Vec<Corner> = Vec::with_capacity(KLT_CORNERS);
     let mut points: Vec<[f32; 2]> = Vec::with_capacity(KLT_CORNERS);
     let (mut tracked, mut status) = (Vec::new(), Vec::new());
     let mut survivors = Vec::with_capacity(frames.len());
-    let start = Instant::now();
+    let mut stage_s = [0f64; 3];
+    let clocks = Clocks::start();
     prev.build(&frames[0])?;
     for frame in &frames[1..] {
+        let t0 = Instant::now();
         cur.build(frame)?;
+        let t1 = Instant::now();
         detector.detect(prev.level(0), &[], KLT_CORNERS, &mut corners);
         points.clear();
         points.extend(corners.iter().map(|c| [c.x as f32, c.y as f32]));
+        let t2 = Instant::now();
         tracker.track(&prev, &cur, &points, None, &mut tracked, &mut status);
+        let t3 = Instant::now();
+        stage_s[0] += (t1 - t0).as_secs_f64();
+        stage_s[1] += (t2 - t1).as_secs_f64();
+        stage_s[2] += (t3 - t2).as_secs_f64();
         survivors.push(
             status
                 .iter()
                 .filter(|s| **s == TrackStatus::Tracked)
                 .count(),
         );
-        if std::env::var_os("RIGSLAM_DEBUG_KLT").is_some() {
-            let count = |k: TrackStatus| status.iter().filter(|s| **s == k).count();
-            eprintln!(
-                "tracked {} out {} textureless {} fb {} residual {}",
-                count(TrackStatus::Tracked),
-                count(TrackStatus::OutOfImage),
-                count(TrackStatus::Textureless),
-                count(TrackStatus::ForwardBackward),
-                count(TrackStatus::LargeResidual)
-            );
-        }
         std::mem::swap(&mut prev, &mut cur);
     }
-    Ok((start.elapsed().as_secs_f64(), survivors))
+    let timing = clocks.stop();
+    if std::env::var_os("RIGSLAM_BENCH_STAGES").is_some() {
+        let n = (frames.len() - 1) as f64;
+        eprintln!(
+            "pyramid {:.2} ms, detect {:.2} ms, track {:.2} ms per frame",
+            1e3 * stage_s[0] / n,
+            1e3 * stage_s[1] / n,
+            1e3 * stage_s[2] / n
+        );
+    }
+    Ok((timing, survivors))
 }
 
-/// Seconds for the whole sequence and features per frame.
-fn run_orb(frames: &[Image]) -> anyhow::Result<(f64, Vec<usize>)> {
+/// Time for the whole sequence and features per frame.
+fn run_orb(frames: &[Image]) -> anyhow::Result<(Timing, Vec<usize>)> {
     let mut extractor = OrbExtractor::new(OrbConfig::default())?;
     let (mut keypoints, mut descriptors) = (Vec::new(), Vec::new());
     let mut counts = Vec::with_capacity(frames.len());
-    let start = Instant::now();
+    let clocks = Clocks::start();
     for frame in frames {
         extractor.extract(frame, &mut keypoints, &mut descriptors)?;
         counts.push(keypoints.len());
     }
-    Ok((start.elapsed().as_secs_f64(), counts))
+    Ok((clocks.stop(), counts))
 }
