@@ -233,6 +233,7 @@ impl OrbExtractor {
 }
 
 /// atan2(m01, m10) of the disc of radius 15 around (x, y) (paper eq. 2-3).
+#[inline(always)]
 fn intensity_centroid_angle(image: &GreyImage, x: usize, y: usize, half_width: &[usize]) -> f32 {
     let r = ORIENTATION_RADIUS_PX;
     let (mut m10, mut m01) = (0i32, 0i32);
@@ -256,7 +257,7 @@ fn intensity_centroid_angle(image: &GreyImage, x: usize, y: usize, half_width: &
 }
 
 /// The 256 tests of a rotated pattern at (x, y) of the smoothed level.
-#[inline]
+#[inline(always)]
 fn describe(
     smoothed: &GreyImage,
     x: usize,
@@ -277,6 +278,7 @@ fn describe(
 
 /// [1 4 6 4 1]^2 / 256 binomial smoothing (a Gaussian of sigma 1), borders
 /// replicated; the paper smooths before the tests for noise robustness.
+#[inline(always)]
 fn smooth_binomial5(src: &GreyImage, dst: &mut GreyImage, row_sums: &mut Vec<u16>) {
     let (w, h) = (src.width, src.height);
     dst.width = w;
