@@ -10,9 +10,11 @@ pub use rigslam_drivers as sensors;
 
 pub mod camera;
 pub mod dataset;
+pub mod edge_map;
 pub mod eval;
 pub mod features;
 pub mod imu;
 pub mod rig;
+pub mod shared_data;
 pub mod simulate;
 pub mod trajectory;

@@ -2,7 +2,7 @@
 //! place. Expected values are copied from the files themselves (yaml,
 //! first rows, PNG headers) or from the data README.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use nalgebra::Vector3;
 use rigslam::camera::CameraModel;
@@ -13,24 +13,7 @@ use rigslam::dataset::{
 use rigslam::rig::ImuNoise;
 use rigslam::sensors::PixelFormat;
 
-/// `../shared/data`, or `$RIGSLAM_SHARED_DATA` when set (git worktrees do
-/// not sit beside `shared/`). `None` (skip) when missing, unless `CI` is
-/// set: there a missing data folder fails the test.
-fn data_dir() -> Option<PathBuf> {
-    let dir = std::env::var_os("RIGSLAM_SHARED_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data")));
-    if dir.is_dir() {
-        return Some(dir);
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "CI is set but the shared data folder {} is missing",
-        dir.display()
-    );
-    eprintln!("skipping: {} is missing", dir.display());
-    None
-}
+use rigslam::shared_data::shared_data_dir as data_dir;
 
 /// Width and height from a PNG's IHDR chunk, read by hand: an independent
 /// check on the decoder.

@@ -82,26 +82,10 @@ const EVO_TRUE_PATH_M: f64 = 75.72612630965092;
 /// The contract: ATE statistics within 1e-4 m of evo.
 const ATE_TOL_M: f64 = 1e-4;
 
-/// `../shared/data/euroc/ground_truth`, under `$RIGSLAM_SHARED_DATA`
-/// instead of `../shared/data` when set (git worktrees do not sit beside
-/// `shared/`; the same variable as tests/dataset_real.rs and
-/// bench/peers/evo_reference.sh). `None` (skip) when missing, unless `CI`
-/// is set: there a missing file fails the test.
+/// `../shared/data/euroc/ground_truth`; `None` (skip) when missing, unless
+/// `CI` is set: there a missing folder fails the test.
 fn shared_ground_truth_dir() -> Option<PathBuf> {
-    let data = std::env::var_os("RIGSLAM_SHARED_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data")));
-    let dir = data.join("euroc/ground_truth");
-    if dir.join("V1_02_groundtruth.csv").is_file() {
-        return Some(dir);
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "CI is set but the shared data is missing: {} (see DESIGN.md, Data for tests)",
-        dir.display()
-    );
-    eprintln!("skipping: {} not found", dir.display());
-    None
+    Some(rigslam::shared_data::shared_data_dir()?.join("euroc/ground_truth"))
 }
 
 fn load() -> Option<(Trajectory, Trajectory)> {

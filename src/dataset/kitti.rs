@@ -10,9 +10,10 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Isometry3, Matrix3};
 
 use super::error::DatasetError;
+use super::euroc::reader::load_listed;
 use super::euroc::sensor_yaml::rigid_from_parts;
 use super::euroc::ImageEntry;
-use super::image_file::{png_dimensions, read_png};
+use super::image_file::png_dimensions;
 use super::text::{check_increasing, data_lines, parse_fields, read_text};
 use super::tum::seconds_to_ns;
 use crate::camera::{CameraModel, PinholeRadtan};
@@ -130,21 +131,7 @@ impl KittiSequence {
     /// Decodes frame `index` (camera index 0). `Ok(None)` never happens
     /// for KITTI (every frame is a file) but keeps the EuRoC signature.
     pub fn load(&self, index: usize) -> Result<Option<Frame>, DatasetError> {
-        let entry = self.frames.get(index).ok_or_else(|| {
-            DatasetError::layout(
-                &self.image_dir,
-                format!("frame {index} asked for, {} present", self.frames.len()),
-            )
-        })?;
-        let Some(path) = &entry.path else {
-            return Ok(None);
-        };
-        Ok(Some(Frame {
-            t_ns: entry.t_ns,
-            seq: index as u64,
-            camera_index: 0,
-            image: read_png(path)?,
-        }))
+        load_listed(&self.frames, index, &self.image_dir, 0)
     }
 }
 

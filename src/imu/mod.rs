@@ -1,7 +1,25 @@
-//! Inertial integration: a plain strapdown integrator over raw samples
-//! (reference and simulator check); preintegration for the estimator will
-//! sit beside it.
+//! Inertial integration. A raw stream is corrected and cleaned
+//! ([`model`], [`interval`]), cut at frame stamps, and each interval is
+//! preintegrated on the manifold with its covariance and bias Jacobians
+//! ([`preintegration`], using the step rules of [`quadrature`] and the
+//! noise of [`noise`]); [`residual`] turns a preintegrated interval into
+//! the inertial error between two states. [`strapdown`] is the plain RK4
+//! integrator used as a reference and by the simulator.
 
+pub mod interval;
+pub mod model;
+pub mod noise;
+pub mod preintegration;
+pub mod quadrature;
+pub mod residual;
+pub mod so3;
 pub mod strapdown;
 
+pub use interval::{
+    interpolate_sample, ImuInterval, ImuStream, IntervalConfig, IntervalError, IntervalReport,
+};
+pub use model::ImuIntrinsics;
+pub use noise::{bias_walk_covariance, read_kalibr_imu_yaml, DiscreteNoise};
+pub use preintegration::{IntegrationScheme, Preintegrated, PreintegrationError, Preintegrator};
+pub use residual::{imu_residual, ImuResidual};
 pub use strapdown::{integrate, step, ImuBiases, NavState, StrapdownError, GRAVITY_M_S2};

@@ -247,8 +247,8 @@ fn make_tiles(rays: &[PixelRay], width: usize, height: usize) -> Vec<Tile> {
             };
             let mut sum = [0f64; 3];
             for r in valid() {
-                for a in 0..3 {
-                    sum[a] += r.dir_cam[a] as f64;
+                for (total, d) in sum.iter_mut().zip(r.dir_cam) {
+                    *total += d as f64;
                 }
             }
             let norm = (sum[0] * sum[0] + sum[1] * sum[1] + sum[2] * sum[2]).sqrt();
@@ -441,7 +441,7 @@ mod tests {
         let scene = textured_scene(4);
         let (w, h) = (renderer.width(), renderer.height());
         let threshold = 2000.0;
-        for (k, yaw) in [0.0, 1.57, 3.14, -1.57, 0.8].into_iter().enumerate() {
+        for (k, yaw) in [0.0, 1.57, 3.0, -1.57, 0.8].into_iter().enumerate() {
             let pose = looking_along_x(Vector3::new(0.5, -0.4, 1.3), yaw);
             let img = renderer.render(&scene, &pose, k as u64);
             let cells = cells_with_corners(&img, w, h, threshold);

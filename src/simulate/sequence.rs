@@ -433,26 +433,7 @@ mod tests {
     use super::*;
     use crate::dataset::EurocDataset;
 
-    /// `../shared/data`, or `$RIGSLAM_SHARED_DATA` when set (git worktrees
-    /// do not sit beside `shared/`). `None` (skip) when missing, unless
-    /// `CI` is set: there a missing data folder fails the test.
-    fn data_dir() -> Option<PathBuf> {
-        let dir = std::env::var_os("RIGSLAM_SHARED_DATA")
-            .map(PathBuf::from)
-            .unwrap_or_else(|| {
-                PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../shared/data"))
-            });
-        if dir.is_dir() {
-            return Some(dir);
-        }
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "CI is set but the shared data folder {} is missing",
-            dir.display()
-        );
-        eprintln!("skipping: {} is missing", dir.display());
-        None
-    }
+    use crate::shared_data::shared_data_dir as data_dir;
 
     fn quick(seed: u64, duration_s: f64, stereo: bool) -> SimConfig {
         SimConfig {

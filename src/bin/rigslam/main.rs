@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 mod bench;
 mod demo;
 mod eval;
+mod map;
 mod simulate;
 
 #[derive(Parser)]
@@ -26,6 +27,8 @@ enum Command {
     Demo(demo::DemoArgs),
     /// Score an estimated trajectory against ground truth (ATE, RPE, scale, final drift).
     Eval(eval::EvalArgs),
+    /// Solve, generate and compare edge-map problems (the absolute stage's map, A L = B).
+    Map(map::MapArgs),
     /// Render a synthetic EuRoC-layout dataset (images, IMU, ground truth, calibration).
     Simulate(simulate::SimulateArgs),
 }
@@ -41,6 +44,7 @@ fn main() -> anyhow::Result<()> {
         Command::Bench(args) => bench::run(args),
         Command::Demo(args) => demo::run(args),
         Command::Eval(args) => eval::run(args),
+        Command::Map(args) => map::run(args),
         Command::Simulate(args) => simulate::run(args),
     }
 }

@@ -42,21 +42,7 @@ impl EurocCamera {
     /// `Image` error when the PNG is truncated or corrupt, a `Layout`
     /// error when `index` is past the end.
     pub fn load(&self, index: usize) -> Result<Option<Frame>, DatasetError> {
-        let entry = self.frames.get(index).ok_or_else(|| {
-            DatasetError::layout(
-                &self.csv_path,
-                format!("frame {index} asked for, {} listed", self.frames.len()),
-            )
-        })?;
-        let Some(path) = &entry.path else {
-            return Ok(None);
-        };
-        Ok(Some(Frame {
-            t_ns: entry.t_ns,
-            seq: index as u64,
-            camera_index: self.camera_index,
-            image: read_png(path)?,
-        }))
+        load_listed(&self.frames, index, &self.csv_path, self.camera_index)
     }
 
     /// Stamps listed without an image file.
@@ -212,6 +198,32 @@ fn read_camera(dir: &Path, number: u8) -> Result<EurocCamera, DatasetError> {
         frames,
         csv_path,
     })
+}
+
+/// Decodes entry `index` of a camera's listing (`listing` names the file
+/// or folder the entries came from, for the error when `index` is past the
+/// end): `Ok(None)` when the entry has no image file.
+pub(crate) fn load_listed(
+    frames: &[ImageEntry],
+    index: usize,
+    listing: &Path,
+    camera_index: u8,
+) -> Result<Option<Frame>, DatasetError> {
+    let entry = frames.get(index).ok_or_else(|| {
+        DatasetError::layout(
+            listing,
+            format!("frame {index} asked for, {} listed", frames.len()),
+        )
+    })?;
+    let Some(path) = &entry.path else {
+        return Ok(None);
+    };
+    Ok(Some(Frame {
+        t_ns: entry.t_ns,
+        seq: index as u64,
+        camera_index,
+        image: read_png(path)?,
+    }))
 }
 
 #[cfg(test)]

@@ -1,0 +1,312 @@
+//! `rigslam map`: stand-alone edge-map problems (issue 6): solve one from
+//! an edges file, generate one from a simulated drive, compare edge policies.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::Context;
+use rigslam::edge_map::edges_file::{
+    read_edges_file, read_positions, write_edges_file, write_positions,
+};
+use rigslam::edge_map::simulate::{simulate_city, CityOptions};
+use rigslam::edge_map::{EdgeMapSolver, EdgePolicy, SolverChoice};
+
+#[derive(clap::Args)]
+pub struct MapArgs {
+    #[command(subcommand)]
+    command: MapCommand,
+}
+
+#[derive(clap::Subcommand)]
+enum MapCommand {
+    /// Solve A L = B for an edges file; write `id x y z` per landmark.
+    Solve(SolveArgs),
+    /// Simulate a mapping drive and write its fused edges (and the truth).
+    Generate(GenerateArgs),
+    /// Accuracy and cost of edge policies on one simulated drive.
+    Policies(PoliciesArgs),
+    /// Exact landmark covariance (eq. 59) against the sub-matrix approximation.
+    Covariance(CovarianceArgs),
+}
+
+#[derive(clap::Args)]
+struct CovarianceArgs {
+    #[arg(long, default_value_t = 10_000)]
+    landmarks: usize,
+    /// Landmarks taken as visible: the nearest to the middle landmark.
+    #[arg(long, default_value_t = 30)]
+    visible: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum Method {
+    Cholesky,
+    Pcg,
+}
+
+#[derive(clap::Args)]
+struct SolveArgs {
+    /// `# landmarks N edges M reference R`, then `i j ex ey ez s00 s01 s02 s11 s12 s22` per line.
+    #[arg(long)]
+    edges: PathBuf,
+    #[arg(long)]
+    out: PathBuf,
+    #[arg(long, value_enum, default_value = "cholesky")]
+    method: Method,
+    /// Threads for the factorisation (1: sequential).
+    #[arg(long, default_value_t = 1)]
+    threads: usize,
+    /// True positions (`id x y z`, relative to the reference) to report the error.
+    #[arg(long)]
+    truth: Option<PathBuf>,
+    /// Print one JSON object on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(clap::Args)]
+struct GenerateArgs {
+    #[arg(long, default_value_t = 10_000)]
+    landmarks: usize,
+    #[arg(long)]
+    out: PathBuf,
+    /// Write the true positions relative to the reference landmark here.
+    #[arg(long)]
+    truth: Option<PathBuf>,
+    /// all, mst or knn:K.
+    #[arg(long, default_value = "knn:4")]
+    policy: EdgePolicy,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+}
+
+#[derive(clap::Args)]
+struct PoliciesArgs {
+    #[arg(long, default_value_t = 5_000)]
+    landmarks: usize,
+    #[arg(
+        long,
+        default_value = "all,knn:8,knn:4,knn:2,mst",
+        value_delimiter = ','
+    )]
+    policies: Vec<EdgePolicy>,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn run(args: MapArgs) -> anyhow::Result<()> {
+    match args.command {
+        MapCommand::Solve(a) => solve(a),
+        MapCommand::Generate(a) => generate(a),
+        MapCommand::Policies(a) => policies(a),
+        MapCommand::Covariance(a) => covariance(a),
+    }
+}
+
+fn solve(args: SolveArgs) -> anyhow::Result<()> {
+    let t = Instant::now();
+    let problem = read_edges_file(&args.edges)?;
+    let read_ms = t.elapsed().as_secs_f64() * 1e3;
+    let choice = match args.method {
+        Method::Cholesky => SolverChoice::Cholesky,
+        Method::Pcg => SolverChoice::ConjugateGradient,
+    };
+    let mut solver = EdgeMapSolver::new(choice, args.threads);
+    let (positions, report) = solver
+        .solve(&problem)
+        .with_context(|| format!("solving {}", args.edges.display()))?;
+    write_positions(&args.out, &positions)?;
+    let error = match &args.truth {
+        Some(path) => {
+            let truth = read_positions(path)?;
+            anyhow::ensure!(
+                truth.len() == positions.len(),
+                "{} has {} landmarks, the problem {}",
+                path.display(),
+                truth.len(),
+                positions.len()
+            );
+            let sq: f64 = truth
+                .iter()
+                .zip(&positions)
+                .map(|(a, b)| (a - b).norm_squared())
+                .sum();
+            Some((sq / truth.len() as f64).sqrt())
+        }
+        None => None,
+    };
+    if args.json {
+        let mut json = serde_json::json!({
+            "landmarks": problem.landmark_count,
+            "edges": problem.edges.len(),
+            "assemble_ms": report.assemble_ms,
+            "factor_ms": report.factor_ms,
+            "solve_ms": report.solve_ms,
+            "total_ms": report.total_ms,
+            "symbolic_ms": report.symbolic_ms,
+            "order_ms": report.order_ms,
+            "read_ms": read_ms,
+            "method": report.method,
+            "factor_nnz": report.factor_nnz,
+            "cg_iterations": report.cg_iterations,
+            "threads": args.threads,
+        });
+        if let Some(e) = error {
+            json["rmse_vs_truth_m"] = e.into();
+        }
+        println!("{json}");
+    } else {
+        println!(
+            "{} landmarks, {} edges ({}): assemble {:.1} ms, factor {:.1} ms (symbolic {:.1}), solve {:.1} ms, total {:.1} ms; read {:.1} ms",
+            problem.landmark_count, problem.edges.len(), report.method, report.assemble_ms, report.factor_ms, report.symbolic_ms, report.solve_ms, report.total_ms, read_ms
+        );
+        if let Some(e) = error {
+            println!("RMSE against truth: {e:.4} m");
+        }
+    }
+    Ok(())
+}
+
+fn generate(args: GenerateArgs) -> anyhow::Result<()> {
+    let options = CityOptions {
+        landmarks: args.landmarks,
+        policy: args.policy,
+        seed: args.seed,
+        ..Default::default()
+    };
+    let sim = simulate_city(&options);
+    write_edges_file(&args.out, &sim.problem)?;
+    if let Some(path) = &args.truth {
+        write_positions(path, &sim.truth_relative_m())?;
+    }
+    tracing::info!(
+        "{} landmarks, {} edges from {} frames ({} measurements, policy {}) written to {}",
+        sim.problem.landmark_count,
+        sim.problem.edges.len(),
+        sim.frames,
+        sim.measurements,
+        args.policy,
+        args.out.display()
+    );
+    Ok(())
+}
+
+fn policies(args: PoliciesArgs) -> anyhow::Result<()> {
+    let mut rows = Vec::new();
+    for policy in &args.policies {
+        let sim = simulate_city(&CityOptions {
+            landmarks: args.landmarks,
+            policy: *policy,
+            seed: args.seed,
+            ..Default::default()
+        });
+        let (positions, report) =
+            EdgeMapSolver::new(SolverChoice::Cholesky, 1).solve(&sim.problem)?;
+        let truth = sim.truth_relative_m();
+        let sq: Vec<f64> = truth
+            .iter()
+            .zip(&positions)
+            .map(|(a, b)| (a - b).norm_squared())
+            .collect();
+        let rmse_m = (sq.iter().sum::<f64>() / sq.len() as f64).sqrt();
+        // Error of neighbouring landmarks relative to each other: the edge
+        // residual against the truth, what a robot localising sees.
+        let local: f64 = sim
+            .problem
+            .edges
+            .iter()
+            .map(|e| {
+                let est = positions[e.j as usize] - positions[e.i as usize];
+                let tru = truth[e.j as usize] - truth[e.i as usize];
+                (est - tru).norm_squared()
+            })
+            .sum::<f64>()
+            / sim.problem.edges.len() as f64;
+        rows.push(serde_json::json!({
+            "policy": policy.to_string(),
+            "landmarks": sim.problem.landmark_count,
+            "frames": sim.frames,
+            "measurements": sim.measurements,
+            "edges": sim.problem.edges.len(),
+            "fuse_ms": sim.fuse_ms,
+            "solve_total_ms": report.total_ms,
+            "factor_nnz": report.factor_nnz,
+            "rmse_m": rmse_m,
+            "edge_rmse_m": local.sqrt(),
+        }));
+    }
+    if args.json {
+        println!("{}", serde_json::Value::Array(rows));
+    } else {
+        println!("| policy | edges | measurements | fuse ms | solve ms | factor nnz | landmark RMSE m | edge RMSE m |");
+        println!("|---|---|---|---|---|---|---|---|");
+        for r in rows {
+            println!(
+                "| {} | {} | {} | {:.1} | {:.1} | {} | {:.4} | {:.4} |",
+                r["policy"].as_str().unwrap_or(""),
+                r["edges"],
+                r["measurements"],
+                r["fuse_ms"].as_f64().unwrap_or(0.0),
+                r["solve_total_ms"].as_f64().unwrap_or(0.0),
+                r["factor_nnz"],
+                r["rmse_m"].as_f64().unwrap_or(0.0),
+                r["edge_rmse_m"].as_f64().unwrap_or(0.0)
+            );
+        }
+    }
+    Ok(())
+}
+
+fn covariance(args: CovarianceArgs) -> anyhow::Result<()> {
+    use rigslam::edge_map::covariance::{exact_covariance, submatrix_covariance};
+    use rigslam::edge_map::BlockLaplacian;
+    let sim = simulate_city(&CityOptions {
+        landmarks: args.landmarks,
+        seed: args.seed,
+        ..Default::default()
+    });
+    let mut solver = EdgeMapSolver::new(SolverChoice::Cholesky, 1);
+    solver.solve(&sim.problem)?;
+    let centre = sim.truth_m[sim.truth_m.len() / 2];
+    let mut by_distance: Vec<(f64, u32)> = sim
+        .truth_m
+        .iter()
+        .enumerate()
+        .map(|(id, p)| ((p - centre).norm(), id as u32))
+        .filter(|(_, id)| *id != sim.problem.reference)
+        .collect();
+    by_distance.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let visible: Vec<u32> = by_distance.iter().take(args.visible).map(|v| v.1).collect();
+    let t = Instant::now();
+    let exact = exact_covariance(
+        solver.factor().expect("Cholesky solve keeps its factor"),
+        &sim.problem,
+        &visible,
+    );
+    let exact_ms = t.elapsed().as_secs_f64() * 1e3;
+    let laplacian = BlockLaplacian::assemble(&sim.problem);
+    println!("{} landmarks, {} visible around landmark {}; exact blocks by solving 3m columns: {exact_ms:.1} ms", args.landmarks, visible.len(), sim.truth_m.len() / 2);
+    println!("| sub-matrix rings | visible dim | ms | rel. Frobenius diff | trace ratio approx/exact | mean marginal sigma approx / exact m |");
+    println!("|---|---|---|---|---|---|");
+    let sigma = |m: &nalgebra::DMatrix<f64>| {
+        (0..m.nrows()).map(|k| m[(k, k)].sqrt()).sum::<f64>() / m.nrows() as f64
+    };
+    for hops in [0usize, 1, 2, 4, 8] {
+        let t = Instant::now();
+        let approx = submatrix_covariance(&laplacian, &sim.problem, &visible, hops);
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        println!(
+            "| {hops} | {} | {ms:.1} | {:.3} | {:.4} | {:.4} / {:.4} |",
+            approx.nrows(),
+            (&approx - &exact).norm() / exact.norm(),
+            approx.trace() / exact.trace(),
+            sigma(&approx),
+            sigma(&exact)
+        );
+    }
+    Ok(())
+}
