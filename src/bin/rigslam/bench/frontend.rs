@@ -38,6 +38,9 @@ pub struct FrontendArgs {
     /// (10 px apart), and so does this bench unless told otherwise.
     #[arg(long)]
     bucket_px: Option<usize>,
+    /// Also print the KLT time split into pyramid, detection and tracking (stderr).
+    #[arg(long)]
+    stages: bool,
     /// Print one JSON object instead of text.
     #[arg(long)]
     json: bool,
@@ -112,7 +115,7 @@ pub fn run(args: FrontendArgs) -> anyhow::Result<()> {
     let mut best_klt = NO_TIMING;
     let mut tracks = Vec::new();
     for _ in 0..repeat {
-        let (timing, counts) = run_klt(&frames, args.bucket_px)?;
+        let (timing, counts) = run_klt(&frames, args.bucket_px, args.stages)?;
         best_klt = best_klt.best(timing);
         tracks = counts;
     }
@@ -177,7 +180,11 @@ fn load_frames(dir: &Path) -> anyhow::Result<Vec<Image>> {
 }
 
 /// Time for the whole sequence and surviving tracks per pair.
-fn run_klt(frames: &[Image], bucket_px: Option<usize>) -> anyhow::Result<(Timing, Vec<usize>)> {
+fn run_klt(
+    frames: &[Image],
+    bucket_px: Option<usize>,
+    print_stages: bool,
+) -> anyhow::Result<(Timing, Vec<usize>)> {
     let mut prev = Pyramid::new(PyramidConfig::klt())?;
     let mut cur = Pyramid::new(PyramidConfig::klt())?;
     let mut corner_config = CornerConfig::default();
@@ -214,7 +221,7 @@ fn run_klt(frames: &[Image], bucket_px: Option<usize>) -> anyhow::Result<(Timing
         std::mem::swap(&mut prev, &mut cur);
     }
     let timing = clocks.stop();
-    if std::env::var_os("RIGSLAM_BENCH_STAGES").is_some() {
+    if print_stages {
         let n = (frames.len() - 1) as f64;
         eprintln!(
             "pyramid {:.2} ms, detect {:.2} ms, track {:.2} ms per frame",
