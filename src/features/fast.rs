@@ -116,61 +116,45 @@ unsafe fn segment_test_avx2(
 ) -> usize {
     use std::arch::x86_64::*;
     let w = image.width as isize;
-    let base = image.data.as_ptr().offset(y as isize * w);
     let offsets: [isize; 16] = CIRCLE.map(|(dx, dy)| dy as isize * w + dx as isize);
-    let load =
-        |o: isize, x: usize| _mm256_loadu_si256(base.offset(o + x as isize) as *const __m256i);
     let t = _mm256_set1_epi8(threshold as i8);
     let one = _mm256_set1_epi8(1);
     let zero = _mm256_setzero_si256();
+    // Plain loops, no closures: a closure would not inherit AVX2 and
+    // would not be inlined.
     let mut x = x0;
     while x + 32 <= x1 {
-        let c = load(0, x);
+        let centre = image.data.as_ptr().add(y * image.width + x);
+        let c = _mm256_loadu_si256(centre as *const __m256i);
         let hi = _mm256_adds_epu8(c, t);
         let lo = _mm256_subs_epu8(c, t);
-        let compass = [
-            load(offsets[0], x),
-            load(offsets[4], x),
-            load(offsets[8], x),
-            load(offsets[12], x),
-        ];
-        // 0xFF where a compass pixel is NOT brighter / NOT darker.
-        let not_bright = compass.map(|p| _mm256_cmpeq_epi8(_mm256_subs_epu8(p, hi), zero));
-        let not_dark = compass.map(|p| _mm256_cmpeq_epi8(_mm256_subs_epu8(lo, p), zero));
-        let no_pair = |m: [__m256i; 4]| {
-            _mm256_and_si256(
-                _mm256_and_si256(_mm256_or_si256(m[0], m[1]), _mm256_or_si256(m[1], m[2])),
-                _mm256_and_si256(_mm256_or_si256(m[2], m[3]), _mm256_or_si256(m[3], m[0])),
-            )
-        };
-        let reject = _mm256_and_si256(no_pair(not_bright), no_pair(not_dark));
-        let store = |v: __m256i, row: &mut [u8]| {
-            _mm256_storeu_si256(row.as_mut_ptr().add(x) as *mut __m256i, v)
-        };
+        // Per compass pixel (N, E, S, W): 0xFF where NOT brighter / NOT darker.
+        let mut not_bright = [zero; 4];
+        let mut not_dark = [zero; 4];
+        for k in 0..4 {
+            let p = _mm256_loadu_si256(centre.offset(offsets[4 * k]) as *const __m256i);
+            not_bright[k] = _mm256_cmpeq_epi8(_mm256_subs_epu8(p, hi), zero);
+            not_dark[k] = _mm256_cmpeq_epi8(_mm256_subs_epu8(lo, p), zero);
+        }
+        let reject = _mm256_and_si256(no_adjacent_pair(not_bright), no_adjacent_pair(not_dark));
+        let store = scores_row.as_mut_ptr().add(x) as *mut __m256i;
         if _mm256_movemask_epi8(reject) == -1 {
-            store(zero, scores_row);
+            _mm256_storeu_si256(store, zero);
             x += 32;
             continue;
         }
-        let ring: [__m256i; 16] = offsets.map(|o| load(o, x));
-        let best_arc = |d: [__m256i; 16]| {
-            let m2: [__m256i; 16] = std::array::from_fn(|i| _mm256_min_epu8(d[i], d[(i + 1) % 16]));
-            let m4: [__m256i; 16] =
-                std::array::from_fn(|i| _mm256_min_epu8(m2[i], m2[(i + 2) % 16]));
-            let m8: [__m256i; 16] =
-                std::array::from_fn(|i| _mm256_min_epu8(m4[i], m4[(i + 4) % 16]));
-            (0..16).fold(zero, |best, i| {
-                _mm256_max_epu8(best, _mm256_min_epu8(m8[i], d[(i + 8) % 16]))
-            })
-        };
-        let best = _mm256_max_epu8(
-            best_arc(ring.map(|p| _mm256_subs_epu8(p, c))),
-            best_arc(ring.map(|p| _mm256_subs_epu8(c, p))),
-        );
+        let mut bright = [zero; 16];
+        let mut dark = [zero; 16];
+        for k in 0..16 {
+            let p = _mm256_loadu_si256(centre.offset(offsets[k]) as *const __m256i);
+            bright[k] = _mm256_subs_epu8(p, c);
+            dark[k] = _mm256_subs_epu8(c, p);
+        }
+        let best = _mm256_max_epu8(best_arc9(&bright), best_arc9(&dark));
         // Corner: best > threshold, i.e. best - threshold (saturated) != 0.
         let not_corner = _mm256_cmpeq_epi8(_mm256_subs_epu8(best, t), zero);
         let score = _mm256_max_epu8(_mm256_subs_epu8(best, one), one);
-        store(_mm256_andnot_si256(not_corner, score), scores_row);
+        _mm256_storeu_si256(store, _mm256_andnot_si256(not_corner, score));
         let mut corners = !(_mm256_movemask_epi8(not_corner) as u32);
         while corners != 0 {
             let xi = x + corners.trailing_zeros() as usize;
@@ -184,6 +168,41 @@ unsafe fn segment_test_avx2(
         x += 32;
     }
     x
+}
+
+/// 0xFF in lanes where no two circularly adjacent masks of `m` are both 0.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn no_adjacent_pair(m: [std::arch::x86_64::__m256i; 4]) -> std::arch::x86_64::__m256i {
+    use std::arch::x86_64::*;
+    _mm256_and_si256(
+        _mm256_and_si256(_mm256_or_si256(m[0], m[1]), _mm256_or_si256(m[1], m[2])),
+        _mm256_and_si256(_mm256_or_si256(m[2], m[3]), _mm256_or_si256(m[3], m[0])),
+    )
+}
+
+/// Per lane, the largest over the 16 circular 9-arcs of the smallest `d`
+/// on the arc (runs of 2, 4, 8, then 9 by doubling).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn best_arc9(d: &[std::arch::x86_64::__m256i; 16]) -> std::arch::x86_64::__m256i {
+    use std::arch::x86_64::*;
+    let mut m2 = *d;
+    for i in 0..16 {
+        m2[i] = _mm256_min_epu8(d[i], d[(i + 1) % 16]);
+    }
+    let mut m4 = m2;
+    for i in 0..16 {
+        m4[i] = _mm256_min_epu8(m2[i], m2[(i + 2) % 16]);
+    }
+    let mut best = _mm256_setzero_si256();
+    for i in 0..16 {
+        let m8 = _mm256_min_epu8(m4[i], m4[(i + 4) % 16]);
+        best = _mm256_max_epu8(best, _mm256_min_epu8(m8, d[(i + 8) % 16]));
+    }
+    best
 }
 
 /// FAST-9 score of the pixel at `centre_index` (stride `w`), or `None`

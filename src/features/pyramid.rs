@@ -152,6 +152,8 @@ pub struct Pyramid {
     /// Bilinear column table for the non-halving case: source column and
     /// weight (0..=256) of the right neighbour, per destination column.
     columns: Vec<(u32, u32)>,
+    /// One source row blended vertically, for the non-halving case.
+    row_buffer: Vec<u16>,
 }
 
 impl Pyramid {
@@ -162,6 +164,7 @@ impl Pyramid {
             levels: Vec::with_capacity(config.levels),
             used: 0,
             columns: Vec::new(),
+            row_buffer: Vec::new(),
         })
     }
 
@@ -249,7 +252,7 @@ impl Pyramid {
             if self.config.scale == 2.0 {
                 halve(src, dst);
             } else {
-                resample_bilinear(src, dst, &mut self.columns);
+                resample_bilinear(src, dst, &mut self.columns, &mut self.row_buffer);
             }
             self.used = i + 1;
         }
@@ -282,7 +285,12 @@ fn halve(src: &GreyImage, dst: &mut GreyImage) {
 
 /// Bilinear resampling with pixel centres aligned: source coordinate
 /// (x + 0.5) * sw / dw - 0.5. Weights in 8-bit fixed point.
-fn resample_bilinear(src: &GreyImage, dst: &mut GreyImage, columns: &mut Vec<(u32, u32)>) {
+fn resample_bilinear(
+    src: &GreyImage,
+    dst: &mut GreyImage,
+    columns: &mut Vec<(u32, u32)>,
+    row_buffer: &mut Vec<u16>,
+) {
     let (sw, sh) = (src.width, src.height);
     let fx = sw as f32 / dst.width as f32;
     let fy = sh as f32 / dst.height as f32;
@@ -294,21 +302,29 @@ fn resample_bilinear(src: &GreyImage, dst: &mut GreyImage, columns: &mut Vec<(u3
         (x0 as u32, w.min(256))
     }));
     let single_column = sw == 1;
+    // Vertical blend of the two source rows first (a vector loop over the
+    // whole row, exact in u16: at most 255 * 256), then the horizontal
+    // blend at each column; the same integer sum as blending the other way.
+    let mut blended = std::mem::take(row_buffer);
+    blended.resize(sw, 0);
     for y in 0..dst.height {
         let s = ((y as f32 + 0.5) * fy - 0.5).clamp(0.0, (sh - 1) as f32);
         let y0 = (s as usize).min(sh.saturating_sub(2));
-        let wy = (((s - y0 as f32) * 256.0).round() as u32).min(256);
+        let wy = (((s - y0 as f32) * 256.0).round() as u16).min(256);
         let top = src.row(y0);
         let bottom = src.row((y0 + 1).min(sh - 1));
+        for ((v, &t), &b) in blended.iter_mut().zip(top).zip(bottom) {
+            *v = u16::from(t) * (256 - wy) + u16::from(b) * wy;
+        }
         let out = &mut dst.data[y * dst.width..(y + 1) * dst.width];
         for (o, &(x0, wx)) in out.iter_mut().zip(columns.iter()) {
             let x0 = x0 as usize;
             let x1 = if single_column { x0 } else { x0 + 1 };
-            let t = u32::from(top[x0]) * (256 - wx) + u32::from(top[x1]) * wx;
-            let b = u32::from(bottom[x0]) * (256 - wx) + u32::from(bottom[x1]) * wx;
-            *o = ((t * (256 - wy) + b * wy + (1 << 15)) >> 16) as u8;
+            let v = u32::from(blended[x0]) * (256 - wx) + u32::from(blended[x1]) * wx;
+            *o = ((v + (1 << 15)) >> 16) as u8;
         }
     }
+    *row_buffer = blended;
 }
 
 #[cfg(test)]
