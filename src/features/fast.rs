@@ -123,7 +123,18 @@ unsafe fn segment_test_avx2(
     // Plain loops, no closures: a closure would not inherit AVX2 and
     // would not be inlined.
     let mut x = x0;
-    while x + 32 <= x1 {
+    // Lanes at the start of this block that an earlier block already did:
+    // the row's last block is moved back to end at x1 (when the row is
+    // that long) instead of leaving up to 31 pixels to the scalar test.
+    let mut done_lanes = 0;
+    loop {
+        if x + 32 > x1 {
+            if x >= x1 || x1 - x0 < 32 || done_lanes != 0 {
+                break;
+            }
+            done_lanes = x - (x1 - 32);
+            x = x1 - 32;
+        }
         let centre = image.data.as_ptr().add(y * image.width + x);
         let c = _mm256_loadu_si256(centre as *const __m256i);
         let hi = _mm256_adds_epu8(c, t);
@@ -155,7 +166,7 @@ unsafe fn segment_test_avx2(
         let not_corner = _mm256_cmpeq_epi8(_mm256_subs_epu8(best, t), zero);
         let score = _mm256_max_epu8(_mm256_subs_epu8(best, one), one);
         _mm256_storeu_si256(store, _mm256_andnot_si256(not_corner, score));
-        let mut corners = !(_mm256_movemask_epi8(not_corner) as u32);
+        let mut corners = !(_mm256_movemask_epi8(not_corner) as u32) & (u32::MAX << done_lanes);
         while corners != 0 {
             let xi = x + corners.trailing_zeros() as usize;
             out.push(Corner {
