@@ -5,9 +5,11 @@
 //! largest threshold at which it still is one (the paper's V), used for
 //! 3x3 non-maximum suppression.
 //!
-//! Per row a branch-free pre-test on the four compass pixels (a 9-arc
-//! covers at least two adjacent ones) discards most pixels; survivors get
-//! the full test as two 16-bit masks checked for a run of 9 set bits.
+//! With AVX2 (checked at run time) 32 pixels go through a compass
+//! pre-test at once and, where any passes, through the whole segment test
+//! and score in saturated 8-bit arithmetic; without it, and at row ends,
+//! each pixel gets the test as two 16-bit masks checked for a run of 9
+//! set bits.
 
 use crate::features::pyramid::GreyImage;
 
@@ -45,11 +47,10 @@ pub const CIRCLE: [(i32, i32); 16] = [
 pub struct FastScratch {
     /// Score per pixel of the current call's corners, zero elsewhere (kept
     /// zero between calls by clearing only what was set).
-    scores: Vec<u16>,
+    scores: Vec<u8>,
     width: usize,
     height: usize,
     candidates: Vec<Corner>,
-    row_candidates: Vec<u32>,
 }
 
 /// True when `mask` (16 bits, circular) holds 9 contiguous set bits.
@@ -65,7 +66,7 @@ fn has_arc9(mask: u32) -> bool {
 /// FAST score: max over 9-arcs of the smallest |difference| on the arc,
 /// over both polarities, minus one (the largest passing threshold).
 #[inline]
-fn arc_score(diffs: &[i16; 16]) -> u16 {
+fn arc_score(diffs: &[i16; 16]) -> u8 {
     let mut best = 0i16;
     for sign in [1i16, -1] {
         let mut ext = [0i16; 25];
@@ -85,57 +86,156 @@ fn arc_score(diffs: &[i16; 16]) -> u16 {
             best = best.max(m9);
         }
     }
-    (best - 1).max(0) as u16
+    (best - 1).max(0) as u8
 }
 
-/// The compass pre-test on 16 pixels at a time for x in [x0, x1); pushes
-/// the x of every pixel that passes and returns where the vector loop
-/// stopped (the caller finishes the row).
+/// The whole FAST-9 test and score on 32 pixels at a time for x in
+/// [x0, x1) of row `y`: a compass pre-test first (a 9-arc covers two
+/// adjacent compass pixels), and for a block where any pixel passes it,
+/// the score of all 32 as saturated differences: bright d_k = (p_k - c)+,
+/// dark d_k = (c - p_k)+, the smallest d over each 9-arc by doubling runs
+/// (min of 2, 4, 8, then 9), the largest over arcs and polarities. A
+/// pixel is a corner when that best exceeds the threshold, and its score
+/// is best - 1 (at least 1), as [`arc_score`]. Writes scores into
+/// `scores_row` (0 for non-corners) and pushes corners; returns where the
+/// vector loop stopped (the caller finishes the row).
+///
+/// # Safety
+/// The CPU must have AVX2; rows y - 3..=y + 3 exist, x0 >= 3 and
+/// x1 + 3 <= width.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "sse2")]
-unsafe fn pretest_sse2(
-    up: &[u8],
-    mid: &[u8],
-    down: &[u8],
+#[target_feature(enable = "avx2")]
+unsafe fn segment_test_avx2(
+    image: &GreyImage,
+    y: usize,
     x0: usize,
     x1: usize,
     threshold: u8,
-    out: &mut Vec<u32>,
+    scores_row: &mut [u8],
+    out: &mut Vec<Corner>,
 ) -> usize {
     use std::arch::x86_64::*;
-    let t = _mm_set1_epi8(threshold as i8);
-    let zero = _mm_setzero_si128();
-    let load = |row: &[u8], x: usize| _mm_loadu_si128(row.as_ptr().add(x) as *const __m128i);
+    let w = image.width as isize;
+    let offsets: [isize; 16] = CIRCLE.map(|(dx, dy)| dy as isize * w + dx as isize);
+    let t = _mm256_set1_epi8(threshold as i8);
+    let one = _mm256_set1_epi8(1);
+    let zero = _mm256_setzero_si256();
+    // Plain loops, no closures: a closure would not inherit AVX2 and
+    // would not be inlined.
     let mut x = x0;
-    while x + 16 <= x1 {
-        let c = load(mid, x);
-        let hi = _mm_adds_epu8(c, t);
-        let lo = _mm_subs_epu8(c, t);
-        let ring = [
-            load(up, x),
-            load(mid, x + 3),
-            load(down, x),
-            load(mid, x - 3),
-        ];
-        // 0xFF where a compass pixel is NOT brighter / NOT darker.
-        let not_bright = ring.map(|p| _mm_cmpeq_epi8(_mm_subs_epu8(p, hi), zero));
-        let not_dark = ring.map(|p| _mm_cmpeq_epi8(_mm_subs_epu8(lo, p), zero));
-        // No adjacent pair both brighter: every pair has a "not".
-        let no_pair = |m: [__m128i; 4]| {
-            _mm_and_si128(
-                _mm_and_si128(_mm_or_si128(m[0], m[1]), _mm_or_si128(m[1], m[2])),
-                _mm_and_si128(_mm_or_si128(m[2], m[3]), _mm_or_si128(m[3], m[0])),
-            )
-        };
-        let reject = _mm_and_si128(no_pair(not_bright), no_pair(not_dark));
-        let mut pass = !(_mm_movemask_epi8(reject) as u32) & 0xffff;
-        while pass != 0 {
-            out.push((x + pass.trailing_zeros() as usize) as u32);
-            pass &= pass - 1;
+    // Lanes at the start of this block that an earlier block already did:
+    // the row's last block is moved back to end at x1 (when the row is
+    // that long) instead of leaving up to 31 pixels to the scalar test.
+    let mut done_lanes = 0;
+    loop {
+        if x + 32 > x1 {
+            if x >= x1 || x1 - x0 < 32 || done_lanes != 0 {
+                break;
+            }
+            done_lanes = x - (x1 - 32);
+            x = x1 - 32;
         }
-        x += 16;
+        let centre = image.data.as_ptr().add(y * image.width + x);
+        let c = _mm256_loadu_si256(centre as *const __m256i);
+        let hi = _mm256_adds_epu8(c, t);
+        let lo = _mm256_subs_epu8(c, t);
+        // Per compass pixel (N, E, S, W): 0xFF where NOT brighter / NOT darker.
+        let mut not_bright = [zero; 4];
+        let mut not_dark = [zero; 4];
+        for k in 0..4 {
+            let p = _mm256_loadu_si256(centre.offset(offsets[4 * k]) as *const __m256i);
+            not_bright[k] = _mm256_cmpeq_epi8(_mm256_subs_epu8(p, hi), zero);
+            not_dark[k] = _mm256_cmpeq_epi8(_mm256_subs_epu8(lo, p), zero);
+        }
+        let reject = _mm256_and_si256(no_adjacent_pair(not_bright), no_adjacent_pair(not_dark));
+        let store = scores_row.as_mut_ptr().add(x) as *mut __m256i;
+        if _mm256_movemask_epi8(reject) == -1 {
+            _mm256_storeu_si256(store, zero);
+            x += 32;
+            continue;
+        }
+        let mut bright = [zero; 16];
+        let mut dark = [zero; 16];
+        for k in 0..16 {
+            let p = _mm256_loadu_si256(centre.offset(offsets[k]) as *const __m256i);
+            bright[k] = _mm256_subs_epu8(p, c);
+            dark[k] = _mm256_subs_epu8(c, p);
+        }
+        let best = _mm256_max_epu8(best_arc9(&bright), best_arc9(&dark));
+        // Corner: best > threshold, i.e. best - threshold (saturated) != 0.
+        let not_corner = _mm256_cmpeq_epi8(_mm256_subs_epu8(best, t), zero);
+        let score = _mm256_max_epu8(_mm256_subs_epu8(best, one), one);
+        _mm256_storeu_si256(store, _mm256_andnot_si256(not_corner, score));
+        let mut corners = !(_mm256_movemask_epi8(not_corner) as u32) & (u32::MAX << done_lanes);
+        while corners != 0 {
+            let xi = x + corners.trailing_zeros() as usize;
+            out.push(Corner {
+                x: xi as u32,
+                y: y as u32,
+                score: f32::from(scores_row[xi]),
+            });
+            corners &= corners - 1;
+        }
+        x += 32;
     }
     x
+}
+
+/// 0xFF in lanes where no two circularly adjacent masks of `m` are both 0.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn no_adjacent_pair(m: [std::arch::x86_64::__m256i; 4]) -> std::arch::x86_64::__m256i {
+    use std::arch::x86_64::*;
+    _mm256_and_si256(
+        _mm256_and_si256(_mm256_or_si256(m[0], m[1]), _mm256_or_si256(m[1], m[2])),
+        _mm256_and_si256(_mm256_or_si256(m[2], m[3]), _mm256_or_si256(m[3], m[0])),
+    )
+}
+
+/// Per lane, the largest over the 16 circular 9-arcs of the smallest `d`
+/// on the arc (runs of 2, 4, 8, then 9 by doubling).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn best_arc9(d: &[std::arch::x86_64::__m256i; 16]) -> std::arch::x86_64::__m256i {
+    use std::arch::x86_64::*;
+    let mut m2 = *d;
+    for i in 0..16 {
+        m2[i] = _mm256_min_epu8(d[i], d[(i + 1) % 16]);
+    }
+    let mut m4 = m2;
+    for i in 0..16 {
+        m4[i] = _mm256_min_epu8(m2[i], m2[(i + 2) % 16]);
+    }
+    let mut best = _mm256_setzero_si256();
+    for i in 0..16 {
+        let m8 = _mm256_min_epu8(m4[i], m4[(i + 4) % 16]);
+        best = _mm256_max_epu8(best, _mm256_min_epu8(m8, d[(i + 8) % 16]));
+    }
+    best
+}
+
+/// FAST-9 score of the pixel at `centre_index` (stride `w`), or `None`
+/// when it is not a corner at `threshold`.
+#[inline]
+fn corner_score(
+    data: &[u8],
+    centre_index: usize,
+    offsets: &[isize; 16],
+    threshold: u8,
+) -> Option<u8> {
+    let c = i16::from(data[centre_index]);
+    let t = i16::from(threshold);
+    let mut diffs = [0i16; 16];
+    let (mut bright, mut dark) = (0u32, 0u32);
+    for (k, &o) in offsets.iter().enumerate() {
+        let d = i16::from(data[(centre_index as isize + o) as usize]) - c;
+        diffs[k] = d;
+        bright |= ((d > t) as u32) << k;
+        dark |= ((d < -t) as u32) << k;
+    }
+    (has_arc9(bright) || has_arc9(dark)).then(|| arc_score(&diffs).max(1))
 }
 
 /// Detects FAST-9 corners at least `border` pixels (>= 3) from every edge,
@@ -162,56 +262,35 @@ pub fn detect_fast9(
     }
     scratch.candidates.clear();
     let offsets: [isize; 16] = CIRCLE.map(|(dx, dy)| dy as isize * w as isize + dx as isize);
-    let t = threshold;
     let data = &image.data;
+    #[cfg(target_arch = "x86_64")]
+    let avx2 = std::arch::is_x86_feature_detected!("avx2");
     for y in border..h - border {
-        let up = image.row(y - 3);
-        let mid = image.row(y);
-        let down = image.row(y + 3);
         let (x0, x1) = (border, w - border);
-        // Pre-test: two adjacent compass pixels both brighter or both darker.
-        scratch.row_candidates.clear();
-        // SAFETY: SSE2 is part of the x86_64 baseline; loads stay in the
-        // rows: x - 3 >= 0 and x + 3 + 16 <= x1 + 3 <= w.
+        let scores_row = &mut scratch.scores[y * w..(y + 1) * w];
+        // SAFETY: AVX2 was detected; rows y +- 3 exist (border >= 3) and
+        // x0 >= 3, x1 + 3 <= w.
         #[cfg(target_arch = "x86_64")]
-        let vector_end =
-            unsafe { pretest_sse2(up, mid, down, x0, x1, t, &mut scratch.row_candidates) };
+        let vector_end = if avx2 {
+            unsafe {
+                segment_test_avx2(
+                    image,
+                    y,
+                    x0,
+                    x1,
+                    threshold,
+                    scores_row,
+                    &mut scratch.candidates,
+                )
+            }
+        } else {
+            x0
+        };
         #[cfg(not(target_arch = "x86_64"))]
         let vector_end = x0;
         for x in vector_end..x1 {
-            let c = mid[x];
-            let hi = c.saturating_add(t);
-            let lo = c.saturating_sub(t);
-            let (n, e, s, wv) = (up[x], mid[x + 3], down[x], mid[x - 3]);
-            let b = ((n > hi) as u8)
-                | (((e > hi) as u8) << 1)
-                | (((s > hi) as u8) << 2)
-                | (((wv > hi) as u8) << 3);
-            let d = ((n < lo) as u8)
-                | (((e < lo) as u8) << 1)
-                | (((s < lo) as u8) << 2)
-                | (((wv < lo) as u8) << 3);
-            let adjacent = |m: u8| (m & (m >> 1 | m << 3)) & 0xf;
-            if adjacent(b) | adjacent(d) != 0 {
-                scratch.row_candidates.push(x as u32);
-            }
-        }
-        for &x in &scratch.row_candidates {
-            let x = x as usize;
-            let centre_index = y * w + x;
-            let c = i16::from(data[centre_index]);
-            let mut diffs = [0i16; 16];
-            let (mut bright, mut dark) = (0u32, 0u32);
-            for (k, &o) in offsets.iter().enumerate() {
-                let p = i16::from(data[(centre_index as isize + o) as usize]);
-                let d = p - c;
-                diffs[k] = d;
-                bright |= ((d > i16::from(t)) as u32) << k;
-                dark |= ((d < -i16::from(t)) as u32) << k;
-            }
-            if has_arc9(bright) || has_arc9(dark) {
-                let score = arc_score(&diffs).max(1);
-                scratch.scores[centre_index] = score;
+            if let Some(score) = corner_score(data, y * w + x, &offsets, threshold) {
+                scores_row[x] = score;
                 scratch.candidates.push(Corner {
                     x: x as u32,
                     y: y as u32,

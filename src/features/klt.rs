@@ -457,31 +457,40 @@ impl KltTracker {
         if !sample_window(from, t0, rim, &mut self.template) {
             return LevelResult::OutOfImage(d);
         }
-        let (mut hxx, mut hxy, mut hyy) = (0f32, 0f32, 0f32);
+        let np = padded(n);
         for y in 0..n {
             let above = &self.template[y * rim + 1..y * rim + 1 + n];
             let row = &self.template[(y + 1) * rim..(y + 2) * rim];
             let below = &self.template[(y + 2) * rim + 1..(y + 2) * rim + 1 + n];
-            let np = padded(n);
             let gx = &mut self.grad_x[y * np..y * np + n];
             let gy = &mut self.grad_y[y * np..y * np + n];
             let ti = &mut self.template_inner[y * np..y * np + n];
             for x in 0..n {
-                let ix = 0.5 * (row[x + 2] - row[x]);
-                let iy = 0.5 * (below[x] - above[x]);
-                gx[x] = ix;
-                gy[x] = iy;
+                gx[x] = 0.5 * (row[x + 2] - row[x]);
+                gy[x] = 0.5 * (below[x] - above[x]);
                 ti[x] = row[x + 1];
-                hxx += ix * ix;
-                hxy += ix * iy;
-                hyy += iy * iy;
             }
         }
+        // Sums in lane-wise accumulators over the zero-padded rows, so that
+        // they run as vectors (a single float accumulator would be a chain
+        // of dependent adds, longer than a tracking iteration).
+        let mut sums = [[0f32; LANES]; 5];
+        for k in (0..n * np).step_by(LANES) {
+            for l in 0..LANES {
+                let (ix, iy, t) = (
+                    self.grad_x[k + l],
+                    self.grad_y[k + l],
+                    self.template_inner[k + l],
+                );
+                sums[0][l] += ix * ix;
+                sums[1][l] += ix * iy;
+                sums[2][l] += iy * iy;
+                sums[3][l] += t;
+                sums[4][l] += t * t;
+            }
+        }
+        let [hxx, hxy, hyy, t_sum, t2_sum] = sums.map(|a| a.iter().sum::<f32>());
         let area = (n * n) as f32;
-        let (t_sum, t2_sum) = self
-            .template_inner
-            .iter()
-            .fold((0f32, 0f32), |(s, s2), &v| (s + v, s2 + v * v));
         self.template_spread = spread(t_sum, t2_sum, area).max(1e-3);
         let (a, b, c) = (hxx / area, hxy / area, hyy / area);
         let min_eig = 0.5 * (a + c) - (0.25 * (a - c) * (a - c) + b * b).sqrt();
@@ -562,6 +571,16 @@ fn residual_gradient_products(
     row_values: &mut [f32],
 ) -> Option<(f32, f32, f32, f32)> {
     let (ix, iy, w) = bilinear_setup(image, origin, n)?;
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        // SAFETY: the CPU has AVX2 and FMA, checked just above.
+        let sums = unsafe {
+            residual_gradient_products_avx2(image, ix, iy, w, n, template, grad_x, grad_y)
+        };
+        if sums.is_some() {
+            return sums;
+        }
+    }
     let np = padded(n);
     // Lane-wise accumulators over padded rows: the compiler keeps them in
     // vector registers (float sums are not reassociated otherwise).
@@ -594,6 +613,98 @@ fn residual_gradient_products(
     }
     let sum = |a: [f32; LANES]| a.iter().sum::<f32>();
     Some((sum(sx), sum(sy), sum(se), sum(se2)))
+}
+
+/// [`residual_gradient_products`] in explicit AVX2 + FMA vectors (the
+/// compiler left the lane-wise loop scalar): per 8 pixels of a row, four
+/// u8 loads widened to f32 and blended, e = I - T, then four fused
+/// multiply-adds; lanes past the window width are masked out of e. Window
+/// top-left pixel (ix, iy), bilinear weights `w`. `None` when the 8-byte
+/// loads of the last row would read past the image buffer (the caller
+/// then takes the scalar path).
+///
+/// # Safety
+/// The CPU must have AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn residual_gradient_products_avx2(
+    image: &GreyImage,
+    ix: usize,
+    iy: usize,
+    w: [f32; 4],
+    n: usize,
+    template: &[f32],
+    grad_x: &[f32],
+    grad_y: &[f32],
+) -> Option<(f32, f32, f32, f32)> {
+    use std::arch::x86_64::*;
+    let np = padded(n);
+    let stride = image.width;
+    // Loads reach byte np + 1 of a row (LANES bytes from offset np - LANES + 1).
+    if (iy + n) * stride + ix + np + 1 > image.data.len() || template.len() < n * np {
+        return None;
+    }
+    assert!(grad_x.len() >= n * np && grad_y.len() >= n * np);
+    let weights = w.map(|v| _mm256_set1_ps(v));
+    let lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    let last_chunk = np - LANES;
+    let tail_mask = _mm256_castsi256_ps(_mm256_cmpgt_epi32(
+        _mm256_set1_epi32((n - last_chunk) as i32),
+        lane,
+    ));
+    let (mut sx, mut sy) = (_mm256_setzero_ps(), _mm256_setzero_ps());
+    let (mut se, mut se2) = (_mm256_setzero_ps(), _mm256_setzero_ps());
+    for y in 0..n {
+        let r0 = image.data.as_ptr().add((iy + y) * stride + ix);
+        let r1 = r0.add(stride);
+        for x in (0..np).step_by(LANES) {
+            let value = _mm256_fmadd_ps(
+                weights[0],
+                widen8(r0.add(x)),
+                _mm256_fmadd_ps(
+                    weights[1],
+                    widen8(r0.add(x + 1)),
+                    _mm256_fmadd_ps(
+                        weights[2],
+                        widen8(r1.add(x)),
+                        _mm256_mul_ps(weights[3], widen8(r1.add(x + 1))),
+                    ),
+                ),
+            );
+            let k = y * np + x;
+            let mut e = _mm256_sub_ps(value, _mm256_loadu_ps(template.as_ptr().add(k)));
+            if x == last_chunk {
+                e = _mm256_and_ps(e, tail_mask);
+            }
+            sx = _mm256_fmadd_ps(e, _mm256_loadu_ps(grad_x.as_ptr().add(k)), sx);
+            sy = _mm256_fmadd_ps(e, _mm256_loadu_ps(grad_y.as_ptr().add(k)), sy);
+            se = _mm256_add_ps(se, e);
+            se2 = _mm256_fmadd_ps(e, e, se2);
+        }
+    }
+    Some((hsum8(sx), hsum8(sy), hsum8(se), hsum8(se2)))
+}
+
+/// Eight u8 at `p` as eight f32.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn widen8(p: *const u8) -> std::arch::x86_64::__m256 {
+    use std::arch::x86_64::*;
+    _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(p as *const __m128i)))
+}
+
+/// Sum of the eight lanes.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn hsum8(v: std::arch::x86_64::__m256) -> f32 {
+    use std::arch::x86_64::*;
+    let s = _mm_add_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps(v, 1));
+    let s = _mm_add_ps(s, _mm_movehl_ps(s, s));
+    let s = _mm_add_ss(s, _mm_shuffle_ps(s, s, 1));
+    _mm_cvtss_f32(s)
 }
 
 /// Vector lanes of the window loops.

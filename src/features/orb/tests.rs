@@ -184,3 +184,32 @@ fn empty_tiny_flat_and_saturated_images_give_no_features() {
     })
     .is_err());
 }
+
+#[test]
+fn vector_disc_moments_equal_the_scalar_definition_on_noise() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let (w, h) = (90, 70);
+    let pixels: Vec<u8> = (0..w * h).map(|_| rng.gen()).collect();
+    let img = GreyImage::from_vec(w, h, pixels).unwrap();
+    let r = ORIENTATION_RADIUS_PX as f64;
+    let half: Vec<usize> = (0..=ORIENTATION_RADIUS_PX)
+        .map(|dy| (r * r - (dy * dy) as f64).sqrt().floor() as usize)
+        .collect();
+    let edge = ORIENTATION_RADIUS_PX + 2;
+    for y in edge..h - edge {
+        for x in edge..w - edge {
+            assert_eq!(
+                centroid_moments(&img, x, y, &half),
+                centroid_moments_scalar(&img, x, y, &half),
+                "({x},{y})"
+            );
+        }
+    }
+    // Saturated pixels: the 16-bit sums must not overflow.
+    let white = GreyImage::filled(64, 64, 255);
+    assert_eq!(
+        centroid_moments(&white, 32, 32, &half),
+        centroid_moments_scalar(&white, 32, 32, &half)
+    );
+}
