@@ -7,6 +7,7 @@
 
 pub mod frame;
 pub mod imu_sample;
+pub mod yei;
 
 pub use frame::{BayerPattern, Frame, FrameError, Image, PixelFormat, StereoFrame};
 pub use imu_sample::ImuSample;
