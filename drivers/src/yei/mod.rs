@@ -4,4 +4,5 @@
 //! a pseudo-terminal for tests ([`simulated`]).
 
 pub mod commands;
+pub mod device;
 pub mod protocol;
