@@ -95,7 +95,7 @@ pub struct YeiSample {
 pub struct YeiStats {
     /// Samples decoded and queued.
     pub samples: u64,
-    /// Packets whose payload checksum failed.
+    /// Framed packets rejected as corrupt (payload checksum).
     pub checksum_errors: u64,
     /// Times the decoder lost and regained packet sync.
     pub resyncs: u64,
@@ -456,6 +456,8 @@ struct Worker {
     unwrapper: TimestampUnwrapper,
     clock: ClockSync,
     last_sensor_us: Option<u64>,
+    /// Sensor and host stamp of the last sample, to keep stamps increasing.
+    last_t_ns: Option<(i64, i64)>,
     stats: YeiStats,
 }
 
@@ -481,6 +483,7 @@ impl Worker {
             unwrapper: TimestampUnwrapper::default(),
             clock,
             last_sensor_us: None,
+            last_t_ns: None,
             stats: YeiStats::default(),
         })
     }
@@ -514,6 +517,7 @@ impl Worker {
             .expect("the same configuration was accepted at start");
         self.unwrapper = TimestampUnwrapper::default();
         self.last_sensor_us = None;
+        self.last_t_ns = None;
         self.clock.reset();
     }
 
@@ -614,7 +618,17 @@ impl Worker {
         self.last_sensor_us = Some(sensor_us);
         let sensor_ns = sensor_us as i64 * 1000;
         self.clock.observe(sensor_ns, receipt_ns);
-        let t_ns = self.clock.to_host_ns(sensor_ns).unwrap_or(receipt_ns);
+        let mapped_ns = self.clock.to_host_ns(sensor_ns).unwrap_or(receipt_ns);
+        // Refits move the mapping by microseconds (early on, by up to the
+        // delay jitter); stamps must still increase, by at least half the
+        // sensor interval, so a refit never reorders or bunches samples.
+        let t_ns = match self.last_t_ns {
+            Some((last_sensor_ns, last_t_ns)) => {
+                mapped_ns.max(last_t_ns + ((sensor_ns - last_sensor_ns) / 2).max(1))
+            }
+            None => mapped_ns,
+        };
+        self.last_t_ns = Some((sensor_ns, t_ns));
         let v = packet.values;
         let gyro = v.gyro_rad_s.unwrap_or([0.0; 3]);
         let accel = v.accel_g.unwrap_or([0.0; 3]);

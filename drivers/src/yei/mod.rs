@@ -6,3 +6,4 @@
 pub mod commands;
 pub mod device;
 pub mod protocol;
+pub mod simulated;
