@@ -14,6 +14,7 @@ pub mod dataset;
 pub mod edge_map;
 pub mod eval;
 pub mod imu;
+pub mod recording;
 pub mod rig;
 pub mod shared_data;
 pub mod simulate;

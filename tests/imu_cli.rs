@@ -60,3 +60,37 @@ fn imu_wrong_port_says_what_to_check() {
         "{err}"
     );
 }
+
+#[test]
+fn imu_records_what_it_reports() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("imu.mcap");
+    let out = Command::new(env!("CARGO_BIN_EXE_rigslam"))
+        .args([
+            "imu",
+            "--simulate",
+            "--seconds",
+            "0.5",
+            "--json",
+            "--record",
+        ])
+        .arg(&path)
+        .output()
+        .expect("run rigslam");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("one JSON object");
+    let samples = rigslam::recording::read_imu_channel(&path, "/imu0").expect("recording");
+    assert_eq!(
+        samples.len() as u64,
+        report["samples"].as_u64().expect("count")
+    );
+    let n = samples.len() as f64;
+    let mean_az = samples.iter().map(|s| s.accel_m_s2[2]).sum::<f64>() / n;
+    let reported = report["accel_mean_m_s2"][2].as_f64().expect("number");
+    assert!((mean_az - reported).abs() < 1e-9, "{mean_az} vs {reported}");
+    assert!(samples.windows(2).all(|w| w[1].t_ns > w[0].t_ns));
+}

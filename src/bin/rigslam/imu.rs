@@ -3,7 +3,10 @@
 
 use std::time::{Duration, Instant};
 
+use std::collections::BTreeMap;
+
 use anyhow::Context;
+use rigslam::recording::McapRecorder;
 use rigslam::sensors::yei::device::{YeiConfig, YeiDevice, YeiSample};
 use rigslam::sensors::yei::simulated::{SimConfig, SimulatedYei};
 
@@ -30,6 +33,9 @@ pub struct ImuArgs {
     /// of hardware (no --port needed).
     #[arg(long, conflicts_with = "port")]
     simulate: bool,
+    /// Record the samples to this MCAP file (channel /imu0).
+    #[arg(long)]
+    record: Option<std::path::PathBuf>,
 }
 
 #[derive(serde::Serialize)]
@@ -100,15 +106,38 @@ pub fn run(args: ImuArgs) -> anyhow::Result<()> {
             args.rate_hz
         );
     }
+    let mut recorder = match &args.record {
+        Some(path) => {
+            let mut rec = McapRecorder::create(path)?;
+            let meta = BTreeMap::from([
+                ("device".to_string(), "YEI 3-Space".to_string()),
+                ("serial".to_string(), identity.serial_hex()),
+                ("firmware".to_string(), identity.firmware.clone()),
+                ("port".to_string(), port.clone()),
+            ]);
+            let channel = rec.add_imu_channel("/imu0", &meta)?;
+            Some((rec, channel))
+        }
+        None => None,
+    };
     let mut samples: Vec<YeiSample> = Vec::new();
     let start = Instant::now();
     let until = start + Duration::from_secs_f64(args.seconds);
     while Instant::now() < until {
         if let Some(s) = device.recv_timeout(Duration::from_millis(20)) {
+            if let Some((rec, channel)) = &mut recorder {
+                rec.write_imu(*channel, &s.imu, s.receipt_t_ns)?;
+            }
             samples.push(s);
         }
     }
     let stats = device.close();
+    if let Some((rec, _)) = recorder {
+        let path = rec.finish()?;
+        if !args.json {
+            println!("recorded {} samples to {}", samples.len(), path.display());
+        }
+    }
     anyhow::ensure!(
         !samples.is_empty(),
         "no IMU samples from {port} in {:.1} s although the handshake worked; check the cable and the stream rate",
