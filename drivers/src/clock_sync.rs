@@ -127,9 +127,12 @@ impl ClockSync {
             Some((b, min)) if *b == bucket => {
                 if p.y < min.y {
                     *min = p;
-                }
-                if self.points.len() < 2 {
-                    self.refit();
+                    // The line must stay below every point: refit when the
+                    // new minimum lies under it (cheap check otherwise).
+                    let below = self.line.map_or(true, |(a, b)| p.y < a + b * p.x);
+                    if below || self.points.len() < 2 {
+                        self.refit();
+                    }
                 }
             }
             _ => {

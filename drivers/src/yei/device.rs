@@ -108,6 +108,9 @@ pub struct YeiStats {
     /// Sensor clock jumps (backwards or > 1 s forwards) that restarted the
     /// clock alignment.
     pub clock_jumps: u64,
+    /// Packets dropped because their timestamp left the timeline (a
+    /// corrupt header; the header is not checksummed).
+    pub timestamp_rejects: u64,
     /// Times the port vanished.
     pub disconnects: u64,
     /// Successful reopen + handshake after a disconnect.
@@ -167,9 +170,15 @@ pub fn host_monotonic_ns() -> i64 {
 }
 
 /// Unwraps the YEI's u32 microsecond counter.
+///
+/// The response header is not covered by the checksum, so a lost or
+/// corrupt header byte can yield a valid-looking packet with a wrong
+/// timestamp. A timestamp off the timeline is therefore held as suspect and
+/// only accepted as a clock jump when the next one continues from it.
 #[derive(Debug, Clone, Default)]
 pub struct TimestampUnwrapper {
     last: Option<(u32, u64)>,
+    suspect: Option<u32>,
 }
 
 /// What one timestamp did to the unwrapped clock.
@@ -179,8 +188,11 @@ pub enum ClockStep {
     Forward {
         wrapped: bool,
     },
-    /// Backwards or more than `max_forward_us` ahead: a restarted clock.
+    /// Backwards or more than `max_forward_us` ahead, confirmed by the
+    /// next timestamp: a restarted clock.
     Jump,
+    /// Off the timeline and not (yet) confirmed: the sample is dropped.
+    Suspect,
 }
 
 impl TimestampUnwrapper {
@@ -193,6 +205,7 @@ impl TimestampUnwrapper {
         };
         let forward = t_us.wrapping_sub(last) as u64;
         if forward <= max_forward_us {
+            self.suspect = None;
             let full = last_full + forward;
             self.last = Some((t_us, full));
             (
@@ -201,11 +214,19 @@ impl TimestampUnwrapper {
                     wrapped: t_us < last,
                 },
             )
-        } else {
+        } else if self
+            .suspect
+            .is_some_and(|s| (t_us.wrapping_sub(s) as u64) <= max_forward_us)
+        {
+            // Two timestamps agree on a new timeline: the clock jumped.
             // Keep the unwrapped clock increasing across the jump.
             let full = last_full + 1;
             self.last = Some((t_us, full));
+            self.suspect = None;
             (full, ClockStep::Jump)
+        } else {
+            self.suspect = Some(t_us);
+            (last_full, ClockStep::Suspect)
         }
     }
 }
@@ -613,6 +634,11 @@ impl Worker {
             ClockStep::Jump => {
                 self.stats.clock_jumps += 1;
                 self.clock.reset();
+                self.last_t_ns = None;
+            }
+            ClockStep::Suspect => {
+                self.stats.timestamp_rejects += 1;
+                return;
             }
         }
         self.last_sensor_us = Some(sensor_us);
@@ -620,13 +646,15 @@ impl Worker {
         self.clock.observe(sensor_ns, receipt_ns);
         let mapped_ns = self.clock.to_host_ns(sensor_ns).unwrap_or(receipt_ns);
         // Refits move the mapping by microseconds (early on, by up to the
-        // delay jitter); stamps must still increase, by at least half the
-        // sensor interval, so a refit never reorders or bunches samples.
+        // delay jitter); stamps must still increase, by half the sensor
+        // interval where possible, so a refit never reorders or bunches
+        // samples, and never lie after the receipt.
         let t_ns = match self.last_t_ns {
-            Some((last_sensor_ns, last_t_ns)) => {
-                mapped_ns.max(last_t_ns + ((sensor_ns - last_sensor_ns) / 2).max(1))
-            }
-            None => mapped_ns,
+            Some((last_sensor_ns, last_t_ns)) => mapped_ns
+                .max(last_t_ns + ((sensor_ns - last_sensor_ns) / 2).max(1))
+                .min(receipt_ns)
+                .max(last_t_ns + 1),
+            None => mapped_ns.min(receipt_ns),
         };
         self.last_t_ns = Some((sensor_ns, t_ns));
         let v = packet.values;
@@ -670,10 +698,20 @@ mod tests {
             (t2 - t, step),
             (1000, ClockStep::Forward { wrapped: false })
         );
-        // A clock set back (command 0x5F) is a jump, never a 71-minute gap.
-        let (t3, step) = u.unwrap(10, 1_000_000);
+        // One timestamp off the timeline (a corrupt header) is held back...
+        assert_eq!(u.unwrap(0x00AB_0000, 1_000_000).1, ClockStep::Suspect);
+        // ...and forgotten when the next one continues the old timeline.
+        let (t3, step) = u.unwrap(2500, 1_000_000);
+        assert_eq!(
+            (t3 - t2, step),
+            (1000, ClockStep::Forward { wrapped: false })
+        );
+        // A clock set back (command 0x5F) is a jump once confirmed, never a
+        // 71-minute gap.
+        assert_eq!(u.unwrap(10, 1_000_000).1, ClockStep::Suspect);
+        let (t4, step) = u.unwrap(1010, 1_000_000);
         assert_eq!(step, ClockStep::Jump);
-        assert!(t3 > t2);
+        assert!(t4 > t3);
     }
 
     #[test]

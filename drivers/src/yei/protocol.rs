@@ -760,9 +760,10 @@ mod tests {
 
     /// Randomised soak: a long stream with garbage between packets, lost
     /// bytes and flipped payload bytes (1% each). Every decoded packet must
-    /// be one that was sent, in order, with its exact content (never a
-    /// packet made up from damaged bytes), and almost every undamaged packet
-    /// must come out. The protocol is ambiguous when a lost byte is replaced
+    /// carry the payload of one that was sent, in order (never a payload
+    /// made up from damaged bytes), and almost every undamaged packet
+    /// must come out. A damaged packet may come out under a wrong timestamp
+    /// (the header is not checksummed). The protocol is ambiguous when a lost byte is replaced
     /// by an identical one (e.g. the next packet's status 0x00 and the last
     /// payload byte 0x00): then a neighbour can be lost, which the bound
     /// allows. 20,000 packets by default; `RIGSLAM_YEI_SOAK_PACKETS=20000000`
@@ -787,7 +788,13 @@ mod tests {
                 let (want, was_damaged) = sent
                     .pop_front()
                     .unwrap_or_else(|| panic!("decoded a packet never sent: {got:?}"));
-                if want == got {
+                // The header is outside the checksum: a lost timestamp byte
+                // with a 0x00 before the packet yields the right payload
+                // under a wrong timestamp. The driver rejects those by
+                // timestamp continuity; here they must at least be damaged.
+                if want.values == got.values
+                    && (want.timestamp_us == got.timestamp_us || was_damaged)
+                {
                     decoded += 1;
                     return;
                 }
