@@ -40,7 +40,7 @@ fuzz_target!(|data: &[u8]| {
     let mut parser = CommandParser::default();
     parser.push(bytes);
     let mut n = 0;
-    while parser.next().is_some() {
+    while parser.next_received().is_some() {
         n += 1;
         assert!(n <= bytes.len());
     }

@@ -209,45 +209,43 @@ impl CommandParser {
     }
 
     /// The next command, or `None` when more bytes are needed.
-    pub fn next(&mut self) -> Option<Received> {
-        loop {
-            let start = self
-                .buf
-                .iter()
-                .position(|b| *b == START_NO_HEADER || *b == START_WITH_HEADER);
-            let Some(start) = start else {
-                self.buf.clear();
-                return None;
-            };
-            self.buf.drain(..start);
-            if self.buf.len() < 2 {
-                return None;
-            }
-            let opcode = self.buf[1];
-            let Some(arg_len) = Command::arg_len(opcode) else {
-                self.buf.drain(..2);
-                return Some(Received::UnknownOpcode { opcode });
-            };
-            let total = 2 + arg_len + 1;
-            if self.buf.len() < total {
-                return None;
-            }
-            let with_header = self.buf[0] == START_WITH_HEADER;
-            let args = &self.buf[2..2 + arg_len];
-            let ok = checksum(&self.buf[1..2 + arg_len]) == self.buf[total - 1];
-            let received = if ok {
-                let command = Command::from_parts(opcode, args)
-                    .expect("arg_len and from_parts agree on known opcodes");
-                Received::Command {
-                    command,
-                    with_header,
-                }
-            } else {
-                Received::BadChecksum { opcode }
-            };
-            self.buf.drain(..total);
-            return Some(received);
+    pub fn next_received(&mut self) -> Option<Received> {
+        let start = self
+            .buf
+            .iter()
+            .position(|b| *b == START_NO_HEADER || *b == START_WITH_HEADER);
+        let Some(start) = start else {
+            self.buf.clear();
+            return None;
+        };
+        self.buf.drain(..start);
+        if self.buf.len() < 2 {
+            return None;
         }
+        let opcode = self.buf[1];
+        let Some(arg_len) = Command::arg_len(opcode) else {
+            self.buf.drain(..2);
+            return Some(Received::UnknownOpcode { opcode });
+        };
+        let total = 2 + arg_len + 1;
+        if self.buf.len() < total {
+            return None;
+        }
+        let with_header = self.buf[0] == START_WITH_HEADER;
+        let args = &self.buf[2..2 + arg_len];
+        let ok = checksum(&self.buf[1..2 + arg_len]) == self.buf[total - 1];
+        let received = if ok {
+            let command = Command::from_parts(opcode, args)
+                .expect("arg_len and from_parts agree on known opcodes");
+            Received::Command {
+                command,
+                with_header,
+            }
+        } else {
+            Received::BadChecksum { opcode }
+        };
+        self.buf.drain(..total);
+        Some(received)
     }
 }
 
@@ -303,7 +301,7 @@ mod tests {
         let mut got = Vec::new();
         for b in bytes.chunks(3) {
             p.push(b);
-            while let Some(r) = p.next() {
+            while let Some(r) = p.next_received() {
                 got.push(r);
             }
         }
@@ -322,8 +320,14 @@ mod tests {
     fn parser_reports_bad_checksum_and_unknown_opcode() {
         let mut p = CommandParser::default();
         p.push(&[0xF7, 0x56, 0x57, 0xF9, 0x01]);
-        assert_eq!(p.next(), Some(Received::BadChecksum { opcode: 0x56 }));
-        assert_eq!(p.next(), Some(Received::UnknownOpcode { opcode: 0x01 }));
-        assert_eq!(p.next(), None);
+        assert_eq!(
+            p.next_received(),
+            Some(Received::BadChecksum { opcode: 0x56 })
+        );
+        assert_eq!(
+            p.next_received(),
+            Some(Received::UnknownOpcode { opcode: 0x01 })
+        );
+        assert_eq!(p.next_received(), None);
     }
 }

@@ -11,7 +11,7 @@
 
 use std::io::{self, Read, Write};
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender, TrySendError};
+use std::sync::mpsc::{self, Receiver, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -430,10 +430,8 @@ impl YeiDevice {
 
     /// The next sample, waiting at most `timeout`.
     pub fn recv_timeout(&self, timeout: Duration) -> Option<YeiSample> {
-        match self.samples.recv_timeout(timeout) {
-            Ok(s) => Some(s),
-            Err(RecvTimeoutError::Timeout | RecvTimeoutError::Disconnected) => None,
-        }
+        // Timeout or a finished thread: nothing to return either way.
+        self.samples.recv_timeout(timeout).ok()
     }
 
     /// A sample if one is queued.

@@ -152,7 +152,7 @@ fn open_pty(link: &Path) -> io::Result<Pty> {
         .map_err(io::Error::from)?;
     let name = slave
         .name()
-        .ok_or_else(|| io::Error::new(io::ErrorKind::Other, "pty slave without a name"))?;
+        .ok_or_else(|| io::Error::other("pty slave without a name"))?;
     let tmp = link.with_extension("new");
     let _ = std::fs::remove_file(&tmp);
     std::os::unix::fs::symlink(name, &tmp)?;
@@ -294,7 +294,7 @@ impl Server {
             match pty.master.read(&mut buf) {
                 Ok(n) if n > 0 => {
                     parser.push(&buf[..n]);
-                    while let Some(r) = parser.next() {
+                    while let Some(r) = parser.next_received() {
                         self.answer(r);
                     }
                 }
