@@ -15,6 +15,7 @@ pub mod edge_map;
 pub mod eval;
 pub mod features;
 pub mod imu;
+pub mod recording;
 pub mod rig;
 pub mod shared_data;
 pub mod simulate;

@@ -5,8 +5,10 @@
 //! [`ImuSample`] and [`Frame`]/[`StereoFrame`], all stamped with i64
 //! nanoseconds (host `CLOCK_MONOTONIC` live, dataset time on replay).
 
+pub mod clock_sync;
 pub mod frame;
 pub mod imu_sample;
+pub mod yei;
 
 pub use frame::{BayerPattern, Frame, FrameError, Image, PixelFormat, StereoFrame};
 pub use imu_sample::ImuSample;
