@@ -7,7 +7,8 @@
 
 use std::sync::Arc;
 
-use super::demosaic::{bilinear_grey, DemosaicError};
+use super::buffer_pool::BufferPool;
+use super::demosaic::{DemosaicError, GreyDemosaic};
 use crate::{BayerPattern, Frame, FrameError, Image, PixelFormat, StereoFrame};
 
 /// Which camera's byte comes first in each 16-bit pixel.
@@ -149,12 +150,39 @@ pub fn split_into(
         let src = &interleaved[y * layout.stride_bytes..][..2 * w];
         let a = &mut first[y * w..(y + 1) * w];
         let b = &mut second[y * w..(y + 1) * w];
-        for ((pair, pa), pb) in src.chunks_exact(2).zip(a.iter_mut()).zip(b.iter_mut()) {
-            *pa = pair[0];
-            *pb = pair[1];
-        }
+        deinterleave_row(src, a, b);
     }
     Ok(())
+}
+
+/// `a[i] = src[2i]`, `b[i] = src[2i + 1]`, as 16-bit words split into
+/// their low and high bytes (a form the compiler vectorises).
+fn deinterleave_row(src: &[u8], a: &mut [u8], b: &mut [u8]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2 (checked just above); the function is
+        // safe Rust compiled with AVX2 enabled.
+        unsafe { deinterleave_row_avx2(src, a, b) };
+        return;
+    }
+    deinterleave_row_portable(src, a, b);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn deinterleave_row_avx2(src: &[u8], a: &mut [u8], b: &mut [u8]) {
+    deinterleave_row_portable(src, a, b)
+}
+
+#[inline(always)]
+fn deinterleave_row_portable(src: &[u8], a: &mut [u8], b: &mut [u8]) {
+    let n = a.len();
+    let (src, b) = (&src[..2 * n], &mut b[..n]);
+    for i in 0..n {
+        let word = u16::from_le_bytes([src[2 * i], src[2 * i + 1]]);
+        a[i] = word as u8;
+        b[i] = (word >> 8) as u8;
+    }
 }
 
 /// The inverse of [`split_into`]: builds a packed interleaved frame from two
@@ -172,6 +200,9 @@ pub fn interleave(left: &[u8], right: &[u8], order: ByteOrder) -> Vec<u8> {
         .collect()
 }
 
+/// Stereo frames a consumer may hold before the splitter allocates new buffers.
+const POOLED_FRAMES: usize = 8;
+
 /// Splits captured Bumblebee frames into stereo frames, reusing its
 /// scratch buffers between frames.
 #[derive(Debug)]
@@ -180,6 +211,9 @@ pub struct BumblebeeSplitter {
     output: Output,
     raw_left: Vec<u8>,
     raw_right: Vec<u8>,
+    demosaic: GreyDemosaic,
+    left_pool: BufferPool,
+    right_pool: BufferPool,
 }
 
 impl BumblebeeSplitter {
@@ -189,6 +223,9 @@ impl BumblebeeSplitter {
             output,
             raw_left: Vec::new(),
             raw_right: Vec::new(),
+            demosaic: GreyDemosaic::new(),
+            left_pool: BufferPool::new(POOLED_FRAMES),
+            right_pool: BufferPool::new(POOLED_FRAMES),
         }
     }
 
@@ -212,8 +249,9 @@ impl BumblebeeSplitter {
                 self.raw_left.resize(n, 0);
                 self.raw_right.resize(n, 0);
                 split_into(interleaved, l, &mut self.raw_left, &mut self.raw_right)?;
-                bilinear_grey(&self.raw_left, l.width, l.height, l.width, pattern, left)?;
-                bilinear_grey(&self.raw_right, l.width, l.height, l.width, pattern, right)?;
+                let d = &mut self.demosaic;
+                d.run(&self.raw_left, l.width, l.height, l.width, pattern, left)?;
+                d.run(&self.raw_right, l.width, l.height, l.width, pattern, right)?;
                 Ok(())
             }
             _ => split_into(interleaved, l, left, right),
@@ -236,14 +274,20 @@ impl BumblebeeSplitter {
         };
         self.layout = layout;
         let n = layout.width * layout.height;
-        let mut left = vec![0u8; n];
-        let mut right = vec![0u8; n];
-        self.split_buffers(image.data(), &mut left, &mut right)?;
+        let mut left_px = self.left_pool.checkout(n);
+        let mut right_px = self.right_pool.checkout(n);
+        self.split_buffers(
+            image.data(),
+            Arc::get_mut(&mut left_px).expect("checkout hands out unique buffers"),
+            Arc::get_mut(&mut right_px).expect("checkout hands out unique buffers"),
+        )?;
+        self.left_pool.track(&left_px);
+        self.right_pool.track(&right_px);
         let format = match (self.output, layout.mosaic) {
             (Output::Raw, Some(p)) => PixelFormat::Bayer8(p),
             _ => PixelFormat::Mono8,
         };
-        let eye = |pixels: Vec<u8>, camera_index: u8| -> Result<Frame, BumblebeeError> {
+        let eye = |pixels: Arc<[u8]>, camera_index: u8| -> Result<Frame, BumblebeeError> {
             Ok(Frame {
                 t_ns: frame.t_ns,
                 seq: frame.seq,
@@ -253,14 +297,14 @@ impl BumblebeeSplitter {
                     layout.height as u32,
                     layout.width,
                     format,
-                    Arc::<[u8]>::from(pixels),
+                    pixels,
                 )?,
             })
         };
         Ok(StereoFrame {
             t_ns: frame.t_ns,
-            left: eye(left, 0)?,
-            right: eye(right, 1)?,
+            left: eye(left_px, 0)?,
+            right: eye(right_px, 1)?,
         })
     }
 }

@@ -150,8 +150,8 @@ pub fn bilinear_rgb(
 
 /// Bilinear demosaic straight to grey: exactly
 /// `luma(bilinear_rgb(src))` per pixel, into `out` (`width * height` bytes,
-/// tightly packed), without the RGB image. The fast path the Bumblebee
-/// splitter uses: interior rows run branch-free over column pairs.
+/// tightly packed), without the RGB image. Allocates its scratch per call;
+/// [`GreyDemosaic`] keeps it between frames.
 pub fn bilinear_grey(
     src: &[u8],
     width: usize,
@@ -160,26 +160,94 @@ pub fn bilinear_grey(
     pattern: BayerPattern,
     out: &mut [u8],
 ) -> Result<(), DemosaicError> {
-    check(src, width, height, stride, out.len(), width * height)?;
-    for y in 0..height {
-        let up = &src[mirror(y as isize - 1, height) * stride..][..width];
-        let cur = &src[y * stride..][..width];
-        let down = &src[mirror(y as isize + 1, height) * stride..][..width];
-        let dst = &mut out[y * width..(y + 1) * width];
-        grey_row(
-            up,
-            cur,
-            down,
-            dst,
-            [site(pattern, 0, y), site(pattern, 1, y)],
-        );
+    GreyDemosaic::new().run(src, width, height, stride, pattern, out)
+}
+
+/// Per-column luma weights of one Bayer row kind: for column `x`, the
+/// weight of the centre value, the horizontal, vertical, cross (4 edge
+/// neighbours) and diagonal means. They alternate with the column parity.
+#[derive(Debug, Default, Clone)]
+struct RowWeights {
+    centre: Vec<u16>,
+    horiz: Vec<u16>,
+    vert: Vec<u16>,
+    cross: Vec<u16>,
+    diag: Vec<u16>,
+}
+
+impl RowWeights {
+    fn fill(&mut self, width: usize, sites: [Site; 2]) {
+        let columns = [weights(sites[0]), weights(sites[1])];
+        let all = [
+            &mut self.centre,
+            &mut self.horiz,
+            &mut self.vert,
+            &mut self.cross,
+            &mut self.diag,
+        ];
+        for (k, v) in all.into_iter().enumerate() {
+            v.clear();
+            v.extend((0..width).map(|x| columns[x & 1][k] as u16));
+        }
     }
-    Ok(())
+}
+
+/// The grey demosaic with its scratch (per-column weights, a row of
+/// vertical sums) kept between calls, so steady-state frames allocate
+/// nothing.
+///
+/// Interior pixels run as straight-line 16-bit arithmetic over whole rows,
+/// which the compiler vectorises (AVX2 when the CPU has it, chosen at run
+/// time); the first and last columns take the mirrored scalar path.
+#[derive(Debug, Default, Clone)]
+pub struct GreyDemosaic {
+    key: Option<(usize, BayerPattern)>,
+    /// Weights for even rows and odd rows.
+    rows: [RowWeights; 2],
+    vertical_sums: Vec<u16>,
+}
+
+impl GreyDemosaic {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Same contract as [`bilinear_grey`].
+    pub fn run(
+        &mut self,
+        src: &[u8],
+        width: usize,
+        height: usize,
+        stride: usize,
+        pattern: BayerPattern,
+        out: &mut [u8],
+    ) -> Result<(), DemosaicError> {
+        check(src, width, height, stride, out.len(), width * height)?;
+        if self.key != Some((width, pattern)) {
+            for (y, row) in self.rows.iter_mut().enumerate() {
+                row.fill(width, [site(pattern, 0, y), site(pattern, 1, y)]);
+            }
+            self.vertical_sums.resize(width, 0);
+            self.key = Some((width, pattern));
+        }
+        for y in 0..height {
+            let up = &src[mirror(y as isize - 1, height) * stride..][..width];
+            let cur = &src[y * stride..][..width];
+            let down = &src[mirror(y as isize + 1, height) * stride..][..width];
+            let dst = &mut out[y * width..(y + 1) * width];
+            let w = &self.rows[y & 1];
+            grey_row(up, cur, down, w, &mut self.vertical_sums, dst);
+            let sites = [site(pattern, 0, y), site(pattern, 1, y)];
+            let last = width - 1;
+            dst[0] = grey_pixel(up, cur, down, 0, weights(sites[0]));
+            dst[last] = grey_pixel(up, cur, down, last, weights(sites[last & 1]));
+        }
+        Ok(())
+    }
 }
 
 /// Weights of (centre, horizontal mean, vertical mean, cross mean, diagonal
-/// mean) in the luma of a photosite of this kind.
-#[inline(always)]
+/// mean) in the luma of a photosite of this kind: R = 77, G = 150, B = 29.
 fn weights(s: Site) -> [u32; 5] {
     match s {
         Site::Red => [77, 0, 0, 150, 29],
@@ -189,54 +257,85 @@ fn weights(s: Site) -> [u32; 5] {
     }
 }
 
-#[inline(always)]
-fn grey_at(w: [u32; 5], ul: u8, u: u8, ur: u8, l: u8, c: u8, r: u8, dl: u8, d: u8, dr: u8) -> u8 {
-    let (ul, u, ur, l, c, r, dl, d, dr) = (
-        u32::from(ul),
-        u32::from(u),
-        u32::from(ur),
-        u32::from(l),
-        u32::from(c),
-        u32::from(r),
-        u32::from(dl),
-        u32::from(d),
-        u32::from(dr),
-    );
-    let horiz = (l + r + 1) >> 1;
-    let vert = (u + d + 1) >> 1;
-    let cross = (l + r + u + d + 2) >> 2;
-    let diag = (ul + ur + dl + dr + 2) >> 2;
-    ((w[0] * c + w[1] * horiz + w[2] * vert + w[3] * cross + w[4] * diag + 128) >> 8) as u8
+/// One pixel through mirrored neighbours (the border columns).
+fn grey_pixel(up: &[u8], cur: &[u8], down: &[u8], x: usize, w: [u32; 5]) -> u8 {
+    let n = cur.len();
+    let l = mirror(x as isize - 1, n);
+    let r = mirror(x as isize + 1, n);
+    let v = |a: &[u8], i: usize| u32::from(a[i]);
+    let lr = v(cur, l) + v(cur, r);
+    let ud = v(up, x) + v(down, x);
+    let dg = v(up, l) + v(up, r) + v(down, l) + v(down, r);
+    let value = w[0] * v(cur, x)
+        + w[1] * ((lr + 1) >> 1)
+        + w[2] * ((ud + 1) >> 1)
+        + w[3] * ((lr + ud + 2) >> 2)
+        + w[4] * ((dg + 2) >> 2)
+        + 128;
+    (value >> 8) as u8
 }
 
-/// One output row; `sites` are the kinds of columns 0 and 1.
-fn grey_row(up: &[u8], cur: &[u8], down: &[u8], dst: &mut [u8], sites: [Site; 2]) {
-    let width = cur.len();
-    let w_even = weights(sites[0]);
-    let w_odd = weights(sites[1]);
-    let pixel = |x: usize, w: [u32; 5]| {
-        let l = mirror(x as isize - 1, width);
-        let r = mirror(x as isize + 1, width);
-        grey_at(
-            w, up[l], up[x], up[r], cur[l], cur[x], cur[r], down[l], down[x], down[r],
-        )
-    };
-    // Columns 0 and the last one mirror; the rest run over (odd, even) pairs.
-    dst[0] = pixel(0, w_even);
-    let pairs = (width - 2) / 2;
-    for k in 0..pairs {
-        let x = 2 * k + 1;
-        let win = |a: &[u8]| -> [u8; 4] { [a[x - 1], a[x], a[x + 1], a[x + 2]] };
-        let (u4, c4, d4) = (win(up), win(cur), win(down));
-        dst[x] = grey_at(
-            w_odd, u4[0], u4[1], u4[2], c4[0], c4[1], c4[2], d4[0], d4[1], d4[2],
-        );
-        dst[x + 1] = grey_at(
-            w_even, u4[1], u4[2], u4[3], c4[1], c4[2], c4[3], d4[1], d4[2], d4[3],
-        );
+/// Interior columns `1..width-1` of one output row.
+fn grey_row(up: &[u8], cur: &[u8], down: &[u8], w: &RowWeights, sums: &mut [u16], dst: &mut [u8]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2 (checked just above); the function is
+        // safe Rust compiled with AVX2 enabled.
+        unsafe { grey_row_avx2(up, cur, down, w, sums, dst) };
+        return;
     }
-    for x in (1 + 2 * pairs)..width {
-        dst[x] = pixel(x, if x % 2 == 0 { w_even } else { w_odd });
+    grey_row_portable(up, cur, down, w, sums, dst);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn grey_row_avx2(
+    up: &[u8],
+    cur: &[u8],
+    down: &[u8],
+    w: &RowWeights,
+    sums: &mut [u16],
+    dst: &mut [u8],
+) {
+    grey_row_portable(up, cur, down, w, sums, dst)
+}
+
+/// 16-bit lanes never overflow: means are <= 255 and the weights of a pixel
+/// add up to 256, so the sum is at most 255 * 256 + 128 < 2^16.
+#[inline(always)]
+fn grey_row_portable(
+    up: &[u8],
+    cur: &[u8],
+    down: &[u8],
+    w: &RowWeights,
+    sums: &mut [u16],
+    dst: &mut [u8],
+) {
+    let width = cur.len();
+    let (up, down, sums) = (&up[..width], &down[..width], &mut sums[..width]);
+    for x in 0..width {
+        sums[x] = u16::from(up[x]) + u16::from(down[x]);
+    }
+    let n = width - 2;
+    let (cl, cc, cr) = (&cur[..n], &cur[1..n + 1], &cur[2..n + 2]);
+    let (sl, sc, sr) = (&sums[..n], &sums[1..n + 1], &sums[2..n + 2]);
+    let wc = &w.centre[1..n + 1];
+    let wh = &w.horiz[1..n + 1];
+    let wv = &w.vert[1..n + 1];
+    let wx = &w.cross[1..n + 1];
+    let wd = &w.diag[1..n + 1];
+    let out = &mut dst[1..n + 1];
+    for i in 0..n {
+        let lr = u16::from(cl[i]) + u16::from(cr[i]);
+        let ud = sc[i];
+        let dg = sl[i] + sr[i];
+        let value = wc[i] * u16::from(cc[i])
+            + wh[i] * ((lr + 1) >> 1)
+            + wv[i] * ((ud + 1) >> 1)
+            + wx[i] * ((lr + ud + 2) >> 2)
+            + wd[i] * ((dg + 2) >> 2)
+            + 128;
+        out[i] = (value >> 8) as u8;
     }
 }
 
@@ -350,6 +449,28 @@ mod tests {
                         "{p:?} {w}x{h} pixel {i}"
                     );
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn portable_and_dispatched_rows_agree() {
+        // On an AVX2 machine the other tests run the AVX2 build of the row
+        // kernel; this one pins the portable build to it.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let width = 77;
+        let rows: Vec<Vec<u8>> = (0..3)
+            .map(|_| (0..width).map(|_| rng.gen()).collect())
+            .collect();
+        for p in PATTERNS {
+            for y in 0..2 {
+                let mut w = RowWeights::default();
+                w.fill(width, [site(p, 0, y), site(p, 1, y)]);
+                let mut sums = vec![0u16; width];
+                let (mut a, mut b) = (vec![0u8; width], vec![0u8; width]);
+                grey_row(&rows[0], &rows[1], &rows[2], &w, &mut sums, &mut a);
+                grey_row_portable(&rows[0], &rows[1], &rows[2], &w, &mut sums, &mut b);
+                assert_eq!(a[1..width - 1], b[1..width - 1], "{p:?} row {y}");
             }
         }
     }

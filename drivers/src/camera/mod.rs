@@ -2,6 +2,7 @@
 //! the `aravis` feature, a fake), and the Bumblebee stereo splitter with its
 //! demosaicing.
 
+pub mod buffer_pool;
 pub mod bumblebee;
 pub mod demosaic;
 pub mod fake;

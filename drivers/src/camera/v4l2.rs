@@ -24,6 +24,7 @@
 use std::io;
 use std::time::Duration;
 
+use super::buffer_pool::BufferPool;
 use super::source::{
     monotonic_now_ns, CameraError, CameraInfo, CaptureStats, FrameSource, SequenceCounter,
     TimestampSource,
@@ -114,6 +115,9 @@ pub fn frame_stamp(
 /// being skipped: the format or the link is wrong, not one frame.
 const MAX_CONSECUTIVE_BAD: u32 = 8;
 
+/// Frames a consumer may hold before capture allocates new buffers.
+const POOLED_FRAMES: usize = 8;
+
 /// A V4L2 camera as a [`FrameSource`], over any [`V4l2Stream`].
 pub struct V4l2Source<S> {
     stream: S,
@@ -124,6 +128,7 @@ pub struct V4l2Source<S> {
     sequence: SequenceCounter,
     frames: u64,
     corrupt: u64,
+    pool: BufferPool,
 }
 
 impl<S: V4l2Stream> V4l2Source<S> {
@@ -139,6 +144,7 @@ impl<S: V4l2Stream> V4l2Source<S> {
             sequence: SequenceCounter::new(),
             frames: 0,
             corrupt: 0,
+            pool: BufferPool::new(POOLED_FRAMES),
         }
     }
 
@@ -189,7 +195,9 @@ impl<S: V4l2Stream> FrameSource for V4l2Source<S> {
             let image = if meta.flags & buf_flag::ERROR != 0 {
                 Err(None)
             } else {
-                self.layout.to_image(&buffer.bytes[..used]).map_err(Some)
+                self.layout
+                    .to_image_in(&buffer.bytes[..used], &mut self.pool)
+                    .map_err(Some)
             };
             match image {
                 Ok(image) => {

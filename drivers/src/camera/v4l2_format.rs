@@ -6,8 +6,7 @@
 //! bits), YUYV (4:2:2, of which we keep the luma) and the 8- and 16-bit
 //! Bayer layouts.
 
-use std::sync::Arc;
-
+use super::buffer_pool::BufferPool;
 use crate::{BayerPattern, FrameError, Image, PixelFormat};
 
 /// A V4L2 capture format rigslam can turn into an [`Image`].
@@ -165,6 +164,12 @@ impl FrameLayout {
     /// [`needed_bytes`](Self::needed_bytes) long) into a tightly packed,
     /// owned image. Copying is what lets the driver re-queue its buffer.
     pub fn to_image(&self, wire: &[u8]) -> Result<Image, LayoutError> {
+        self.to_image_in(wire, &mut BufferPool::new(1))
+    }
+
+    /// [`to_image`](Self::to_image) into a buffer from `pool`, so steady
+    /// capture allocates nothing.
+    pub fn to_image_in(&self, wire: &[u8], pool: &mut BufferPool) -> Result<Image, LayoutError> {
         let needed = self.needed_bytes();
         if wire.len() < needed {
             return Err(LayoutError::Short {
@@ -174,28 +179,22 @@ impl FrameLayout {
         }
         let out_format = self.format.output_format();
         let out_row = self.width as usize * out_format.bytes_per_pixel();
-        let mut out = vec![0u8; out_row * self.height as usize];
         let wire_row = self.width as usize * self.format.wire_bytes_per_pixel();
-        for (y, dst) in out.chunks_exact_mut(out_row).enumerate() {
-            let start = y * self.bytes_per_line;
-            let src = &wire[start..start + wire_row];
-            match self.format {
-                WireFormat::Yuyv => {
-                    for (d, pair) in dst.iter_mut().zip(src.chunks_exact(2)) {
-                        *d = pair[0];
+        let pixels = pool.take(out_row * self.height as usize, |out| {
+            for (y, dst) in out.chunks_exact_mut(out_row).enumerate() {
+                let start = y * self.bytes_per_line;
+                let src = &wire[start..start + wire_row];
+                match self.format {
+                    WireFormat::Yuyv => {
+                        for (d, pair) in dst.iter_mut().zip(src.chunks_exact(2)) {
+                            *d = pair[0];
+                        }
                     }
+                    _ => dst.copy_from_slice(src),
                 }
-                _ => dst.copy_from_slice(src),
             }
-        }
-        Image::new(
-            self.width,
-            self.height,
-            out_row,
-            out_format,
-            Arc::<[u8]>::from(out),
-        )
-        .map_err(LayoutError::Frame)
+        });
+        Image::new(self.width, self.height, out_row, out_format, pixels).map_err(LayoutError::Frame)
     }
 }
 
