@@ -93,6 +93,12 @@ pub trait FrameSource {
     fn next_frame(&mut self, timeout: Duration) -> Result<Frame, CameraError>;
     /// Counters so far.
     fn stats(&self) -> CaptureStats;
+    /// The last frame's stamp on the device's own clock, when it has one
+    /// (GigE Vision timestamp), for the clock-alignment stage to map onto
+    /// the host clock; `None` when `t_ns` already is host time.
+    fn last_device_stamp_ns(&self) -> Option<i64> {
+        None
+    }
 }
 
 impl<S: FrameSource + ?Sized> FrameSource for Box<S> {
@@ -104,6 +110,9 @@ impl<S: FrameSource + ?Sized> FrameSource for Box<S> {
     }
     fn stats(&self) -> CaptureStats {
         (**self).stats()
+    }
+    fn last_device_stamp_ns(&self) -> Option<i64> {
+        (**self).last_device_stamp_ns()
     }
 }
 
@@ -218,6 +227,12 @@ pub fn monotonic_now_ns() -> i64 {
     monotonic::now_ns()
 }
 
+/// Host `CLOCK_REALTIME` now, in nanoseconds (only to move stamps that
+/// libraries take on the wall clock onto the monotonic one).
+pub fn realtime_now_ns() -> i64 {
+    monotonic::clock_ns(monotonic::CLOCK_REALTIME)
+}
+
 mod monotonic {
     #[repr(C)]
     struct Timespec {
@@ -227,17 +242,25 @@ mod monotonic {
     extern "C" {
         fn clock_gettime(clock_id: i32, tp: *mut Timespec) -> i32;
     }
+    pub const CLOCK_REALTIME: i32 = 0;
     const CLOCK_MONOTONIC: i32 = 1;
 
     pub fn now_ns() -> i64 {
+        clock_ns(CLOCK_MONOTONIC)
+    }
+
+    pub fn clock_ns(clock_id: i32) -> i64 {
         let mut ts = Timespec {
             tv_sec: 0,
             tv_nsec: 0,
         };
         // SAFETY: `ts` is a valid, writable timespec (64-bit Linux layout);
-        // clock_gettime(CLOCK_MONOTONIC) cannot fail for a valid pointer.
-        let rc = unsafe { clock_gettime(CLOCK_MONOTONIC, &mut ts) };
-        assert_eq!(rc, 0, "clock_gettime(CLOCK_MONOTONIC) cannot fail");
+        // clock_gettime cannot fail for a valid clock id and pointer.
+        let rc = unsafe { clock_gettime(clock_id, &mut ts) };
+        assert_eq!(
+            rc, 0,
+            "clock_gettime cannot fail for a valid clock and pointer"
+        );
         ts.tv_sec * crate::NS_PER_S + ts.tv_nsec
     }
 }
