@@ -30,8 +30,11 @@ fn shared_data() -> Option<PathBuf> {
     None
 }
 
-/// Stereo pairs (same file name in cam0 and cam1) as (width, height, left, right).
-fn euroc_pairs(limit: usize) -> Option<Vec<(u32, u32, Vec<u8>, Vec<u8>)>> {
+/// A stereo pair: width, height, left pixels, right pixels.
+type Pair = (u32, u32, Vec<u8>, Vec<u8>);
+
+/// Stereo pairs (same file name in cam0 and cam1).
+fn euroc_pairs(limit: usize) -> Option<Vec<Pair>> {
     let mav0 = shared_data()?.join("euroc/V1_01_micro/mav0");
     let mut names: Vec<_> = std::fs::read_dir(mav0.join("cam0/data"))
         .expect("cam0/data is listable")

@@ -36,7 +36,7 @@ use crate::{Frame, Image};
 /// What the user asked of the camera; `None` keeps the camera's setting.
 #[derive(Debug, Clone, PartialEq)]
 pub struct AravisConfig {
-    /// Camera id as Aravis lists it ("Vendor-Model-Serial"), or an IP
+    /// Camera id as Aravis names it ("Vendor-Model-Serial"), or an IP
     /// address for GigE; `None` opens the first camera found.
     pub device: Option<String>,
     /// GenICam `PixelFormat` name ("Mono8", "BayerRG8", ...).
@@ -103,7 +103,7 @@ pub fn open_aravis(config: &AravisConfig) -> Result<AravisSource, CameraError> {
         driver: "aravis",
         device: device.clone(),
         source: std::io::Error::new(std::io::ErrorKind::NotFound, e.to_string()),
-        hint: "`arv-tool-0.8` lists the cameras Aravis sees; for GigE the camera must be on the host's subnet (or give its IP) and UDP 3956 must not be firewalled; for USB3 check udev permissions",
+        hint: "is the camera powered; GigE: on the host's subnet or given by its IP address, UDP 3956 not firewalled; USB3: udev permissions; `arv-camera-test-0.8 -n ID` (Debian aravis-tools) tries the same id",
     })?;
     let err = |what| glib_err(&device, what);
 
@@ -507,7 +507,7 @@ mod tests {
         let text = err.to_string();
         assert!(matches!(err, CameraError::Open { .. }), "{text}");
         assert!(
-            text.contains("NoSuchVendor-NoSuchModel-0000") && text.contains("arv-tool"),
+            text.contains("NoSuchVendor-NoSuchModel-0000") && text.contains("arv-camera-test"),
             "{text}"
         );
     }

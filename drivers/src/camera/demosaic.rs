@@ -131,8 +131,8 @@ pub fn bilinear_rgb(
                 + at(xi + 1, yi + 1)
                 + 2)
                 / 4;
-            let horiz = (at(xi - 1, yi) + at(xi + 1, yi) + 1) / 2;
-            let vert = (at(xi, yi - 1) + at(xi, yi + 1) + 1) / 2;
+            let horiz = (at(xi - 1, yi) + at(xi + 1, yi)).div_ceil(2);
+            let vert = (at(xi, yi - 1) + at(xi, yi + 1)).div_ceil(2);
             let (r, g, b) = match site(pattern, x, y) {
                 Site::Red => (c, cross, diag),
                 Site::Blue => (diag, cross, c),

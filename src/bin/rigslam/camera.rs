@@ -26,7 +26,7 @@ pub struct CameraArgs {
     /// Which driver opens the device.
     #[arg(long, value_enum)]
     driver: Driver,
-    /// Device: /dev/videoN or N for V4L2; a camera id (`arv-tool-0.8` lists them) for Aravis.
+    /// Device: /dev/videoN or N for V4L2; for Aravis a camera id ("Vendor-Model-Serial") or a GigE camera's IP address, 0 for the first camera found.
     #[arg(long, default_value = "0")]
     device: String,
     /// How long to stream.
