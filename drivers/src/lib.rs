@@ -5,6 +5,7 @@
 //! [`ImuSample`] and [`Frame`]/[`StereoFrame`], all stamped with i64
 //! nanoseconds (host `CLOCK_MONOTONIC` live, dataset time on replay).
 
+pub mod camera;
 pub mod clock_sync;
 pub mod frame;
 pub mod imu_sample;
