@@ -3,3 +3,10 @@
 //! camera model and IMU code (see the Calibration issue).
 
 pub use rigslam::camera;
+
+pub mod accel_calibration;
+pub mod error;
+pub mod gyro_calibration;
+pub mod imu_log;
+pub mod nelder_mead;
+pub mod static_detection;
