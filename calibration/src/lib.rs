@@ -5,8 +5,11 @@
 pub use rigslam::camera;
 
 pub mod accel_calibration;
+pub mod allan;
 pub mod error;
 pub mod gyro_calibration;
 pub mod imu_log;
 pub mod nelder_mead;
+pub mod noise_calibration;
+pub mod noise_fit;
 pub mod static_detection;
