@@ -11,7 +11,8 @@
 pub struct NelderMeadOptions {
     /// Edge of the initial simplex along each coordinate.
     pub initial_step: f64,
-    /// Stop when the function values of the simplex differ by less than this.
+    /// Stop when the function values of the simplex differ by less than
+    /// this, relative to the best value (plus `f_tolerance * 1e-12` absolute) ...
     pub f_tolerance: f64,
     /// ... and the vertices are within this of the best one (max norm).
     pub x_tolerance: f64,
@@ -23,8 +24,8 @@ impl Default for NelderMeadOptions {
     fn default() -> Self {
         Self {
             initial_step: 0.01,
-            f_tolerance: 1e-18,
-            x_tolerance: 1e-10,
+            f_tolerance: 1e-10,
+            x_tolerance: 1e-8,
             max_evaluations: 200_000,
             max_restarts: 20,
         }
@@ -55,7 +56,7 @@ pub fn minimize(
     loop {
         let (x, fx, evals, ok) = one_run(&f, &best, options, options.max_evaluations - evaluations);
         evaluations += evals;
-        let improved = fx < best_f - options.f_tolerance;
+        let improved = fx < best_f - options.f_tolerance * (best_f.abs() + 1e-12);
         if fx <= best_f {
             best = x;
             best_f = fx;
@@ -111,7 +112,9 @@ fn one_run(
             .iter()
             .flat_map(|v| v.iter().zip(&simplex[0]).map(|(a, b)| (a - b).abs()))
             .fold(0.0, f64::max);
-        if spread_f <= options.f_tolerance && spread_x <= options.x_tolerance {
+        if spread_f <= options.f_tolerance * (values[0].abs() + 1e-12)
+            && spread_x <= options.x_tolerance
+        {
             converged = true;
             break;
         }
