@@ -212,7 +212,7 @@ pub fn noise_warnings(cal: &NoiseCalibration) -> Vec<String> {
             }
             if a.walk_points == 0 {
                 out.push(format!(
-                    "{}: the random-walk slope (+1/2) is not reached in {:.0} s; its value is an upper bound: record longer (2 h or more) for a measured value",
+                    "{}: the random-walk slope (+1/2) is not reached in {:.0} s; its value is an upper bound: record at least twice as long for a measured value",
                     AXIS_NAMES[axis], cal.duration_s
                 ));
             }

@@ -23,34 +23,36 @@ fn plot_error(path: &Path, e: impl std::fmt::Display) -> CalibrationError {
     }
 }
 
-/// One point per pose: `|a| - g` before (grey) and after (blue), m/s^2.
+/// One point per pose: `|a| - g` before (grey) and after (blue), m/s^2,
+/// above; the calibrated ones alone, on their own scale, below.
 pub fn plot_static_residuals(
     path: &Path,
     before: &[f64],
     after: &[f64],
 ) -> Result<(), CalibrationError> {
     let draw = || -> Result<(), Box<dyn std::error::Error>> {
-        let root = BitMapBackend::new(path, (1000, 500)).into_drawing_area();
+        let root = BitMapBackend::new(path, (1000, 800)).into_drawing_area();
         root.fill(&WHITE)?;
+        let (top, bottom) = root.split_vertically(450);
+        let x_range = -0.5f64..(before.len() as f64 - 0.5).max(0.5);
+        let grey = RGBColor(120, 120, 120);
         let limit = before
             .iter()
             .chain(after)
-            .fold(1e-4f64, |m, v| m.max(v.abs()))
+            .fold(1e-6f64, |m, v| m.max(v.abs()))
             * 1.1;
-        let mut chart = ChartBuilder::on(&root)
+        let mut chart = ChartBuilder::on(&top)
             .caption("Gravity-magnitude error per still pose", ("sans-serif", 24))
             .margin(15)
-            .x_label_area_size(45)
+            .x_label_area_size(40)
             .y_label_area_size(75)
-            .build_cartesian_2d(-0.5f64..(before.len() as f64 - 0.5).max(0.5), -limit..limit)?;
+            .build_cartesian_2d(x_range.clone(), -limit..limit)?;
         chart
             .configure_mesh()
-            .x_desc("still pose (time order)")
             .y_desc("|a| - g [m/s^2]")
             .label_style(("sans-serif", 16))
             .axis_desc_style(("sans-serif", 18))
             .draw()?;
-        let grey = RGBColor(120, 120, 120);
         chart
             .draw_series(
                 before
@@ -76,6 +78,26 @@ pub fn plot_static_residuals(
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
             .draw()?;
+        let after_mm: Vec<f64> = after.iter().map(|r| r * 1e3).collect();
+        let limit_mm = after_mm.iter().fold(1e-3f64, |m, v| m.max(v.abs())) * 1.2;
+        let mut zoom = ChartBuilder::on(&bottom)
+            .caption("calibrated only", ("sans-serif", 20))
+            .margin(15)
+            .x_label_area_size(45)
+            .y_label_area_size(75)
+            .build_cartesian_2d(x_range, -limit_mm..limit_mm)?;
+        zoom.configure_mesh()
+            .x_desc("still pose (time order)")
+            .y_desc("|a| - g [mm/s^2]")
+            .label_style(("sans-serif", 16))
+            .axis_desc_style(("sans-serif", 18))
+            .draw()?;
+        zoom.draw_series(
+            after_mm
+                .iter()
+                .enumerate()
+                .map(|(i, &r)| TriangleMarker::new((i as f64, r), 7, BLUE.filled())),
+        )?;
         root.present()?;
         Ok(())
     };
