@@ -13,6 +13,7 @@ pub mod camera;
 pub mod dataset;
 pub mod edge_map;
 pub mod eval;
+pub mod features;
 pub mod imu;
 pub mod rig;
 pub mod shared_data;

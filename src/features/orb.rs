@@ -1,0 +1,315 @@
+//! ORB (Rublee et al., "ORB: an efficient alternative to SIFT or SURF",
+//! ICCV 2011): FAST-9 corners on every level of a 1.2-ratio pyramid,
+//! ranked by Harris response and spread by the grid, oriented by the
+//! intensity centroid of a radius-15 disc (paper sec. 3.2), and described
+//! by 256 BRIEF tests on the smoothed level, the pattern rotated to the
+//! keypoint's angle (sec. 4, "steered BRIEF"; our own pattern, see
+//! [`brief_pattern`](crate::features::brief_pattern)).
+//!
+//! All per-frame buffers (pyramid, smoothed levels, candidates) belong to
+//! the [`OrbExtractor`] and are reused.
+
+use crate::features::brief_pattern::{rotated_patterns, PointPair, PATTERN_PAIRS, ROTATION_BINS};
+use crate::features::fast::{detect_fast9, Corner, FastScratch};
+use crate::features::grid::{GridConfig, GridSelector};
+use crate::features::pyramid::{GreyImage, Pyramid, PyramidConfig};
+use crate::features::score::harris_score;
+use crate::features::FeatureError;
+use crate::sensors::Image;
+
+/// A 256-bit binary descriptor, bit i of word i / 64 is test i.
+pub type Descriptor = [u64; 4];
+
+/// Radius of the orientation disc, px of the keypoint's level.
+pub const ORIENTATION_RADIUS_PX: usize = 15;
+
+/// An oriented keypoint.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Keypoint {
+    /// Position in level-0 pixels.
+    pub x: f32,
+    pub y: f32,
+    /// Pyramid level it was found on.
+    pub level: u8,
+    /// Orientation, rad, in (-pi, pi], image axes (x right, y down).
+    pub angle_rad: f32,
+    /// Harris response on its level.
+    pub response: f32,
+}
+
+/// Extraction parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OrbConfig {
+    pub max_features: usize,
+    pub levels: usize,
+    pub scale: f32,
+    pub fast_threshold: u8,
+    /// Used on a level where the first threshold finds too few corners.
+    pub fallback_fast_threshold: u8,
+    /// Keypoints are at least this far from a level's edges, px (the
+    /// orientation disc and the rotated pattern must fit).
+    pub edge_px: usize,
+    pub harris_k: f32,
+    /// Grid bucket side on each level, px of that level.
+    pub bucket_px: usize,
+}
+
+impl Default for OrbConfig {
+    fn default() -> Self {
+        Self {
+            max_features: 1000,
+            levels: 8,
+            scale: 1.2,
+            fast_threshold: 20,
+            fallback_fast_threshold: 7,
+            edge_px: 19,
+            harris_k: 0.04,
+            bucket_px: 30,
+        }
+    }
+}
+
+/// ORB extraction with owned buffers.
+pub struct OrbExtractor {
+    config: OrbConfig,
+    pyramid: Pyramid,
+    smoothed: GreyImage,
+    row_sums: Vec<u16>,
+    fast: FastScratch,
+    candidates: Vec<Corner>,
+    selected: Vec<Corner>,
+    grid: GridSelector,
+    patterns: Vec<[PointPair; PATTERN_PAIRS]>,
+    /// Half-width of the orientation disc per row offset 0..=radius.
+    disc_half_width: Vec<usize>,
+}
+
+impl OrbExtractor {
+    pub fn new(config: OrbConfig) -> Result<Self, FeatureError> {
+        if config.edge_px < ORIENTATION_RADIUS_PX + 1 || config.max_features == 0 {
+            return Err(FeatureError::Config(format!(
+                "ORB needs edge_px >= {} and max_features > 0, got {config:?}",
+                ORIENTATION_RADIUS_PX + 1
+            )));
+        }
+        let pyramid = Pyramid::new(PyramidConfig {
+            levels: config.levels,
+            scale: config.scale,
+            min_side_px: 2 * config.edge_px + 8,
+        })?;
+        let r = ORIENTATION_RADIUS_PX as f64;
+        let disc_half_width = (0..=ORIENTATION_RADIUS_PX)
+            .map(|dy| (r * r - (dy * dy) as f64).sqrt().floor() as usize)
+            .collect();
+        Ok(Self {
+            config,
+            pyramid,
+            smoothed: GreyImage::default(),
+            row_sums: Vec::new(),
+            fast: FastScratch::default(),
+            candidates: Vec::new(),
+            selected: Vec::new(),
+            grid: GridSelector::new(GridConfig {
+                bucket_px: config.bucket_px,
+                min_distance_px: 0.0,
+            }),
+            patterns: rotated_patterns(),
+            disc_half_width,
+        })
+    }
+
+    pub fn config(&self) -> &OrbConfig {
+        &self.config
+    }
+
+    /// Keypoints and their descriptors (same order) of a sensor image.
+    /// Images too small for one level give none.
+    pub fn extract(
+        &mut self,
+        image: &Image,
+        keypoints: &mut Vec<Keypoint>,
+        descriptors: &mut Vec<Descriptor>,
+    ) -> Result<(), FeatureError> {
+        self.pyramid.build(image)?;
+        self.extract_from_pyramid(keypoints, descriptors);
+        Ok(())
+    }
+
+    /// As [`extract`](Self::extract), from a packed grey buffer.
+    pub fn extract_grey(
+        &mut self,
+        width: usize,
+        height: usize,
+        pixels: &[u8],
+        keypoints: &mut Vec<Keypoint>,
+        descriptors: &mut Vec<Descriptor>,
+    ) -> Result<(), FeatureError> {
+        self.pyramid.build_from_grey(width, height, pixels)?;
+        self.extract_from_pyramid(keypoints, descriptors);
+        Ok(())
+    }
+
+    fn extract_from_pyramid(
+        &mut self,
+        keypoints: &mut Vec<Keypoint>,
+        descriptors: &mut Vec<Descriptor>,
+    ) {
+        keypoints.clear();
+        descriptors.clear();
+        let c = self.config;
+        let levels = self.pyramid.levels().len();
+        // Features per level in geometric proportion to level area
+        // (the paper's pyramid with a fixed total budget).
+        let inv = 1.0 / f64::from(c.scale);
+        let first = c.max_features as f64 * (1.0 - inv) / (1.0 - inv.powi(levels as i32));
+        let mut carry = 0.0;
+        for level in 0..levels {
+            let want_f = first * inv.powi(level as i32) + carry;
+            let want = if level + 1 == levels {
+                c.max_features.saturating_sub(keypoints.len())
+            } else {
+                want_f.round() as usize
+            };
+            let image = self.pyramid.level(level);
+            let edge = c.edge_px;
+            detect_fast9(
+                image,
+                c.fast_threshold,
+                edge,
+                &mut self.fast,
+                &mut self.candidates,
+            );
+            if self.candidates.len() < want && c.fallback_fast_threshold < c.fast_threshold {
+                detect_fast9(
+                    image,
+                    c.fallback_fast_threshold,
+                    edge,
+                    &mut self.fast,
+                    &mut self.candidates,
+                );
+            }
+            // Keep the strongest 2x by FAST score before the costlier Harris.
+            if self.candidates.len() > 2 * want {
+                self.candidates
+                    .select_nth_unstable_by(2 * want, |a, b| b.score.total_cmp(&a.score));
+                self.candidates.truncate(2 * want);
+            }
+            for corner in &mut self.candidates {
+                corner.score =
+                    harris_score(image, corner.x as usize, corner.y as usize, 3, c.harris_k);
+            }
+            self.candidates.retain(|corner| corner.score > 0.0);
+            self.grid.select(
+                image.width,
+                image.height,
+                &mut self.candidates,
+                &[],
+                want,
+                &mut self.selected,
+            );
+            carry = want_f - self.selected.len() as f64;
+            if self.selected.is_empty() {
+                continue;
+            }
+            smooth_binomial5(image, &mut self.smoothed, &mut self.row_sums);
+            let scale = self.pyramid.scale_of(level);
+            let image = self.pyramid.level(level);
+            for corner in &self.selected {
+                let (x, y) = (corner.x as usize, corner.y as usize);
+                let angle = intensity_centroid_angle(image, x, y, &self.disc_half_width);
+                let bin = ((angle / std::f32::consts::TAU * ROTATION_BINS as f32).round() as i64)
+                    .rem_euclid(ROTATION_BINS as i64) as usize;
+                descriptors.push(describe(&self.smoothed, x, y, &self.patterns[bin]));
+                keypoints.push(Keypoint {
+                    x: (corner.x as f32 + 0.5) * scale - 0.5,
+                    y: (corner.y as f32 + 0.5) * scale - 0.5,
+                    level: level as u8,
+                    angle_rad: angle,
+                    response: corner.score,
+                });
+            }
+        }
+    }
+}
+
+/// atan2(m01, m10) of the disc of radius 15 around (x, y) (paper eq. 2-3).
+#[inline(always)]
+fn intensity_centroid_angle(image: &GreyImage, x: usize, y: usize, half_width: &[usize]) -> f32 {
+    let r = ORIENTATION_RADIUS_PX;
+    let (mut m10, mut m01) = (0i32, 0i32);
+    let centre = image.row(y);
+    for dx in 1..=r {
+        m10 += dx as i32 * (i32::from(centre[x + dx]) - i32::from(centre[x - dx]));
+    }
+    for dy in 1..=r {
+        let (above, below) = (image.row(y - dy), image.row(y + dy));
+        let hw = half_width[dy];
+        let mut column_sum = 0i32;
+        for dx in 0..=2 * hw {
+            let xx = x + dx - hw;
+            let (a, b) = (i32::from(above[xx]), i32::from(below[xx]));
+            column_sum += b - a;
+            m10 += (dx as i32 - hw as i32) * (a + b);
+        }
+        m01 += dy as i32 * column_sum;
+    }
+    (m01 as f32).atan2(m10 as f32)
+}
+
+/// The 256 tests of a rotated pattern at (x, y) of the smoothed level.
+#[inline(always)]
+fn describe(
+    smoothed: &GreyImage,
+    x: usize,
+    y: usize,
+    pattern: &[PointPair; PATTERN_PAIRS],
+) -> Descriptor {
+    let w = smoothed.width as isize;
+    let centre = (y * smoothed.width + x) as isize;
+    let data = &smoothed.data;
+    let at = |p: [i8; 2]| data[(centre + isize::from(p[1]) * w + isize::from(p[0])) as usize];
+    let mut d = [0u64; 4];
+    for (i, pair) in pattern.iter().enumerate() {
+        let bit = (at(pair[0]) < at(pair[1])) as u64;
+        d[i / 64] |= bit << (i % 64);
+    }
+    d
+}
+
+/// [1 4 6 4 1]^2 / 256 binomial smoothing (a Gaussian of sigma 1), borders
+/// replicated; the paper smooths before the tests for noise robustness.
+#[inline(always)]
+fn smooth_binomial5(src: &GreyImage, dst: &mut GreyImage, row_sums: &mut Vec<u16>) {
+    let (w, h) = (src.width, src.height);
+    dst.width = w;
+    dst.height = h;
+    dst.data.resize(w * h, 0);
+    row_sums.resize(w + 4, 0);
+    let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1) as usize;
+    for y in 0..h {
+        let rows = [-2isize, -1, 0, 1, 2].map(|o| src.row(clamp(y as isize + o, h)));
+        // Vertical pass into the middle of a buffer padded by 2 each side.
+        let mid = &mut row_sums[2..w + 2];
+        for (x, m) in mid.iter_mut().enumerate() {
+            *m = u16::from(rows[0][x])
+                + 4 * u16::from(rows[1][x])
+                + 6 * u16::from(rows[2][x])
+                + 4 * u16::from(rows[3][x])
+                + u16::from(rows[4][x]);
+        }
+        row_sums[0] = row_sums[2];
+        row_sums[1] = row_sums[2];
+        row_sums[w + 2] = row_sums[w + 1];
+        row_sums[w + 3] = row_sums[w + 1];
+        let out = &mut dst.data[y * w..(y + 1) * w];
+        let s = &row_sums[..];
+        for (x, o) in out.iter_mut().enumerate() {
+            // Max 16 * 4080 = 65280: fits u16.
+            let v = s[x] + 4 * s[x + 1] + 6 * s[x + 2] + 4 * s[x + 3] + s[x + 4];
+            *o = ((u32::from(v) + 128) >> 8) as u8;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

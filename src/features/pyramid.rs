@@ -1,0 +1,435 @@
+//! Image pyramids with owned, reused level buffers.
+//!
+//! Level 0 is the input as 8-bit grey (16-bit input is shifted down by its
+//! significant bits, as [`Image::grey8_at`] does). Each further level is the
+//! previous one shrunk by `scale`: by exactly 2 with a [1 2 1] x [1 2 1] / 16
+//! blur sampled at even pixels (the KLT pyramid), by any other factor with
+//! bilinear resampling (the ORB pyramid, 1.2 per level). Rebuilding for a
+//! frame of the same size reuses every buffer.
+
+use crate::features::FeatureError;
+use crate::sensors::{Image, PixelFormat};
+
+/// An owned, tightly packed 8-bit grey image (row `y` is
+/// `data[y * width..(y + 1) * width]`).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct GreyImage {
+    pub width: usize,
+    pub height: usize,
+    pub data: Vec<u8>,
+}
+
+impl GreyImage {
+    /// A `width` x `height` image filled with `value`.
+    pub fn filled(width: usize, height: usize, value: u8) -> Self {
+        Self {
+            width,
+            height,
+            data: vec![value; width * height],
+        }
+    }
+
+    /// Wraps a packed buffer after checking its size.
+    pub fn from_vec(width: usize, height: usize, data: Vec<u8>) -> Result<Self, FeatureError> {
+        if width == 0 || height == 0 {
+            return Err(FeatureError::Empty { width, height });
+        }
+        if data.len() < width * height {
+            return Err(FeatureError::BufferTooShort {
+                got: data.len(),
+                width,
+                height,
+            });
+        }
+        Ok(Self {
+            width,
+            height,
+            data,
+        })
+    }
+
+    /// Row `y` (panics past the end, like slice indexing).
+    #[inline]
+    pub fn row(&self, y: usize) -> &[u8] {
+        &self.data[y * self.width..(y + 1) * self.width]
+    }
+
+    /// Pixel at integer (x, y); callers keep inside the image.
+    #[inline]
+    pub fn at(&self, x: usize, y: usize) -> u8 {
+        self.data[y * self.width + x]
+    }
+
+    /// Resizes in place, keeping the allocation when it is large enough.
+    fn reshape(&mut self, width: usize, height: usize) {
+        self.width = width;
+        self.height = height;
+        self.data.resize(width * height, 0);
+    }
+
+    /// Copies a sensor image in as 8-bit grey; 16-bit grey keeps its top
+    /// 8 significant bits. Bayer mosaics are refused.
+    pub fn assign_from(&mut self, image: &Image) -> Result<(), FeatureError> {
+        let (width, height) = (image.width() as usize, image.height() as usize);
+        if width == 0 || height == 0 {
+            return Err(FeatureError::Empty { width, height });
+        }
+        let shift = match image.format() {
+            PixelFormat::Mono8 => None,
+            PixelFormat::Mono16 { significant_bits } => Some(significant_bits.saturating_sub(8)),
+            other => {
+                return Err(FeatureError::UnsupportedFormat {
+                    format: format!("{other:?}"),
+                })
+            }
+        };
+        self.reshape(width, height);
+        for y in 0..height {
+            let src = image.row(y as u32).expect("y < height");
+            let dst = &mut self.data[y * width..(y + 1) * width];
+            match shift {
+                None => dst.copy_from_slice(src),
+                Some(shift) => {
+                    for (d, s) in dst.iter_mut().zip(src.chunks_exact(2)) {
+                        let v = u16::from_le_bytes([s[0], s[1]]);
+                        *d = (u32::from(v) >> shift).min(255) as u8;
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// How many levels and how much each shrinks.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PyramidConfig {
+    /// Levels wanted, the input included (>= 1).
+    pub levels: usize,
+    /// Size ratio between consecutive levels (> 1).
+    pub scale: f32,
+    /// No level is made whose width or height would fall below this.
+    pub min_side_px: usize,
+}
+
+impl PyramidConfig {
+    /// Three halving levels, as the KLT tracker uses.
+    pub fn klt() -> Self {
+        Self {
+            levels: 3,
+            scale: 2.0,
+            min_side_px: 16,
+        }
+    }
+
+    /// Eight levels 1.2 apart, as ORB uses.
+    pub fn orb() -> Self {
+        Self {
+            levels: 8,
+            scale: 1.2,
+            min_side_px: 32,
+        }
+    }
+
+    fn validate(&self) -> Result<(), FeatureError> {
+        if self.levels == 0 || !(self.scale > 1.0) || !self.scale.is_finite() {
+            return Err(FeatureError::Config(format!(
+                "pyramid needs levels >= 1 and a finite scale > 1, got {} levels, scale {}",
+                self.levels, self.scale
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// A pyramid whose level buffers live as long as it does.
+#[derive(Debug, Clone)]
+pub struct Pyramid {
+    config: PyramidConfig,
+    levels: Vec<GreyImage>,
+    /// How many of `levels` hold the current frame.
+    used: usize,
+    /// Bilinear column table for the non-halving case: source column and
+    /// weight (0..=256) of the right neighbour, per destination column.
+    columns: Vec<(u32, u32)>,
+}
+
+impl Pyramid {
+    pub fn new(config: PyramidConfig) -> Result<Self, FeatureError> {
+        config.validate()?;
+        Ok(Self {
+            config,
+            levels: Vec::with_capacity(config.levels),
+            used: 0,
+            columns: Vec::new(),
+        })
+    }
+
+    pub fn config(&self) -> &PyramidConfig {
+        &self.config
+    }
+
+    /// Levels holding the current frame (fewer than configured for small images).
+    pub fn levels(&self) -> &[GreyImage] {
+        &self.levels[..self.used]
+    }
+
+    /// Level `i` of the current frame.
+    pub fn level(&self, i: usize) -> &GreyImage {
+        &self.levels()[i]
+    }
+
+    /// Size ratio of level `i` to level 0 (level-0 coordinates = level-i
+    /// coordinates x this).
+    pub fn scale_of(&self, i: usize) -> f32 {
+        self.config.scale.powi(i as i32)
+    }
+
+    /// Rebuilds from a sensor image.
+    pub fn build(&mut self, image: &Image) -> Result<(), FeatureError> {
+        if self.levels.is_empty() {
+            self.levels.push(GreyImage::default());
+        }
+        self.levels[0].assign_from(image)?;
+        self.build_upper_levels();
+        Ok(())
+    }
+
+    /// Rebuilds from a packed grey buffer.
+    pub fn build_from_grey(
+        &mut self,
+        width: usize,
+        height: usize,
+        pixels: &[u8],
+    ) -> Result<(), FeatureError> {
+        if width == 0 || height == 0 {
+            return Err(FeatureError::Empty { width, height });
+        }
+        if pixels.len() < width * height {
+            return Err(FeatureError::BufferTooShort {
+                got: pixels.len(),
+                width,
+                height,
+            });
+        }
+        if self.levels.is_empty() {
+            self.levels.push(GreyImage::default());
+        }
+        let base = &mut self.levels[0];
+        base.reshape(width, height);
+        base.data.copy_from_slice(&pixels[..width * height]);
+        self.build_upper_levels();
+        Ok(())
+    }
+
+    fn build_upper_levels(&mut self) {
+        self.used = 1;
+        for i in 1..self.config.levels {
+            let prev = &self.levels[i - 1];
+            let (w, h) = if self.config.scale == 2.0 {
+                (prev.width.div_ceil(2), prev.height.div_ceil(2))
+            } else {
+                let s = self.scale_of(i);
+                let base = &self.levels[0];
+                (
+                    (base.width as f32 / s).round() as usize,
+                    (base.height as f32 / s).round() as usize,
+                )
+            };
+            if w < self.config.min_side_px || h < self.config.min_side_px {
+                break;
+            }
+            if self.levels.len() <= i {
+                self.levels.push(GreyImage::default());
+            }
+            let (lower, upper) = self.levels.split_at_mut(i);
+            let src = &lower[i - 1];
+            let dst = &mut upper[0];
+            dst.reshape(w, h);
+            if self.config.scale == 2.0 {
+                halve(src, dst);
+            } else {
+                resample_bilinear(src, dst, &mut self.columns);
+            }
+            self.used = i + 1;
+        }
+    }
+}
+
+/// dst(x, y) = ([1 2 1] x [1 2 1] / 16 blur of src)(2x, 2y), borders replicated.
+fn halve(src: &GreyImage, dst: &mut GreyImage) {
+    let (sw, sh) = (src.width, src.height);
+    let clamp_y = |y: isize| y.clamp(0, sh as isize - 1) as usize;
+    for y in 0..dst.height {
+        let sy = 2 * y as isize;
+        let (r0, r1, r2) = (
+            src.row(clamp_y(sy - 1)),
+            src.row(clamp_y(sy)),
+            src.row(clamp_y(sy + 1)),
+        );
+        let out = &mut dst.data[y * dst.width..(y + 1) * dst.width];
+        // Vertical [1 2 1] at column c.
+        let v = |c: usize| u32::from(r0[c]) + 2 * u32::from(r1[c]) + u32::from(r2[c]);
+        for (x, o) in out.iter_mut().enumerate() {
+            let sx = 2 * x;
+            let left = v(sx.saturating_sub(1));
+            let centre = v(sx);
+            let right = v((sx + 1).min(sw - 1));
+            *o = ((left + 2 * centre + right + 8) >> 4) as u8;
+        }
+    }
+}
+
+/// Bilinear resampling with pixel centres aligned: source coordinate
+/// (x + 0.5) * sw / dw - 0.5. Weights in 8-bit fixed point.
+fn resample_bilinear(src: &GreyImage, dst: &mut GreyImage, columns: &mut Vec<(u32, u32)>) {
+    let (sw, sh) = (src.width, src.height);
+    let fx = sw as f32 / dst.width as f32;
+    let fy = sh as f32 / dst.height as f32;
+    columns.clear();
+    columns.extend((0..dst.width).map(|x| {
+        let s = ((x as f32 + 0.5) * fx - 0.5).clamp(0.0, (sw - 1) as f32);
+        let x0 = (s as usize).min(sw.saturating_sub(2));
+        let w = ((s - x0 as f32) * 256.0).round() as u32;
+        (x0 as u32, w.min(256))
+    }));
+    let single_column = sw == 1;
+    for y in 0..dst.height {
+        let s = ((y as f32 + 0.5) * fy - 0.5).clamp(0.0, (sh - 1) as f32);
+        let y0 = (s as usize).min(sh.saturating_sub(2));
+        let wy = (((s - y0 as f32) * 256.0).round() as u32).min(256);
+        let top = src.row(y0);
+        let bottom = src.row((y0 + 1).min(sh - 1));
+        let out = &mut dst.data[y * dst.width..(y + 1) * dst.width];
+        for (o, &(x0, wx)) in out.iter_mut().zip(columns.iter()) {
+            let x0 = x0 as usize;
+            let x1 = if single_column { x0 } else { x0 + 1 };
+            let t = u32::from(top[x0]) * (256 - wx) + u32::from(top[x1]) * wx;
+            let b = u32::from(bottom[x0]) * (256 - wx) + u32::from(bottom[x1]) * wx;
+            *o = ((t * (256 - wy) + b * wy + (1 << 15)) >> 16) as u8;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ramp(width: usize, height: usize) -> Vec<u8> {
+        (0..height)
+            .flat_map(|y| (0..width).map(move |x| ((x + 2 * y) % 256) as u8))
+            .collect()
+    }
+
+    #[test]
+    fn halving_levels_have_halved_sizes_and_keep_a_constant_image() {
+        let mut pyramid = Pyramid::new(PyramidConfig::klt()).unwrap();
+        pyramid
+            .build_from_grey(101, 64, &vec![77; 101 * 64])
+            .unwrap();
+        let sizes: Vec<_> = pyramid
+            .levels()
+            .iter()
+            .map(|l| (l.width, l.height))
+            .collect();
+        assert_eq!(sizes, vec![(101, 64), (51, 32), (26, 16)]);
+        for level in pyramid.levels() {
+            assert!(level.data.iter().all(|&v| v == 77));
+        }
+    }
+
+    #[test]
+    fn bilinear_level_of_a_linear_ramp_is_the_ramp_at_mapped_coordinates() {
+        // For a ramp v = x + 2y (no wrap), bilinear resampling is exact:
+        // level value at (x, y) = v at ((x+0.5) s - 0.5, (y+0.5) s - 0.5).
+        let (w, h) = (120, 60);
+        let mut pyramid = Pyramid::new(PyramidConfig {
+            levels: 2,
+            scale: 1.2,
+            min_side_px: 8,
+        })
+        .unwrap();
+        pyramid.build_from_grey(w, h, &ramp(w, h)).unwrap();
+        let level = pyramid.level(1);
+        assert_eq!((level.width, level.height), (100, 50));
+        for y in 0..level.height {
+            for x in 0..level.width {
+                let sx = ((x as f32 + 0.5) * 1.2 - 0.5).clamp(0.0, (w - 1) as f32);
+                let sy = ((y as f32 + 0.5) * 1.2 - 0.5).clamp(0.0, (h - 1) as f32);
+                let expected = sx + 2.0 * sy;
+                assert!(
+                    (f32::from(level.at(x, y)) - expected).abs() <= 1.0,
+                    "({x},{y}): {} vs {expected}",
+                    level.at(x, y)
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn rebuilding_the_same_size_reuses_the_buffers() {
+        let mut pyramid = Pyramid::new(PyramidConfig::orb()).unwrap();
+        pyramid.build_from_grey(320, 240, &ramp(320, 240)).unwrap();
+        let pointers: Vec<_> = pyramid.levels().iter().map(|l| l.data.as_ptr()).collect();
+        pyramid
+            .build_from_grey(320, 240, &vec![5; 320 * 240])
+            .unwrap();
+        let again: Vec<_> = pyramid.levels().iter().map(|l| l.data.as_ptr()).collect();
+        assert_eq!(pointers, again);
+    }
+
+    #[test]
+    fn sixteen_bit_input_is_normalised_to_eight_bits() {
+        let pixels: Vec<u16> = (0..64).map(|i| (i * 64) as u16).collect(); // 12-bit values
+        let image = Image::mono16(8, 8, 12, &pixels).unwrap();
+        let mut pyramid = Pyramid::new(PyramidConfig::klt()).unwrap();
+        pyramid.build(&image).unwrap();
+        let base = pyramid.level(0);
+        for (i, &v) in base.data.iter().enumerate() {
+            assert_eq!(v, image.grey8_at(i as u32 % 8, i as u32 / 8).unwrap());
+            assert_eq!(u32::from(v), (i as u32 * 64) >> 4);
+        }
+        assert_eq!(
+            pyramid.levels().len(),
+            1,
+            "8x8 is below min_side_px for level 1"
+        );
+    }
+
+    #[test]
+    fn bad_input_is_an_error_not_a_panic() {
+        let mut pyramid = Pyramid::new(PyramidConfig::klt()).unwrap();
+        assert_eq!(
+            pyramid.build_from_grey(0, 10, &[]),
+            Err(FeatureError::Empty {
+                width: 0,
+                height: 10
+            })
+        );
+        assert!(matches!(
+            pyramid.build_from_grey(10, 10, &[0; 50]),
+            Err(FeatureError::BufferTooShort { .. })
+        ));
+        let bayer = Image::new(
+            4,
+            4,
+            4,
+            PixelFormat::Bayer8(crate::sensors::BayerPattern::Rggb),
+            vec![0u8; 16].into(),
+        )
+        .unwrap();
+        assert!(matches!(
+            pyramid.build(&bayer),
+            Err(FeatureError::UnsupportedFormat { .. })
+        ));
+        assert!(Pyramid::new(PyramidConfig {
+            levels: 0,
+            scale: 2.0,
+            min_side_px: 1
+        })
+        .is_err());
+        // A 1x1 image is a valid one-level pyramid.
+        pyramid.build_from_grey(1, 1, &[9]).unwrap();
+        assert_eq!(pyramid.levels().len(), 1);
+    }
+}
