@@ -273,6 +273,11 @@ mod tests {
         assert_eq!(cal.accel.model, AccelModel::UpperTriangular);
         assert!(cal.distinct_poses >= 15, "{}", cal.distinct_poses);
         for fit in [&cal.accel.nelder_mead, &cal.accel.levenberg_marquardt] {
+            eprintln!(
+                "S error {:.2e}, b error {:.2e} m/s^2",
+                (fit.scale - s_a).amax(),
+                (fit.bias_m_s2 - b_a).amax()
+            );
             assert!((fit.scale - s_a).amax() < 1e-3, "{}", fit.scale - s_a);
             assert!(
                 (fit.bias_m_s2 - b_a).amax() < 1e-3,
@@ -281,6 +286,7 @@ mod tests {
             );
         }
         let g = cal.gyro_scale.as_ref().expect("three turns");
+        eprintln!("S_g error {:.2e}", (g.scale - s_g).amax());
         assert!((g.scale - s_g).amax() < 1e-3, "{}", g.scale - s_g);
         assert!((cal.intrinsics.gyro_offset_rad_s + s_g * o_g).amax() < 1e-4);
         assert!(cal.accel.levenberg_marquardt.rms_m_s2 < 0.01 && cal.accel.rms_before_m_s2 > 0.1);

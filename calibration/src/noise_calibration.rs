@@ -285,6 +285,12 @@ mod tests {
             let a = &cal.axes[axis];
             let e_n = a.white_noise_density / nd[axis] - 1.0;
             let e_k = a.random_walk / k[axis] - 1.0;
+            eprintln!(
+                "{}: N error {:+.2} %, K error {:+.2} %",
+                AXIS_NAMES[axis],
+                100.0 * e_n,
+                100.0 * e_k
+            );
             assert!(
                 e_n.abs() < 0.10,
                 "{} N: {:.4e} vs {:.4e}",
