@@ -243,6 +243,39 @@ mod tests {
     }
 
     #[test]
+    fn a_section_list_for_another_file_is_refused() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let p = dir.path().join("list.json");
+        std::fs::write(&p, r#"{"x_rot": {"start": 100, "end": 20000}}"#).expect("write");
+        let e = read_section_list(&p, 5000)
+            .expect_err("beyond the log")
+            .to_string();
+        assert!(
+            e.contains("x_rot") && e.contains("wrong section list"),
+            "{e}"
+        );
+        std::fs::write(&p, r#"{"x_rot": {"start": 100}}"#).expect("write");
+        let e = read_section_list(&p, 5000).expect_err("no end").to_string();
+        assert!(e.contains("x_rot.end"), "{e}");
+        std::fs::write(&p, "[1, 2").expect("write");
+        assert!(read_section_list(&p, 5000).is_err());
+        std::fs::write(
+            &p,
+            r#"{"x_rot": {"start": 100, "end": 400}, "y_p": {"start": 0, "end": 50}}"#,
+        )
+        .expect("write");
+        let sections = read_section_list(&p, 5000).expect("valid");
+        assert_eq!(
+            rotations_from_sections(&sections),
+            vec![Rotation {
+                axis: 0,
+                start: 100,
+                end: 400
+            }]
+        );
+    }
+
+    #[test]
     fn a_missing_turn_says_which_axis_to_recollect() {
         let samples = turn_session(&Matrix3::identity(), &Vector3::zeros());
         let rotations = vec![Rotation {

@@ -293,6 +293,30 @@ mod tests {
     }
 
     #[test]
+    fn a_drifting_gyro_bias_is_named() {
+        let i3 = Matrix3::identity();
+        let mut samples = session(12, &i3, &Vector3::zeros(), &i3, &Vector3::zeros(), 3);
+        // The z offset creeps by 0.02 rad/s (1.1 deg/s) over the session.
+        let n = samples.len() as f64;
+        for (i, s) in samples.iter_mut().enumerate() {
+            s.gyro_rad_s[2] += 0.02 * i as f64 / n;
+        }
+        let cal = calibrate_imu_session(&samples, 100.0, None, &ImuCalibrationOptions::default())
+            .expect("calibrates");
+        let verdict = imu_verdict(&cal);
+        assert!(
+            verdict
+                .iter()
+                .any(|v| v.starts_with("gyro z bias unstable") && v.contains("recollect")),
+            "{verdict:?}"
+        );
+        assert!(
+            !verdict.iter().any(|v| v.starts_with("gyro x bias")),
+            "{verdict:?}"
+        );
+    }
+
+    #[test]
     fn too_few_poses_and_wrong_units_say_what_to_recollect() {
         let i3 = Matrix3::identity();
         let samples = session(3, &i3, &Vector3::zeros(), &i3, &Vector3::zeros(), 1);

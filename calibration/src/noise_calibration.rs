@@ -332,6 +332,28 @@ mod tests {
     }
 
     #[test]
+    fn an_unstable_axis_is_named() {
+        // Gyro z wanders 20x faster than x and y.
+        let nd = [2e-4, 2e-4, 2e-4, 2e-3, 2e-3, 2e-3];
+        let k = [1e-5, 1e-5, 2e-4, 1e-3, 1e-3, 1e-3];
+        let log = simulated_still_log(1_000_000, nd, k, 5);
+        let cal = calibrate_noise(&log, 100.0, 10, &StillnessLimits::default()).expect("still log");
+        let warnings = noise_warnings(&cal);
+        assert!(
+            warnings
+                .iter()
+                .any(|w| w.starts_with("gyro z bias unstable") && w.contains("recollect")),
+            "{warnings:?}"
+        );
+        assert!(
+            !warnings
+                .iter()
+                .any(|w| w.starts_with("gyro x bias") || w.starts_with("accel")),
+            "{warnings:?}"
+        );
+    }
+
+    #[test]
     fn a_moved_log_is_refused_with_the_time() {
         let mut log = simulated_still_log(20_000, [1e-4; 6], [1e-6; 6], 2);
         // Tilt by 30 degrees after 150 s.
