@@ -134,15 +134,39 @@ pub fn fit_nelder_mead(model: AccelModel, means: &[Vector3<f64>], g: f64) -> Acc
     fit_from(model, &result.x, means, g, result.evaluations)
 }
 
-/// Levenberg-Marquardt with the analytic Jacobian
+/// Residuals `|S a_i + b| - g` and their Jacobian in the parameters:
 /// `d r_i / d S_jk = u_j a_k / |u|`, `d r_i / d b_j = u_j / |u|`, `u = S a_i + b`.
+pub fn residuals_and_jacobian(
+    model: AccelModel,
+    p: &[f64],
+    means: &[Vector3<f64>],
+    g: f64,
+) -> (DVector<f64>, DMatrix<f64>) {
+    let entries = model.scale_entries();
+    let (s, b) = model.unpack(p);
+    let mut jac = DMatrix::<f64>::zeros(means.len(), model.unknowns());
+    let mut res = DVector::<f64>::zeros(means.len());
+    for (i, a) in means.iter().enumerate() {
+        let u = s * a + b;
+        let norm = u.norm();
+        res[i] = norm - g;
+        for (c, &(j, k)) in entries.iter().enumerate() {
+            jac[(i, c)] = u[j] * a[k] / norm;
+        }
+        for j in 0..3 {
+            jac[(i, entries.len() + j)] = u[j] / norm;
+        }
+    }
+    (res, jac)
+}
+
+/// Levenberg-Marquardt with the analytic Jacobian of [`residuals_and_jacobian`].
 pub fn fit_levenberg_marquardt(
     model: AccelModel,
     means: &[Vector3<f64>],
     g: f64,
 ) -> Result<AccelFit, CalibrationError> {
     let n_params = model.unknowns();
-    let entries = model.scale_entries();
     let mut p = model.identity();
     let mut lambda = 1e-3;
     let mut cost = residuals(model, &p, means, g)
@@ -152,20 +176,7 @@ pub fn fit_levenberg_marquardt(
     let mut iterations = 0;
     for _ in 0..200 {
         iterations += 1;
-        let (s, b) = model.unpack(&p);
-        let mut jac = DMatrix::<f64>::zeros(means.len(), n_params);
-        let mut res = DVector::<f64>::zeros(means.len());
-        for (i, a) in means.iter().enumerate() {
-            let u = s * a + b;
-            let norm = u.norm();
-            res[i] = norm - g;
-            for (c, &(j, k)) in entries.iter().enumerate() {
-                jac[(i, c)] = u[j] * a[k] / norm;
-            }
-            for j in 0..3 {
-                jac[(i, entries.len() + j)] = u[j] / norm;
-            }
-        }
+        let (res, jac) = residuals_and_jacobian(model, &p, means, g);
         let jtj = jac.transpose() * &jac;
         let jtr = jac.transpose() * &res;
         let mut accepted = false;
@@ -271,6 +282,34 @@ mod tests {
         }
         assert!(cal.rms_before_m_s2 > 0.05);
         assert!(cal.scale_agreement < 1e-6 && cal.bias_agreement_m_s2 < 1e-6);
+    }
+
+    #[test]
+    fn the_jacobian_matches_central_differences() {
+        let s = Matrix3::new(1.02, 0.01, -0.015, 0.0, 0.985, 0.008, 0.0, 0.0, 1.01);
+        let means = poses(&s, &Vector3::new(0.1, 0.2, -0.1), 9.81, 3);
+        for (model, p) in [
+            (
+                AccelModel::UpperTriangular,
+                vec![1.01, 0.02, -0.01, 0.99, 0.005, 1.03, 0.1, -0.2, 0.3],
+            ),
+            (AccelModel::Diagonal, vec![1.01, 0.99, 1.03, 0.1, -0.2, 0.3]),
+        ] {
+            let (_, jac) = residuals_and_jacobian(model, &p, &means, 9.81);
+            let h = 1e-6;
+            for c in 0..model.unknowns() {
+                let (mut plus, mut minus) = (p.clone(), p.clone());
+                plus[c] += h;
+                minus[c] -= h;
+                let (rp, _) = residuals_and_jacobian(model, &plus, &means, 9.81);
+                let (rm, _) = residuals_and_jacobian(model, &minus, &means, 9.81);
+                let fd = (rp - rm) / (2.0 * h);
+                assert!(
+                    (fd - jac.column(c)).amax() < 1e-7,
+                    "{model:?} parameter {c}"
+                );
+            }
+        }
     }
 
     #[test]
