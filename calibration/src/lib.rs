@@ -3,3 +3,9 @@
 //! camera model and IMU code (see the Calibration issue).
 
 pub use rigslam::camera;
+
+pub mod camera_report;
+pub mod chessboard;
+pub mod homography;
+pub mod intrinsics_lm;
+pub mod zhang;
