@@ -58,7 +58,7 @@ impl BandMatrix {
                 }
                 let idx = self.index(i, j);
                 if i == j {
-                    if !(s > 0.0) {
+                    if s.is_nan() || s <= 0.0 {
                         return None;
                     }
                     self.band[idx] = s.sqrt();
@@ -84,15 +84,16 @@ impl BandCholesky {
         let w = l.half_bandwidth;
         for i in 0..l.n {
             let mut s = b[i];
-            for k in i.saturating_sub(w)..i {
-                s -= l.band[l.index(i, k)] * b[k];
+            let start = i.saturating_sub(w);
+            for (k, bk) in b.iter().enumerate().take(i).skip(start) {
+                s -= l.band[l.index(i, k)] * bk;
             }
             b[i] = s / l.band[l.index(i, i)];
         }
         for i in (0..l.n).rev() {
             let mut s = b[i];
-            for k in i + 1..(i + w + 1).min(l.n) {
-                s -= l.band[l.index(k, i)] * b[k];
+            for (k, bk) in b.iter().enumerate().take((i + w + 1).min(l.n)).skip(i + 1) {
+                s -= l.band[l.index(k, i)] * bk;
             }
             b[i] = s / l.band[l.index(i, i)];
         }

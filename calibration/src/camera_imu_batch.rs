@@ -31,6 +31,9 @@ use crate::banded_cholesky::BandMatrix;
 /// Two accelerometer samples per knot at 200 Hz: on the EuRoC recording
 /// 0.04 s leaves 0.27 m/s^2 of accelerometer residual, 0.01 s 0.08 m/s^2.
 pub const KNOT_SPACING_S: f64 = 0.01;
+/// Spline support beyond the first and last frame, s: more than any
+/// offset the search visits.
+const SPLINE_MARGIN_S: f64 = 0.3;
 /// Weight of the smoothness prior on the control points' second
 /// differences (keeps gaps without data well-posed), 1/m.
 const SMOOTHNESS_WEIGHT: f64 = 1e-3;
@@ -279,9 +282,11 @@ fn solve_linear(
 
     let knot = KNOT_SPACING_S;
     // Spline over the overlap.
-    let first = prep.frame_t_s[rate_pairs[0].0] + shift_s;
-    let last = prep.frame_t_s[rate_pairs[rate_pairs.len() - 1].0 + 1] + shift_s;
-    let t0 = first - knot;
+    // The knots stay where they are when the offset changes (a grid that
+    // moved with it made the cost jump between offsets).
+    let first = prep.frame_t_s[rate_pairs[0].0];
+    let last = prep.frame_t_s[rate_pairs[rate_pairs.len() - 1].0 + 1] + SPLINE_MARGIN_S;
+    let t0 = first - SPLINE_MARGIN_S;
     let n_ctrl = ((last - t0) / knot).ceil() as usize + 4;
     let n = 3 * n_ctrl;
     let mut normal = Normal {

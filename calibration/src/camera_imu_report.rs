@@ -175,7 +175,7 @@ fn draw_offset(path: &Path, r: &CameraImuResult) -> anyhow::Result<()> {
             .fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
         let mut chart = ChartBuilder::on(&bottom)
             .caption(
-                "batch cost vs time shift (rotation and the rest re-solved)",
+                "batch cost vs time shift (rotation held, the rest re-solved)",
                 ("sans-serif", 18),
             )
             .margin(10)

@@ -445,7 +445,8 @@ fn complete_window(
     rows: usize,
 ) -> Option<HashMap<(i32, i32), usize>> {
     let (min_i, max_i, min_j, max_j) = extents(grid);
-    let mut best: Option<(f32, HashMap<(i32, i32), usize>)> = None;
+    type Window = HashMap<(i32, i32), usize>;
+    let mut best: Option<(f32, Window)> = None;
     for (span_i, span_j) in [(cols as i32, rows as i32), (rows as i32, cols as i32)] {
         for i0 in min_i..=max_i - span_i + 1 {
             for j0 in min_j..=max_j - span_j + 1 {

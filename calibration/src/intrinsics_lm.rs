@@ -330,11 +330,11 @@ mod tests {
     use nalgebra::Rotation3;
     use rand::{Rng, SeedableRng};
 
+    type Synthetic = (PinholeRadtan, Vec<Vector3<f64>>, Vec<Vec<Vector2<f64>>>);
+
     /// Synthetic views of a 9x6 board through a known distorted camera,
     /// with uniform noise of +-`noise_px`; view 4's corners are corrupted by 3 px.
-    fn synthetic_views(
-        noise_px: f64,
-    ) -> (PinholeRadtan, Vec<Vector3<f64>>, Vec<Vec<Vector2<f64>>>) {
+    fn synthetic_views(noise_px: f64) -> Synthetic {
         let truth = PinholeRadtan::new(
             640,
             480,

@@ -78,7 +78,7 @@ fn rotation_error_deg(a: &Matrix3<f64>, b: &Matrix3<f64>) -> f64 {
 }
 
 #[test]
-fn gyro_stage_offset_and_batch_scale_agree_with_euroc() {
+fn offsets_translation_and_scale_agree_with_euroc() {
     for cam in ["cam0", "cam1"] {
         let Some((offset, batch)) = calibrate(cam, 1.0) else {
             return;
@@ -113,6 +113,9 @@ fn gyro_stage_offset_and_batch_scale_agree_with_euroc() {
         // sequence.yaml: local gravity 9.81007 m/s^2.
         let g = batch.gravity_m_s2.norm();
         assert!((g - 9.81007).abs() < 0.01, "{cam}: gravity {g}");
+        // The batch's own offset, also within the issue's 1 ms.
+        let shift = batch.timeshift_cam_imu_s;
+        assert!(shift.abs() <= 1e-3, "{cam}: batch offset {shift}");
         // The verdict's tolerance on the target scale.
         assert!(
             (batch.target_scale - 1.0).abs() < 0.03,
@@ -123,8 +126,8 @@ fn gyro_stage_offset_and_batch_scale_agree_with_euroc() {
 }
 
 #[test]
-#[ignore = "known gap: cam0 rotation 0.25 deg, cam1 batch offset 1.15 ms (README, Calibration)"]
-fn batch_meets_the_issue_tolerances() {
+#[ignore = "known gap: cam0 rotation 0.26 deg from EuRoC's (cam1 0.12) (README, Calibration)"]
+fn batch_rotation_within_the_issue_tolerance() {
     for cam in ["cam0", "cam1"] {
         let Some((_, batch)) = calibrate(cam, 1.0) else {
             return;
@@ -135,14 +138,7 @@ fn batch_meets_the_issue_tolerances() {
             &t.fixed_view::<3, 3>(0, 0).into_owned(),
             &reference.fixed_view::<3, 3>(0, 0).into_owned(),
         );
-        let t_err = (t.fixed_view::<3, 1>(0, 3) - reference.fixed_view::<3, 1>(0, 3)).norm();
         assert!(r_err <= 0.2, "{cam}: rotation {r_err} deg");
-        assert!(t_err <= 0.005, "{cam}: translation {t_err} m");
-        assert!(
-            batch.timeshift_cam_imu_s.abs() <= 1e-3,
-            "{cam}: offset {}",
-            batch.timeshift_cam_imu_s
-        );
     }
 }
 

@@ -8,9 +8,9 @@ use rigslam::shared_data::shared_data_dir;
 use rigslam_calibration::chessboard::{detect_chessboard, ChessboardConfig, GreyImage};
 use rigslam_calibration::intrinsics_lm::{calibrate_intrinsics, IntrinsicsCalibration};
 
-const OPENCV_F_PX: f64 = 535.915_733_961_631_99;
-const OPENCV_CX_PX: f64 = 342.283_154_733_083_73;
-const OPENCV_CY_PX: f64 = 235.570_829_097_881_73;
+const OPENCV_F_PX: f64 = 535.915_733_961_632;
+const OPENCV_CX_PX: f64 = 342.283_154_733_083_7;
+const OPENCV_CY_PX: f64 = 235.570_829_097_881_7;
 
 fn calibrate_samples() -> Option<(usize, IntrinsicsCalibration)> {
     let dir = shared_data_dir()?.join("calib/chessboard_9x6_25mm");
