@@ -460,7 +460,14 @@ fn complete_window(
                         }
                     }
                 }
-                let full = window.len() == cols * rows;
+                // A complete row or column just outside the window means the
+                // board is larger than declared, not a stray point.
+                let filled = |cells: Vec<(i32, i32)>| cells.iter().all(|c| grid.contains_key(c));
+                let larger = filled((0..span_j).map(|j| (i0 - 1, j0 + j)).collect())
+                    || filled((0..span_j).map(|j| (i0 + span_i, j0 + j)).collect())
+                    || filled((0..span_i).map(|i| (i0 + i, j0 - 1)).collect())
+                    || filled((0..span_i).map(|i| (i0 + i, j0 + span_j)).collect());
+                let full = window.len() == cols * rows && !larger;
                 if full && best.as_ref().map_or(true, |b| strength > b.0) {
                     best = Some((strength, window));
                 }
@@ -596,6 +603,13 @@ mod tests {
     fn wrong_board_size_is_not_found() {
         let (image, _) = render_board(7, 5);
         assert!(detect_chessboard(&image, 8, 5, &ChessboardConfig::default()).is_none());
+    }
+
+    #[test]
+    fn a_larger_board_is_not_taken_for_a_smaller_one() {
+        let (image, _) = render_board(7, 5);
+        assert!(detect_chessboard(&image, 6, 5, &ChessboardConfig::default()).is_none());
+        assert!(detect_chessboard(&image, 7, 4, &ChessboardConfig::default()).is_none());
     }
 
     #[test]

@@ -124,9 +124,9 @@ pub fn run(args: CameraArgs) -> anyhow::Result<()> {
     distances.sort_by(f64::total_cmp);
     let median_distance_m = distances[distances.len() / 2];
     if !(0.05..=10.0).contains(&median_distance_m) {
-        text.push_str(&format!(
-            "; the board would be {median_distance_m:.2} m away: check --square (the square edge in metres)"
-        ));
+        text = format!(
+            "CHECK --square: the board would be {median_distance_m:.2} m away, so the square edge is probably not in metres (e.g. 0.025 for 25 mm); the intrinsics do not depend on it ({text})"
+        );
     }
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;

@@ -92,8 +92,8 @@ pub fn run(args: CameraImuArgs) -> anyhow::Result<()> {
         let overlap_s = (last.min(imu_end_ns) - first.max(t_origin_ns)) as f64 * 1e-9;
         if overlap_s < 0.5 * (last - first) as f64 * 1e-9 {
             bail!(
-                "{cam}: the detections ({:.1}-{:.1} s) and the IMU log ({:.1}-{:.1} s, Unix time) overlap for only {overlap_s:.1} s: record the IMU and the camera together, over the same time",
-                first as f64 * 1e-9, last as f64 * 1e-9, t_origin_ns as f64 * 1e-9, imu_end_ns as f64 * 1e-9
+                "{cam}: the detections ({:.1}-{:.1} s) and the IMU log ({:.1}-{:.1} s, Unix time) overlap for only {:.1} s: record the IMU and the camera together, over the same time",
+                first as f64 * 1e-9, last as f64 * 1e-9, t_origin_ns as f64 * 1e-9, imu_end_ns as f64 * 1e-9, overlap_s.max(0.0)
             );
         }
         let median_dt_s = {
