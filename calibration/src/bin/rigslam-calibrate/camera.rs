@@ -1,8 +1,181 @@
-//! `rigslam-calibrate camera` (being built on its branch; replaced when it lands).
+//! `rigslam-calibrate camera`: intrinsics (pinhole + radtan) from chessboard
+//! images; writes `camera.yaml` (Kalibr `cam0` layout) and a report beside it.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context};
+use nalgebra::Vector3;
+use rigslam_calibration::camera_report::{coverage_fraction, verdict, write_camera_report};
+use rigslam_calibration::chessboard::{detect_chessboard, ChessboardConfig, GreyImage};
+use rigslam_calibration::intrinsics_lm::{calibrate_intrinsics, MIN_VIEWS};
 
 #[derive(clap::Args)]
-pub struct CameraArgs {}
+pub struct CameraArgs {
+    /// Folder of chessboard images (PNG or JPEG), all from one camera.
+    #[arg(long)]
+    images: PathBuf,
+    /// Inner corners of the board, COLSxROWS (e.g. 9x6).
+    #[arg(long)]
+    board: String,
+    /// Square edge length, m.
+    #[arg(long)]
+    square: f64,
+    /// Folder for camera.yaml, report.md and the plots.
+    #[arg(long, default_value = "camera_calibration")]
+    out: PathBuf,
+    /// Print one JSON object on stdout.
+    #[arg(long)]
+    json: bool,
+}
 
-pub fn run(_args: CameraArgs) -> anyhow::Result<()> {
-    anyhow::bail!("`rigslam-calibrate camera` is not built yet")
+fn parse_board(text: &str) -> anyhow::Result<(usize, usize)> {
+    let parse = || -> Option<(usize, usize)> {
+        let (c, r) = text
+            .to_ascii_lowercase()
+            .split_once('x')
+            .map(|(a, b)| (a.to_string(), b.to_string()))?;
+        Some((c.trim().parse().ok()?, r.trim().parse().ok()?))
+    };
+    match parse() {
+        Some((c, r)) if c >= 3 && r >= 3 => Ok((c, r)),
+        _ => bail!(
+            "--board {text:?}: expected inner corners as COLSxROWS with both at least 3, e.g. 9x6"
+        ),
+    }
+}
+
+fn image_files(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("reading the image folder {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.extension()
+                .and_then(|e| e.to_str())
+                .is_some_and(|e| matches!(e.to_ascii_lowercase().as_str(), "png" | "jpg" | "jpeg"))
+        })
+        .collect();
+    files.sort();
+    Ok(files)
+}
+
+pub fn run(args: CameraArgs) -> anyhow::Result<()> {
+    let (cols, rows) = parse_board(&args.board)?;
+    if !(args.square > 0.0 && args.square.is_finite()) {
+        bail!(
+            "--square {}: the square edge must be a positive length in metres (e.g. 0.025)",
+            args.square
+        );
+    }
+    let files = image_files(&args.images)?;
+    if files.is_empty() {
+        bail!("no PNG or JPEG images in {}", args.images.display());
+    }
+    let config = ChessboardConfig::default();
+    let mut names = Vec::new();
+    let mut views = Vec::new();
+    let mut missing = Vec::new();
+    let mut size: Option<(u32, u32)> = None;
+    for file in &files {
+        let name = file
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let img = image::open(file)
+            .with_context(|| format!("reading image {}", file.display()))?
+            .to_luma8();
+        let dims = img.dimensions();
+        if let Some(first) = size {
+            if first != dims {
+                bail!("{} is {}x{} but the first image is {}x{}: use images from one camera at one resolution", file.display(), dims.0, dims.1, first.0, first.1);
+            }
+        }
+        size = Some(dims);
+        let grey = GreyImage::from_luma8(dims.0 as usize, dims.1 as usize, img.as_raw());
+        match detect_chessboard(&grey, cols, rows, &config) {
+            Some(found) => {
+                names.push(name);
+                views.push(found.corners_px);
+            }
+            None => {
+                eprintln!("board not found in {name}");
+                missing.push(name);
+            }
+        }
+    }
+    if views.len() < MIN_VIEWS {
+        bail!(
+            "the {cols}x{rows} board was found in only {} of {} images (need {MIN_VIEWS}): check --board counts inner corners, and recollect with the whole board in view, sharp and evenly lit",
+            views.len(),
+            files.len()
+        );
+    }
+    let (width, height) = size.expect("at least one image was read");
+    let board: Vec<Vector3<f64>> = (0..rows)
+        .flat_map(|r| {
+            (0..cols)
+                .map(move |c| Vector3::new(c as f64 * args.square, r as f64 * args.square, 0.0))
+        })
+        .collect();
+    let cal = calibrate_intrinsics(width, height, &board, &views)?;
+    let coverage = coverage_fraction(&cal, &views);
+    let mut text = verdict(&cal, coverage);
+    // The square size only scales the board distances; flag implausible ones.
+    let mut distances: Vec<f64> = cal.views.iter().map(|v| v.t_cam_board.norm()).collect();
+    distances.sort_by(f64::total_cmp);
+    let median_distance_m = distances[distances.len() / 2];
+    if !(0.05..=10.0).contains(&median_distance_m) {
+        text = format!(
+            "CHECK --square: the board would be {median_distance_m:.2} m away, so the square edge is probably not in metres (e.g. 0.025 for 25 mm); the intrinsics do not depend on it ({text})"
+        );
+    }
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let c = &cal.camera;
+    let yaml = format!(
+        "cam0:\n  camera_model: pinhole\n  intrinsics: [{}, {}, {}, {}]\n  distortion_model: radtan\n  # k1 k2 p1 p2 k3 (OpenCV order; k3 beyond Kalibr's four)\n  distortion_coeffs: [{}, {}, {}, {}, {}]\n  resolution: [{width}, {height}]\n  reprojection_rms_px: {}\n",
+        c.fx, c.fy, c.cx, c.cy, c.distortion[0], c.distortion[1], c.distortion[2], c.distortion[3], c.distortion[4], cal.rms_px
+    );
+    let yaml_path = args.out.join("camera.yaml");
+    std::fs::write(&yaml_path, yaml).with_context(|| format!("writing {}", yaml_path.display()))?;
+    write_camera_report(&args.out, &cal, &names, &views, &missing, &text)?;
+    if args.json {
+        let per_view: Vec<_> = cal
+            .views
+            .iter()
+            .zip(&names)
+            .map(|(v, n)| serde_json::json!({"image": n, "rms_px": v.rms_px, "outlier": v.outlier}))
+            .collect();
+        let json = serde_json::json!({
+            "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy,
+            "distortion": c.distortion,
+            "rms_px": cal.rms_px,
+            "views_used": cal.views_used,
+            "views_found": views.len(),
+            "images": files.len(),
+            "per_view": per_view,
+            "boards_not_found": missing,
+            "verdict": text,
+        });
+        println!("{json}");
+    } else {
+        println!(
+            "fx {:.3} fy {:.3} cx {:.3} cy {:.3}",
+            c.fx, c.fy, c.cx, c.cy
+        );
+        println!("distortion k1 k2 p1 p2 k3 {:?}", c.distortion);
+        for (v, n) in cal.views.iter().zip(&names) {
+            println!(
+                "  {n}: {:.3} px{}",
+                v.rms_px,
+                if v.outlier {
+                    " (outlier, left out)"
+                } else {
+                    ""
+                }
+            );
+        }
+        println!("{text}");
+        println!("wrote {} and report.md", yaml_path.display());
+    }
+    Ok(())
 }

@@ -1,8 +1,186 @@
-//! `rigslam-calibrate camera-imu` (being built on its branch; replaced when it lands).
+//! `rigslam-calibrate camera-imu`: camera-IMU rotation, translation and time
+//! offset from per-frame target detections and the IMU log; writes
+//! `camchain-imucam.yaml` (Kalibr layout) and a report beside it.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context};
+use nalgebra::Matrix4;
+use rigslam::dataset::read_euroc_imu_csv;
+use rigslam_calibration::aprilgrid_detections::{read_detection_dir, target_poses};
+use rigslam_calibration::camchain_yaml::{read_intrinsics, write_camchain, CamchainEntry};
+use rigslam_calibration::camera_imu_batch::{refine_camera_imu, BatchInput};
+use rigslam_calibration::camera_imu_report::{write_camera_imu_report, CameraImuResult};
+use rigslam_calibration::time_offset::{camera_rates, estimate_time_offset, GyroSeries};
 
 #[derive(clap::Args)]
-pub struct CameraImuArgs {}
+pub struct CameraImuArgs {
+    /// Folder with one sub-folder of detections per camera (cam0/<t_ns>.csv,
+    /// cam1/...) and sequence.yaml with the intrinsics.
+    #[arg(long)]
+    detections: PathBuf,
+    /// IMU log, EuRoC layout (t_ns, gyro xyz rad/s, accel xyz m/s^2).
+    #[arg(long)]
+    imu: PathBuf,
+    /// Intrinsics file (default: sequence.yaml in the detections folder).
+    #[arg(long)]
+    intrinsics: Option<PathBuf>,
+    /// Largest time offset searched, s.
+    #[arg(long, default_value_t = 0.2)]
+    max_timeshift_s: f64,
+    /// Folder for camchain-imucam.yaml, report.md and the plots.
+    #[arg(long, default_value = "camera_imu_calibration")]
+    out: PathBuf,
+    /// Print one JSON object on stdout.
+    #[arg(long)]
+    json: bool,
+}
 
-pub fn run(_args: CameraImuArgs) -> anyhow::Result<()> {
-    anyhow::bail!("`rigslam-calibrate camera-imu` is not built yet")
+pub fn run(args: CameraImuArgs) -> anyhow::Result<()> {
+    let intrinsics_path = args
+        .intrinsics
+        .clone()
+        .unwrap_or_else(|| args.detections.join("sequence.yaml"));
+    let imu = read_euroc_imu_csv(&args.imu)?;
+    if imu.samples.len() < 100 {
+        bail!(
+            "{}: only {} IMU samples; record at least a minute of IMU with the target in view",
+            args.imu.display(),
+            imu.samples.len()
+        );
+    }
+    let t_origin_ns = imu.samples[0].t_ns;
+    let imu_end_ns = imu.samples.last().expect("non-empty").t_ns;
+    let gyro = GyroSeries {
+        t_s: imu
+            .samples
+            .iter()
+            .map(|s| (s.t_ns - t_origin_ns) as f64 * 1e-9)
+            .collect(),
+        w_rad_s: imu.samples.iter().map(|s| s.gyro_rad_s.into()).collect(),
+    };
+    let mut cams: Vec<String> = std::fs::read_dir(&args.detections)
+        .with_context(|| format!("reading {}", args.detections.display()))?
+        .filter_map(|e| e.ok())
+        .filter(|e| e.path().is_dir())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with("cam"))
+        .collect();
+    cams.sort();
+    if cams.is_empty() {
+        bail!(
+            "{}: no cam0/, cam1/ ... folders of detections",
+            args.detections.display()
+        );
+    }
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let mut entries = Vec::new();
+    let mut results = Vec::new();
+    for cam in &cams {
+        let camera = read_intrinsics(&intrinsics_path, cam)?;
+        let detections = read_detection_dir(&args.detections.join(cam))?;
+        let poses = target_poses(&camera, &detections);
+        let (first, last) = match (poses.first(), poses.last()) {
+            (Some(a), Some(b)) if poses.len() >= 50 => (a.t_ns, b.t_ns),
+            _ => bail!(
+                "{cam}: the target pose was found in only {} of {} frames (need 50): recollect with the whole target in view and sharp images",
+                poses.len(),
+                detections.len()
+            ),
+        };
+        let overlap_s = (last.min(imu_end_ns) - first.max(t_origin_ns)) as f64 * 1e-9;
+        if overlap_s < 0.5 * (last - first) as f64 * 1e-9 {
+            bail!(
+                "{cam}: the detections ({:.1}-{:.1} s) and the IMU log ({:.1}-{:.1} s, Unix time) overlap for only {:.1} s: record the IMU and the camera together, over the same time",
+                first as f64 * 1e-9, last as f64 * 1e-9, t_origin_ns as f64 * 1e-9, imu_end_ns as f64 * 1e-9, overlap_s.max(0.0)
+            );
+        }
+        let median_dt_s = {
+            let mut dts: Vec<f64> = poses
+                .windows(2)
+                .map(|w| (w[1].t_ns - w[0].t_ns) as f64 * 1e-9)
+                .collect();
+            dts.sort_by(f64::total_cmp);
+            dts[dts.len() / 2]
+        };
+        let rates = camera_rates(&poses, t_origin_ns, 1.5 * median_dt_s);
+        let offset = estimate_time_offset(&rates, &gyro, args.max_timeshift_s).with_context(|| {
+            format!("{cam}: the rotation could not be determined; recollect rotating the rig about all three axes in front of the target")
+        })?;
+        let batch = refine_camera_imu(&BatchInput {
+            poses: &poses,
+            imu: &imu.samples,
+            t_origin_ns,
+            R_imu_cam: offset.hand_eye.R_imu_cam,
+            gyro_bias_rad_s: offset.hand_eye.gyro_bias_rad_s,
+            timeshift_cam_imu_s: offset.timeshift_cam_imu_s,
+        })
+        .with_context(|| format!("{cam}: batch refinement"))?;
+        let t_cam_imu: Matrix4<f64> = batch.T_cam_imu();
+        entries.push(CamchainEntry {
+            name: cam.clone(),
+            camera: camera.clone(),
+            T_cam_imu: t_cam_imu,
+            timeshift_cam_imu_s: batch.timeshift_cam_imu_s,
+        });
+        results.push(CameraImuResult {
+            name: cam.clone(),
+            frames: detections.len(),
+            poses: poses.len(),
+            offset,
+            batch,
+        });
+    }
+    let yaml_path = args.out.join("camchain-imucam.yaml");
+    write_camchain(&yaml_path, &entries)?;
+    let verdict = write_camera_imu_report(&args.out, &results)?;
+    if args.json {
+        let first = &entries[0];
+        let rows: Vec<Vec<f64>> = (0..4)
+            .map(|r| (0..4).map(|c| first.T_cam_imu[(r, c)]).collect())
+            .collect();
+        let per_camera: Vec<_> = entries
+            .iter()
+            .zip(&results)
+            .map(|(e, r)| {
+                let rows: Vec<Vec<f64>> = (0..4).map(|i| (0..4).map(|j| e.T_cam_imu[(i, j)]).collect()).collect();
+                serde_json::json!({
+                    "camera": e.name,
+                    "T_cam_imu": rows,
+                    "timeshift_cam_imu_s": e.timeshift_cam_imu_s,
+                    "timeshift_from_gyro_s": r.offset.timeshift_cam_imu_s,
+                    "R_cam_imu_from_gyro": (0..3).map(|i| (0..3).map(|j| r.offset.hand_eye.R_imu_cam[(j, i)]).collect::<Vec<f64>>()).collect::<Vec<_>>(),
+                    "gravity_norm_m_s2": r.batch.gravity_m_s2.norm(),
+                    "target_scale": r.batch.target_scale,
+                    "accel_rms_m_s2": r.batch.accel_rms_m_s2,
+                    "position_rms_m": r.batch.position_rms_m,
+                })
+            })
+            .collect();
+        println!(
+            "{}",
+            serde_json::json!({
+                "T_cam_imu": rows,
+                "timeshift_cam_imu_s": first.timeshift_cam_imu_s,
+                "cameras": per_camera,
+                "verdict": verdict,
+            })
+        );
+    } else {
+        for (e, r) in entries.iter().zip(&results) {
+            println!(
+                "{}: {} of {} frames posed; time shift {:.3} ms (gyro correlation {:.3} ms)",
+                e.name,
+                r.poses,
+                r.frames,
+                e.timeshift_cam_imu_s * 1e3,
+                r.offset.timeshift_cam_imu_s * 1e3
+            );
+            println!("T_cam_imu =\n{:.6}", e.T_cam_imu);
+        }
+        println!("{verdict}");
+        println!("wrote {} and report.md", yaml_path.display());
+    }
+    Ok(())
 }
