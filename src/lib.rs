@@ -16,6 +16,7 @@ pub mod eval;
 pub mod features;
 pub mod imu;
 pub mod recording;
+pub mod relative;
 pub mod rig;
 pub mod shared_data;
 pub mod simulate;

@@ -1,0 +1,88 @@
+//! The values that travel between the parts of the relative stage and out
+//! of it. Kept apart from the algorithms so that the tracker, the
+//! initialiser, the window and the EKF baseline agree on one vocabulary.
+
+use nalgebra::{Isometry3, Matrix3, Vector2, Vector3};
+
+use crate::imu::ImuBiases;
+
+/// Identifies one landmark (one feature track) for the whole run. Ids are
+/// never reused, so a lost track that is found again gets a new id until
+/// the absolute stage recognises it by its descriptor.
+pub type LandmarkId = u64;
+
+/// One landmark seen in one image.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Observation {
+    pub landmark: LandmarkId,
+    /// 0 = left (or only) camera, 1 = right camera of a stereo rig.
+    pub camera_index: u8,
+    /// Distorted pixel position, as measured in the image.
+    pub pixel: Vector2<f64>,
+}
+
+/// What the tracker hands on for one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrackedFrame {
+    pub t_ns: i64,
+    /// Every observation in this frame, left and right camera.
+    pub observations: Vec<Observation>,
+    /// The tracker's keyframe decision (see the tracker's policy).
+    pub is_keyframe: bool,
+}
+
+impl TrackedFrame {
+    /// Observations of one camera.
+    pub fn in_camera(&self, camera_index: u8) -> impl Iterator<Item = &Observation> + '_ {
+        self.observations
+            .iter()
+            .filter(move |o| o.camera_index == camera_index)
+    }
+}
+
+/// The navigation state of one keyframe as the window estimates it.
+#[allow(non_snake_case)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct KeyframeState {
+    pub t_ns: i64,
+    pub T_world_body: Isometry3<f64>,
+    pub velocity_world_m_s: Vector3<f64>,
+    pub biases: ImuBiases,
+}
+
+/// Where the relative stage is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TrackingState {
+    /// Collecting frames; no pose yet (or a vision-only pose of unknown
+    /// scale in the mono modes before the IMU fixes it).
+    Initializing,
+    /// Poses are metric (or, in the `mono` mode, consistently scaled).
+    Tracking,
+    /// Tracking failed on this frame; the stage reinitialises.
+    Lost,
+}
+
+/// A tracked landmark in the body frame of the current frame, with its
+/// covariance: what the absolute stage turns into edges (eq. 41-42).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BodyLandmark {
+    pub id: LandmarkId,
+    pub position_body_m: Vector3<f64>,
+    pub covariance_body_m2: Matrix3<f64>,
+}
+
+/// The relative stage's answer for one frame (issue 5, item 5).
+#[allow(non_snake_case)]
+#[derive(Debug, Clone, PartialEq)]
+pub struct RelativeOutput {
+    pub t_ns: i64,
+    pub state: TrackingState,
+    pub T_world_body: Isometry3<f64>,
+    pub velocity_world_m_s: Vector3<f64>,
+    pub biases: ImuBiases,
+    /// Translation of the body since the previous output, in the world
+    /// frame: the Kalman position filter's prediction input (eq. 60).
+    pub delta_translation_world_m: Vector3<f64>,
+    pub landmarks: Vec<BodyLandmark>,
+}
