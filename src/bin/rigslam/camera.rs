@@ -15,7 +15,7 @@ use rigslam::sensors::{PixelFormat, NS_PER_S};
 pub enum Driver {
     /// Video4Linux2 (/dev/videoN): UVC webcams, FireWire/USB machine-vision cameras.
     V4l2,
-    /// GigE Vision / USB3 Vision through libaravis (build with `--features aravis`).
+    /// GigE Vision / USB3 Vision through libaravis (the default build has it; `--no-default-features` leaves it out).
     Aravis,
     /// A built-in moving pattern at --rate-hz (no hardware).
     Fake,
