@@ -58,10 +58,12 @@ impl ClockEstimate {
         self.drift * 1e6
     }
 
-    /// Maps a sensor time onto the host clock.
+    /// Maps a sensor time onto the host clock. Rounded down: the line is a
+    /// lower envelope of the receipts, so a mapped stamp must not land
+    /// after the receipt it was fitted under by a rounding nanosecond.
     pub fn to_host_ns(&self, sensor_ns: i64) -> i64 {
         let dx = (sensor_ns - self.reference_sensor_ns) as f64;
-        sensor_ns + (self.offset_ns + self.drift * dx).round() as i64
+        sensor_ns + (self.offset_ns + self.drift * dx).floor() as i64
     }
 }
 

@@ -63,6 +63,51 @@ impl YeiConfig {
     }
 }
 
+impl YeiConfig {
+    /// Samples per second the configured interval asks for.
+    pub fn rate_hz(&self) -> f64 {
+        1e6 / f64::from(self.interval_us.max(1))
+    }
+
+    /// Line speed the configured stream needs: every packet is the
+    /// streaming header plus the slots' payload, at 10 bits per byte (8N1).
+    pub fn needed_baud(&self) -> f64 {
+        let packet_bytes = HeaderConfig::STREAMING.len() + self.layout.payload_len();
+        (packet_bytes * 10) as f64 * self.rate_hz()
+    }
+
+    /// Refuses a stream the line cannot carry, before anything is sent: a
+    /// UART at too low a speed would drop most packets and look like a
+    /// broken sensor. (Over USB the baud is nominal, but the sensor still
+    /// paces its output by it, so the same rule holds.)
+    pub fn check_line_budget(&self) -> Result<(), YeiError> {
+        if self.interval_us == 0 {
+            return Err(YeiError::BadConfig {
+                port: self.port.clone(),
+                why: "streaming interval is 0 us; give a rate between 1 Hz and 10 kHz".into(),
+            });
+        }
+        let needed = self.needed_baud();
+        if needed > f64::from(self.baud) * LINE_BUDGET {
+            return Err(YeiError::BadConfig {
+                port: self.port.clone(),
+                why: format!(
+                    "{:.0} Hz of {} bytes per packet needs {needed:.0} baud, more than {:.0} % of the configured {} baud; raise the baud rate (the sensor accepts up to 921600) or lower the rate",
+                    self.rate_hz(),
+                    HeaderConfig::STREAMING.len() + self.layout.payload_len(),
+                    LINE_BUDGET * 100.0,
+                    self.baud
+                ),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Share of the line speed a stream may use: leaves room for the
+/// occasional command answer and for clock tolerance between the ends.
+const LINE_BUDGET: f64 = 0.9;
+
 /// Who the sensor says it is.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct YeiIdentity {
@@ -150,6 +195,8 @@ pub enum YeiError {
         received: usize,
         first_bytes: String,
     },
+    #[error("{port}: {why}")]
+    BadConfig { port: String, why: String },
     #[error("streaming configuration: {0}")]
     Protocol(#[from] ProtocolError),
     #[error("cannot start the decode thread: {0}")]
@@ -405,6 +452,7 @@ pub struct YeiDevice {
 impl YeiDevice {
     /// Opens the port, runs the handshake and starts the decode thread.
     pub fn open(config: YeiConfig) -> Result<YeiDevice, YeiError> {
+        config.check_line_budget()?;
         let (port, identity, leftover) = connect(&config)?;
         let (tx, rx) = mpsc::sync_channel(config.queue_capacity);
         let shared = Arc::new(Shared {
@@ -646,7 +694,10 @@ impl Worker {
         // Refits move the mapping by microseconds (early on, by up to the
         // delay jitter); stamps must still increase, by half the sensor
         // interval where possible, so a refit never reorders or bunches
-        // samples, and never lie after the receipt.
+        // samples, and never lie after the receipt. The one exception:
+        // several packets decoded from one read share a receipt, and before
+        // the fit has settled they may all be clamped to it; strict order
+        // then wins, so the k-th of them lies at most k ns after it.
         let t_ns = match self.last_t_ns {
             Some((last_sensor_ns, last_t_ns)) => mapped_ns
                 .max(last_t_ns + ((sensor_ns - last_sensor_ns) / 2).max(1))
