@@ -30,6 +30,10 @@ pub struct ClockSyncConfig {
     /// Known fixed part of the transport delay (e.g. a packet's time on the
     /// wire), subtracted from every receipt time; the envelope cannot see it.
     pub min_latency_ns: i64,
+    /// Largest rate difference a real oscillator shows (quartz: tens of
+    /// ppm); a fit over a short noisy stretch that says more is clamped to
+    /// it, the line kept under every point.
+    pub max_drift_ppm: f64,
 }
 
 impl Default for ClockSyncConfig {
@@ -38,6 +42,7 @@ impl Default for ClockSyncConfig {
             window_ns: 30_000_000_000,
             bucket_ns: 10_000_000,
             min_latency_ns: 0,
+            max_drift_ppm: 500.0,
         }
     }
 }
@@ -188,8 +193,20 @@ impl ClockSync {
             .find(|w| w[1].x >= mean_x)
             .unwrap_or(&self.hull[self.hull.len() - 2..]);
         let (a, b) = (edge[0], edge[1]);
+        let max_slope = self.config.max_drift_ppm * 1e-6;
         let slope = (b.y - a.y) / (b.x - a.x);
-        self.line = Some((a.y - slope * a.x, slope));
+        if slope.abs() <= max_slope {
+            self.line = Some((a.y - slope * a.x, slope));
+        } else {
+            // The steepest plausible line that still lies under the hull.
+            let slope = slope.clamp(-max_slope, max_slope);
+            let intercept = self
+                .hull
+                .iter()
+                .map(|p| p.y - slope * p.x)
+                .fold(f64::INFINITY, f64::min);
+            self.line = Some((intercept, slope));
+        }
     }
 
     /// The current estimate, once at least one observation is in.
@@ -248,6 +265,34 @@ mod tests {
             .map(|k| last - k * 5_000_000)
             .map(|s| (sync.to_host_ns(s).expect("observed") as f64 - host_of(s)).abs())
             .fold(0.0, f64::max)
+    }
+
+    #[test]
+    fn a_short_noisy_start_never_claims_an_implausible_drift() {
+        // 0.4 s at 50 Hz with 2 ms of one-sided jitter: the raw hull edge
+        // can tilt by thousands of ppm; the estimate stays within the bound
+        // and under every observation.
+        for seed in 0..20 {
+            let (sync, _, _, _) = run(20e-6, 50.0, 0.4, seed, |r| r.gen_range(0.0..2e6));
+            let e = sync.estimate().expect("observed");
+            assert!(e.drift_ppm().abs() <= 500.0 + 1e-9, "seed {seed}: {e:?}");
+        }
+        let mut sync = ClockSync::new(ClockSyncConfig::default());
+        let points = [
+            (0i64, 1_000_000i64),
+            (10_000_000, 11_100_000),
+            (20_000_000, 21_200_000),
+        ];
+        for (x, y) in points {
+            sync.observe(x, y);
+        }
+        // An exact 1 % skew is far beyond quartz: clamped, and no mapped
+        // point lies after its receipt.
+        let e = sync.estimate().expect("observed");
+        assert!((e.drift_ppm() - 500.0).abs() < 1e-6, "{e:?}");
+        for (x, y) in points {
+            assert!(e.to_host_ns(x) <= y);
+        }
     }
 
     #[test]

@@ -8,10 +8,14 @@
 //!
 //! Time: a frame carries two stamps. The camera's own (`arv_buffer_get_timestamp`,
 //! the GigE Vision tick counter in ns, start of exposure on most cameras) is
-//! kept as [`FrameSource::last_device_stamp_ns`] for the clock-alignment
-//! stage; `t_ns` is the host `CLOCK_MONOTONIC` time the frame's first packet
-//! arrived (Aravis stamps it on the real-time clock; we move it onto the
-//! monotonic one), or the time we popped it when that stamp is implausible.
+//! kept as [`FrameSource::last_device_stamp_ns`]; the host `CLOCK_MONOTONIC`
+//! time the frame's first packet arrived (Aravis stamps it on the real-time
+//! clock; we move it onto the monotonic one, or take the time we popped it
+//! when that stamp is implausible) bounds it from above. When the camera
+//! has a clock, `t_ns` is the camera stamp mapped onto the host clock by
+//! [`crate::clock_sync::ClockSync`] (offset and drift under the lower
+//! envelope of arrival minus camera time, so transport delay does not leak
+//! into the stamps); without one, `t_ns` is the arrival time.
 //!
 //! Drops are gaps in the frame ids (which also cover frames Aravis discarded
 //! for want of a free buffer); incomplete frames (missing packets, timeouts)
@@ -31,6 +35,7 @@ use super::source::{
     monotonic_now_ns, realtime_now_ns, CameraError, CameraInfo, CaptureStats, FrameSource,
     TimestampSource,
 };
+use crate::clock_sync::{ClockSync, ClockSyncConfig};
 use crate::{Frame, Image};
 
 /// What the user asked of the camera; `None` keeps the camera's setting.
@@ -78,6 +83,8 @@ pub struct AravisSource {
     pool: BufferPool,
     last_frame_id: Option<u64>,
     last_device_stamp_ns: Option<i64>,
+    clock: ClockSync,
+    last_t_ns: Option<i64>,
     stats: CaptureStats,
     seq: u64,
 }
@@ -256,6 +263,8 @@ pub fn open_aravis(config: &AravisConfig) -> Result<AravisSource, CameraError> {
         pool: BufferPool::new(POOLED_FRAMES),
         last_frame_id: None,
         last_device_stamp_ns: None,
+        clock: ClockSync::new(ClockSyncConfig::default()),
+        last_t_ns: None,
         stats: CaptureStats::default(),
         seq: 0,
     })
@@ -323,6 +332,35 @@ fn arrival_ns(system_timestamp_ns: u64, realtime_minus_monotonic_ns: i64, popped
     }
 }
 
+impl AravisSource {
+    /// The frame's host time: the camera stamp through the clock fit when
+    /// the camera has a clock, never after the arrival and always
+    /// increasing; the arrival time otherwise.
+    fn host_stamp(&mut self, device_ns: i64, arrival_ns: i64) -> i64 {
+        let t_ns = if device_ns > 0 {
+            self.clock.observe(device_ns, arrival_ns);
+            self.info.timestamp_source = TimestampSource::CameraClock;
+            self.clock
+                .to_host_ns(device_ns)
+                .unwrap_or(arrival_ns)
+                .min(arrival_ns)
+        } else {
+            arrival_ns
+        };
+        let t_ns = match self.last_t_ns {
+            Some(last) => t_ns.max(last + 1),
+            None => t_ns,
+        };
+        self.last_t_ns = Some(t_ns);
+        t_ns
+    }
+
+    /// The camera clock's fitted offset and drift against the host clock.
+    pub fn clock_estimate(&self) -> Option<crate::clock_sync::ClockEstimate> {
+        self.clock.estimate()
+    }
+}
+
 impl FrameSource for AravisSource {
     fn info(&self) -> &CameraInfo {
         &self.info
@@ -372,7 +410,8 @@ impl FrameSource for AravisSource {
             };
             self.stream.push_buffer(buffer);
             match result {
-                Ok((image, t_ns, device_ns)) => {
+                Ok((image, arrival_t_ns, device_ns)) => {
+                    let t_ns = self.host_stamp(device_ns, arrival_t_ns);
                     self.last_device_stamp_ns = Some(device_ns);
                     self.stats.frames += 1;
                     let frame = Frame {
@@ -468,6 +507,9 @@ mod tests {
         }
         let device_stamp = source.last_device_stamp_ns().expect("camera stamp");
         assert!(device_stamp > 0);
+        // The fake camera has a clock: stamps come from it through the fit.
+        assert_eq!(source.info().timestamp_source, TimestampSource::CameraClock);
+        assert!(source.clock_estimate().is_some());
         let span_s = (frames[19].t_ns - frames[0].t_ns) as f64 * 1e-9;
         let rate = 19.0 / span_s;
         assert!((rate - 50.0).abs() < 10.0, "measured {rate:.1} Hz at 50 Hz");

@@ -23,8 +23,9 @@ pub enum TimestampSource {
     /// arrived (V4L2 `TSTAMP_SRC_EOF`); `t_ns` subtracts half the exposure
     /// when known, the readout time is left to the camera-IMU time shift.
     MonotonicEndOfFrame,
-    /// The camera's own clock (GigE Vision tick counter); needs mapping onto
-    /// the host clock by the clock-alignment stage.
+    /// The camera's own clock (GigE Vision tick counter), mapped onto the
+    /// host clock by an offset-and-drift fit under the arrival times
+    /// (`clock_sync`).
     CameraClock,
     /// The host's `CLOCK_MONOTONIC` when the driver handed us the buffer:
     /// the fallback when the device's stamps are not monotonic-clock stamps.
