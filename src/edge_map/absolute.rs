@@ -29,6 +29,7 @@ use nalgebra::{DMatrix, Isometry3, Matrix3, Translation3, Vector3};
 use super::covariance::submatrix_covariance;
 use super::edge::{EdgeMap, LandmarkObservation};
 use super::map_worker::{MapSolveRequest, MapSolveWorker, SolvedMap};
+use super::ordering_reuse::SymbolicPath;
 use super::policy::EdgePolicy;
 use super::position_filter::{LandmarkFix, PositionFilter};
 use super::problem::MapProblem;
@@ -150,6 +151,11 @@ pub struct AbsoluteStats {
     /// Solves whose sparsity pattern equalled the previous one's, so the
     /// symbolic factorisation was reused.
     pub symbolic_reused: usize,
+    /// Solves whose pattern changed but whose landmark ordering was reused
+    /// (new landmarks appended, no AMD).
+    pub ordering_reused: usize,
+    /// Solves with a fresh AMD ordering.
+    pub fresh_orderings: usize,
     pub pcg_solves: usize,
     pub pcg_iterations: usize,
     /// Iterations a cold start would have needed (when measured).
@@ -382,8 +388,11 @@ impl AbsoluteStage {
                 }
                 self.stats.solves += 1;
                 self.stats.solve_total_ms += map.report.total_ms;
-                if map.report.symbolic_reused {
-                    self.stats.symbolic_reused += 1;
+                match map.symbolic_path {
+                    Some(SymbolicPath::Reused) => self.stats.symbolic_reused += 1,
+                    Some(SymbolicPath::OrderingReused) => self.stats.ordering_reused += 1,
+                    Some(SymbolicPath::Fresh) => self.stats.fresh_orderings += 1,
+                    None => {}
                 }
                 if map.report.method == "pcg" {
                     self.stats.pcg_solves += 1;

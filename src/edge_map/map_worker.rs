@@ -15,9 +15,10 @@ use std::time::Instant;
 use nalgebra::Vector3;
 
 use super::laplacian::BlockLaplacian;
+use super::ordering_reuse::{IncrementalSymbolic, OrderingReuse, SymbolicPath};
 use super::problem::MapProblem;
 use super::solve::{
-    check_connected, solve_pcg, CgOptions, CholeskyFactor, EdgeMapSolver, SolveReport, SolverChoice,
+    check_connected, solve_pcg, CgOptions, CholeskyFactor, SolveReport, SolverChoice,
 };
 use super::EdgeMapError;
 
@@ -52,6 +53,8 @@ pub struct SolvedMap {
     /// Iterations a cold start (from zero) needed on the same system, when
     /// the worker was asked to measure it.
     pub cold_cg_iterations: Option<usize>,
+    /// How the symbolic factorisation was obtained (Cholesky solves).
+    pub symbolic_path: Option<SymbolicPath>,
 }
 
 impl SolvedMap {
@@ -63,9 +66,13 @@ impl SolvedMap {
     }
 }
 
+/// Fresh AMD once appended landmarks exceed this share of those ordered
+/// (measured in bench/README.md, "Kalman position filter").
+pub const DEFAULT_REFRESH_FRACTION: f64 = 0.1;
+
 /// Solves map requests; keeps the symbolic factorisation between them.
 pub struct MapSolveWorker {
-    solver: EdgeMapSolver,
+    symbolic: IncrementalSymbolic,
     pub choice: SolverChoice,
     pub cg: CgOptions,
     /// Also run every CG solve from a cold start (zero) and report its
@@ -76,11 +83,25 @@ pub struct MapSolveWorker {
 impl MapSolveWorker {
     pub fn new(choice: SolverChoice, threads: usize) -> Self {
         Self {
-            solver: EdgeMapSolver::new(SolverChoice::Cholesky, threads),
+            symbolic: IncrementalSymbolic::new(
+                OrderingReuse::AppendNew {
+                    refresh_fraction: DEFAULT_REFRESH_FRACTION,
+                },
+                if threads <= 1 {
+                    faer::Par::Seq
+                } else {
+                    faer::Par::rayon(threads)
+                },
+            ),
             choice,
             cg: CgOptions::default(),
             measure_cold_start: false,
         }
+    }
+
+    /// Changes how a changed pattern's ordering is obtained.
+    pub fn set_ordering(&mut self, ordering: OrderingReuse) {
+        self.symbolic.policy = ordering;
     }
 
     /// Solves one request: the reference's connected component (landmarks
@@ -114,6 +135,7 @@ impl MapSolveWorker {
             }
         };
         let mut cold_cg_iterations = None;
+        let mut symbolic_path = None;
         let (x, factor) = if use_cg {
             let mut x = warm_start(&problem, &kept, &previous_m);
             if self.measure_cold_start {
@@ -127,7 +149,10 @@ impl MapSolveWorker {
             (x, None)
         } else {
             let t = Instant::now();
-            let factor = self.solver.factorize(&laplacian, &mut report)?;
+            let (factor, path) =
+                self.symbolic
+                    .factorize(&laplacian, &problem, &kept, &mut report)?;
+            symbolic_path = Some(path);
             report.factor_ms = ms_since(t);
             report.factor_nnz = factor.nnz();
             let t = Instant::now();
@@ -156,6 +181,7 @@ impl MapSolveWorker {
             factor,
             report,
             cold_cg_iterations,
+            symbolic_path,
         })
     }
 }
@@ -198,4 +224,131 @@ fn warm_start(problem: &MapProblem, kept: &[u32], previous_m: &[Option<Vector3<f
 
 fn ms_since(t: Instant) -> f64 {
     t.elapsed().as_secs_f64() * 1e3
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::edge_map::simulate::{simulate_city, CityOptions};
+
+    /// The map as it was when only landmarks `0..n` existed (ids are
+    /// assigned in the order the drive creates them).
+    pub(crate) fn prefix(problem: &MapProblem, n: u32) -> MapProblem {
+        MapProblem {
+            landmark_count: n,
+            reference: problem.reference,
+            edges: problem
+                .edges
+                .iter()
+                .filter(|e| e.i < n && e.j < n)
+                .copied()
+                .collect(),
+        }
+    }
+
+    /// A growing map solved by CG from the previous solution: same answer
+    /// as Cholesky, in fewer iterations than from zero.
+    #[test]
+    fn warm_started_cg_on_a_growing_map_agrees_with_cholesky_in_fewer_iterations() {
+        let city = simulate_city(&CityOptions {
+            landmarks: 1500,
+            ..CityOptions::default()
+        });
+        let mut cg = MapSolveWorker::new(SolverChoice::ConjugateGradient, 1);
+        cg.measure_cold_start = true;
+        cg.cg.rel_tol = 1e-12;
+        cg.cg.max_iterations = 100_000;
+        let mut cholesky = MapSolveWorker::new(SolverChoice::Cholesky, 1);
+        let mut previous: Vec<Option<Vector3<f64>>> = Vec::new();
+        let (mut warm_total, mut cold_total) = (0, 0);
+        for (version, n) in (1000..=1500).step_by(50).enumerate() {
+            let problem = prefix(&city.problem, n);
+            let request = MapSolveRequest {
+                version: version as u64,
+                problem,
+                previous_m: previous.clone(),
+            };
+            let reference = cholesky.solve(request.clone()).unwrap();
+            let solved = cg.solve(request).unwrap();
+            assert_eq!(solved.report.method, "pcg");
+            for (a, b) in solved.positions_m.iter().zip(&reference.positions_m) {
+                match (a, b) {
+                    (Some(a), Some(b)) => assert!((a - b).norm() < 1e-6, "{a} vs {b}"),
+                    (None, None) => {}
+                    _ => panic!("the two solves placed different landmarks"),
+                }
+            }
+            if version > 0 {
+                warm_total += solved.report.cg_iterations;
+                cold_total += solved.cold_cg_iterations.unwrap();
+            }
+            previous = solved.positions_m;
+        }
+        assert!(
+            warm_total < cold_total,
+            "warm {warm_total} vs cold {cold_total} iterations"
+        );
+    }
+}
+
+/// Warm- vs cold-started CG iterations on a growing simulated map (not a
+/// check; `--ignored --nocapture` prints the table in bench/README.md).
+#[cfg(test)]
+#[test]
+#[ignore]
+fn print_warm_start_table() {
+    use crate::edge_map::simulate::{simulate_city, CityOptions};
+    let landmarks: usize = std::env::var("RIGSLAM_WARM_LANDMARKS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(10_000);
+    let city = simulate_city(&CityOptions {
+        landmarks,
+        ..CityOptions::default()
+    });
+    let step = 15u32; // about 5 frames of new landmarks (2 m per frame, 1.5 per m)
+    let solves = 6;
+    let top = city.problem.landmark_count;
+    for rel_tol in [1e-4, 1e-6, 1e-8, 1e-10] {
+        let mut cg = MapSolveWorker::new(SolverChoice::ConjugateGradient, 1);
+        cg.measure_cold_start = true;
+        cg.cg.rel_tol = rel_tol;
+        cg.cg.max_iterations = 200_000;
+        let mut cholesky = MapSolveWorker::new(SolverChoice::Cholesky, 1);
+        let mut previous: Vec<Option<Vector3<f64>>> = Vec::new();
+        let (mut warm, mut cold, mut worst) = (0usize, 0usize, 0.0f64);
+        let (mut warm_ms, mut cold_ms) = (0.0, 0.0);
+        for k in 0..=solves {
+            let n = top - (solves - k) as u32 * step;
+            let request = MapSolveRequest {
+                version: k as u64,
+                problem: tests::prefix(&city.problem, n),
+                previous_m: previous.clone(),
+            };
+            let reference = cholesky.solve(request.clone()).unwrap();
+            let t = Instant::now();
+            let solved = cg.solve(request).unwrap();
+            let both_ms = ms_since(t);
+            if k > 0 {
+                warm += solved.report.cg_iterations;
+                cold += solved.cold_cg_iterations.unwrap();
+                warm_ms += solved.report.solve_ms;
+                cold_ms += both_ms - solved.report.solve_ms;
+                for (a, b) in solved.positions_m.iter().zip(&reference.positions_m) {
+                    if let (Some(a), Some(b)) = (a, b) {
+                        worst = worst.max((a - b).norm());
+                    }
+                }
+            }
+            previous = solved.positions_m;
+        }
+        println!(
+            "| {top} | {rel_tol:e} | {:.0} | {:.0} | {:.2} | {:.0} / {:.0} | {worst:.1e} |",
+            warm as f64 / solves as f64,
+            cold as f64 / solves as f64,
+            cold as f64 / warm.max(1) as f64,
+            warm_ms / solves as f64,
+            cold_ms / solves as f64,
+        );
+    }
 }

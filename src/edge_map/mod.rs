@@ -27,6 +27,7 @@ pub mod edges_file;
 pub mod laplacian;
 pub mod map_worker;
 pub mod nees;
+pub mod ordering_reuse;
 pub mod policy;
 pub mod position_filter;
 pub mod problem;
