@@ -303,3 +303,45 @@ fn print_nees_table() {
         }
     }
 }
+
+/// Prints how often each symbolic path is taken and the per-frame cost on
+/// the room run (`--ignored --nocapture`).
+#[test]
+#[ignore]
+fn print_stage_stats() {
+    for laps in [1.0, 4.0] {
+        for covariance in [
+            LandmarkCovariance::Exact,
+            LandmarkCovariance::SubMatrix { hops: 0 },
+        ] {
+            let options = RoomRunOptions {
+                laps,
+                landmarks: 400,
+                ..RoomRunOptions::default()
+            };
+            let run = simulate_room_run(&options);
+            let mut stage = AbsoluteStage::new(inline(AbsoluteConfig {
+                covariance,
+                ..AbsoluteConfig::default()
+            }));
+            let mut per_frame = Vec::new();
+            for output in &run.outputs {
+                let t = std::time::Instant::now();
+                stage.push(output);
+                per_frame.push(t.elapsed().as_secs_f64() * 1e3);
+            }
+            let s = stage.stats();
+            let solve_mean = s.solve_total_ms / s.solves as f64;
+            let frame_mean = (s.frame_total_ms - s.solve_total_ms) / s.frames as f64;
+            println!(
+                "laps {laps} {covariance:?}: frames {}, landmarks {}, solves {}, symbolic reused {}, ordering reused {}, fresh {}, mean solve {solve_mean:.2} ms, mean frame without solve {frame_mean:.3} ms",
+                s.frames,
+                stage.map().map_or(0, |m| m.problem.landmark_count),
+                s.solves,
+                s.symbolic_reused,
+                s.ordering_reused,
+                s.fresh_orderings
+            );
+        }
+    }
+}

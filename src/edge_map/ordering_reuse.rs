@@ -49,6 +49,10 @@ pub enum SymbolicPath {
     Fresh,
 }
 
+/// A symbolic factorisation with the pattern (column pointers, row
+/// indices) it was computed for.
+type CachedSymbolic = (Vec<u32>, Vec<u32>, Arc<SymbolicCholesky<u32>>);
+
 /// Keeps the ordering (by map id) and the symbolic factorisation.
 pub struct IncrementalSymbolic {
     pub policy: OrderingReuse,
@@ -57,7 +61,7 @@ pub struct IncrementalSymbolic {
     order_ids: Vec<u32>,
     /// Landmarks ordered by the last fresh AMD.
     fresh_count: usize,
-    cached: Option<(Vec<u32>, Vec<u32>, Arc<SymbolicCholesky<u32>>)>,
+    cached: Option<CachedSymbolic>,
 }
 
 impl IncrementalSymbolic {
@@ -192,11 +196,9 @@ mod tests {
     /// Solves the growing prefixes of a simulated map with one policy;
     /// returns per solve (path, factor nnz, order ms, symbolic ms,
     /// numeric ms, solution).
-    fn grow(
-        policy: OrderingReuse,
-        problem: &MapProblem,
-        sizes: &[u32],
-    ) -> Vec<(SymbolicPath, usize, f64, f64, f64, Vec<f64>)> {
+    type Row = (SymbolicPath, usize, f64, f64, f64, Vec<f64>);
+
+    fn grow(policy: OrderingReuse, problem: &MapProblem, sizes: &[u32]) -> Vec<Row> {
         let mut inc = IncrementalSymbolic::new(policy, Par::Seq);
         sizes
             .iter()
@@ -301,9 +303,7 @@ mod tests {
             let rows = grow(policy, &city.problem, &sizes);
             let tail = &rows[1..];
             let k = tail.len() as f64;
-            let mean = |f: &dyn Fn(&(SymbolicPath, usize, f64, f64, f64, Vec<f64>)) -> f64| {
-                tail.iter().map(f).sum::<f64>() / k
-            };
+            let mean = |f: &dyn Fn(&Row) -> f64| tail.iter().map(f).sum::<f64>() / k;
             println!(
                 "| {top} | {name} | {:.1} | {:.1} | {:.1} | {:.0} | {:.3} |",
                 mean(&|r| r.2),
