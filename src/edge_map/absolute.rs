@@ -18,6 +18,24 @@
 //! position from the filter. Positions are in the relative stage's world
 //! frame: the map is anchored where the relative stage put the reference
 //! landmark (the first landmark of the first frame with two or more).
+//!
+//! Use from the pipeline (`rigslam run`): one stage per run, one `push`
+//! per relative-stage output, in order; the map solve runs on the stage's
+//! own thread by default.
+//!
+//! ```no_run
+//! use rigslam::edge_map::{AbsoluteConfig, AbsoluteStage};
+//! # fn relative_outputs() -> Vec<rigslam::relative::types::RelativeOutput> { Vec::new() }
+//! let mut stage = AbsoluteStage::new(AbsoluteConfig::default());
+//! for output in relative_outputs() {
+//!     let corrected = stage.push(&output);
+//!     // corrected.T_world_body -> `--trajectory`,
+//!     // output.T_world_body    -> `--trajectory-relative`.
+//!     let _ = (corrected.t_ns, corrected.T_world_body);
+//! }
+//! stage.wait_for_solve();
+//! eprintln!("{:?}", stage.stats());
+//! ```
 
 use std::collections::HashMap;
 use std::sync::mpsc::{self, Receiver, Sender};
@@ -35,7 +53,7 @@ use super::position_filter::{LandmarkFix, PositionFilter};
 use super::problem::MapProblem;
 use super::solve::SolverChoice;
 use super::EdgeMapError;
-use crate::relative::types::{LandmarkId, RelativeOutput, TrackingState};
+use crate::relative::types::{BodyLandmark, LandmarkId, RelativeOutput, TrackingState};
 
 /// How one frame's landmark pairs are weighted as edge measurements.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -166,6 +184,9 @@ pub struct AbsoluteStats {
     pub frame_total_ms: f64,
     pub frame_max_ms: f64,
     pub solve_errors: usize,
+    /// Landmarks (non-finite, or covariance not positive definite),
+    /// increments and poses (non-finite) that were left out.
+    pub rejected_inputs: usize,
 }
 
 /// The absolute stage.
@@ -283,6 +304,15 @@ impl AbsoluteStage {
     pub fn push(&mut self, output: &RelativeOutput) -> CorrectedPose {
         let start = Instant::now();
         self.poll_background();
+        let cleaned;
+        let output = match sanitize(output) {
+            Some((clean, rejected)) => {
+                self.stats.rejected_inputs += rejected;
+                cleaned = clean;
+                &cleaned
+            }
+            None => output,
+        };
         let rotation = *output.T_world_body.rotation.to_rotation_matrix().matrix();
         let tracking = output.state == TrackingState::Tracking;
         let mut report = None;
@@ -551,6 +581,52 @@ impl AbsoluteStage {
             }
         }
     }
+}
+
+/// A copy of `output` without what would poison the map or the filter:
+/// landmarks with a non-finite position or a covariance that is not
+/// positive definite; a non-finite increment becomes zero; a non-finite
+/// pose makes the frame `Lost`. None when everything is usable.
+fn sanitize(output: &RelativeOutput) -> Option<(RelativeOutput, usize)> {
+    let usable = |l: &BodyLandmark| {
+        l.position_body_m.iter().all(|v| v.is_finite())
+            && l.covariance_body_m2.iter().all(|v| v.is_finite())
+            && l.covariance_body_m2.cholesky().is_some()
+    };
+    let pose_ok = output
+        .T_world_body
+        .translation
+        .vector
+        .iter()
+        .all(|v| v.is_finite())
+        && output
+            .T_world_body
+            .rotation
+            .coords
+            .iter()
+            .all(|v| v.is_finite());
+    let delta_ok = output
+        .delta_translation_world_m
+        .iter()
+        .all(|v| v.is_finite());
+    let bad_landmarks = output.landmarks.iter().filter(|l| !usable(l)).count();
+    if pose_ok && delta_ok && bad_landmarks == 0 {
+        return None;
+    }
+    let mut clean = output.clone();
+    clean.landmarks.retain(usable);
+    if !delta_ok {
+        clean.delta_translation_world_m = Vector3::zeros();
+    }
+    if !pose_ok {
+        clean.state = TrackingState::Lost;
+        clean.T_world_body = Isometry3::identity();
+        clean.landmarks.clear();
+    }
+    Some((
+        clean,
+        bad_landmarks + usize::from(!delta_ok) + usize::from(!pose_ok),
+    ))
 }
 
 /// Exact joint covariance of the map ids `ids` (3m x 3m, zero rows for the

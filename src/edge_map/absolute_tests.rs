@@ -263,6 +263,52 @@ fn landmark_map_beats_placing_landmarks_by_dead_reckoning() {
     );
 }
 
+#[test]
+fn unusable_inputs_are_left_out_not_propagated() {
+    // The same run twice; in the second, extra landmarks with NaN
+    // positions or indefinite covariances, and one NaN increment, are
+    // mixed in. The map and poses must stay finite, and the bad inputs
+    // counted.
+    let run = simulate_room_run(&RoomRunOptions {
+        laps: 0.5,
+        ..RoomRunOptions::default()
+    });
+    let mut stage = AbsoluteStage::new(inline(AbsoluteConfig::default()));
+    let mut expected_rejections = 0;
+    for (k, output) in run.outputs.iter().enumerate() {
+        let mut bad = output.clone();
+        if let Some(first) = output.landmarks.first() {
+            let mut nan = *first;
+            nan.id = 1_000_000 + k as u64;
+            nan.position_body_m.x = f64::NAN;
+            let mut indefinite = *first;
+            indefinite.id = 2_000_000 + k as u64;
+            indefinite.covariance_body_m2 = -indefinite.covariance_body_m2;
+            bad.landmarks.extend([nan, indefinite]);
+            expected_rejections += 2;
+        }
+        if k == 20 {
+            bad.delta_translation_world_m.y = f64::NAN;
+            expected_rejections += 1;
+        }
+        let pose = stage.push(&bad);
+        assert!(pose
+            .T_world_body
+            .translation
+            .vector
+            .iter()
+            .all(|v| v.is_finite()));
+    }
+    assert_eq!(stage.stats().rejected_inputs, expected_rejections);
+    assert!(stage.stats().solves > 3 && stage.stats().solve_errors == 0);
+    let map = stage.map().unwrap();
+    assert!(map
+        .positions_m
+        .iter()
+        .flatten()
+        .all(|p| p.iter().all(|v| v.is_finite())));
+}
+
 /// Prints the NEES of every combination (not a check; run with
 /// `--ignored --nocapture` for the numbers in bench/README.md).
 #[test]
