@@ -391,3 +391,50 @@ fn print_stage_stats() {
         }
     }
 }
+
+/// Per-frame cost of the exact covariance against the sub-matrix rule as
+/// the map grows (`--ignored --nocapture`).
+#[test]
+#[ignore]
+fn print_correction_cost_by_map_size() {
+    for (landmarks, room) in [
+        (400, (16.0, 10.0)),
+        (2000, (60.0, 40.0)),
+        (8000, (200.0, 120.0)),
+    ] {
+        let options = RoomRunOptions {
+            landmarks,
+            room_m: room,
+            range_m: 0.5 * room.0,
+            sigma_depth_per_m2: 0.004 * 8.0 / (0.5 * room.0),
+            laps: 1.0,
+            ..RoomRunOptions::default()
+        };
+        let run = simulate_room_run(&options);
+        let mut row = Vec::new();
+        let mut mapped = 0;
+        for covariance in [
+            LandmarkCovariance::Exact,
+            LandmarkCovariance::SubMatrix { hops: 0 },
+        ] {
+            let mut stage = AbsoluteStage::new(inline(AbsoluteConfig {
+                covariance,
+                ..AbsoluteConfig::default()
+            }));
+            for output in &run.outputs {
+                stage.push(output);
+            }
+            let s = stage.stats();
+            mapped = stage.map().map_or(0, |m| m.problem.landmark_count);
+            row.push((s.frame_total_ms - s.solve_total_ms) / s.frames as f64);
+            row.push(s.solve_total_ms / s.solves as f64);
+        }
+        println!(
+            "| {mapped} | {} | {:.2} | {:.2} | {:.1} |",
+            run.outputs.len(),
+            row[0],
+            row[2],
+            row[1]
+        );
+    }
+}
