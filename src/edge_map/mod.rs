@@ -10,23 +10,43 @@
 //! [`edges_file`] reads and writes the stand-alone problem format of
 //! `rigslam map solve`, and [`simulate`] generates problems from simulated
 //! observations.
+//!
+//! The absolute stage itself, [`absolute::AbsoluteStage`], runs all of it
+//! per frame of the relative stage: edges fused, the map solved every few
+//! frames off the frame-rate path ([`map_worker`]), and the robot position
+//! corrected by the Kalman filter of eq. 60-71 ([`position_filter`]);
+//! [`simulate_relative`] simulates its input and [`nees`] checks the
+//! filter's consistency.
 
+pub mod absolute;
+#[cfg(test)]
+mod absolute_tests;
 pub mod covariance;
 pub mod edge;
 pub mod edges_file;
 pub mod laplacian;
+pub mod map_worker;
+pub mod nees;
+pub mod ordering_reuse;
 pub mod policy;
+pub mod position_filter;
 pub mod problem;
 pub mod simulate;
+pub mod simulate_relative;
 pub mod solve;
 #[cfg(test)]
 mod tests;
 
 use std::path::PathBuf;
 
+pub use absolute::{
+    AbsoluteConfig, AbsoluteStage, AbsoluteStats, CorrectedPose, EdgeWeighting, LandmarkCovariance,
+    SolveMode,
+};
 pub use edge::{EdgeMap, FusedEdge, LandmarkObservation};
 pub use laplacian::BlockLaplacian;
 pub use policy::EdgePolicy;
+pub use position_filter::PositionFilter;
 pub use problem::{MapEdge, MapProblem};
 pub use solve::{EdgeMapSolver, SolveReport, SolverChoice};
 

@@ -245,18 +245,38 @@ impl EdgeMapSolver {
             ));
         }
         let symbolic = Arc::clone(&self.cached.as_ref().expect("cached above").2);
+        CholeskyFactor::numeric(symbolic, laplacian, self.par)
+    }
+}
+
+impl CholeskyFactor {
+    /// Numeric factorisation of `laplacian` on a symbolic factorisation of
+    /// its pattern (computed here or elsewhere, e.g. with a reused
+    /// ordering).
+    pub fn numeric(
+        symbolic: Arc<SymbolicCholesky<u32>>,
+        laplacian: &BlockLaplacian,
+        par: Par,
+    ) -> Result<Self, EdgeMapError> {
+        let dim = laplacian.dim();
+        let pattern = SymbolicSparseColMatRef::new_checked(
+            dim,
+            dim,
+            &laplacian.col_ptr,
+            None,
+            &laplacian.row_idx,
+        );
         let mut values = vec![0.0; symbolic.len_val()];
         let matrix = SparseColMatRef::new(pattern, &laplacian.values);
-        let mut buffer = MemBuffer::new(
-            symbolic.factorize_numeric_llt_scratch::<f64>(self.par, Default::default()),
-        );
+        let mut buffer =
+            MemBuffer::new(symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()));
         symbolic
             .factorize_numeric_llt(
                 &mut values,
                 matrix,
                 Side::Upper,
                 Default::default(),
-                self.par,
+                par,
                 MemStack::new(&mut buffer),
                 Default::default(),
             )
@@ -264,7 +284,7 @@ impl EdgeMapSolver {
         Ok(CholeskyFactor {
             symbolic,
             values,
-            par: self.par,
+            par,
         })
     }
 }
@@ -275,7 +295,9 @@ fn ms_since(t: Instant) -> f64 {
 
 /// AMD on the landmark graph, expanded to the three coordinates of each
 /// landmark. Returns (forward, inverse) scalar permutations.
-fn block_amd_ordering(laplacian: &BlockLaplacian) -> Result<(Vec<u32>, Vec<u32>), EdgeMapError> {
+pub(crate) fn block_amd_ordering(
+    laplacian: &BlockLaplacian,
+) -> Result<(Vec<u32>, Vec<u32>), EdgeMapError> {
     let n = laplacian.node_count;
     let mut node_fwd = vec![0u32; n];
     let mut node_inv = vec![0u32; n];

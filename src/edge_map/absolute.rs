@@ -1,0 +1,707 @@
+//! The absolute stage (paper eq. 41-71): consumes the relative stage's
+//! [`RelativeOutput`] frame by frame, fuses landmark-pair edges into the
+//! edge map, solves the map every K frames off the frame-rate path, and
+//! corrects the robot position with the robot position Kalman filter.
+//!
+//! Per frame ([`AbsoluteStage::push`]):
+//! 1. install a map solve that has finished, if any;
+//! 2. predict the position with the relative stage's increment (eq. 60-62);
+//! 3. correct it with the visible landmarks of the last solved map
+//!    (eq. 63-71), their joint covariance from the map's factor (exact) or
+//!    the paper's sub-matrix rule;
+//! 4. fuse the frame's edges (eq. 41-43) *after* the correction, so that a
+//!    frame's landmark noise is never in the map it is corrected against;
+//! 5. every `solve_every_frames` frames, hand a snapshot of the edges to
+//!    the map solve ([`SolveMode`]).
+//!
+//! The returned pose takes its orientation from the relative stage and its
+//! position from the filter. Positions are in the relative stage's world
+//! frame: the map is anchored where the relative stage put the reference
+//! landmark (the first landmark of the first frame with two or more).
+//!
+//! Use from the pipeline (`rigslam run`): one stage per run, one `push`
+//! per relative-stage output, in order; the map solve runs on the stage's
+//! own thread by default.
+//!
+//! ```no_run
+//! use rigslam::edge_map::{AbsoluteConfig, AbsoluteStage};
+//! # fn relative_outputs() -> Vec<rigslam::relative::types::RelativeOutput> { Vec::new() }
+//! let mut stage = AbsoluteStage::new(AbsoluteConfig::default());
+//! for output in relative_outputs() {
+//!     let corrected = stage.push(&output);
+//!     // corrected.T_world_body -> `--trajectory`,
+//!     // output.T_world_body    -> `--trajectory-relative`.
+//!     let _ = (corrected.t_ns, corrected.T_world_body);
+//! }
+//! stage.wait_for_solve();
+//! eprintln!("{:?}", stage.stats());
+//! ```
+
+use std::collections::HashMap;
+use std::sync::mpsc::{self, Receiver, Sender};
+use std::thread::JoinHandle;
+use std::time::Instant;
+
+use nalgebra::{DMatrix, Isometry3, Matrix3, Translation3, Vector3};
+
+use super::covariance::submatrix_covariance;
+use super::edge::{EdgeMap, LandmarkObservation};
+use super::map_worker::{MapSolveRequest, MapSolveWorker, SolvedMap};
+use super::ordering_reuse::SymbolicPath;
+use super::policy::EdgePolicy;
+use super::position_filter::{LandmarkFix, PositionFilter};
+use super::problem::MapProblem;
+use super::solve::SolverChoice;
+use super::EdgeMapError;
+use crate::relative::types::{BodyLandmark, LandmarkId, RelativeOutput, TrackingState};
+
+/// How one frame's landmark pairs are weighted as edge measurements.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EdgeWeighting {
+    /// The paper's eq. 42: each pair's edge gets `(Σ_yi + Σ_yj)^-1`,
+    /// treating the pairs of one frame as independent. They are not (every
+    /// landmark's noise is in m - 1 of them), so with all pairs the map
+    /// information is about m/2 times too large and its covariance
+    /// correspondingly too small.
+    Paper,
+    /// The information the frame really carries about the landmarks with
+    /// its own (unknown) position marginalised out: `Λ = D - D W D`,
+    /// `D = blockdiag(S_i)`, `W = (Σ_k S_k)^-1`, which is a block
+    /// Laplacian over the complete graph with edge blocks `S_i W S_j`.
+    /// Exact with [`EdgePolicy::AllPairs`] when the `S_i` commute
+    /// (isotropic covariances), the symmetric part of `S_i W S_j`
+    /// otherwise; with another policy it keeps only the chosen pairs'
+    /// share. The map covariance `A^-1` is then the covariance of the
+    /// map, which the filter relies on.
+    FrameMarginal,
+}
+
+/// Which covariance of the visible landmarks the filter uses (eq. 59).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LandmarkCovariance {
+    /// Exact blocks of `A^-1` from the map's Cholesky factor, plus the
+    /// cross-covariance of the position error with the visible landmarks'
+    /// map errors (consider terms). Falls back to the sub-matrix rule after
+    /// a conjugate-gradient solve (no factor).
+    Exact,
+    /// The paper's approximation: the inverse of A's sub-matrix over the
+    /// visible landmarks grown by `hops` rings; no consider terms.
+    SubMatrix { hops: usize },
+}
+
+/// Where the map solve runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SolveMode {
+    /// In `push`, on the frame that triggers it (deterministic: tests,
+    /// offline runs). The frame after a trigger sees the new map.
+    Inline,
+    /// On a background thread the stage owns. A finished solve is picked
+    /// up by the next `push`; a trigger while one runs is deferred until it
+    /// returns. Frames never wait for it.
+    Background,
+    /// The caller runs it: [`AbsoluteStage::take_solve_request`] hands out
+    /// the request, any thread solves it with a [`MapSolveWorker`], and
+    /// [`AbsoluteStage::install_solved_map`] installs the result.
+    Manual,
+}
+
+/// Configuration of the absolute stage.
+#[derive(Clone, Debug)]
+pub struct AbsoluteConfig {
+    pub policy: EdgePolicy,
+    pub weighting: EdgeWeighting,
+    /// Map solve every this many frames (the paper: 5).
+    pub solve_every_frames: usize,
+    pub solve_mode: SolveMode,
+    pub solver: SolverChoice,
+    pub covariance: LandmarkCovariance,
+    /// Prediction noise: `Q = sigma^2 * |Δ| * I` (a random walk per metre
+    /// travelled), sigma in m per sqrt(m).
+    pub translation_sigma_per_sqrt_m: f64,
+    /// At most this many visible landmarks (the most precise) correct a
+    /// frame.
+    pub max_correction_landmarks: usize,
+    /// Threads for the factorisation.
+    pub solver_threads: usize,
+}
+
+impl Default for AbsoluteConfig {
+    fn default() -> Self {
+        Self {
+            policy: EdgePolicy::AllPairs,
+            weighting: EdgeWeighting::FrameMarginal,
+            solve_every_frames: 5,
+            solve_mode: SolveMode::Background,
+            solver: SolverChoice::Auto {
+                cg_above_landmarks: 200_000,
+            },
+            covariance: LandmarkCovariance::Exact,
+            translation_sigma_per_sqrt_m: 0.02,
+            max_correction_landmarks: 30,
+            solver_threads: 1,
+        }
+    }
+}
+
+/// The stage's answer for one frame.
+#[allow(non_snake_case)]
+#[derive(Clone, Debug, PartialEq)]
+pub struct CorrectedPose {
+    pub t_ns: i64,
+    /// Position from the filter, orientation from the relative stage.
+    pub T_world_body: Isometry3<f64>,
+    /// The filter's position covariance (None before it starts).
+    pub position_covariance_m2: Option<Matrix3<f64>>,
+    /// Landmarks that corrected this frame.
+    pub landmarks_used: usize,
+    /// Version of the map used (0: none yet).
+    pub map_version: u64,
+    /// Normalised innovation squared of the correction (0 without one).
+    pub nis: f64,
+}
+
+/// Counters and timings of a run.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct AbsoluteStats {
+    pub frames: usize,
+    pub corrections: usize,
+    pub solves: usize,
+    /// Solves whose sparsity pattern equalled the previous one's, so the
+    /// symbolic factorisation was reused.
+    pub symbolic_reused: usize,
+    /// Solves whose pattern changed but whose landmark ordering was reused
+    /// (new landmarks appended, no AMD).
+    pub ordering_reused: usize,
+    /// Solves with a fresh AMD ordering.
+    pub fresh_orderings: usize,
+    pub pcg_solves: usize,
+    pub pcg_iterations: usize,
+    /// Iterations a cold start would have needed (when measured).
+    pub pcg_cold_iterations: usize,
+    /// Requests dropped because a solve was still running.
+    pub deferred_solves: usize,
+    pub solve_total_ms: f64,
+    pub frame_total_ms: f64,
+    pub frame_max_ms: f64,
+    pub solve_errors: usize,
+    /// Landmarks (non-finite, or covariance not positive definite),
+    /// increments and poses (non-finite) that were left out.
+    pub rejected_inputs: usize,
+}
+
+/// The absolute stage.
+pub struct AbsoluteStage {
+    config: AbsoluteConfig,
+    edges: EdgeMap,
+    map_ids: HashMap<LandmarkId, u32>,
+    landmark_ids: Vec<LandmarkId>,
+    /// Reference landmark (map id 0) and where the relative stage put it.
+    anchor_world_m: Option<Vector3<f64>>,
+    filter: Option<PositionFilter>,
+    map: Option<SolvedMap>,
+    frames_since_solve: usize,
+    next_version: u64,
+    stats: AbsoluteStats,
+    worker: Option<MapSolveWorker>,
+    background: Option<Background>,
+    in_flight: bool,
+    deferred: bool,
+    manual_request: Option<MapSolveRequest>,
+}
+
+struct Background {
+    requests: Option<Sender<MapSolveRequest>>,
+    results: Receiver<Result<SolvedMap, EdgeMapError>>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl Drop for Background {
+    fn drop(&mut self) {
+        self.requests.take();
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+}
+
+impl AbsoluteStage {
+    pub fn new(config: AbsoluteConfig) -> Self {
+        let inline = config.solve_mode == SolveMode::Inline;
+        let mut worker = MapSolveWorker::new(config.solver, config.solver_threads);
+        let background = if config.solve_mode == SolveMode::Background {
+            let (request_tx, request_rx) = mpsc::channel::<MapSolveRequest>();
+            let (result_tx, result_rx) = mpsc::channel();
+            let thread = std::thread::Builder::new()
+                .name("rigslam-map-solve".into())
+                .spawn(move || {
+                    for request in request_rx {
+                        if result_tx.send(worker.solve(request)).is_err() {
+                            break;
+                        }
+                    }
+                })
+                .expect("spawning the map solve thread");
+            worker = MapSolveWorker::new(config.solver, config.solver_threads);
+            Some(Background {
+                requests: Some(request_tx),
+                results: result_rx,
+                thread: Some(thread),
+            })
+        } else {
+            None
+        };
+        Self {
+            config,
+            edges: EdgeMap::new(),
+            map_ids: HashMap::new(),
+            landmark_ids: Vec::new(),
+            anchor_world_m: None,
+            filter: None,
+            map: None,
+            frames_since_solve: 0,
+            next_version: 1,
+            stats: AbsoluteStats::default(),
+            worker: inline.then_some(worker),
+            background,
+            in_flight: false,
+            deferred: false,
+            manual_request: None,
+        }
+    }
+
+    /// The inline worker (Inline mode only), e.g. to measure CG cold starts.
+    pub fn worker_mut(&mut self) -> Option<&mut MapSolveWorker> {
+        self.worker.as_mut()
+    }
+
+    pub fn stats(&self) -> &AbsoluteStats {
+        &self.stats
+    }
+
+    pub fn config(&self) -> &AbsoluteConfig {
+        &self.config
+    }
+
+    /// The reference landmark's relative-stage id and its world position
+    /// (the map's anchor), once chosen.
+    pub fn reference(&self) -> Option<(LandmarkId, Vector3<f64>)> {
+        Some((*self.landmark_ids.first()?, self.anchor_world_m?))
+    }
+
+    /// The last solved map, if any.
+    pub fn map(&self) -> Option<&SolvedMap> {
+        self.map.as_ref()
+    }
+
+    /// World position of a landmark in the last solved map.
+    pub fn landmark_world_m(&self, id: LandmarkId) -> Option<Vector3<f64>> {
+        let map_id = *self.map_ids.get(&id)?;
+        let relative = (*self.map.as_ref()?.positions_m.get(map_id as usize)?)?;
+        Some(self.anchor_world_m? + relative)
+    }
+
+    /// Processes one frame of the relative stage; returns the corrected pose.
+    pub fn push(&mut self, output: &RelativeOutput) -> CorrectedPose {
+        let start = Instant::now();
+        self.poll_background();
+        let cleaned;
+        let output = match sanitize(output) {
+            Some((clean, rejected)) => {
+                self.stats.rejected_inputs += rejected;
+                cleaned = clean;
+                &cleaned
+            }
+            None => output,
+        };
+        let rotation = *output.T_world_body.rotation.to_rotation_matrix().matrix();
+        let tracking = output.state == TrackingState::Tracking;
+        let mut report = None;
+        match self.filter.as_mut() {
+            Some(filter) => {
+                let q = Matrix3::identity()
+                    * self.config.translation_sigma_per_sqrt_m.powi(2)
+                    * output.delta_translation_world_m.norm();
+                filter.predict(&output.delta_translation_world_m, &q);
+                if tracking {
+                    report = self.correct(output, &rotation);
+                }
+            }
+            None if tracking && output.landmarks.len() >= 2 => {
+                // The first frame with edges: its first landmark becomes the
+                // reference; the robot is placed where the relative stage
+                // says, uncertain by that landmark's measurement error.
+                let first = &output.landmarks[0];
+                let position = output.T_world_body.translation.vector;
+                self.anchor_world_m = Some(position + rotation * first.position_body_m);
+                self.filter = Some(PositionFilter::new(
+                    position,
+                    rotation * first.covariance_body_m2 * rotation.transpose(),
+                ));
+            }
+            None => {}
+        }
+        if tracking && self.filter.is_some() {
+            self.fuse(output, &rotation);
+        }
+        self.frames_since_solve += 1;
+        if self.frames_since_solve >= self.config.solve_every_frames && self.edges.edge_count() > 0
+        {
+            self.frames_since_solve = 0;
+            self.request_solve();
+        }
+        let (translation, covariance) = match &self.filter {
+            Some(f) => (f.position_world_m(), Some(f.covariance_m2())),
+            None => (output.T_world_body.translation.vector, None),
+        };
+        let elapsed = start.elapsed().as_secs_f64() * 1e3;
+        self.stats.frames += 1;
+        self.stats.frame_total_ms += elapsed;
+        self.stats.frame_max_ms = self.stats.frame_max_ms.max(elapsed);
+        CorrectedPose {
+            t_ns: output.t_ns,
+            T_world_body: Isometry3::from_parts(
+                Translation3::from(translation),
+                output.T_world_body.rotation,
+            ),
+            position_covariance_m2: covariance,
+            landmarks_used: report
+                .map_or(0, |r: super::position_filter::CorrectionReport| r.landmarks),
+            map_version: self.map.as_ref().map_or(0, |m| m.version),
+            nis: report.map_or(0.0, |r| r.nis),
+        }
+    }
+
+    /// Waits for a running background solve and installs it (end of a run,
+    /// tests). Returns immediately in the other modes.
+    pub fn wait_for_solve(&mut self) {
+        if !self.in_flight {
+            return;
+        }
+        if let Some(bg) = &self.background {
+            if let Ok(result) = bg.results.recv() {
+                self.in_flight = false;
+                self.install(result);
+                if std::mem::take(&mut self.deferred) {
+                    self.request_solve();
+                }
+            }
+        }
+    }
+
+    /// Manual mode: the request waiting to be solved, if any.
+    pub fn take_solve_request(&mut self) -> Option<MapSolveRequest> {
+        self.manual_request.take()
+    }
+
+    /// Manual mode: installs a solved map (ignored if older than the one
+    /// in use).
+    pub fn install_solved_map(&mut self, result: Result<SolvedMap, EdgeMapError>) {
+        self.install(result);
+    }
+
+    fn poll_background(&mut self) {
+        let Some(bg) = &self.background else { return };
+        if let Ok(result) = bg.results.try_recv() {
+            self.in_flight = false;
+            self.install(result);
+            if std::mem::take(&mut self.deferred) {
+                self.request_solve();
+            }
+        }
+    }
+
+    fn install(&mut self, result: Result<SolvedMap, EdgeMapError>) {
+        match result {
+            Ok(map) => {
+                if self.map.as_ref().is_some_and(|m| m.version > map.version) {
+                    return;
+                }
+                self.stats.solves += 1;
+                self.stats.solve_total_ms += map.report.total_ms;
+                match map.symbolic_path {
+                    Some(SymbolicPath::Reused) => self.stats.symbolic_reused += 1,
+                    Some(SymbolicPath::OrderingReused) => self.stats.ordering_reused += 1,
+                    Some(SymbolicPath::Fresh) => self.stats.fresh_orderings += 1,
+                    None => {}
+                }
+                if map.report.method == "pcg" {
+                    self.stats.pcg_solves += 1;
+                    self.stats.pcg_iterations += map.report.cg_iterations;
+                    self.stats.pcg_cold_iterations += map.cold_cg_iterations.unwrap_or(0);
+                }
+                self.map = Some(map);
+            }
+            Err(e) => {
+                self.stats.solve_errors += 1;
+                tracing::warn!("map solve failed: {e}");
+            }
+        }
+    }
+
+    fn request_solve(&mut self) {
+        if self.in_flight {
+            self.deferred = true;
+            self.stats.deferred_solves += 1;
+            return;
+        }
+        let request = MapSolveRequest {
+            version: self.next_version,
+            problem: MapProblem::from_edge_map(&self.edges, 0),
+            previous_m: self
+                .map
+                .as_ref()
+                .map(|m| m.positions_m.clone())
+                .unwrap_or_default(),
+        };
+        self.next_version += 1;
+        match self.config.solve_mode {
+            SolveMode::Inline => {
+                let worker = self.worker.as_mut().expect("inline mode has a worker");
+                let result = worker.solve(request);
+                self.install(result);
+            }
+            SolveMode::Background => {
+                let bg = self
+                    .background
+                    .as_ref()
+                    .expect("background mode has a thread");
+                let sender = bg.requests.as_ref().expect("sender lives until drop");
+                if sender.send(request).is_ok() {
+                    self.in_flight = true;
+                }
+            }
+            SolveMode::Manual => self.manual_request = Some(request),
+        }
+    }
+
+    fn map_id(&mut self, id: LandmarkId) -> u32 {
+        let next = self.landmark_ids.len() as u32;
+        let map_id = *self.map_ids.entry(id).or_insert(next);
+        if map_id == next {
+            self.landmark_ids.push(id);
+        }
+        map_id
+    }
+
+    /// Edges of one frame (eq. 41-43) with the configured weighting.
+    fn fuse(&mut self, output: &RelativeOutput, rotation: &Matrix3<f64>) {
+        if output.landmarks.len() < 2 {
+            return;
+        }
+        let observations: Vec<LandmarkObservation> = output
+            .landmarks
+            .iter()
+            .map(|l| LandmarkObservation {
+                id: self.map_id(l.id),
+                p_body_m: l.position_body_m,
+                cov_body_m2: l.covariance_body_m2,
+            })
+            .collect();
+        let positions: Vec<Vector3<f64>> = observations.iter().map(|o| o.p_body_m).collect();
+        let pairs = self.config.policy.pairs(&positions);
+        match self.config.weighting {
+            EdgeWeighting::Paper => self.edges.add_frame(rotation, &observations, &pairs),
+            EdgeWeighting::FrameMarginal => {
+                let infos: Option<Vec<Matrix3<f64>>> = observations
+                    .iter()
+                    .map(|o| (rotation * o.cov_body_m2 * rotation.transpose()).try_inverse())
+                    .collect();
+                let Some(infos) = infos else { return };
+                let Some(w) = infos.iter().sum::<Matrix3<f64>>().try_inverse() else {
+                    return;
+                };
+                for &(a, b) in &pairs {
+                    let e = infos[a] * w * infos[b];
+                    let info = 0.5 * (e + e.transpose());
+                    let y = rotation * (observations[b].p_body_m - observations[a].p_body_m);
+                    self.edges
+                        .add_measurement(observations[a].id, observations[b].id, &y, &info);
+                }
+            }
+        }
+    }
+
+    /// The correction (eq. 63-71) with the visible landmarks of the map.
+    fn correct(
+        &mut self,
+        output: &RelativeOutput,
+        rotation: &Matrix3<f64>,
+    ) -> Option<super::position_filter::CorrectionReport> {
+        let map = self.map.as_ref()?;
+        let anchor = self.anchor_world_m?;
+        // Visible landmarks in the solved map, the most precise first.
+        let mut visible: Vec<(f64, u32, usize)> = output
+            .landmarks
+            .iter()
+            .enumerate()
+            .filter_map(|(k, l)| {
+                let id = *self.map_ids.get(&l.id)?;
+                map.positions_m.get(id as usize)?.as_ref()?;
+                Some((l.covariance_body_m2.trace(), id, k))
+            })
+            .collect();
+        visible.sort_by(|a, b| a.0.total_cmp(&b.0));
+        visible.truncate(self.config.max_correction_landmarks);
+        if visible.is_empty() {
+            return None;
+        }
+        let fixes: Vec<LandmarkFix> = visible
+            .iter()
+            .map(|&(_, id, k)| {
+                let l = &output.landmarks[k];
+                LandmarkFix {
+                    landmark: id,
+                    landmark_world_m: anchor
+                        + map.positions_m[id as usize].expect("filtered to solved landmarks"),
+                    offset_world_m: rotation * l.position_body_m,
+                    offset_covariance_m2: rotation * l.covariance_body_m2 * rotation.transpose(),
+                }
+            })
+            .collect();
+        let ids: Vec<u32> = visible.iter().map(|v| v.1).collect();
+        let filter = self.filter.as_mut()?;
+        let (covariance, cross) = match (self.config.covariance, &map.factor) {
+            (LandmarkCovariance::Exact, Some(_)) => {
+                let (c, x) = exact_blocks(map, &ids, filter);
+                (c, Some(x))
+            }
+            (LandmarkCovariance::Exact, None) => (submatrix_blocks(map, &ids, 2), None),
+            (LandmarkCovariance::SubMatrix { hops }, _) => {
+                (submatrix_blocks(map, &ids, hops), None)
+            }
+        };
+        match filter.correct(&fixes, &covariance, cross.as_ref()) {
+            Ok(report) => {
+                self.stats.corrections += 1;
+                Some(report)
+            }
+            Err(e) => {
+                tracing::warn!("position correction skipped: {e}");
+                None
+            }
+        }
+    }
+}
+
+/// A copy of `output` without what would poison the map or the filter:
+/// landmarks with a non-finite position or a covariance that is not
+/// positive definite; a non-finite increment becomes zero; a non-finite
+/// pose makes the frame `Lost`. None when everything is usable.
+fn sanitize(output: &RelativeOutput) -> Option<(RelativeOutput, usize)> {
+    let usable = |l: &BodyLandmark| {
+        l.position_body_m.iter().all(|v| v.is_finite())
+            && l.covariance_body_m2.iter().all(|v| v.is_finite())
+            && l.covariance_body_m2.cholesky().is_some()
+    };
+    let pose_ok = output
+        .T_world_body
+        .translation
+        .vector
+        .iter()
+        .all(|v| v.is_finite())
+        && output
+            .T_world_body
+            .rotation
+            .coords
+            .iter()
+            .all(|v| v.is_finite());
+    let delta_ok = output
+        .delta_translation_world_m
+        .iter()
+        .all(|v| v.is_finite());
+    let bad_landmarks = output.landmarks.iter().filter(|l| !usable(l)).count();
+    if pose_ok && delta_ok && bad_landmarks == 0 {
+        return None;
+    }
+    let mut clean = output.clone();
+    clean.landmarks.retain(usable);
+    if !delta_ok {
+        clean.delta_translation_world_m = Vector3::zeros();
+    }
+    if !pose_ok {
+        clean.state = TrackingState::Lost;
+        clean.T_world_body = Isometry3::identity();
+        clean.landmarks.clear();
+    }
+    Some((
+        clean,
+        bad_landmarks + usize::from(!delta_ok) + usize::from(!pose_ok),
+    ))
+}
+
+/// Exact joint covariance of the map ids `ids` (3m x 3m, zero rows for the
+/// reference) and the cross-covariance `Σ_k G_k Σ_L(k, V)` (3 x 3m), from
+/// one multi-column solve with the factor: 3m unit columns plus the three
+/// columns of `G^T`.
+fn exact_blocks(
+    map: &SolvedMap,
+    ids: &[u32],
+    filter: &PositionFilter,
+) -> (DMatrix<f64>, DMatrix<f64>) {
+    let factor = map.factor.as_ref().expect("called with a factor");
+    let dim = map.laplacian.dim();
+    let m = ids.len();
+    let unknowns: Vec<Option<usize>> = ids.iter().map(|&id| map.unknown_of(id)).collect();
+    let columns = 3 * m + 3;
+    let mut rhs = vec![0.0; dim * columns];
+    for (k, u) in unknowns.iter().enumerate() {
+        if let Some(u) = u {
+            for c in 0..3 {
+                rhs[(3 * k + c) * dim + 3 * u + c] = 1.0;
+            }
+        }
+    }
+    // Columns 3m..3m+3 hold G^T: row block of landmark k is G_k^T.
+    for (&id, g) in filter.map_sensitivity() {
+        if let Some(u) = map.unknown_of(id) {
+            for c in 0..3 {
+                for r in 0..3 {
+                    rhs[(3 * m + c) * dim + 3 * u + r] = g[(c, r)];
+                }
+            }
+        }
+    }
+    if dim > 0 {
+        factor.solve_in_place(&mut rhs, columns);
+    }
+    let value = |column: usize, unknown: Option<usize>, r: usize| {
+        unknown.map_or(0.0, |u| rhs[column * dim + 3 * u + r])
+    };
+    let covariance = DMatrix::from_fn(3 * m, 3 * m, |r, c| {
+        let unknown = unknowns[r / 3];
+        // Σ_L(V, V): column c of A^-1 restricted to the visible rows; a
+        // reference column is zero (its unit column was left empty).
+        if unknowns[c / 3].is_none() {
+            0.0
+        } else {
+            value(c, unknown, r % 3)
+        }
+    });
+    // (A^-1 G^T)[rows of V]^T.
+    let cross = DMatrix::from_fn(3, 3 * m, |r, c| value(3 * m + r, unknowns[c / 3], c % 3));
+    (covariance, cross)
+}
+
+/// The paper's sub-matrix covariance of `ids` (zero for the reference).
+fn submatrix_blocks(map: &SolvedMap, ids: &[u32], hops: usize) -> DMatrix<f64> {
+    let m = ids.len();
+    let locals: Vec<Option<u32>> = ids
+        .iter()
+        .map(|&id| map.local_id[id as usize].filter(|&l| map.problem.unknown_of(l).is_some()))
+        .collect();
+    let present: Vec<u32> = locals.iter().flatten().copied().collect();
+    let mut covariance = DMatrix::zeros(3 * m, 3 * m);
+    if present.is_empty() {
+        return covariance;
+    }
+    let sub = submatrix_covariance(&map.laplacian, &map.problem, &present, hops);
+    let slots: Vec<usize> = (0..m).filter(|&k| locals[k].is_some()).collect();
+    for (a, &ka) in slots.iter().enumerate() {
+        for (b, &kb) in slots.iter().enumerate() {
+            covariance
+                .fixed_view_mut::<3, 3>(3 * ka, 3 * kb)
+                .copy_from(&sub.fixed_view::<3, 3>(3 * a, 3 * b));
+        }
+    }
+    covariance
+}

@@ -1,0 +1,440 @@
+//! Tests of the absolute stage on simulated relative-stage outputs:
+//! consistency of the corrected position (NEES over many seeds), and the
+//! solve modes agreeing.
+
+use nalgebra::Vector3;
+
+use super::absolute::{
+    AbsoluteConfig, AbsoluteStage, EdgeWeighting, LandmarkCovariance, SolveMode,
+};
+use super::map_worker::{MapSolveWorker, SolvedMap};
+use super::nees::anees_bounds_95;
+use super::simulate_relative::{simulate_room_run, RoomRunOptions};
+use super::solve::SolverChoice;
+
+/// Per-frame average NEES over `seeds` runs, and the RMS position errors
+/// (corrected, relative stage only) over all frames and runs.
+pub(super) struct NeesSummary {
+    pub anees_per_frame: Vec<f64>,
+    pub runs: usize,
+    pub rmse_corrected_m: f64,
+    pub rmse_relative_m: f64,
+    pub frames: usize,
+}
+
+impl NeesSummary {
+    pub fn mean_anees(&self) -> f64 {
+        self.anees_per_frame.iter().sum::<f64>() / self.anees_per_frame.len() as f64
+    }
+    /// Share of frames whose ANEES lies inside the per-frame 95% bounds.
+    pub fn inside_share(&self) -> f64 {
+        let (low, high) = anees_bounds_95(3, self.runs);
+        self.anees_per_frame
+            .iter()
+            .filter(|&&a| a > low && a < high)
+            .count() as f64
+            / self.anees_per_frame.len() as f64
+    }
+}
+
+pub(super) fn run_nees(
+    config: &AbsoluteConfig,
+    options: &RoomRunOptions,
+    seeds: std::ops::Range<u64>,
+) -> NeesSummary {
+    let mut sums: Vec<f64> = Vec::new();
+    let mut counts: Vec<usize> = Vec::new();
+    let (mut sq_corrected, mut sq_relative, mut n) = (0.0, 0.0, 0usize);
+    let runs = seeds.end - seeds.start;
+    for seed in seeds {
+        let run = simulate_room_run(&RoomRunOptions {
+            seed,
+            ..options.clone()
+        });
+        let mut stage = AbsoluteStage::new(config.clone());
+        for (k, output) in run.outputs.iter().enumerate() {
+            let pose = stage.push(output);
+            let Some(p) = pose.position_covariance_m2 else {
+                continue;
+            };
+            let (reference, anchor) = stage.reference().expect("filter started");
+            // Gauge: the map places the reference landmark at `anchor`;
+            // the truth is compared relative to the true reference.
+            let truth_rel = run.truth_position_m[k] - run.landmarks_m[reference as usize];
+            let error = (pose.T_world_body.translation.vector - anchor) - truth_rel;
+            let relative_error = (output.T_world_body.translation.vector
+                - run.outputs[0].T_world_body.translation.vector)
+                - (run.truth_position_m[k] - run.truth_position_m[0]);
+            let nees = error.dot(&(p.try_inverse().expect("P is positive definite") * error));
+            if sums.len() <= k {
+                sums.resize(k + 1, 0.0);
+                counts.resize(k + 1, 0);
+            }
+            sums[k] += nees;
+            counts[k] += 1;
+            sq_corrected += error.norm_squared();
+            sq_relative += relative_error.norm_squared();
+            n += 1;
+        }
+    }
+    let anees_per_frame = sums
+        .iter()
+        .zip(&counts)
+        .filter(|(_, &c)| c as u64 == runs)
+        .map(|(s, &c)| s / c as f64)
+        .collect();
+    NeesSummary {
+        anees_per_frame,
+        runs: runs as usize,
+        rmse_corrected_m: (sq_corrected / n as f64).sqrt(),
+        rmse_relative_m: (sq_relative / n as f64).sqrt(),
+        frames: n,
+    }
+}
+
+fn inline(config: AbsoluteConfig) -> AbsoluteConfig {
+    AbsoluteConfig {
+        solve_mode: SolveMode::Inline,
+        solver: SolverChoice::Cholesky,
+        ..config
+    }
+}
+
+const SEEDS: u64 = 40;
+
+#[test]
+fn corrected_position_is_consistent_over_many_seeds() {
+    // Isotropic landmark covariances: the frame-marginal edge weighting is
+    // then exact, A^-1 is the map's covariance, and the filter with exact
+    // covariance and consider terms must pass the NEES test.
+    let options = RoomRunOptions {
+        isotropic_landmarks: true,
+        ..RoomRunOptions::default()
+    };
+    let config = inline(AbsoluteConfig {
+        translation_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
+        ..AbsoluteConfig::default()
+    });
+    let summary = run_nees(&config, &options, 0..SEEDS);
+    let (low, high) = anees_bounds_95(3, SEEDS as usize);
+    let mean = summary.mean_anees();
+    eprintln!(
+        "exact + frame-marginal: mean ANEES {mean:.3} in [{low:.3}, {high:.3}], {:.1}% of frames inside, RMSE corrected {:.4} m vs relative {:.4} m over {} frames",
+        100.0 * summary.inside_share(),
+        summary.rmse_corrected_m,
+        summary.rmse_relative_m,
+        summary.frames
+    );
+    assert!(
+        mean > low && mean < high,
+        "mean ANEES {mean} outside [{low}, {high}]"
+    );
+    // The absolute stage must beat dead reckoning on a revisited room.
+    assert!(summary.rmse_corrected_m < 0.5 * summary.rmse_relative_m);
+}
+
+#[test]
+fn stereo_like_covariances_leave_the_filter_conservative() {
+    // Anisotropic covariances: the frame-marginal edge blocks S_i W S_j
+    // are symmetrised, which drops information, so the map covariance is
+    // too large and the filter errs on the safe side: ANEES below the
+    // upper bound (measured: below the lower one too, see bench/README.md).
+    let options = RoomRunOptions::default();
+    let config = inline(AbsoluteConfig {
+        translation_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
+        ..AbsoluteConfig::default()
+    });
+    let summary = run_nees(&config, &options, 0..SEEDS);
+    let (_, high) = anees_bounds_95(3, SEEDS as usize);
+    assert!(
+        summary.mean_anees() < high,
+        "ANEES {}",
+        summary.mean_anees()
+    );
+    assert!(summary.rmse_corrected_m < 0.5 * summary.rmse_relative_m);
+}
+
+#[test]
+fn the_papers_filter_is_overconfident() {
+    // Same runs with the paper's edge weighting (eq. 42) and sub-matrix
+    // covariance without consider terms: the NEES test must catch it.
+    let options = RoomRunOptions::default();
+    let config = inline(AbsoluteConfig {
+        translation_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
+        weighting: EdgeWeighting::Paper,
+        covariance: LandmarkCovariance::SubMatrix { hops: 0 },
+        ..AbsoluteConfig::default()
+    });
+    let summary = run_nees(&config, &options, 0..SEEDS);
+    let (_, high) = anees_bounds_95(3, SEEDS as usize);
+    eprintln!(
+        "paper: mean ANEES {:.3}, RMSE corrected {:.4} m vs relative {:.4} m",
+        summary.mean_anees(),
+        summary.rmse_corrected_m,
+        summary.rmse_relative_m
+    );
+    assert!(summary.mean_anees() > 2.0 * high);
+}
+
+#[test]
+fn background_and_manual_solves_give_the_inline_map() {
+    // With every request awaited, the three modes solve the same
+    // snapshots, so the final maps agree.
+    let run = simulate_room_run(&RoomRunOptions {
+        laps: 0.5,
+        ..RoomRunOptions::default()
+    });
+    let base = AbsoluteConfig {
+        solver: SolverChoice::Cholesky,
+        ..AbsoluteConfig::default()
+    };
+    let mut inline_stage = AbsoluteStage::new(AbsoluteConfig {
+        solve_mode: SolveMode::Inline,
+        ..base.clone()
+    });
+    let mut background = AbsoluteStage::new(AbsoluteConfig {
+        solve_mode: SolveMode::Background,
+        ..base.clone()
+    });
+    let mut manual = AbsoluteStage::new(AbsoluteConfig {
+        solve_mode: SolveMode::Manual,
+        ..base
+    });
+    let mut worker = MapSolveWorker::new(SolverChoice::Cholesky, 1);
+    let mut last = (None, None, None);
+    for output in &run.outputs {
+        last.0 = Some(inline_stage.push(output));
+        last.1 = Some(background.push(output));
+        background.wait_for_solve();
+        last.2 = Some(manual.push(output));
+        if let Some(request) = manual.take_solve_request() {
+            manual.install_solved_map(worker.solve(request));
+        }
+    }
+    let positions = |m: Option<&SolvedMap>| m.expect("solved").positions_m.clone();
+    let a = positions(inline_stage.map());
+    assert_eq!(a, positions(background.map()));
+    assert_eq!(a, positions(manual.map()));
+    assert!(inline_stage.stats().solves > 5);
+    // Every mode installs a map after the frame that triggered it, so the
+    // poses agree too.
+    let (pa, pb, pc) = (last.0.unwrap(), last.1.unwrap(), last.2.unwrap());
+    assert_eq!(pa, pb);
+    assert_eq!(pa, pc);
+    assert!(pa.landmarks_used > 0);
+}
+
+#[test]
+fn landmark_map_beats_placing_landmarks_by_dead_reckoning() {
+    // Baseline: each landmark placed once, from its first observation and
+    // the relative stage's pose (what a map without the edge solve has).
+    let options = RoomRunOptions::default();
+    let run = simulate_room_run(&options);
+    let mut stage = AbsoluteStage::new(inline(AbsoluteConfig::default()));
+    let mut first_seen: std::collections::HashMap<u64, Vector3<f64>> = Default::default();
+    for output in &run.outputs {
+        stage.push(output);
+        for l in &output.landmarks {
+            first_seen.entry(l.id).or_insert(
+                (output.T_world_body * nalgebra::Point3::from(l.position_body_m)).coords,
+            );
+        }
+    }
+    let (reference, anchor) = stage.reference().unwrap();
+    let truth_ref = run.landmarks_m[reference as usize];
+    let (mut sq_map, mut sq_dead, mut count) = (0.0, 0.0, 0usize);
+    for (id, truth) in run.landmarks_m.iter().enumerate() {
+        let Some(p) = stage.landmark_world_m(id as u64) else {
+            continue;
+        };
+        let truth_rel: Vector3<f64> = truth - truth_ref;
+        sq_map += ((p - anchor) - truth_rel).norm_squared();
+        sq_dead += ((first_seen[&(id as u64)] - first_seen[&reference]) - truth_rel).norm_squared();
+        count += 1;
+    }
+    assert!(count > 100, "{count} landmarks mapped");
+    let (rms_map, rms_dead) = (
+        (sq_map / count as f64).sqrt(),
+        (sq_dead / count as f64).sqrt(),
+    );
+    assert!(
+        rms_map < 0.5 * rms_dead,
+        "map {rms_map} m vs dead reckoning {rms_dead} m"
+    );
+}
+
+#[test]
+fn unusable_inputs_are_left_out_not_propagated() {
+    // The same run twice; in the second, extra landmarks with NaN
+    // positions or indefinite covariances, and one NaN increment, are
+    // mixed in. The map and poses must stay finite, and the bad inputs
+    // counted.
+    let run = simulate_room_run(&RoomRunOptions {
+        laps: 0.5,
+        ..RoomRunOptions::default()
+    });
+    let mut stage = AbsoluteStage::new(inline(AbsoluteConfig::default()));
+    let mut expected_rejections = 0;
+    for (k, output) in run.outputs.iter().enumerate() {
+        let mut bad = output.clone();
+        if let Some(first) = output.landmarks.first() {
+            let mut nan = *first;
+            nan.id = 1_000_000 + k as u64;
+            nan.position_body_m.x = f64::NAN;
+            let mut indefinite = *first;
+            indefinite.id = 2_000_000 + k as u64;
+            indefinite.covariance_body_m2 = -indefinite.covariance_body_m2;
+            bad.landmarks.extend([nan, indefinite]);
+            expected_rejections += 2;
+        }
+        if k == 20 {
+            bad.delta_translation_world_m.y = f64::NAN;
+            expected_rejections += 1;
+        }
+        let pose = stage.push(&bad);
+        assert!(pose
+            .T_world_body
+            .translation
+            .vector
+            .iter()
+            .all(|v| v.is_finite()));
+    }
+    assert_eq!(stage.stats().rejected_inputs, expected_rejections);
+    assert!(stage.stats().solves > 3 && stage.stats().solve_errors == 0);
+    let map = stage.map().unwrap();
+    assert!(map
+        .positions_m
+        .iter()
+        .flatten()
+        .all(|p| p.iter().all(|v| v.is_finite())));
+}
+
+/// Prints the NEES of every combination (not a check; run with
+/// `--ignored --nocapture` for the numbers in bench/README.md).
+#[test]
+#[ignore]
+fn print_nees_table() {
+    for isotropic in [true, false] {
+        let options = RoomRunOptions {
+            isotropic_landmarks: isotropic,
+            ..RoomRunOptions::default()
+        };
+        for weighting in [EdgeWeighting::FrameMarginal, EdgeWeighting::Paper] {
+            for covariance in [
+                LandmarkCovariance::Exact,
+                LandmarkCovariance::SubMatrix { hops: 0 },
+            ] {
+                let config = inline(AbsoluteConfig {
+                    translation_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
+                    weighting,
+                    covariance,
+                    ..AbsoluteConfig::default()
+                });
+                let s = run_nees(&config, &options, 0..SEEDS);
+                let a = &s.anees_per_frame;
+                let third = a.len() / 3;
+                let part =
+                    |r: std::ops::Range<usize>| a[r.clone()].iter().sum::<f64>() / r.len() as f64;
+                println!(
+                    "isotropic {isotropic} {weighting:?} {covariance:?}: mean ANEES {:.3} (thirds {:.2} {:.2} {:.2}), inside {:.1}%, RMSE {:.4} vs relative {:.4} m",
+                    s.mean_anees(),
+                    part(0..third),
+                    part(third..2 * third),
+                    part(2 * third..a.len()),
+                    100.0 * s.inside_share(),
+                    s.rmse_corrected_m,
+                    s.rmse_relative_m
+                );
+            }
+        }
+    }
+}
+
+/// Prints how often each symbolic path is taken and the per-frame cost on
+/// the room run (`--ignored --nocapture`).
+#[test]
+#[ignore]
+fn print_stage_stats() {
+    for laps in [1.0, 4.0] {
+        for covariance in [
+            LandmarkCovariance::Exact,
+            LandmarkCovariance::SubMatrix { hops: 0 },
+        ] {
+            let options = RoomRunOptions {
+                laps,
+                landmarks: 400,
+                ..RoomRunOptions::default()
+            };
+            let run = simulate_room_run(&options);
+            let mut stage = AbsoluteStage::new(inline(AbsoluteConfig {
+                covariance,
+                ..AbsoluteConfig::default()
+            }));
+            let mut per_frame = Vec::new();
+            for output in &run.outputs {
+                let t = std::time::Instant::now();
+                stage.push(output);
+                per_frame.push(t.elapsed().as_secs_f64() * 1e3);
+            }
+            let s = stage.stats();
+            let solve_mean = s.solve_total_ms / s.solves as f64;
+            let frame_mean = (s.frame_total_ms - s.solve_total_ms) / s.frames as f64;
+            println!(
+                "laps {laps} {covariance:?}: frames {}, landmarks {}, solves {}, symbolic reused {}, ordering reused {}, fresh {}, mean solve {solve_mean:.2} ms, mean frame without solve {frame_mean:.3} ms",
+                s.frames,
+                stage.map().map_or(0, |m| m.problem.landmark_count),
+                s.solves,
+                s.symbolic_reused,
+                s.ordering_reused,
+                s.fresh_orderings
+            );
+        }
+    }
+}
+
+/// Per-frame cost of the exact covariance against the sub-matrix rule as
+/// the map grows (`--ignored --nocapture`).
+#[test]
+#[ignore]
+fn print_correction_cost_by_map_size() {
+    for (landmarks, room) in [
+        (400, (16.0, 10.0)),
+        (2000, (60.0, 40.0)),
+        (8000, (200.0, 120.0)),
+    ] {
+        let options = RoomRunOptions {
+            landmarks,
+            room_m: room,
+            range_m: 0.5 * room.0,
+            sigma_depth_per_m2: 0.004 * 8.0 / (0.5 * room.0),
+            laps: 1.0,
+            ..RoomRunOptions::default()
+        };
+        let run = simulate_room_run(&options);
+        let mut row = Vec::new();
+        let mut mapped = 0;
+        for covariance in [
+            LandmarkCovariance::Exact,
+            LandmarkCovariance::SubMatrix { hops: 0 },
+        ] {
+            let mut stage = AbsoluteStage::new(inline(AbsoluteConfig {
+                covariance,
+                ..AbsoluteConfig::default()
+            }));
+            for output in &run.outputs {
+                stage.push(output);
+            }
+            let s = stage.stats();
+            mapped = stage.map().map_or(0, |m| m.problem.landmark_count);
+            row.push((s.frame_total_ms - s.solve_total_ms) / s.frames as f64);
+            row.push(s.solve_total_ms / s.solves as f64);
+        }
+        println!(
+            "| {mapped} | {} | {:.2} | {:.2} | {:.1} |",
+            run.outputs.len(),
+            row[0],
+            row[2],
+            row[1]
+        );
+    }
+}

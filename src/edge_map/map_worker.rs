@@ -1,0 +1,354 @@
+//! The map solve of the absolute stage, packaged to run off the frame-rate
+//! path: a [`MapSolveRequest`] (a snapshot of the fused edges and the last
+//! solution) goes to a [`MapSolveWorker`], which may live on another
+//! thread, and a [`SolvedMap`] comes back.
+//!
+//! The worker keeps what carries over between solves: the symbolic
+//! Cholesky factorisation (reused by [`EdgeMapSolver`] while the sparsity
+//! pattern is unchanged) and, for very large maps, the conjugate-gradient
+//! warm start: the last solution, extended to landmarks added since by
+//! chaining their fused edges from already placed neighbours.
+
+use std::collections::VecDeque;
+use std::time::Instant;
+
+use nalgebra::Vector3;
+
+use super::laplacian::BlockLaplacian;
+use super::ordering_reuse::{IncrementalSymbolic, OrderingReuse, SymbolicPath};
+use super::problem::MapProblem;
+use super::solve::{
+    check_connected, solve_pcg, CgOptions, CholeskyFactor, SolveReport, SolverChoice,
+};
+use super::EdgeMapError;
+
+/// A snapshot of the map to solve.
+#[derive(Clone, Debug)]
+pub struct MapSolveRequest {
+    /// Increases with every request of a stage.
+    pub version: u64,
+    /// Landmarks by map id, the reference fixed at the origin.
+    pub problem: MapProblem,
+    /// The previous solution by map id (relative to the reference), for
+    /// the conjugate-gradient warm start.
+    pub previous_m: Vec<Option<Vector3<f64>>>,
+}
+
+/// A solved map: landmark positions relative to the reference, and what
+/// the position filter needs for their covariances (eq. 59).
+pub struct SolvedMap {
+    pub version: u64,
+    /// Position of each map id relative to the reference, m; None for a
+    /// landmark outside the reference's connected component.
+    pub positions_m: Vec<Option<Vector3<f64>>>,
+    /// The solved problem (the reference's component, renumbered).
+    pub problem: MapProblem,
+    /// Id in `problem` of each map id.
+    pub local_id: Vec<Option<u32>>,
+    /// `A` of `problem`.
+    pub laplacian: BlockLaplacian,
+    /// Cholesky factor of `A` (None after a conjugate-gradient solve).
+    pub factor: Option<CholeskyFactor>,
+    pub report: SolveReport,
+    /// Iterations a cold start (from zero) needed on the same system, when
+    /// the worker was asked to measure it.
+    pub cold_cg_iterations: Option<usize>,
+    /// How the symbolic factorisation was obtained (Cholesky solves).
+    pub symbolic_path: Option<SymbolicPath>,
+}
+
+impl SolvedMap {
+    /// Row block of map id `id` in `A` (None for the reference and for
+    /// landmarks not in the solved map).
+    pub fn unknown_of(&self, id: u32) -> Option<usize> {
+        let local = (*self.local_id.get(id as usize)?)?;
+        self.problem.unknown_of(local)
+    }
+}
+
+/// Fresh AMD once appended landmarks exceed this share of those ordered
+/// (measured in bench/README.md, "Kalman position filter").
+pub const DEFAULT_REFRESH_FRACTION: f64 = 0.1;
+
+/// Solves map requests; keeps the symbolic factorisation between them.
+pub struct MapSolveWorker {
+    symbolic: IncrementalSymbolic,
+    pub choice: SolverChoice,
+    pub cg: CgOptions,
+    /// Also run every CG solve from a cold start (zero) and report its
+    /// iterations (measurement only; doubles the CG cost).
+    pub measure_cold_start: bool,
+}
+
+impl MapSolveWorker {
+    pub fn new(choice: SolverChoice, threads: usize) -> Self {
+        Self {
+            symbolic: IncrementalSymbolic::new(
+                OrderingReuse::AppendNew {
+                    refresh_fraction: DEFAULT_REFRESH_FRACTION,
+                },
+                if threads <= 1 {
+                    faer::Par::Seq
+                } else {
+                    faer::Par::rayon(threads)
+                },
+            ),
+            choice,
+            cg: CgOptions::default(),
+            measure_cold_start: false,
+        }
+    }
+
+    /// Changes how a changed pattern's ordering is obtained.
+    pub fn set_ordering(&mut self, ordering: OrderingReuse) {
+        self.symbolic.policy = ordering;
+    }
+
+    /// Solves one request: the reference's connected component (landmarks
+    /// that no edge joins to it yet are left out), by sparse Cholesky or,
+    /// for large maps, by PCG warm-started from the previous solution.
+    pub fn solve(&mut self, request: MapSolveRequest) -> Result<SolvedMap, EdgeMapError> {
+        let start = Instant::now();
+        let MapSolveRequest {
+            version,
+            problem: full,
+            previous_m,
+        } = request;
+        let (problem, kept) = if full.components().len() > 1 {
+            full.reference_component()
+        } else {
+            let kept = (0..full.landmark_count).collect();
+            (full, kept)
+        };
+        check_connected(&problem)?;
+        let laplacian = BlockLaplacian::assemble(&problem);
+        let mut report = SolveReport {
+            assemble_ms: ms_since(start),
+            ..Default::default()
+        };
+        let has_previous = previous_m.iter().any(Option::is_some);
+        let use_cg = match self.choice {
+            SolverChoice::Cholesky => false,
+            SolverChoice::ConjugateGradient => true,
+            SolverChoice::Auto { cg_above_landmarks } => {
+                problem.landmark_count as usize > cg_above_landmarks && has_previous
+            }
+        };
+        let mut cold_cg_iterations = None;
+        let mut symbolic_path = None;
+        let (x, factor) = if use_cg {
+            let mut x = warm_start(&problem, &kept, &previous_m);
+            if self.measure_cold_start {
+                let mut cold = vec![0.0; laplacian.dim()];
+                cold_cg_iterations = Some(solve_pcg(&laplacian, &mut cold, &self.cg)?);
+            }
+            let t = Instant::now();
+            report.cg_iterations = solve_pcg(&laplacian, &mut x, &self.cg)?;
+            report.solve_ms = ms_since(t);
+            report.method = "pcg";
+            (x, None)
+        } else {
+            let t = Instant::now();
+            let (factor, path) =
+                self.symbolic
+                    .factorize(&laplacian, &problem, &kept, &mut report)?;
+            symbolic_path = Some(path);
+            report.factor_ms = ms_since(t);
+            report.factor_nnz = factor.nnz();
+            let t = Instant::now();
+            let mut x = laplacian.rhs.clone();
+            factor.solve_in_place(&mut x, 1);
+            report.solve_ms = ms_since(t);
+            report.method = "cholesky";
+            (x, Some(factor))
+        };
+        let mut positions_m = vec![None; kept.iter().map(|&k| k as usize + 1).max().unwrap_or(0)];
+        let mut local_id = vec![None; positions_m.len()];
+        for (local, &id) in kept.iter().enumerate() {
+            local_id[id as usize] = Some(local as u32);
+            positions_m[id as usize] = Some(match problem.unknown_of(local as u32) {
+                Some(u) => Vector3::new(x[3 * u], x[3 * u + 1], x[3 * u + 2]),
+                None => Vector3::zeros(),
+            });
+        }
+        report.total_ms = ms_since(start);
+        Ok(SolvedMap {
+            version,
+            positions_m,
+            problem,
+            local_id,
+            laplacian,
+            factor,
+            report,
+            cold_cg_iterations,
+            symbolic_path,
+        })
+    }
+}
+
+/// The CG starting point: the previous solution where there is one; a
+/// landmark added since is placed from an already placed neighbour through
+/// their fused edge (breadth first), or at the origin if none is reachable.
+fn warm_start(problem: &MapProblem, kept: &[u32], previous_m: &[Option<Vector3<f64>>]) -> Vec<f64> {
+    let n = problem.landmark_count as usize;
+    let mut placed: Vec<Option<Vector3<f64>>> = kept
+        .iter()
+        .map(|&id| previous_m.get(id as usize).copied().flatten())
+        .collect();
+    placed[problem.reference as usize] = Some(Vector3::zeros());
+    let mut adjacency: Vec<Vec<(u32, Vector3<f64>)>> = vec![Vec::new(); n];
+    for e in &problem.edges {
+        adjacency[e.i as usize].push((e.j, e.y_m));
+        adjacency[e.j as usize].push((e.i, -e.y_m));
+    }
+    let mut queue: VecDeque<u32> = (0..n as u32)
+        .filter(|&k| placed[k as usize].is_some())
+        .collect();
+    while let Some(k) = queue.pop_front() {
+        let base = placed[k as usize].expect("queued landmarks are placed");
+        for &(other, y) in &adjacency[k as usize] {
+            if placed[other as usize].is_none() {
+                placed[other as usize] = Some(base + y);
+                queue.push_back(other);
+            }
+        }
+    }
+    let mut x = vec![0.0; 3 * (n - 1)];
+    for (local, p) in placed.iter().enumerate() {
+        if let (Some(u), Some(p)) = (problem.unknown_of(local as u32), p) {
+            x[3 * u..3 * u + 3].copy_from_slice(p.as_slice());
+        }
+    }
+    x
+}
+
+fn ms_since(t: Instant) -> f64 {
+    t.elapsed().as_secs_f64() * 1e3
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::edge_map::simulate::{simulate_city, CityOptions};
+
+    /// The map as it was when only landmarks `0..n` existed (ids are
+    /// assigned in the order the drive creates them).
+    pub(crate) fn prefix(problem: &MapProblem, n: u32) -> MapProblem {
+        MapProblem {
+            landmark_count: n,
+            reference: problem.reference,
+            edges: problem
+                .edges
+                .iter()
+                .filter(|e| e.i < n && e.j < n)
+                .copied()
+                .collect(),
+        }
+    }
+
+    /// A growing map solved by CG from the previous solution: same answer
+    /// as Cholesky, in fewer iterations than from zero.
+    #[test]
+    fn warm_started_cg_on_a_growing_map_agrees_with_cholesky_in_fewer_iterations() {
+        let city = simulate_city(&CityOptions {
+            landmarks: 1500,
+            ..CityOptions::default()
+        });
+        let mut cg = MapSolveWorker::new(SolverChoice::ConjugateGradient, 1);
+        cg.measure_cold_start = true;
+        cg.cg.rel_tol = 1e-12;
+        cg.cg.max_iterations = 100_000;
+        let mut cholesky = MapSolveWorker::new(SolverChoice::Cholesky, 1);
+        let mut previous: Vec<Option<Vector3<f64>>> = Vec::new();
+        let (mut warm_total, mut cold_total) = (0, 0);
+        for (version, n) in (1000..=1500).step_by(50).enumerate() {
+            let problem = prefix(&city.problem, n);
+            let request = MapSolveRequest {
+                version: version as u64,
+                problem,
+                previous_m: previous.clone(),
+            };
+            let reference = cholesky.solve(request.clone()).unwrap();
+            let solved = cg.solve(request).unwrap();
+            assert_eq!(solved.report.method, "pcg");
+            for (a, b) in solved.positions_m.iter().zip(&reference.positions_m) {
+                match (a, b) {
+                    (Some(a), Some(b)) => assert!((a - b).norm() < 1e-6, "{a} vs {b}"),
+                    (None, None) => {}
+                    _ => panic!("the two solves placed different landmarks"),
+                }
+            }
+            if version > 0 {
+                warm_total += solved.report.cg_iterations;
+                cold_total += solved.cold_cg_iterations.unwrap();
+            }
+            previous = solved.positions_m;
+        }
+        assert!(
+            warm_total < cold_total,
+            "warm {warm_total} vs cold {cold_total} iterations"
+        );
+    }
+}
+
+/// Warm- vs cold-started CG iterations on a growing simulated map (not a
+/// check; `--ignored --nocapture` prints the table in bench/README.md).
+#[cfg(test)]
+#[test]
+#[ignore]
+fn print_warm_start_table() {
+    use crate::edge_map::simulate::{simulate_city, CityOptions};
+    let landmarks: usize = std::env::var("RIGSLAM_WARM_LANDMARKS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(10_000);
+    let city = simulate_city(&CityOptions {
+        landmarks,
+        ..CityOptions::default()
+    });
+    let step = 15u32; // about 5 frames of new landmarks (2 m per frame, 1.5 per m)
+    let solves = 6;
+    let top = city.problem.landmark_count;
+    for rel_tol in [1e-4, 1e-6, 1e-8, 1e-10] {
+        let mut cg = MapSolveWorker::new(SolverChoice::ConjugateGradient, 1);
+        cg.measure_cold_start = true;
+        cg.cg.rel_tol = rel_tol;
+        cg.cg.max_iterations = 200_000;
+        let mut cholesky = MapSolveWorker::new(SolverChoice::Cholesky, 1);
+        let mut previous: Vec<Option<Vector3<f64>>> = Vec::new();
+        let (mut warm, mut cold, mut worst) = (0usize, 0usize, 0.0f64);
+        let (mut warm_ms, mut cold_ms) = (0.0, 0.0);
+        for k in 0..=solves {
+            let n = top - (solves - k) as u32 * step;
+            let request = MapSolveRequest {
+                version: k as u64,
+                problem: tests::prefix(&city.problem, n),
+                previous_m: previous.clone(),
+            };
+            let reference = cholesky.solve(request.clone()).unwrap();
+            let t = Instant::now();
+            let solved = cg.solve(request).unwrap();
+            let both_ms = ms_since(t);
+            if k > 0 {
+                warm += solved.report.cg_iterations;
+                cold += solved.cold_cg_iterations.unwrap();
+                warm_ms += solved.report.solve_ms;
+                cold_ms += both_ms - solved.report.solve_ms;
+                for (a, b) in solved.positions_m.iter().zip(&reference.positions_m) {
+                    if let (Some(a), Some(b)) = (a, b) {
+                        worst = worst.max((a - b).norm());
+                    }
+                }
+            }
+            previous = solved.positions_m;
+        }
+        println!(
+            "| {top} | {rel_tol:e} | {:.0} | {:.0} | {:.2} | {:.0} / {:.0} | {worst:.1e} |",
+            warm as f64 / solves as f64,
+            cold as f64 / solves as f64,
+            cold as f64 / warm.max(1) as f64,
+            warm_ms / solves as f64,
+            cold_ms / solves as f64,
+        );
+    }
+}

@@ -1,0 +1,197 @@
+//! Simulated relative-stage outputs for the absolute stage: a robot drives
+//! laps of an oval path inside a room whose walls carry landmarks, and each
+//! frame hands over what the relative stage would (issue 5, item 5): its
+//! dead-reckoned pose (orientation exact, position integrated from noisy
+//! increments), the noisy increment itself, and the visible landmarks in
+//! the body frame with stereo-like covariances, their noise drawn from
+//! those covariances. Ground truth comes along, so the absolute stage's
+//! consistency (NEES) can be checked.
+
+use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+use crate::imu::ImuBiases;
+use crate::relative::types::{BodyLandmark, LandmarkId, RelativeOutput, TrackingState};
+
+/// Parameters of a simulated run.
+#[derive(Clone, Debug)]
+pub struct RoomRunOptions {
+    /// Room extent (x, y), m; landmarks on its four walls, 0-3 m high.
+    pub room_m: (f64, f64),
+    pub landmarks: usize,
+    /// Laps of the oval path (semi-axes 35% of the room).
+    pub laps: f64,
+    /// Distance between frames, m.
+    pub step_m: f64,
+    /// Landmarks within this range and the field of view are seen.
+    pub range_m: f64,
+    pub half_fov_rad: f64,
+    /// At most this many (nearest) landmarks per frame.
+    pub max_visible: usize,
+    /// Transverse standard deviation per metre of depth.
+    pub sigma_transverse_per_m: f64,
+    /// Depth standard deviation per squared metre of depth.
+    pub sigma_depth_per_m2: f64,
+    /// Increment noise: standard deviation per sqrt(metre) travelled, per
+    /// axis (a random walk, Q = sigma^2 * distance * I).
+    pub sigma_translation_per_sqrt_m: f64,
+    /// Give every landmark the isotropic covariance of its depth error
+    /// instead of the stereo-like ellipsoid.
+    pub isotropic_landmarks: bool,
+    pub seed: u64,
+}
+
+impl Default for RoomRunOptions {
+    fn default() -> Self {
+        Self {
+            room_m: (16.0, 10.0),
+            landmarks: 200,
+            laps: 2.0,
+            step_m: 0.3,
+            range_m: 8.0,
+            half_fov_rad: 60f64.to_radians(),
+            max_visible: 20,
+            sigma_transverse_per_m: 0.003,
+            sigma_depth_per_m2: 0.004,
+            sigma_translation_per_sqrt_m: 0.02,
+            isotropic_landmarks: false,
+            seed: 0,
+        }
+    }
+}
+
+/// A simulated run with its ground truth.
+pub struct RoomRun {
+    pub outputs: Vec<RelativeOutput>,
+    /// True body position per frame, world frame, m.
+    pub truth_position_m: Vec<Vector3<f64>>,
+    /// True landmark positions by id, world frame, m.
+    pub landmarks_m: Vec<Vector3<f64>>,
+}
+
+fn normal3(rng: &mut ChaCha8Rng) -> Vector3<f64> {
+    Vector3::from_fn(|_, _| StandardNormal.sample(rng))
+}
+
+/// Orthonormal frame whose first column is the unit ray.
+fn ray_frame(ray: &Vector3<f64>) -> Matrix3<f64> {
+    let helper = if ray.z.abs() < 0.9 {
+        Vector3::z()
+    } else {
+        Vector3::x()
+    };
+    let u = ray.cross(&helper).normalize();
+    let v = ray.cross(&u);
+    Matrix3::from_columns(&[*ray, u, v])
+}
+
+/// Runs the simulated drive.
+pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
+    let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
+    let (w, h) = options.room_m;
+    let perimeter = 2.0 * (w + h);
+    let landmarks_m: Vec<Vector3<f64>> = (0..options.landmarks)
+        .map(|_| {
+            let s = rng.gen_range(0.0..perimeter);
+            let z = rng.gen_range(0.0..3.0);
+            if s < w {
+                Vector3::new(s, 0.0, z)
+            } else if s < w + h {
+                Vector3::new(w, s - w, z)
+            } else if s < 2.0 * w + h {
+                Vector3::new(2.0 * w + h - s, h, z)
+            } else {
+                Vector3::new(0.0, perimeter - s, z)
+            }
+        })
+        .collect();
+    let centre = Vector3::new(w / 2.0, h / 2.0, 1.2);
+    let (a, b) = (0.35 * w, 0.35 * h);
+    // Arc length per radian is at least min(a, b): step the angle so that
+    // consecutive frames are about step_m apart.
+    let mut angle: f64 = 0.0;
+    let end_angle = options.laps * std::f64::consts::TAU;
+    let position_at = |t: f64| centre + Vector3::new(a * t.cos(), b * t.sin(), 0.0);
+    let mut outputs = Vec::new();
+    let mut truth_position_m = Vec::new();
+    let mut previous_truth: Option<Vector3<f64>> = None;
+    let mut relative_position = position_at(0.0);
+    let mut t_ns = 0i64;
+    while angle <= end_angle {
+        let p = position_at(angle);
+        let tangent = Vector3::new(-a * angle.sin(), b * angle.cos(), 0.0);
+        let yaw = tangent.y.atan2(tangent.x);
+        let rotation = Rotation3::from_axis_angle(&Vector3::z_axis(), yaw);
+        let r = *rotation.matrix();
+        let delta = match previous_truth {
+            None => Vector3::zeros(),
+            Some(prev) => {
+                let true_delta: Vector3<f64> = p - prev;
+                let sigma = options.sigma_translation_per_sqrt_m * true_delta.norm().sqrt();
+                true_delta + normal3(&mut rng) * sigma
+            }
+        };
+        relative_position += delta;
+        let mut candidates: Vec<(f64, usize)> = landmarks_m
+            .iter()
+            .enumerate()
+            .filter_map(|(id, l)| {
+                let body = r.transpose() * (l - p);
+                let depth = body.norm();
+                let bearing = body.y.atan2(body.x).abs();
+                (depth <= options.range_m && body.x > 0.5 && bearing <= options.half_fov_rad)
+                    .then_some((depth, id))
+            })
+            .collect();
+        candidates.sort_by(|x, y| x.0.total_cmp(&y.0));
+        candidates.truncate(options.max_visible);
+        candidates.sort_by_key(|c| c.1);
+        let landmarks = candidates
+            .iter()
+            .map(|&(depth, id)| {
+                let body = r.transpose() * (landmarks_m[id] - p);
+                let frame = ray_frame(&(body / depth));
+                let sigma_t = options.sigma_transverse_per_m * depth;
+                let sigma_d = options.sigma_depth_per_m2 * depth * depth;
+                let sigmas = if options.isotropic_landmarks {
+                    Vector3::repeat(sigma_d.max(sigma_t))
+                } else {
+                    Vector3::new(sigma_d, sigma_t, sigma_t)
+                };
+                let covariance = frame
+                    * Matrix3::from_diagonal(&sigmas.component_mul(&sigmas))
+                    * frame.transpose();
+                let noise = frame * normal3(&mut rng).component_mul(&sigmas);
+                BodyLandmark {
+                    id: id as LandmarkId,
+                    position_body_m: body + noise,
+                    covariance_body_m2: covariance,
+                }
+            })
+            .collect();
+        outputs.push(RelativeOutput {
+            t_ns,
+            state: TrackingState::Tracking,
+            T_world_body: Isometry3::from_parts(
+                Translation3::from(relative_position),
+                UnitQuaternion::from_rotation_matrix(&rotation),
+            ),
+            velocity_world_m_s: Vector3::zeros(),
+            biases: ImuBiases::default(),
+            delta_translation_world_m: delta,
+            landmarks,
+        });
+        truth_position_m.push(p);
+        previous_truth = Some(p);
+        t_ns += 50_000_000;
+        let speed = tangent.norm().max(1e-9);
+        angle += options.step_m / speed;
+    }
+    RoomRun {
+        outputs,
+        truth_position_m,
+        landmarks_m,
+    }
+}
