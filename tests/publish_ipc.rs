@@ -6,7 +6,7 @@
 
 use std::sync::mpsc;
 use std::thread;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion, Vector3};
 use rigslam::imu::ImuBiases;
@@ -100,6 +100,7 @@ fn every_pose_arrives_in_order_with_its_content_across_threads() {
 
 #[test]
 fn a_blocked_subscriber_wakes_on_the_event() {
+    const WAKE_TIMEOUT: Duration = Duration::from_secs(30);
     let (config, _root) = private_config("wake");
     let (ready_tx, ready_rx) = mpsc::channel();
     let subscriber_config = config.clone();
@@ -109,20 +110,28 @@ fn a_blocked_subscriber_wakes_on_the_event() {
         assert!(!subscriber.wait(Duration::from_millis(20)).expect("wait"));
         ready_tx.send(()).expect("main thread listens");
         // Blocks in the kernel until the publisher's notification; only a
-        // missing notification lets it reach the 60 s timeout.
-        let woke = subscriber.wait(Duration::from_secs(60)).expect("wait");
+        // missing notification lets it reach its timeout (after which it
+        // would still find the sample, hence the check on how it ended).
+        let started = Instant::now();
+        let woke = subscriber.wait(WAKE_TIMEOUT).expect("wait");
+        let waited = started.elapsed();
         let newest = subscriber.take_newest().expect("take");
         // The sample is taken: the next wait has nothing to return for.
         let again = subscriber.wait(Duration::from_millis(20)).expect("wait");
-        (woke, newest, again)
+        (woke, waited, newest, again)
     });
     let mut publisher = PosePublisher::open(&config).expect("publisher");
     ready_rx.recv().expect("subscriber is ready");
+    // Give the subscriber time to enter its wait, so that the sample finds
+    // it blocked (setup, not a measurement: any delay gives the same
+    // outcome when the notification works).
+    thread::sleep(Duration::from_millis(100));
     publisher.publish(&message(7)).expect("publish");
-    let (woke, newest, again) = subscriber.join().expect("subscriber thread");
+    let (woke, waited, newest, again) = subscriber.join().expect("subscriber thread");
+    assert!(woke, "no sample after the wait");
     assert!(
-        woke,
-        "the subscriber timed out instead of waking on the event"
+        waited < WAKE_TIMEOUT,
+        "the subscriber ran into its timeout instead of waking on the event"
     );
     let newest = newest.expect("a sample after the wake-up");
     assert_same_content(&newest, &message(7));
