@@ -35,8 +35,10 @@ pub const DEFAULT_SERVICE_PREFIX: &str = "rigslam";
 pub const MAX_SUBSCRIBER_BUFFER: usize = 128;
 
 /// Where the services live and what they are called. Publisher and
-/// subscribers must use the same values to meet.
-#[derive(Debug, Clone, PartialEq, Eq)]
+/// subscribers must use the same values to meet. Deserialises from a
+/// config table (`service_prefix`, `root_path`, both optional).
+#[derive(Debug, Clone, PartialEq, Eq, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct IpcConfig {
     /// First part of every service name: `<prefix>/pose`, `<prefix>/pose_fast`,
     /// `<prefix>/status`.
