@@ -42,6 +42,9 @@ fn run(rate_hz: f64, count: u64, spin: bool) -> serde_json::Value {
     let start = Instant::now();
     let mut sent = 0u64;
     let mut next = start;
+    // How long publish() itself takes (copy into shared memory + notify),
+    // to tell the sender's share of the latency from the wake-up's.
+    let mut publish_call_us = Vec::new();
     loop {
         if echo.try_wait().expect("poll echo").is_some() {
             break;
@@ -51,7 +54,9 @@ fn run(rate_hz: f64, count: u64, spin: bool) -> serde_json::Value {
             TrackingState::Tracking,
             &Isometry3::identity(),
         );
+        let before = Instant::now();
         publisher.publish_fast(&msg).expect("publish");
+        publish_call_us.push(before.elapsed().as_secs_f64() * 1e6);
         sent += 1;
         next += period;
         // Absolute deadlines, so the mean rate holds when a sleep
@@ -83,6 +88,13 @@ fn run(rate_hz: f64, count: u64, spin: bool) -> serde_json::Value {
         serde_json::from_slice(&output.stdout).expect("echo prints one JSON object");
     report["target_rate_hz"] = rate_hz.into();
     report["publisher_spins"] = spin.into();
+    publish_call_us.sort_by(f64::total_cmp);
+    let at = |q: f64| {
+        publish_call_us
+            [((q * publish_call_us.len() as f64) as usize).min(publish_call_us.len() - 1)]
+    };
+    report["publish_call_p50_us"] = at(0.50).into();
+    report["publish_call_p99_us"] = at(0.99).into();
     report["sent"] = sent.into();
     report["publish_rate_hz"] = (sent as f64 / elapsed_s).into();
     report
