@@ -65,14 +65,11 @@ fn header_asserts() -> BTreeMap<(String, String), usize> {
     asserts
 }
 
-/// Rust's layout, per C type name: size, alignment and (field, offset,
-/// field size) for every field.
-fn rust_layout() -> Vec<(
-    &'static str,
-    usize,
-    usize,
-    Vec<(&'static str, usize, usize)>,
-)> {
+/// (field, offset, field size).
+type Field = (&'static str, usize, usize);
+
+/// Rust's layout, per C type name: size, alignment and every field.
+fn rust_layout() -> Vec<(&'static str, usize, usize, Vec<Field>)> {
     macro_rules! fields {
         ($ty:ty, $($field:ident),* $(,)?) => {{
             let value: $ty = unsafe { std::mem::zeroed() };

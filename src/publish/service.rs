@@ -224,6 +224,11 @@ pub(crate) fn service_name(name: &str) -> Result<ServiceName, IpcError> {
     })
 }
 
+/// A publisher and the notifier that announces its samples.
+pub(crate) type PublisherPorts<T> = (Publisher<Ipc, T, ()>, Notifier<Ipc>);
+/// A subscriber and the listener it blocks on.
+pub(crate) type SubscriberPorts<T> = (Subscriber<Ipc, T, ()>, Listener<Ipc>);
+
 /// The publish-subscribe service and the paired event service of one
 /// stream, as both sides open them.
 pub(crate) struct Services<T: Message> {
@@ -257,7 +262,7 @@ impl<T: Message> Services<T> {
         })
     }
 
-    pub fn publisher(&self) -> Result<(Publisher<Ipc, T, ()>, Notifier<Ipc>), IpcError> {
+    pub fn publisher(&self) -> Result<PublisherPorts<T>, IpcError> {
         let publisher = self
             .pubsub
             .publisher_builder()
@@ -271,10 +276,7 @@ impl<T: Message> Services<T> {
         Ok((publisher, notifier))
     }
 
-    pub fn subscriber(
-        &self,
-        buffer: usize,
-    ) -> Result<(Subscriber<Ipc, T, ()>, Listener<Ipc>), IpcError> {
+    pub fn subscriber(&self, buffer: usize) -> Result<SubscriberPorts<T>, IpcError> {
         let subscriber = self
             .pubsub
             .subscriber_builder()
