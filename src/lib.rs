@@ -5,7 +5,8 @@
 //! and writes recorded sequences; [`camera`] projects and unprojects;
 //! [`trajectory`] holds timestamped poses; [`eval`] scores an estimate
 //! against ground truth; [`simulate`] renders synthetic sequences;
-//! [`two_view`] estimates relative and absolute poses from correspondences.
+//! [`two_view`] estimates relative and absolute poses from correspondences;
+//! [`publish`] sends poses to other processes over shared memory.
 
 pub use rigslam_drivers as sensors;
 
@@ -15,6 +16,7 @@ pub mod edge_map;
 pub mod eval;
 pub mod features;
 pub mod imu;
+pub mod publish;
 pub mod recording;
 pub mod relative;
 pub mod rig;

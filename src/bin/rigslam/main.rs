@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 mod bench;
 mod camera;
 mod demo;
+mod echo;
 mod eval;
 mod imu;
 mod map;
@@ -29,6 +30,8 @@ enum Command {
     Demo(demo::DemoArgs),
     /// Read a V4L2 or Aravis camera: identity, format, rate, drops; optionally record.
     Camera(camera::CameraArgs),
+    /// Subscribe to a published stream (rigslam/pose, pose_fast, status): print samples, rate, latency.
+    Echo(echo::EchoArgs),
     /// Score an estimated trajectory against ground truth (ATE, RPE, scale, final drift).
     Eval(eval::EvalArgs),
     /// Solve, generate and compare edge-map problems (the absolute stage's map, A L = B).
@@ -80,6 +83,7 @@ fn run() -> anyhow::Result<()> {
         Command::Bench(args) => bench::run(args),
         Command::Camera(args) => camera::run(args),
         Command::Demo(args) => demo::run(args),
+        Command::Echo(args) => echo::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Imu(args) => imu::run(args),
         Command::Map(args) => map::run(args),

@@ -1,0 +1,248 @@
+//! `rigslam echo`: subscribe to a published stream, print each sample, the
+//! measured rate and the latency (`--json` for machines).
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use anyhow::Context;
+use rigslam::publish::{
+    IpcConfig, Message, PoseMessage, StatusMessage, Stream, Subscription, DEFAULT_SERVICE_PREFIX,
+    MAX_SUBSCRIBER_BUFFER,
+};
+use rigslam::sensors::yei::device::host_monotonic_ns;
+
+#[derive(clap::Args)]
+pub struct EchoArgs {
+    /// Service to read: a full name (`rigslam/pose`, `rigslam/pose_fast`,
+    /// `rigslam/status`, or another prefix) or only the stream
+    /// (`pose`, `pose_fast`, `status`) under the `rigslam` prefix. A name
+    /// ending in `status` carries status messages, any other poses.
+    #[arg(long, default_value = "rigslam/pose")]
+    service: String,
+    /// Stop after this many samples (0: until the stream goes quiet).
+    #[arg(long, default_value_t = 0)]
+    count: u64,
+    /// Stop when no sample has come for this long, seconds.
+    #[arg(long, default_value_t = 10.0)]
+    timeout_s: f64,
+    /// iceoryx2 root path of the publisher (rigslamd's `publish.root_path`);
+    /// iceoryx2's default, /tmp/iceoryx2/, when not given.
+    #[arg(long)]
+    root_path: Option<PathBuf>,
+    /// Print one JSON object at the end and nothing per sample: received,
+    /// rate_hz, latency_p50_us, latency_p99_us (now - the message's t_ns on
+    /// CLOCK_MONOTONIC), transport_latency_p50_us, transport_latency_p99_us
+    /// (now - the publisher's send time), missed (sequence gaps), service.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(serde::Serialize)]
+struct EchoReport {
+    service: String,
+    received: u64,
+    missed: u64,
+    rate_hz: f64,
+    latency_p50_us: f64,
+    latency_p99_us: f64,
+    transport_latency_p50_us: f64,
+    transport_latency_p99_us: f64,
+}
+
+/// What was measured per sample.
+#[derive(Default)]
+struct Measurements {
+    receive_t_ns: Vec<i64>,
+    latency_us: Vec<f64>,
+    transport_latency_us: Vec<f64>,
+}
+
+pub fn run(args: EchoArgs) -> anyhow::Result<()> {
+    if !(args.timeout_s.is_finite() && args.timeout_s > 0.0) {
+        anyhow::bail!(
+            "--timeout-s must be a positive number of seconds, got {}",
+            args.timeout_s
+        );
+    }
+    let service = if args.service.contains('/') {
+        args.service.clone()
+    } else {
+        let stream = Stream::from_suffix(&args.service).with_context(|| {
+            format!(
+                "--service {:?}: expected a full service name (prefix/stream) or one of pose, pose_fast, status",
+                args.service
+            )
+        })?;
+        stream.service_name(DEFAULT_SERVICE_PREFIX)
+    };
+    let (prefix, _) = service
+        .rsplit_once('/')
+        .expect("the name was given or built with a '/'");
+    let config = IpcConfig {
+        service_prefix: prefix.to_string(),
+        root_path: args.root_path.clone(),
+    };
+    let (measured, missed) = if service.ends_with("status") {
+        echo::<StatusMessage>(&args, &config, &service, print_status)?
+    } else {
+        echo::<PoseMessage>(&args, &config, &service, print_pose)?
+    };
+    let received = measured.receive_t_ns.len() as u64;
+    if received == 0 {
+        anyhow::bail!(
+            "no sample on {service} within {} s (is rigslamd running, with the same root path?)",
+            args.timeout_s
+        );
+    }
+    if args.count > 0 && received < args.count {
+        eprintln!(
+            "warning: {service} went quiet for {} s after {received} of {} samples",
+            args.timeout_s, args.count
+        );
+    }
+    let report = EchoReport {
+        service,
+        received,
+        missed,
+        rate_hz: rate_hz(&measured.receive_t_ns),
+        latency_p50_us: percentile(&measured.latency_us, 0.50),
+        latency_p99_us: percentile(&measured.latency_us, 0.99),
+        transport_latency_p50_us: percentile(&measured.transport_latency_us, 0.50),
+        transport_latency_p99_us: percentile(&measured.transport_latency_us, 0.99),
+    };
+    if args.json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        println!(
+            "{}: {} received, {} missed, {:.1} Hz, latency p50 {:.1} us p99 {:.1} us, transport p50 {:.1} us p99 {:.1} us",
+            report.service,
+            report.received,
+            report.missed,
+            report.rate_hz,
+            report.latency_p50_us,
+            report.latency_p99_us,
+            report.transport_latency_p50_us,
+            report.transport_latency_p99_us
+        );
+    }
+    Ok(())
+}
+
+/// Reads samples until `count` or until the stream is quiet for the
+/// timeout; returns the measurements and the sequence gaps seen.
+fn echo<T: Message>(
+    args: &EchoArgs,
+    config: &IpcConfig,
+    service: &str,
+    print: fn(&T, f64),
+) -> anyhow::Result<(Measurements, u64)> {
+    // A large buffer: echo wants every sample, and a gap is reported.
+    let mut subscriber = Subscription::<T>::open_service(config, service, MAX_SUBSCRIBER_BUFFER)
+        .with_context(|| format!("subscribing to {service}"))?;
+    let timeout = Duration::from_secs_f64(args.timeout_s);
+    let mut measured = Measurements::default();
+    let mut batch = Vec::new();
+    'outer: while args.count == 0 || (measured.receive_t_ns.len() as u64) < args.count {
+        if !subscriber.wait(timeout)? {
+            break;
+        }
+        batch.clear();
+        subscriber.take_all(&mut batch)?;
+        let now_ns = host_monotonic_ns();
+        for message in &batch {
+            let latency_us = (now_ns - message.t_ns()) as f64 / 1e3;
+            measured.receive_t_ns.push(now_ns);
+            measured.latency_us.push(latency_us);
+            measured
+                .transport_latency_us
+                .push((now_ns - message.published_t_ns()) as f64 / 1e3);
+            if !args.json {
+                print(message, latency_us);
+            }
+            if args.count > 0 && measured.receive_t_ns.len() as u64 >= args.count {
+                break 'outer;
+            }
+        }
+    }
+    Ok((measured, subscriber.missed()))
+}
+
+fn print_pose(m: &PoseMessage, latency_us: f64) {
+    let state = match m.state() {
+        Some(s) => format!("{s:?}").to_lowercase(),
+        None => format!("state{}", m.tracking_state),
+    };
+    let [px, py, pz] = m.position_world_m;
+    let [qx, qy, qz, qw] = m.orientation_world_body_xyzw;
+    let [vx, vy, vz] = m.velocity_world_m_s;
+    println!(
+        "#{} t={:.6} s {state} p=[{px:.4} {py:.4} {pz:.4}] m q_xyzw=[{qx:.4} {qy:.4} {qz:.4} {qw:.4}] v=[{vx:.3} {vy:.3} {vz:.3}] m/s latency={latency_us:.1} us",
+        m.sequence,
+        m.t_ns as f64 * 1e-9,
+    );
+}
+
+fn print_status(m: &StatusMessage, _latency_us: f64) {
+    let queues: Vec<String> = m
+        .queues_in_use()
+        .iter()
+        .map(|q| format!("{} {}/{}", q.name_str(), q.len, q.capacity))
+        .collect();
+    println!(
+        "#{} camera {:.1} Hz imu {:.1} Hz pose {:.1} Hz, drops camera {} imu {} pose {}, latency p50 {:.0} us p99 {:.0} us, health 0x{:x}, queues [{}]",
+        m.sequence,
+        m.camera_rate_hz,
+        m.imu_rate_hz,
+        m.pose_rate_hz,
+        m.camera_drops,
+        m.imu_drops,
+        m.pose_drops,
+        m.latency_p50_us,
+        m.latency_p99_us,
+        m.sensor_health,
+        queues.join(", ")
+    );
+}
+
+/// Samples per second between the first and last receipt (0 for fewer
+/// than two samples, or all in one wake-up).
+fn rate_hz(receive_t_ns: &[i64]) -> f64 {
+    match (receive_t_ns.first(), receive_t_ns.last()) {
+        (Some(&first), Some(&last)) if last > first => {
+            (receive_t_ns.len() - 1) as f64 / ((last - first) as f64 * 1e-9)
+        }
+        _ => 0.0,
+    }
+}
+
+/// Nearest-rank percentile, `q` in [0, 1]; 0 for no values.
+fn percentile(values: &[f64], q: f64) -> f64 {
+    if values.is_empty() {
+        return 0.0;
+    }
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let rank = (q * sorted.len() as f64).ceil() as usize;
+    sorted[rank.clamp(1, sorted.len()) - 1]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nearest_rank_percentiles() {
+        let values: Vec<f64> = (1..=100).rev().map(f64::from).collect();
+        assert_eq!(percentile(&values, 0.5), 50.0);
+        assert_eq!(percentile(&values, 0.99), 99.0);
+        assert_eq!(percentile(&[7.0], 0.99), 7.0);
+    }
+
+    #[test]
+    fn rate_over_the_receive_span() {
+        // 11 samples over 0.5 s: 10 intervals, 20 Hz.
+        let t: Vec<i64> = (0..11).map(|i| i * 50_000_000).collect();
+        assert!((rate_hz(&t) - 20.0).abs() < 1e-9);
+        assert_eq!(rate_hz(&[5]), 0.0);
+    }
+}

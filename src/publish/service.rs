@@ -1,0 +1,318 @@
+//! What publisher and subscriber must agree on: the iceoryx2 instance
+//! (root path), the service names, the service settings, the errors.
+//!
+//! Both sides build their services with the same functions here, so the
+//! settings of whichever side creates a service first always satisfy the
+//! other (iceoryx2 refuses to open a service whose settings are smaller
+//! than requested).
+
+use std::fmt::Debug;
+use std::path::{Path, PathBuf};
+
+use iceoryx2::config::Config;
+use iceoryx2::node::{Node, NodeBuilder};
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::notifier::Notifier;
+use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::{
+    ipc_threadsafe, SemanticString, ServiceName, SignalHandlingMode, ZeroCopySend,
+};
+
+use super::message::{PoseMessage, StatusMessage, POSE_LAYOUT_VERSION, STATUS_LAYOUT_VERSION};
+
+/// The iceoryx2 service variant used throughout: its ports are `Send` and
+/// `Sync`, so a publisher can live on the daemon's processing thread and a
+/// subscriber on any thread (the plain `ipc::Service` ports are not `Send`).
+pub type Ipc = ipc_threadsafe::Service;
+
+/// The default service prefix: services are `rigslam/pose`, ...
+pub const DEFAULT_SERVICE_PREFIX: &str = "rigslam";
+
+/// Most samples a subscriber may queue (the service's bound; each
+/// subscriber picks its own buffer up to this). Sized for a consumer of
+/// `pose_fast` at 10 kHz that wakes every 10 ms.
+pub const MAX_SUBSCRIBER_BUFFER: usize = 128;
+
+/// Where the services live and what they are called. Publisher and
+/// subscribers must use the same values to meet. Deserialises from a
+/// config table (`service_prefix`, `root_path`, both optional).
+#[derive(Debug, Clone, PartialEq, Eq, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct IpcConfig {
+    /// First part of every service name: `<prefix>/pose`, `<prefix>/pose_fast`,
+    /// `<prefix>/status`.
+    pub service_prefix: String,
+    /// iceoryx2's root directory for its service, node and socket files.
+    /// `None` keeps iceoryx2's default (`/tmp/iceoryx2/`), which a systemd
+    /// unit with `PrivateTmp=yes` hides from other processes: such a unit
+    /// sets e.g. `/run/rigslam/iceoryx2/` (`RuntimeDirectory=rigslam`).
+    /// Shared memory itself lives in `/dev/shm` either way.
+    pub root_path: Option<PathBuf>,
+}
+
+impl Default for IpcConfig {
+    fn default() -> Self {
+        Self {
+            service_prefix: DEFAULT_SERVICE_PREFIX.to_string(),
+            root_path: None,
+        }
+    }
+}
+
+/// The three published streams.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Stream {
+    /// `<prefix>/pose`: one [`PoseMessage`] per processed frame.
+    Pose,
+    /// `<prefix>/pose_fast`: [`PoseMessage`]s propagated with the IMU at its rate.
+    PoseFast,
+    /// `<prefix>/status`: [`StatusMessage`] about once a second.
+    Status,
+}
+
+impl Stream {
+    /// The last part of the service name.
+    pub fn suffix(self) -> &'static str {
+        match self {
+            Stream::Pose => "pose",
+            Stream::PoseFast => "pose_fast",
+            Stream::Status => "status",
+        }
+    }
+
+    /// The stream a service name's last part names (`pose`, `pose_fast`,
+    /// `status`).
+    pub fn from_suffix(suffix: &str) -> Option<Stream> {
+        [Stream::Pose, Stream::PoseFast, Stream::Status]
+            .into_iter()
+            .find(|s| s.suffix() == suffix)
+    }
+
+    /// `<prefix>/<suffix>`. The paired event service has the same name
+    /// (iceoryx2 tells services apart by name and messaging pattern).
+    pub fn service_name(self, prefix: &str) -> String {
+        format!("{prefix}/{}", self.suffix())
+    }
+}
+
+/// Why a service could not be opened or used. Each names the service (or
+/// root path) and what was being done.
+#[derive(Debug, thiserror::Error)]
+pub enum IpcError {
+    #[error("iceoryx2 root path {path:?} is not usable: {reason}")]
+    RootPath { path: PathBuf, reason: String },
+    #[error("service name {name:?} is not valid: {reason}")]
+    ServiceName { name: String, reason: String },
+    #[error("cannot create an iceoryx2 node: {reason}")]
+    Node { reason: String },
+    #[error("service {service}: {action}: {reason}")]
+    Service {
+        service: String,
+        action: &'static str,
+        reason: String,
+    },
+    #[error("service {service}: sample has layout version {found}, this build reads {expected}")]
+    LayoutVersion {
+        service: String,
+        found: u32,
+        expected: u32,
+    },
+}
+
+impl IpcError {
+    pub(crate) fn service(service: &str, action: &'static str, e: impl Debug) -> Self {
+        IpcError::Service {
+            service: service.to_string(),
+            action,
+            reason: format!("{e:?}"),
+        }
+    }
+}
+
+/// A message type that travels on a stream. Sealed: the layouts are a
+/// contract (see `include/rigslam/pose_message.h`), not an extension point.
+pub trait Message: Debug + Copy + ZeroCopySend + Send + Sync + 'static + sealed::Sealed {
+    /// The layout version this build writes and reads.
+    const LAYOUT_VERSION: u32;
+    /// The layout version of this sample.
+    fn layout_version(&self) -> u32;
+    /// The publisher's sequence number.
+    fn sequence(&self) -> u64;
+    /// Host `CLOCK_MONOTONIC` when published, ns.
+    fn published_t_ns(&self) -> i64;
+    /// Time the content refers to, ns.
+    fn t_ns(&self) -> i64;
+    /// Sets what the publisher owns: sequence and send time.
+    fn stamp(&mut self, sequence: u64, published_t_ns: i64);
+}
+
+mod sealed {
+    pub trait Sealed {}
+    impl Sealed for super::PoseMessage {}
+    impl Sealed for super::StatusMessage {}
+}
+
+macro_rules! impl_message {
+    ($ty:ty, $version:expr) => {
+        impl Message for $ty {
+            const LAYOUT_VERSION: u32 = $version;
+            fn layout_version(&self) -> u32 {
+                self.layout_version
+            }
+            fn sequence(&self) -> u64 {
+                self.sequence
+            }
+            fn published_t_ns(&self) -> i64 {
+                self.published_t_ns
+            }
+            fn t_ns(&self) -> i64 {
+                self.t_ns
+            }
+            fn stamp(&mut self, sequence: u64, published_t_ns: i64) {
+                self.sequence = sequence;
+                self.published_t_ns = published_t_ns;
+            }
+        }
+    };
+}
+impl_message!(PoseMessage, POSE_LAYOUT_VERSION);
+impl_message!(StatusMessage, STATUS_LAYOUT_VERSION);
+
+/// A node on the configured iceoryx2 instance. Signal handling is off:
+/// the daemon owns SIGINT/SIGTERM (iceoryx2 would otherwise install its
+/// own handlers).
+pub(crate) fn create_node(config: &IpcConfig) -> Result<Node<Ipc>, IpcError> {
+    // iceoryx2's defaults, not a system-wide iceoryx2.toml: the daemon's own
+    // config decides the root path, and both sides must agree on it.
+    let mut iox_config = Config::default();
+    if let Some(root) = &config.root_path {
+        iox_config.global.set_root_path(&root_path(root)?);
+    }
+    NodeBuilder::new()
+        .config(&iox_config)
+        .signal_handling_mode(SignalHandlingMode::Disabled)
+        .create::<Ipc>()
+        .map_err(|e| IpcError::Node {
+            reason: format!("{e:?}"),
+        })
+}
+
+/// iceoryx2 wants an absolute directory path ending in a separator.
+fn root_path(path: &Path) -> Result<iceoryx2::prelude::Path, IpcError> {
+    let bad = |reason: String| IpcError::RootPath {
+        path: path.to_path_buf(),
+        reason,
+    };
+    if !path.is_absolute() {
+        return Err(bad("must be absolute".into()));
+    }
+    let mut text = path
+        .to_str()
+        .ok_or_else(|| bad("is not UTF-8".into()))?
+        .to_string();
+    if !text.ends_with('/') {
+        text.push('/');
+    }
+    iceoryx2::prelude::Path::new(text.as_bytes()).map_err(|e| bad(format!("{e:?}")))
+}
+
+pub(crate) fn service_name(name: &str) -> Result<ServiceName, IpcError> {
+    ServiceName::new(name).map_err(|e| IpcError::ServiceName {
+        name: name.to_string(),
+        reason: format!("{e:?}"),
+    })
+}
+
+/// A publisher and the notifier that announces its samples.
+pub(crate) type PublisherPorts<T> = (Publisher<Ipc, T, ()>, Notifier<Ipc>);
+/// A subscriber and the listener it blocks on.
+pub(crate) type SubscriberPorts<T> = (Subscriber<Ipc, T, ()>, Listener<Ipc>);
+
+/// The publish-subscribe service and the paired event service of one
+/// stream, as both sides open them.
+pub(crate) struct Services<T: Message> {
+    pub name: String,
+    pub pubsub: iceoryx2::service::port_factory::publish_subscribe::PortFactory<Ipc, T, ()>,
+    pub event: iceoryx2::service::port_factory::event::PortFactory<Ipc>,
+}
+
+impl<T: Message> Services<T> {
+    pub fn open(node: &Node<Ipc>, name: &str) -> Result<Self, IpcError> {
+        let service = service_name(name)?;
+        let pubsub = node
+            .service_builder(&service)
+            .publish_subscribe::<T>()
+            // A slow or dead subscriber loses its oldest samples; the
+            // publisher never blocks on it.
+            .enable_safe_overflow(true)
+            .subscriber_max_buffer_size(MAX_SUBSCRIBER_BUFFER)
+            .history_size(0)
+            .open_or_create()
+            .map_err(|e| IpcError::service(name, "open publish-subscribe service", e))?;
+        let event = node
+            .service_builder(&service)
+            .event()
+            .open_or_create()
+            .map_err(|e| IpcError::service(name, "open event service", e))?;
+        Ok(Self {
+            name: name.to_string(),
+            pubsub,
+            event,
+        })
+    }
+
+    pub fn publisher(&self) -> Result<PublisherPorts<T>, IpcError> {
+        let publisher = self
+            .pubsub
+            .publisher_builder()
+            .create()
+            .map_err(|e| IpcError::service(&self.name, "create publisher", e))?;
+        let notifier = self
+            .event
+            .notifier_builder()
+            .create()
+            .map_err(|e| IpcError::service(&self.name, "create notifier", e))?;
+        Ok((publisher, notifier))
+    }
+
+    pub fn subscriber(&self, buffer: usize) -> Result<SubscriberPorts<T>, IpcError> {
+        let subscriber = self
+            .pubsub
+            .subscriber_builder()
+            .buffer_size(buffer.clamp(1, MAX_SUBSCRIBER_BUFFER))
+            .create()
+            .map_err(|e| IpcError::service(&self.name, "create subscriber", e))?;
+        let listener = self
+            .event
+            .listener_builder()
+            .create()
+            .map_err(|e| IpcError::service(&self.name, "create listener", e))?;
+        Ok((subscriber, listener))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn service_names_follow_the_contract() {
+        assert_eq!(Stream::Pose.service_name("rigslam"), "rigslam/pose");
+        assert_eq!(
+            Stream::PoseFast.service_name("rigslam"),
+            "rigslam/pose_fast"
+        );
+        assert_eq!(Stream::Status.service_name("rigslam"), "rigslam/status");
+        assert_eq!(Stream::from_suffix("pose_fast"), Some(Stream::PoseFast));
+        assert_eq!(Stream::from_suffix("posefast"), None);
+    }
+
+    #[test]
+    fn a_relative_root_path_is_refused() {
+        let err = root_path(Path::new("run/rigslam")).expect_err("relative path");
+        assert!(err.to_string().contains("absolute"), "{err}");
+        let ok = root_path(Path::new("/run/rigslam/iceoryx2")).expect("absolute path");
+        assert_eq!(ok.as_bytes(), b"/run/rigslam/iceoryx2/");
+    }
+}

@@ -1,0 +1,184 @@
+//! The consumer's side: block on the stream's event service until a sample
+//! is there (no polling), then take the samples, or only the newest.
+
+use std::time::{Duration, Instant};
+
+use iceoryx2::node::Node;
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::subscriber::Subscriber;
+
+use super::message::{PoseMessage, StatusMessage};
+use super::service::{create_node, Ipc, IpcConfig, IpcError, Message, Services, Stream};
+
+/// Samples a subscriber queues unless told otherwise.
+pub const DEFAULT_SUBSCRIBER_BUFFER: usize = 16;
+
+/// A subscription to one stream. `Send`: it may live on any thread.
+pub struct Subscription<T: Message> {
+    service: String,
+    subscriber: Subscriber<Ipc, T, ()>,
+    listener: Listener<Ipc>,
+    last_sequence: Option<u64>,
+    missed: u64,
+    _services: Services<T>,
+    // Dropped last: the ports above belong to it.
+    _node: Node<Ipc>,
+}
+
+/// Subscribes to `<prefix>/pose` or `<prefix>/pose_fast`.
+pub type PoseSubscriber = Subscription<PoseMessage>;
+/// Subscribes to `<prefix>/status`.
+pub type StatusSubscriber = Subscription<StatusMessage>;
+
+impl PoseSubscriber {
+    /// Subscribes to `<prefix>/pose` with the default buffer.
+    pub fn pose(config: &IpcConfig) -> Result<Self, IpcError> {
+        Self::open_service(
+            config,
+            &Stream::Pose.service_name(&config.service_prefix),
+            DEFAULT_SUBSCRIBER_BUFFER,
+        )
+    }
+
+    /// Subscribes to `<prefix>/pose_fast` with the default buffer.
+    pub fn pose_fast(config: &IpcConfig) -> Result<Self, IpcError> {
+        Self::open_service(
+            config,
+            &Stream::PoseFast.service_name(&config.service_prefix),
+            DEFAULT_SUBSCRIBER_BUFFER,
+        )
+    }
+}
+
+impl StatusSubscriber {
+    /// Subscribes to `<prefix>/status`.
+    pub fn status(config: &IpcConfig) -> Result<Self, IpcError> {
+        Self::open_service(
+            config,
+            &Stream::Status.service_name(&config.service_prefix),
+            DEFAULT_SUBSCRIBER_BUFFER,
+        )
+    }
+}
+
+impl<T: Message> Subscription<T> {
+    /// Subscribes to the service with the full name `service` (e.g.
+    /// `rigslam/pose`), creating it if no publisher has yet. `buffer` is
+    /// how many samples wait for [`Self::take_all`]; when more arrive
+    /// the oldest are dropped (1 keeps only the newest).
+    pub fn open_service(
+        config: &IpcConfig,
+        service: &str,
+        buffer: usize,
+    ) -> Result<Self, IpcError> {
+        let node = create_node(config)?;
+        let services = Services::<T>::open(&node, service)?;
+        let (subscriber, listener) = services.subscriber(buffer)?;
+        Ok(Self {
+            service: service.to_string(),
+            subscriber,
+            listener,
+            last_sequence: None,
+            missed: 0,
+            _services: services,
+            _node: node,
+        })
+    }
+
+    /// Blocks on the event service until a sample is waiting or `timeout`
+    /// has passed; true when a sample is waiting. Returns at once when
+    /// samples are already there. Wake-ups without a sample (events of a
+    /// previous sample already taken) go back to waiting.
+    pub fn wait(&mut self, timeout: Duration) -> Result<bool, IpcError> {
+        let deadline = Instant::now() + timeout;
+        loop {
+            if self
+                .subscriber
+                .has_samples()
+                .map_err(|e| IpcError::service(&self.service, "check for samples", e))?
+            {
+                // Consume the notifications that announced them, so that a
+                // later wait does not return for samples already taken.
+                self.listener
+                    .try_wait(|_| {})
+                    .map_err(|e| IpcError::service(&self.service, "read events", e))?;
+                return Ok(true);
+            }
+            let now = Instant::now();
+            if now >= deadline {
+                return Ok(false);
+            }
+            self.listener
+                .timed_wait(|_| {}, deadline - now)
+                .map_err(|e| IpcError::service(&self.service, "wait for event", e))?;
+        }
+    }
+
+    /// Takes one waiting sample, `None` when there is none.
+    pub fn take(&mut self) -> Result<Option<T>, IpcError> {
+        let sample = self
+            .subscriber
+            .receive()
+            .map_err(|e| IpcError::service(&self.service, "receive sample", e))?;
+        let Some(sample) = sample else {
+            return Ok(None);
+        };
+        let message: T = *sample.payload();
+        drop(sample);
+        if message.layout_version() != T::LAYOUT_VERSION {
+            return Err(IpcError::LayoutVersion {
+                service: self.service.clone(),
+                found: message.layout_version(),
+                expected: T::LAYOUT_VERSION,
+            });
+        }
+        if let Some(last) = self.last_sequence {
+            if message.sequence() > last + 1 {
+                self.missed += message.sequence() - last - 1;
+            }
+        }
+        self.last_sequence = Some(message.sequence());
+        Ok(Some(message))
+    }
+
+    /// Takes every waiting sample, oldest first, appending to `out`;
+    /// returns how many.
+    pub fn take_all(&mut self, out: &mut Vec<T>) -> Result<usize, IpcError> {
+        let before = out.len();
+        while let Some(message) = self.take()? {
+            out.push(message);
+        }
+        Ok(out.len() - before)
+    }
+
+    /// Takes every waiting sample and returns the newest (what a
+    /// controller wants when it lags).
+    pub fn take_newest(&mut self) -> Result<Option<T>, IpcError> {
+        let mut newest = None;
+        while let Some(message) = self.take()? {
+            newest = Some(message);
+        }
+        Ok(newest)
+    }
+
+    /// [`Self::wait`] then [`Self::take_newest`].
+    pub fn wait_newest(&mut self, timeout: Duration) -> Result<Option<T>, IpcError> {
+        if self.wait(timeout)? {
+            self.take_newest()
+        } else {
+            Ok(None)
+        }
+    }
+
+    /// Samples skipped between the ones taken (sequence gaps): samples
+    /// dropped because the buffer overflowed, or before this subscriber
+    /// connected after the first taken one.
+    pub fn missed(&self) -> u64 {
+        self.missed
+    }
+
+    /// The full service name.
+    pub fn service_name(&self) -> &str {
+        &self.service
+    }
+}

@@ -1,0 +1,111 @@
+//! `rigslam echo --json` against a publisher in this test process.
+
+use std::process::Command;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::thread;
+use std::time::Duration;
+
+use nalgebra::Isometry3;
+use rigslam::publish::{IpcConfig, PoseMessage, PosePublisher};
+use rigslam::relative::types::TrackingState;
+use rigslam::sensors::yei::device::host_monotonic_ns;
+
+#[test]
+fn echo_json_reports_the_samples_of_a_short_run() {
+    const COUNT: u64 = 50;
+    let root = tempfile::tempdir().expect("temp dir for the iceoryx2 root");
+    let config = IpcConfig {
+        service_prefix: format!("rigslam_echo_{}", std::process::id()),
+        root_path: Some(root.path().to_path_buf()),
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    let publisher = {
+        let config = config.clone();
+        let stop = Arc::clone(&stop);
+        thread::spawn(move || {
+            let mut publisher = PosePublisher::open(&config).expect("publisher");
+            let mut sent = 0u64;
+            // Publish at about 1 kHz until echo has exited (the pacing only
+            // keeps the CPU free; nothing below depends on it).
+            while !stop.load(Ordering::Relaxed) {
+                let msg = PoseMessage::new(
+                    host_monotonic_ns(),
+                    TrackingState::Tracking,
+                    &Isometry3::identity(),
+                );
+                publisher.publish(&msg).expect("publish");
+                sent += 1;
+                thread::sleep(Duration::from_millis(1));
+            }
+            sent
+        })
+    };
+    let output = Command::new(env!("CARGO_BIN_EXE_rigslam"))
+        .args(["echo", "--service"])
+        .arg(format!("{}/pose", config.service_prefix))
+        .args(["--count", &COUNT.to_string(), "--timeout-s", "30", "--json"])
+        .arg("--root-path")
+        .arg(root.path())
+        .output()
+        .expect("run rigslam echo");
+    stop.store(true, Ordering::Relaxed);
+    let sent = publisher.join().expect("publisher thread");
+    assert!(
+        output.status.success(),
+        "rigslam echo failed: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let stdout = String::from_utf8(output.stdout).expect("UTF-8 output");
+    let report: serde_json::Value = serde_json::from_str(stdout.trim()).expect("one JSON object");
+    assert_eq!(report["received"], COUNT);
+    assert!(sent >= COUNT, "echo received {COUNT} of {sent} sent");
+    assert_eq!(report["service"], format!("{}/pose", config.service_prefix));
+    let number = |key: &str| {
+        report[key]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{key} is not a number in {report}"))
+    };
+    let rate_hz = number("rate_hz");
+    assert!(rate_hz.is_finite() && rate_hz > 0.0, "rate_hz {rate_hz}");
+    let (p50, p99) = (number("latency_p50_us"), number("latency_p99_us"));
+    let (t50, t99) = (
+        number("transport_latency_p50_us"),
+        number("transport_latency_p99_us"),
+    );
+    assert!(t50 > 0.0 && t50 <= t99, "transport p50 {t50} p99 {t99}");
+    assert!(p50 <= p99, "latency p50 {p50} p99 {p99}");
+    // t_ns is stamped before publishing, so each sample's age is at least
+    // its transport time, and so are the percentiles.
+    assert!(
+        p50 >= t50 && p99 >= t99,
+        "latency {p50}/{p99} < transport {t50}/{t99}"
+    );
+    assert!(report["missed"].as_u64().is_some());
+}
+
+#[test]
+fn echo_names_the_service_when_nothing_comes() {
+    let root = tempfile::tempdir().expect("temp dir for the iceoryx2 root");
+    let service = format!("rigslam_quiet_{}/pose", std::process::id());
+    let output = Command::new(env!("CARGO_BIN_EXE_rigslam"))
+        .args([
+            "echo",
+            "--service",
+            &service,
+            "--timeout-s",
+            "0.2",
+            "--json",
+        ])
+        .arg("--root-path")
+        .arg(root.path())
+        .output()
+        .expect("run rigslam echo");
+    assert!(!output.status.success());
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        stderr.contains(&service) && stderr.contains("no sample"),
+        "{stderr}"
+    );
+    assert!(output.stdout.is_empty());
+}
