@@ -8,8 +8,12 @@
 //! intervals between them, and every frame leaves as a
 //! [`types::RelativeOutput`] for the publisher and the absolute stage.
 
+pub mod estimator;
 pub mod types;
 
+pub use estimator::{
+    FrameInput, FrameTimings, RelativeEstimator, RigError, RigModel, SensorMode,
+};
 pub use types::{
     BodyLandmark, KeyframeState, LandmarkId, Observation, RelativeOutput, TrackedFrame,
     TrackingState,

@@ -1,0 +1,207 @@
+//! The relative stage's face to the pipeline: IMU samples and frames go in
+//! in time order, one [`RelativeOutput`] per frame comes out. The window
+//! estimator (the paper's method) and the EKF baseline both implement
+//! [`RelativeEstimator`], so `rigslam run`, the daemon and the tests drive
+//! either through the same calls.
+
+use std::fmt;
+use std::str::FromStr;
+
+use crate::rig::{CameraCalibration, ImuCalibration};
+use crate::sensors::{Image, ImuSample};
+
+use super::types::RelativeOutput;
+
+/// Which sensors the stage uses (`rigslam run --mode`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SensorMode {
+    /// One camera, no IMU: the paper's configuration 1; scale arbitrary
+    /// (the first translation has unit length), evaluate with sim3.
+    Mono,
+    /// One camera and the IMU: the paper's configuration 2.
+    MonoInertial,
+    /// Both cameras of a stereo rig: metric depth from the first frame.
+    Stereo,
+    /// Both cameras and the IMU.
+    StereoInertial,
+}
+
+impl SensorMode {
+    pub const ALL: [SensorMode; 4] = [
+        SensorMode::Mono,
+        SensorMode::MonoInertial,
+        SensorMode::Stereo,
+        SensorMode::StereoInertial,
+    ];
+
+    pub fn uses_imu(self) -> bool {
+        matches!(self, SensorMode::MonoInertial | SensorMode::StereoInertial)
+    }
+
+    pub fn uses_stereo(self) -> bool {
+        matches!(self, SensorMode::Stereo | SensorMode::StereoInertial)
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            SensorMode::Mono => "mono",
+            SensorMode::MonoInertial => "mono-inertial",
+            SensorMode::Stereo => "stereo",
+            SensorMode::StereoInertial => "stereo-inertial",
+        }
+    }
+}
+
+impl fmt::Display for SensorMode {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for SensorMode {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        SensorMode::ALL
+            .into_iter()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| {
+                format!("unknown mode {s:?}: expected mono, mono-inertial, stereo or stereo-inertial")
+            })
+    }
+}
+
+/// The rig as the relative stage needs it: camera 0 (left), camera 1
+/// (right, stereo modes only) and the IMU (inertial modes only).
+#[derive(Debug, Clone, PartialEq)]
+pub struct RigModel {
+    pub cameras: Vec<CameraCalibration>,
+    pub imu: Option<ImuCalibration>,
+}
+
+/// Why a rig cannot serve a mode.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RigError {
+    #[error("mode {mode} needs {needed} camera(s), the rig has {have}")]
+    TooFewCameras {
+        mode: SensorMode,
+        needed: usize,
+        have: usize,
+    },
+    #[error("mode {mode} needs an IMU, the rig has none (imu0/ missing?)")]
+    NoImu { mode: SensorMode },
+}
+
+impl RigModel {
+    /// Checks that the rig has what `mode` needs.
+    pub fn check(&self, mode: SensorMode) -> Result<(), RigError> {
+        let needed = if mode.uses_stereo() { 2 } else { 1 };
+        if self.cameras.len() < needed {
+            return Err(RigError::TooFewCameras {
+                mode,
+                needed,
+                have: self.cameras.len(),
+            });
+        }
+        if mode.uses_imu() && self.imu.is_none() {
+            return Err(RigError::NoImu { mode });
+        }
+        Ok(())
+    }
+}
+
+/// One camera exposure of the rig: the left image and, in the stereo
+/// modes, the right one taken at the same instant.
+#[derive(Debug, Clone, Copy)]
+pub struct FrameInput<'a> {
+    pub t_ns: i64,
+    pub left: &'a Image,
+    pub right: Option<&'a Image>,
+}
+
+/// Milliseconds spent per named stage on the last frame (`"track"`,
+/// `"imu"`, `"window"`, ...). `rigslam run --report` aggregates them.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FrameTimings {
+    pub stages_ms: Vec<(&'static str, f64)>,
+}
+
+impl FrameTimings {
+    pub fn clear(&mut self) {
+        self.stages_ms.clear();
+    }
+
+    /// Adds `ms` to stage `name` (created on first use).
+    pub fn add(&mut self, name: &'static str, ms: f64) {
+        match self.stages_ms.iter_mut().find(|(n, _)| *n == name) {
+            Some((_, v)) => *v += ms,
+            None => self.stages_ms.push((name, ms)),
+        }
+    }
+
+    /// Runs `f`, adding its wall time to stage `name`.
+    pub fn time<T>(&mut self, name: &'static str, f: impl FnOnce() -> T) -> T {
+        let start = std::time::Instant::now();
+        let out = f();
+        self.add(name, start.elapsed().as_secs_f64() * 1e3);
+        out
+    }
+}
+
+/// Stage 1 as the pipeline drives it. Samples and frames arrive in time
+/// order as the sensors deliver them; an IMU sample stamped after a frame
+/// may arrive before that frame. Bad input (non-finite samples, stamps
+/// going back, black frames) is dropped and counted, never a panic.
+pub trait RelativeEstimator {
+    /// One IMU sample (ignored in the vision-only modes).
+    fn push_imu(&mut self, sample: &ImuSample);
+
+    /// One frame; the answer for it. Call after pushing the IMU samples up
+    /// to (and preferably one past) the frame's stamp.
+    fn push_frame(&mut self, frame: &FrameInput<'_>) -> RelativeOutput;
+
+    /// Where the time of the last `push_frame` went.
+    fn last_timings(&self) -> &FrameTimings;
+
+    /// Counters for the run report (dropped samples, lost events, ...).
+    fn counters(&self) -> Vec<(&'static str, u64)>;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn modes_round_trip_through_their_names() {
+        for m in SensorMode::ALL {
+            assert_eq!(m.name().parse::<SensorMode>(), Ok(m));
+        }
+        let err = "stereo_inertial".parse::<SensorMode>().unwrap_err();
+        assert!(err.contains("stereo-inertial"), "{err}");
+    }
+
+    #[test]
+    fn rig_check_names_what_is_missing() {
+        let rig = RigModel {
+            cameras: vec![],
+            imu: None,
+        };
+        assert_eq!(
+            rig.check(SensorMode::Stereo),
+            Err(RigError::TooFewCameras {
+                mode: SensorMode::Stereo,
+                needed: 2,
+                have: 0
+            })
+        );
+    }
+
+    #[test]
+    fn timings_add_up_per_stage() {
+        let mut t = FrameTimings::default();
+        t.add("track", 1.0);
+        t.add("window", 2.0);
+        t.add("track", 0.5);
+        assert_eq!(t.stages_ms, vec![("track", 1.5), ("window", 2.0)]);
+    }
+}
