@@ -20,6 +20,7 @@ pub mod publish;
 pub mod recording;
 pub mod relative;
 pub mod rig;
+pub mod run;
 pub mod shared_data;
 pub mod simulate;
 pub mod trajectory;

@@ -22,3 +22,19 @@ pub fn shared_data_dir() -> Option<PathBuf> {
     eprintln!("skipping: {} is missing", dir.display());
     None
 }
+
+/// `relative` inside [`shared_data_dir`], when the folder and it exist
+/// (same CI rule: a missing folder fails there instead of skipping).
+pub fn path_or_skip(relative: &str) -> Option<PathBuf> {
+    let path = shared_data_dir()?.join(relative);
+    if path.exists() {
+        return Some(path);
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "CI is set but {} is missing",
+        path.display()
+    );
+    eprintln!("skipping: {} is missing", path.display());
+    None
+}

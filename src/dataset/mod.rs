@@ -7,6 +7,7 @@ pub mod euroc;
 pub mod groundtruth;
 pub mod image_file;
 pub mod kitti;
+pub mod stream;
 pub mod text;
 pub mod tum;
 
@@ -22,4 +23,5 @@ pub use groundtruth::{
 };
 pub use image_file::{read_png, write_png};
 pub use kitti::{read_kitti_poses, KittiSequence};
+pub use stream::{SensorEvent, SensorStream, StreamCounts, StreamOptions};
 pub use tum::{read_tum, write_tum};

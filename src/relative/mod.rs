@@ -8,9 +8,12 @@
 //! intervals between them, and every frame leaves as a
 //! [`types::RelativeOutput`] for the publisher and the absolute stage.
 
+pub mod config;
 pub mod estimator;
+pub mod imu_buffer;
 pub mod types;
 
+pub use config::{ConfigError, EstimatorKind, RelativeConfig};
 pub use estimator::{
     FrameInput, FrameTimings, RelativeEstimator, RigError, RigModel, SensorMode,
 };

@@ -1,0 +1,289 @@
+//! A recorded sequence as the sensors would have delivered it: IMU samples
+//! and (stereo) frames merged into one time-ordered stream, images decoded
+//! one at a time as the stream reaches them. `rigslam run` and the
+//! daemon's replay source read datasets through this.
+
+use crate::sensors::{Frame, ImuSample};
+
+use super::detect::Dataset;
+use super::error::DatasetError;
+use super::euroc::{EurocCamera, ImageEntry};
+
+/// One thing a rig delivers.
+#[derive(Debug, Clone)]
+pub enum SensorEvent {
+    Imu(ImuSample),
+    /// An exposure: the left image and, when stereo was asked for and the
+    /// right image exists, the right one with the same stamp.
+    Frame {
+        t_ns: i64,
+        left: Frame,
+        right: Option<Frame>,
+    },
+}
+
+/// What the stream left out, for the run report.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct StreamCounts {
+    pub frames: u64,
+    pub imu_samples: u64,
+    /// Listed left stamps whose image file is absent.
+    pub frames_missing_image: u64,
+    /// Stereo frames whose right image is absent (sent as left only).
+    pub frames_missing_right: u64,
+}
+
+/// Merges a dataset's frames and IMU samples in time order. Before each
+/// frame it delivers every IMU sample up to the frame's stamp and the first
+/// one after it, so that the interval ending at the frame can be
+/// integrated right away.
+pub struct SensorStream<'a> {
+    left: &'a [ImageEntry],
+    load_left: Box<dyn Fn(usize) -> Result<Option<Frame>, DatasetError> + 'a>,
+    right: Option<&'a EurocCamera>,
+    imu: &'a [ImuSample],
+    next_frame: usize,
+    next_imu: usize,
+    /// Index into `right.frames` where the search for the next stamp starts.
+    right_cursor: usize,
+    /// Stop after this many frames.
+    max_frames: usize,
+    counts: StreamCounts,
+}
+
+/// How to read a dataset.
+#[derive(Debug, Clone, Copy)]
+pub struct StreamOptions {
+    /// Deliver cam1 with cam0 (EuRoC only).
+    pub stereo: bool,
+    /// Deliver the IMU samples.
+    pub imu: bool,
+    /// Skip frames before this stamp (and IMU samples before the first
+    /// delivered frame's previous 1 s).
+    pub start_ns: Option<i64>,
+    pub max_frames: Option<usize>,
+}
+
+impl<'a> SensorStream<'a> {
+    /// The stream of `dataset`; errors when it lacks what `options` ask for.
+    pub fn new(dataset: &'a Dataset, options: StreamOptions) -> Result<Self, DatasetError> {
+        let (left, load_left, right, imu): (
+            &'a [ImageEntry],
+            Box<dyn Fn(usize) -> Result<Option<Frame>, DatasetError> + 'a>,
+            Option<&'a EurocCamera>,
+            &'a [ImuSample],
+        ) = match dataset {
+            Dataset::Euroc(d) => {
+                let cam0 = d.cameras.first().ok_or_else(|| {
+                    DatasetError::layout(&d.root, "has no camera folder (cam0/)")
+                })?;
+                let right = if options.stereo {
+                    Some(d.cameras.get(1).ok_or_else(|| {
+                        DatasetError::layout(
+                            &d.root,
+                            "has no cam1/: a stereo mode needs both cameras",
+                        )
+                    })?)
+                } else {
+                    None
+                };
+                let imu: &[ImuSample] = if options.imu {
+                    &d.imu
+                        .as_ref()
+                        .ok_or_else(|| {
+                            DatasetError::layout(
+                                &d.root,
+                                "has no imu0/: an inertial mode needs the IMU",
+                            )
+                        })?
+                        .samples
+                } else {
+                    &[]
+                };
+                (&cam0.frames, Box::new(move |i| cam0.load(i)), right, imu)
+            }
+            Dataset::Kitti(k) => {
+                if options.stereo || options.imu {
+                    return Err(DatasetError::layout(
+                        &k.root,
+                        "is a KITTI odometry sequence: mono images only (use --mode mono)",
+                    ));
+                }
+                (&k.frames, Box::new(move |i| k.load(i)), None, &[])
+            }
+        };
+        let next_frame = options
+            .start_ns
+            .map_or(0, |t| left.partition_point(|e| e.t_ns < t));
+        let first_frame_ns = left.get(next_frame).map_or(i64::MAX, |e| e.t_ns);
+        let next_imu = imu.partition_point(|s| s.t_ns < first_frame_ns - 1_000_000_000);
+        Ok(Self {
+            left,
+            load_left,
+            right,
+            imu,
+            next_frame,
+            next_imu,
+            right_cursor: 0,
+            max_frames: options.max_frames.unwrap_or(usize::MAX),
+            counts: StreamCounts::default(),
+        })
+    }
+
+    /// Frames the stream will deliver at most (listed left stamps).
+    pub fn frames_listed(&self) -> usize {
+        (self.left.len() - self.next_frame.min(self.left.len())).min(self.max_frames)
+    }
+
+    pub fn counts(&self) -> StreamCounts {
+        self.counts
+    }
+
+    fn right_for(&mut self, t_ns: i64) -> Result<Option<Frame>, DatasetError> {
+        let Some(cam) = self.right else {
+            return Ok(None);
+        };
+        let start = self.right_cursor.min(cam.frames.len());
+        let offset = cam.frames[start..].partition_point(|e| e.t_ns < t_ns);
+        let index = start + offset;
+        self.right_cursor = index;
+        match cam.frames.get(index) {
+            Some(e) if e.t_ns == t_ns => cam.load(index),
+            _ => Ok(None),
+        }
+    }
+}
+
+impl Iterator for SensorStream<'_> {
+    type Item = Result<SensorEvent, DatasetError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        loop {
+            let frame_ns = if (self.counts.frames as usize) < self.max_frames {
+                self.left.get(self.next_frame).map(|e| e.t_ns)
+            } else {
+                None
+            };
+            // IMU up to the frame and one past it (or the rest when the
+            // frames are exhausted and the run is not capped).
+            if let Some(sample) = self.imu.get(self.next_imu) {
+                let previous_ns = self
+                    .next_imu
+                    .checked_sub(1)
+                    .and_then(|i| self.imu.get(i))
+                    .map(|s| s.t_ns);
+                let wanted = match frame_ns {
+                    Some(f) => sample.t_ns <= f || previous_ns.map_or(true, |p| p <= f),
+                    None => false,
+                };
+                if wanted {
+                    self.next_imu += 1;
+                    self.counts.imu_samples += 1;
+                    return Some(Ok(SensorEvent::Imu(*sample)));
+                }
+            }
+            let t_ns = frame_ns?;
+            let index = self.next_frame;
+            self.next_frame += 1;
+            let left = match (self.load_left)(index) {
+                Ok(Some(frame)) => frame,
+                Ok(None) => {
+                    self.counts.frames_missing_image += 1;
+                    continue;
+                }
+                Err(e) => return Some(Err(e)),
+            };
+            let right = match self.right_for(t_ns) {
+                Ok(r) => r,
+                Err(e) => return Some(Err(e)),
+            };
+            if self.right.is_some() && right.is_none() {
+                self.counts.frames_missing_right += 1;
+            }
+            self.counts.frames += 1;
+            return Some(Ok(SensorEvent::Frame { t_ns, left, right }));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::shared_data;
+
+    #[test]
+    fn euroc_stream_is_time_ordered_with_one_sample_past_each_frame() {
+        let Some(root) = shared_data::path_or_skip("euroc/V1_01_micro") else {
+            return;
+        };
+        let dataset = crate::dataset::open_dataset(&root).expect("open V1_01_micro");
+        let stream = SensorStream::new(
+            &dataset,
+            StreamOptions {
+                stereo: true,
+                imu: true,
+                start_ns: None,
+                max_frames: Some(20),
+            },
+        )
+        .expect("stream");
+        let mut last_imu_ns = i64::MIN;
+        let mut last_frame_ns = i64::MIN;
+        let mut frames = 0;
+        let mut stereo = 0;
+        for event in stream {
+            match event.expect("event") {
+                SensorEvent::Imu(s) => {
+                    assert!(s.t_ns > last_imu_ns);
+                    last_imu_ns = s.t_ns;
+                }
+                SensorEvent::Frame { t_ns, right, .. } => {
+                    assert!(t_ns > last_frame_ns);
+                    // The sample after the frame has arrived already.
+                    assert!(last_imu_ns > t_ns, "{last_imu_ns} <= {t_ns}");
+                    assert!(last_imu_ns - t_ns <= 5_000_000 + 1_000);
+                    last_frame_ns = t_ns;
+                    frames += 1;
+                    if let Some(r) = right {
+                        assert_eq!(r.t_ns, t_ns);
+                        assert_eq!(r.camera_index, 1);
+                        stereo += 1;
+                    }
+                }
+            }
+        }
+        assert_eq!(frames, 20);
+        assert!(stereo >= 19, "{stereo}");
+    }
+
+    #[test]
+    fn kitti_refuses_stereo_and_imu() {
+        let Some(root) = shared_data::path_or_skip("kitti/seq_a") else {
+            return;
+        };
+        let dataset = crate::dataset::open_dataset(&root).expect("open seq_a");
+        let err = SensorStream::new(
+            &dataset,
+            StreamOptions {
+                stereo: false,
+                imu: true,
+                start_ns: None,
+                max_frames: None,
+            },
+        )
+        .err()
+        .expect("refused");
+        assert!(err.to_string().contains("mono"), "{err}");
+        let stream = SensorStream::new(
+            &dataset,
+            StreamOptions {
+                stereo: false,
+                imu: false,
+                start_ns: None,
+                max_frames: None,
+            },
+        )
+        .expect("mono stream");
+        assert_eq!(stream.count(), 51);
+    }
+}

@@ -1,0 +1,195 @@
+//! The relative stage's settings as a user writes them (`rigslam run
+//! --config FILE`, the daemon's `[slam]` table): TOML with defaults for
+//! every key, checked once into the typed configs of the parts.
+
+use std::path::Path;
+
+/// Which estimator runs the relative stage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum EstimatorKind {
+    /// The paper's windowed Levenberg-Marquardt optimisation.
+    Window,
+}
+
+impl EstimatorKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            EstimatorKind::Window => "window",
+        }
+    }
+}
+
+/// Settings of the relative stage. Every key has a default; unknown keys
+/// are refused so that a typo does not silently keep the default.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RelativeConfig {
+    /// Features kept in the left image.
+    pub features: usize,
+    /// Keyframes kept in the window (L).
+    pub window_keyframes: usize,
+    /// Newest keyframes optimised (M); the oldest L-M are held fixed.
+    pub window_free: usize,
+    /// Standard deviation of a feature position, px (the paper: 1 px).
+    pub pixel_sigma_px: f64,
+    /// Keyframes needed (and the time they must span, s) before the
+    /// visual-inertial alignment is tried in the inertial modes.
+    pub init_keyframes: usize,
+    pub init_min_span_s: f64,
+    /// Largest relative standard deviation of the scale at which the
+    /// mono-inertial stage switches from initialisation to hybrid.
+    pub init_max_scale_rel_std: f64,
+    /// Consecutive frames without a usable pose before tracking is lost.
+    pub lost_after_frames: usize,
+    /// After a loss, how long the IMU alone may carry the state before a
+    /// full re-initialisation is needed, s.
+    pub imu_only_max_s: f64,
+}
+
+impl Default for RelativeConfig {
+    fn default() -> Self {
+        Self {
+            features: 150,
+            window_keyframes: 10,
+            window_free: 7,
+            pixel_sigma_px: 1.0,
+            init_keyframes: 6,
+            init_min_span_s: 1.0,
+            init_max_scale_rel_std: 0.02,
+            lost_after_frames: 3,
+            imu_only_max_s: 1.0,
+        }
+    }
+}
+
+/// A setting out of range, with its key.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ConfigError {
+    #[error("reading {path}: {message}")]
+    Read { path: String, message: String },
+    #[error("{path}: {message}")]
+    Parse { path: String, message: String },
+    #[error("{key} = {value} is out of range: {allowed}")]
+    OutOfRange {
+        key: &'static str,
+        value: String,
+        allowed: &'static str,
+    },
+}
+
+impl RelativeConfig {
+    pub fn from_toml_file(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
+            path: path.display().to_string(),
+            message: e.to_string(),
+        })?;
+        let config: Self = toml::from_str(&text).map_err(|e| ConfigError::Parse {
+            path: path.display().to_string(),
+            message: e.to_string(),
+        })?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    pub fn to_toml(&self) -> Result<String, ConfigError> {
+        toml::to_string(self).map_err(|e| ConfigError::Parse {
+            path: "(defaults)".into(),
+            message: e.to_string(),
+        })
+    }
+
+    /// Checks every value against its allowed range.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let range = |key, ok: bool, value: String, allowed| {
+            if ok {
+                Ok(())
+            } else {
+                Err(ConfigError::OutOfRange {
+                    key,
+                    value,
+                    allowed,
+                })
+            }
+        };
+        range(
+            "features",
+            (20..=2000).contains(&self.features),
+            self.features.to_string(),
+            "20 to 2000",
+        )?;
+        range(
+            "window_keyframes",
+            (3..=50).contains(&self.window_keyframes),
+            self.window_keyframes.to_string(),
+            "3 to 50",
+        )?;
+        range(
+            "window_free",
+            self.window_free >= 1 && self.window_free < self.window_keyframes,
+            self.window_free.to_string(),
+            "1 to window_keyframes - 1",
+        )?;
+        range(
+            "pixel_sigma_px",
+            self.pixel_sigma_px.is_finite() && self.pixel_sigma_px > 0.0,
+            self.pixel_sigma_px.to_string(),
+            "a positive number",
+        )?;
+        range(
+            "init_keyframes",
+            (3..=self.window_keyframes).contains(&self.init_keyframes),
+            self.init_keyframes.to_string(),
+            "3 to window_keyframes",
+        )?;
+        range(
+            "init_min_span_s",
+            self.init_min_span_s.is_finite() && self.init_min_span_s >= 0.0,
+            self.init_min_span_s.to_string(),
+            "a number >= 0",
+        )?;
+        range(
+            "init_max_scale_rel_std",
+            self.init_max_scale_rel_std > 0.0 && self.init_max_scale_rel_std < 1.0,
+            self.init_max_scale_rel_std.to_string(),
+            "between 0 and 1",
+        )?;
+        range(
+            "lost_after_frames",
+            (1..=100).contains(&self.lost_after_frames),
+            self.lost_after_frames.to_string(),
+            "1 to 100",
+        )?;
+        range(
+            "imu_only_max_s",
+            self.imu_only_max_s.is_finite() && self.imu_only_max_s >= 0.0,
+            self.imu_only_max_s.to_string(),
+            "a number >= 0",
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_round_trip_through_toml() {
+        let text = RelativeConfig::default().to_toml().expect("toml");
+        let back: RelativeConfig = toml::from_str(&text).expect("parse");
+        assert_eq!(back, RelativeConfig::default());
+        back.validate().expect("defaults are valid");
+    }
+
+    #[test]
+    fn bad_values_and_typos_name_their_key() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("bad.toml");
+        std::fs::write(&path, "window_keyframes = 10\nwindow_free = 12\n").expect("write");
+        let err = RelativeConfig::from_toml_file(&path).unwrap_err().to_string();
+        assert!(err.contains("window_free") && err.contains("1 to"), "{err}");
+        std::fs::write(&path, "featurs = 100\n").expect("write");
+        let err = RelativeConfig::from_toml_file(&path).unwrap_err().to_string();
+        assert!(err.contains("featurs"), "{err}");
+    }
+}

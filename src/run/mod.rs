@@ -1,0 +1,161 @@
+//! A recorded sequence through the relative stage, frame by frame, as fast
+//! as it goes or paced by its stamps: what `rigslam run` does. The
+//! estimator sees exactly what it would see live (the merged stream of
+//! [`crate::dataset::stream`]); this module only times it, keeps the
+//! poses and counts what happened.
+
+pub mod report;
+
+use std::collections::BTreeMap;
+use std::time::{Duration, Instant};
+
+use nalgebra::Isometry3;
+
+use crate::dataset::{DatasetError, SensorEvent, SensorStream};
+use crate::relative::{FrameInput, RelativeEstimator, RelativeOutput, TrackingState};
+use crate::trajectory::{StampedPose, Trajectory};
+
+pub use report::{resident_memory_mib, RunReport, TimingStats};
+
+/// How to run.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct RunOptions {
+    /// Sleep so that frames are handed over at their recorded pace.
+    pub realtime: bool,
+}
+
+/// What a run produced, before it is written anywhere.
+#[derive(Debug, Clone, Default)]
+pub struct RunOutcome {
+    /// One pose per frame with a usable estimate (tracking, or the mono
+    /// modes' consistently scaled initial poses).
+    pub trajectory: Trajectory,
+    /// Wall time per frame: the frame's own call plus the IMU samples
+    /// delivered since the previous frame, ms.
+    pub frame_ms: Vec<f64>,
+    pub stage_ms: BTreeMap<&'static str, Vec<f64>>,
+    pub first_frame_ns: Option<i64>,
+    pub last_frame_ns: Option<i64>,
+    pub initialized_at_ns: Option<i64>,
+    pub lost_count: u64,
+    pub lost_frames: u64,
+    pub wall_s: f64,
+    pub rss_at_10pct_mib: Option<f64>,
+    /// The estimator's last answer (final biases, state).
+    pub last_output: Option<RelativeOutput>,
+}
+
+/// Feeds `stream` to `estimator`; `on_frame` sees every output (progress
+/// bars, live plots, the absolute stage). A dataset error (a corrupt
+/// image) stops the run with that error; the estimator's own troubles are
+/// in its outputs.
+pub fn run_stream(
+    stream: &mut SensorStream<'_>,
+    estimator: &mut dyn RelativeEstimator,
+    options: RunOptions,
+    mut on_frame: impl FnMut(&RelativeOutput),
+) -> Result<RunOutcome, DatasetError> {
+    let mut out = RunOutcome::default();
+    let listed = stream.frames_listed().max(1);
+    let start = Instant::now();
+    let mut imu_ms = 0.0;
+    let mut poses = Vec::new();
+    let mut was_tracking = false;
+    for event in stream.by_ref() {
+        match event? {
+            SensorEvent::Imu(sample) => {
+                pace(options, &out, start, sample.t_ns);
+                let t = Instant::now();
+                estimator.push_imu(&sample);
+                imu_ms += t.elapsed().as_secs_f64() * 1e3;
+            }
+            SensorEvent::Frame { t_ns, left, right } => {
+                out.first_frame_ns.get_or_insert(t_ns);
+                pace(options, &out, start, t_ns);
+                let input = FrameInput {
+                    t_ns,
+                    left: &left.image,
+                    right: right.as_ref().map(|r| &r.image),
+                };
+                let t = Instant::now();
+                let output = estimator.push_frame(&input);
+                let frame_ms = t.elapsed().as_secs_f64() * 1e3 + imu_ms;
+                out.frame_ms.push(frame_ms);
+                out.stage_ms.entry("imu_push").or_default().push(imu_ms);
+                imu_ms = 0.0;
+                for &(name, ms) in &estimator.last_timings().stages_ms {
+                    out.stage_ms.entry(name).or_default().push(ms);
+                }
+                out.last_frame_ns = Some(t_ns);
+                match output.state {
+                    TrackingState::Tracking => {
+                        out.initialized_at_ns.get_or_insert(t_ns);
+                        was_tracking = true;
+                    }
+                    TrackingState::Lost => {
+                        out.lost_frames += 1;
+                        if was_tracking {
+                            out.lost_count += 1;
+                        }
+                        was_tracking = false;
+                    }
+                    TrackingState::Initializing => was_tracking = false,
+                }
+                if output.state == TrackingState::Tracking && is_finite(&output.T_world_body) {
+                    poses.push(StampedPose::new(
+                        t_ns,
+                        output.T_world_body.translation.vector,
+                        output.T_world_body.rotation,
+                    ));
+                }
+                if out.frame_ms.len() == listed.div_ceil(10) {
+                    out.rss_at_10pct_mib = resident_memory_mib().0;
+                }
+                on_frame(&output);
+                out.last_output = Some(output);
+            }
+        }
+    }
+    out.wall_s = start.elapsed().as_secs_f64();
+    out.trajectory = Trajectory::new(poses);
+    Ok(out)
+}
+
+fn is_finite(t: &Isometry3<f64>) -> bool {
+    t.translation.vector.iter().all(|v| v.is_finite())
+        && t.rotation.coords.iter().all(|v| v.is_finite())
+}
+
+/// Sleeps until `t_ns` is due, counting from the first frame's stamp.
+fn pace(options: RunOptions, out: &RunOutcome, start: Instant, t_ns: i64) {
+    if !options.realtime {
+        return;
+    }
+    let Some(first) = out.first_frame_ns else {
+        return;
+    };
+    let due = Duration::from_nanos(t_ns.saturating_sub(first).max(0) as u64);
+    if let Some(wait) = due.checked_sub(start.elapsed()) {
+        std::thread::sleep(wait);
+    }
+}
+
+impl RunOutcome {
+    /// The report's timing and count fields (the caller adds dataset,
+    /// mode, stream counts and accuracy).
+    pub fn timing_report(&self) -> (Option<TimingStats>, BTreeMap<String, TimingStats>) {
+        let stages = self
+            .stage_ms
+            .iter()
+            .filter_map(|(name, v)| TimingStats::of(v).map(|s| (name.to_string(), s)))
+            .collect();
+        (TimingStats::of(&self.frame_ms), stages)
+    }
+
+    pub fn sequence_s(&self) -> f64 {
+        match (self.first_frame_ns, self.last_frame_ns) {
+            (Some(a), Some(b)) => (b - a) as f64 * 1e-9,
+            _ => 0.0,
+        }
+    }
+}

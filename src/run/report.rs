@@ -1,0 +1,125 @@
+//! The numbers of one `rigslam run`: per-frame and per-stage timings
+//! (mean, p50, p99), counts, and the accuracy when ground truth is known.
+//! Written by `--report FILE` and `--json` with the keys of DESIGN.md.
+
+use std::collections::BTreeMap;
+
+use crate::dataset::StreamCounts;
+use crate::eval::EvalReport;
+
+/// Mean, median and 99th percentile of a set of durations, ms.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct TimingStats {
+    pub mean_ms: f64,
+    pub p50_ms: f64,
+    pub p99_ms: f64,
+    pub max_ms: f64,
+    /// How many frames the stage ran on.
+    pub count: usize,
+}
+
+impl TimingStats {
+    /// Stats of `samples_ms`; `None` when empty. Percentiles by the
+    /// nearest-rank rule (p99 of 100 samples is the 99th smallest).
+    pub fn of(samples_ms: &[f64]) -> Option<Self> {
+        if samples_ms.is_empty() {
+            return None;
+        }
+        let mut sorted = samples_ms.to_vec();
+        sorted.sort_by(f64::total_cmp);
+        let rank = |p: f64| {
+            let k = (p * sorted.len() as f64).ceil() as usize;
+            sorted[k.clamp(1, sorted.len()) - 1]
+        };
+        Some(Self {
+            mean_ms: sorted.iter().sum::<f64>() / sorted.len() as f64,
+            p50_ms: rank(0.5),
+            p99_ms: rank(0.99),
+            max_ms: sorted[sorted.len() - 1],
+            count: sorted.len(),
+        })
+    }
+}
+
+/// `rigslam run --report FILE` (and `--json`).
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct RunReport {
+    pub dataset: String,
+    pub mode: String,
+    pub estimator: String,
+    pub frames: u64,
+    pub imu_samples: u64,
+    pub wall_s: f64,
+    /// Sequence time covered by the frames, s.
+    pub sequence_s: f64,
+    /// Sequence time over wall time.
+    pub realtime_factor: f64,
+    pub mean_ms_per_frame: f64,
+    pub p50_ms_per_frame: f64,
+    pub p99_ms_per_frame: f64,
+    pub max_ms_per_frame: f64,
+    pub stages: BTreeMap<String, TimingStats>,
+    /// Sequence time of the first frame with a metric (or, in `mono`,
+    /// consistently scaled) pose, s from the first frame; `null` if never.
+    pub initialized_at_s: Option<f64>,
+    /// Frames on which tracking was lost after having been initialised.
+    pub lost_count: u64,
+    /// Frames reported lost (including consecutive ones).
+    pub lost_frames: u64,
+    pub poses_written: usize,
+    pub stream: StreamCounts,
+    /// The estimator's own counters (drops, resets, keyframes, ...).
+    pub counters: BTreeMap<String, u64>,
+    /// Peak resident memory of the process, MiB (Linux VmHWM).
+    pub peak_rss_mib: Option<f64>,
+    /// Resident memory at 10 % and at the end of the run, MiB: flat memory
+    /// shows as two close numbers.
+    pub rss_at_10pct_mib: Option<f64>,
+    pub rss_at_end_mib: Option<f64>,
+    /// Against the dataset's ground truth, when it has one.
+    pub eval: Option<EvalReport>,
+}
+
+/// The process's resident memory now and at its peak, MiB, from
+/// `/proc/self/status` (`None` off Linux).
+pub fn resident_memory_mib() -> (Option<f64>, Option<f64>) {
+    let Ok(status) = std::fs::read_to_string("/proc/self/status") else {
+        return (None, None);
+    };
+    let field = |name: &str| {
+        status
+            .lines()
+            .find(|l| l.starts_with(name))
+            .and_then(|l| l.split_whitespace().nth(1))
+            .and_then(|kib| kib.parse::<f64>().ok())
+            .map(|kib| kib / 1024.0)
+    };
+    (field("VmRSS:"), field("VmHWM:"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn percentiles_follow_the_nearest_rank_rule() {
+        let samples: Vec<f64> = (1..=100).map(f64::from).collect();
+        let s = TimingStats::of(&samples).expect("stats");
+        assert_eq!(s.p50_ms, 50.0);
+        assert_eq!(s.p99_ms, 99.0);
+        assert_eq!(s.max_ms, 100.0);
+        assert!((s.mean_ms - 50.5).abs() < 1e-12);
+        let one = TimingStats::of(&[3.0]).expect("stats");
+        assert_eq!((one.p50_ms, one.p99_ms), (3.0, 3.0));
+        assert!(TimingStats::of(&[]).is_none());
+    }
+
+    #[test]
+    fn memory_is_read_on_linux() {
+        let (now, peak) = resident_memory_mib();
+        if cfg!(target_os = "linux") {
+            let (now, peak) = (now.expect("VmRSS"), peak.expect("VmHWM"));
+            assert!(now > 0.0 && peak >= now, "{now} {peak}");
+        }
+    }
+}
