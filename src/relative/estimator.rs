@@ -13,7 +13,9 @@ use crate::sensors::{Image, ImuSample};
 use super::types::RelativeOutput;
 
 /// Which sensors the stage uses (`rigslam run --mode`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize, clap::ValueEnum,
+)]
 #[serde(rename_all = "kebab-case")]
 pub enum SensorMode {
     /// One camera, no IMU: the paper's configuration 1; scale arbitrary

@@ -86,6 +86,12 @@ impl ImuBuffer {
         Some(Rotation3::from_matrix_unchecked(pre.delta_R))
     }
 
+    /// The samples and the preintegrator together, for callers that
+    /// integrate several intervals themselves (the alignment).
+    pub fn parts(&mut self) -> (&[ImuSample], &mut Preintegrator) {
+        (self.stream.samples(), &mut self.preintegrator)
+    }
+
     /// Samples with stamps in `[t_start_ns, t_end_ns]`.
     pub fn between(&self, t_start_ns: i64, t_end_ns: i64) -> &[ImuSample] {
         let s = self.stream.samples();

@@ -11,6 +11,7 @@
 pub mod config;
 pub mod estimator;
 pub mod imu_buffer;
+pub mod tracker;
 pub mod types;
 
 pub use config::{ConfigError, EstimatorKind, RelativeConfig};

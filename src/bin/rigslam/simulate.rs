@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
+use rigslam::rig::ImuNoise;
 use rigslam::simulate::{simulate, ImuSource, SimConfig};
 
 #[derive(clap::Args)]
@@ -28,14 +29,37 @@ pub struct SimulateArgs {
     #[arg(long, default_value_t = 0)]
     seed: u64,
     /// Synthesise ideal IMU samples (no white noise, no bias walk).
-    #[arg(long)]
+    #[arg(long, conflicts_with = "imu_noise")]
     ideal_imu: bool,
+    /// Noise of the synthetic IMU: `euroc` (the ADIS16448 of EuRoC) or
+    /// `yei` (the paper's YEI 3-Space levels: 0.08 m/s^2 and 0.8 deg/s
+    /// standard deviation per sample at the IMU rate, EuRoC's bias walks).
+    /// Written to imu0/sensor.yaml as continuous-time densities.
+    #[arg(long, value_enum, default_value_t = NoiseLevel::Euroc)]
+    imu_noise: NoiseLevel,
     /// No progress bar.
     #[arg(long)]
     no_progress: bool,
     /// Print the report as one JSON object on stdout.
     #[arg(long)]
     json: bool,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum NoiseLevel {
+    Euroc,
+    Yei,
+}
+
+/// The paper's YEI 3-Space noise as continuous densities for samples
+/// `1 / rate_hz` apart: a per-sample sigma `s` is a density `s * sqrt(dt)`.
+fn yei_noise(rate_hz: f64) -> ImuNoise {
+    let root_dt = (1.0 / rate_hz).sqrt();
+    ImuNoise {
+        accelerometer_noise_density: 0.08 * root_dt,
+        gyroscope_noise_density: 0.8f64.to_radians() * root_dt,
+        ..ImuNoise::EUROC_ADIS16448
+    }
 }
 
 fn parse_imu(s: &str) -> Result<ImuSource, String> {
@@ -55,10 +79,10 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         imu: args.imu,
         stereo: args.stereo,
         seed: args.seed,
-        imu_noise: if args.ideal_imu {
-            None
-        } else {
-            SimConfig::default().imu_noise
+        imu_noise: match (args.ideal_imu, args.imu_noise) {
+            (true, _) => None,
+            (false, NoiseLevel::Euroc) => SimConfig::default().imu_noise,
+            (false, NoiseLevel::Yei) => Some(yei_noise(SimConfig::default().imu_rate_hz)),
         },
         show_progress: !args.no_progress && !args.json,
         ..SimConfig::default()
