@@ -10,6 +10,7 @@
 
 pub mod estimator;
 pub mod types;
+pub mod window;
 
 pub use estimator::{
     FrameInput, FrameTimings, RelativeEstimator, RigError, RigModel, SensorMode,

@@ -1,0 +1,108 @@
+//! The prior of eq. 34 on the oldest free keyframe's velocity and on
+//! gravity, and (vision-only monocular start) the anchor that holds the
+//! distance between the first two keyframes.
+//!
+//! Update rule: after each optimisation the marginal covariance of the
+//! gravity direction and of every free velocity is read from the inverse
+//! of the reduced (Schur) system. The next solve puts a prior on the
+//! then oldest free velocity and on gravity with `prior_weight` times
+//! that marginal information, centred on the estimate. The marginal
+//! counts measurements that are still in the window; with the default
+//! weight 1/2 the gravity prior's information converges to the window's
+//! own (a geometric series), so they are counted at most twice.
+
+use nalgebra::{Matrix2, Matrix3, Matrix3x2, RowVector3, Vector2, Vector3};
+
+use super::inertial::tangent_basis;
+use crate::imu::so3::hat;
+
+/// Upper factor `U` with `U^T U = weight * cov^-1`.
+pub(crate) fn sqrt_information3(cov: &Matrix3<f64>, weight: f64) -> Option<Matrix3<f64>> {
+    let sym = (cov + cov.transpose()) * 0.5;
+    let info = sym.cholesky()?.inverse() * weight;
+    let u = info.cholesky()?.l().transpose();
+    u.iter().all(|v| v.is_finite()).then_some(u)
+}
+
+pub(crate) fn sqrt_information2(cov: &Matrix2<f64>, weight: f64) -> Option<Matrix2<f64>> {
+    let sym = (cov + cov.transpose()) * 0.5;
+    let info = sym.cholesky()?.inverse() * weight;
+    let u = info.cholesky()?.l().transpose();
+    u.iter().all(|v| v.is_finite()).then_some(u)
+}
+
+/// Prior on one keyframe's velocity.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct VelocityPrior {
+    pub seq: u64,
+    pub mean_m_s: Vector3<f64>,
+    pub sqrt_info: Matrix3<f64>,
+}
+
+impl VelocityPrior {
+    pub fn isotropic(seq: u64, mean_m_s: Vector3<f64>, sigma_m_s: f64) -> Self {
+        Self {
+            seq,
+            mean_m_s,
+            sqrt_info: Matrix3::identity() / sigma_m_s,
+        }
+    }
+
+    /// Whitened residual and its Jacobian with respect to `dv`.
+    pub fn factor(&self, v: &Vector3<f64>) -> (Vector3<f64>, Matrix3<f64>) {
+        (self.sqrt_info * (v - self.mean_m_s), self.sqrt_info)
+    }
+}
+
+/// Prior on the gravity direction, in the tangent plane of its mean.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct GravityPrior {
+    pub mean_dir: Vector3<f64>,
+    pub basis: Matrix3x2<f64>,
+    pub sqrt_info: Matrix2<f64>,
+}
+
+impl GravityPrior {
+    pub fn isotropic(mean_dir: Vector3<f64>, sigma_rad: f64) -> Self {
+        Self {
+            mean_dir,
+            basis: tangent_basis(&mean_dir),
+            sqrt_info: Matrix2::identity() / sigma_rad,
+        }
+    }
+
+    /// Whitened `B0^T (d - d0)` and its Jacobian with respect to the
+    /// direction step in the basis `basis` of the current `d`.
+    pub fn factor(
+        &self,
+        d: &Vector3<f64>,
+        basis: &Matrix3x2<f64>,
+    ) -> (Vector2<f64>, Matrix2<f64>) {
+        let r = self.sqrt_info * (self.basis.transpose() * (d - self.mean_dir));
+        let j = self.sqrt_info * (self.basis.transpose() * (-hat(d) * basis));
+        (r, j)
+    }
+}
+
+/// Holds `|p_1 - p_0|` (monocular vision-only start, one fixed keyframe).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct ScaleAnchor {
+    pub seq_first: u64,
+    pub seq_second: u64,
+    pub distance: f64,
+}
+
+impl ScaleAnchor {
+    /// Relative standard deviation of the held distance: small enough to
+    /// fix the scale, large enough to keep the reduced system well
+    /// conditioned.
+    pub const RELATIVE_SIGMA: f64 = 1e-6;
+
+    /// Whitened residual and its Jacobian with respect to `dp_1`.
+    pub fn factor(&self, p0: &Vector3<f64>, p1: &Vector3<f64>) -> (f64, RowVector3<f64>) {
+        let sigma = Self::RELATIVE_SIGMA * self.distance;
+        let d = p1 - p0;
+        let n = d.norm().max(1e-300);
+        ((n - self.distance) / sigma, (d / n).transpose() / sigma)
+    }
+}
