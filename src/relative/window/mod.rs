@@ -26,6 +26,7 @@ pub mod levenberg_marquardt;
 pub mod new_landmarks;
 pub mod prior;
 pub mod reprojection;
+pub mod rig_camera;
 pub mod schur;
 pub mod state;
 
@@ -50,7 +51,8 @@ use state::{state_is_finite, Keyframe, KeyframeObservation};
 use crate::imu::{ImuBiases, Preintegrated, GRAVITY_M_S2};
 use crate::relative::estimator::RigModel;
 use crate::relative::types::{BodyLandmark, KeyframeState, LandmarkId, TrackedFrame};
-use crate::rig::{CameraCalibration, ImuNoise};
+use crate::rig::ImuNoise;
+use rig_camera::RigCamera;
 
 /// Settings of the window (defaults in brackets).
 #[derive(Debug, Clone, PartialEq)]
@@ -238,7 +240,7 @@ pub(crate) struct Problem {
 #[derive(Debug, Clone)]
 pub struct Window {
     config: WindowConfig,
-    cameras: Vec<CameraCalibration>,
+    cameras: Vec<RigCamera>,
     imu_noise: Option<ImuNoise>,
     use_imu: bool,
     keyframes: VecDeque<Keyframe>,
@@ -273,7 +275,7 @@ impl Window {
             use_imu: config.use_imu,
             gravity_prior: GravityPrior::isotropic(down, config.gravity_prior_sigma_rad),
             config,
-            cameras: rig.cameras.clone(),
+            cameras: rig.cameras.iter().cloned().map(RigCamera::new).collect(),
             imu_noise,
             keyframes: VecDeque::new(),
             next_seq: 0,

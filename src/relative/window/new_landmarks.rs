@@ -10,14 +10,14 @@
 use nalgebra::{Isometry3, Vector2, Vector3};
 
 use super::{Landmark, PendingTrack, Window};
-use crate::rig::CameraCalibration;
+use super::rig_camera::RigCamera;
 use super::reprojection::reprojection_error;
 use crate::two_view::triangulation::{triangulate, TriangulationConfig, TriangulationFailure};
 
 /// The normalised image point (z = 1) of a pixel, if it unprojects in
 /// front of the camera.
-fn normalised(camera: &CameraCalibration, pixel: &Vector2<f64>) -> Option<Vector2<f64>> {
-    let ray = camera.model.unproject(pixel)?;
+fn normalised(camera: &RigCamera, pixel: &Vector2<f64>) -> Option<Vector2<f64>> {
+    let ray = camera.calibration.model.unproject(pixel)?;
     (ray.z > 1e-9).then(|| ray.xy() / ray.z)
 }
 
@@ -38,10 +38,10 @@ pub(crate) enum InitFailure {
 /// it reprojects within `max_error_px` in both.
 #[allow(non_snake_case, clippy::too_many_arguments)]
 pub(crate) fn triangulate_views(
-    cam_a: &CameraCalibration,
+    cam_a: &RigCamera,
     T_world_a: &Isometry3<f64>,
     pixel_a: &Vector2<f64>,
-    cam_b: &CameraCalibration,
+    cam_b: &RigCamera,
     T_world_b: &Isometry3<f64>,
     pixel_b: &Vector2<f64>,
     config: &TriangulationConfig,
@@ -49,8 +49,8 @@ pub(crate) fn triangulate_views(
 ) -> Result<Vector3<f64>, InitFailure> {
     let xa = normalised(cam_a, pixel_a).ok_or(InitFailure::Degenerate)?;
     let xb = normalised(cam_b, pixel_b).ok_or(InitFailure::Degenerate)?;
-    let T_world_ca = T_world_a * cam_a.T_body_cam;
-    let T_world_cb = T_world_b * cam_b.T_body_cam;
+    let T_world_ca = T_world_a * cam_a.calibration.T_body_cam;
+    let T_world_cb = T_world_b * cam_b.calibration.T_body_cam;
     let T_cb_ca = T_world_cb.inverse() * T_world_ca;
     let r = T_cb_ca.rotation.to_rotation_matrix().into_inner();
     let point = match triangulate(&r, &T_cb_ca.translation.vector, &xa, &xb, config) {

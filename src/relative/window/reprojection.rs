@@ -12,7 +12,7 @@
 use nalgebra::{Isometry3, Matrix2x3, SMatrix, Vector2, Vector3};
 
 use crate::imu::so3::hat;
-use crate::rig::CameraCalibration;
+use super::rig_camera::RigCamera;
 
 pub type Matrix2x6 = SMatrix<f64, 2, 6>;
 
@@ -31,11 +31,11 @@ pub struct Reprojection {
 /// Landmark in the camera frame.
 #[allow(non_snake_case)]
 fn point_in_camera(
-    camera: &CameraCalibration,
+    camera: &RigCamera,
     T_world_body: &Isometry3<f64>,
     point_world_m: &Vector3<f64>,
 ) -> Vector3<f64> {
-    camera.T_body_cam.inverse_transform_point(
+    camera.calibration.T_body_cam.inverse_transform_point(
         &T_world_body.inverse_transform_point(&(*point_world_m).into()),
     )
     .coords
@@ -45,7 +45,7 @@ fn point_in_camera(
 /// not project (behind the camera, outside the model's valid radius).
 #[allow(non_snake_case)]
 pub fn reproject(
-    camera: &CameraCalibration,
+    camera: &RigCamera,
     T_world_body: &Isometry3<f64>,
     point_world_m: &Vector3<f64>,
     pixel: &Vector2<f64>,
@@ -56,14 +56,14 @@ pub fn reproject(
         .into_inner()
         .transpose();
     let p_body = r_bw * (point_world_m - T_world_body.translation.vector);
-    let r_cb = camera
-        .T_body_cam
+    let t_bc = &camera.calibration.T_body_cam;
+    let r_cb = t_bc
         .rotation
         .to_rotation_matrix()
         .into_inner()
         .transpose();
-    let p_cam = r_cb * (p_body - camera.T_body_cam.translation.vector);
-    let (px, d_px) = camera.model.project_with_point_jacobian(&p_cam)?;
+    let p_cam = r_cb * (p_body - t_bc.translation.vector);
+    let (px, d_px) = camera.project_with_point_jacobian(&p_cam)?;
     let d_body = d_px * r_cb;
     let d_point = d_body * r_bw;
     let mut d_pose = Matrix2x6::zeros();
@@ -82,13 +82,13 @@ pub fn reproject(
 /// The error alone (cost evaluation), with the depth in the camera.
 #[allow(non_snake_case)]
 pub fn reprojection_error(
-    camera: &CameraCalibration,
+    camera: &RigCamera,
     T_world_body: &Isometry3<f64>,
     point_world_m: &Vector3<f64>,
     pixel: &Vector2<f64>,
 ) -> Option<(Vector2<f64>, f64)> {
     let p_cam = point_in_camera(camera, T_world_body, point_world_m);
-    let px = camera.model.project(&p_cam)?;
+    let px = camera.project(&p_cam)?;
     Some((px - pixel, p_cam.z))
 }
 

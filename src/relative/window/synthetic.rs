@@ -8,6 +8,7 @@ use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 
+use super::rig_camera::RigCamera;
 use crate::imu::{ImuBiases, IntegrationScheme, Preintegrated, Preintegrator};
 use crate::relative::estimator::RigModel;
 use crate::relative::types::{KeyframeState, Observation, TrackedFrame};
@@ -117,19 +118,23 @@ impl Scene {
         rng: &mut ChaCha8Rng,
     ) -> TrackedFrame {
         let pose = self.motion.state(t_ns).T_world_body;
-        let cameras = if stereo { 2 } else { 1 };
+        let cameras: Vec<RigCamera> = self.rig.cameras[..if stereo { 2 } else { 1 }]
+            .iter()
+            .cloned()
+            .map(RigCamera::new)
+            .collect();
         let mut observations = Vec::new();
         for (i, p) in self.points.iter().enumerate() {
-            for c in 0..cameras {
-                let cam = &self.rig.cameras[c];
-                let p_cam = (pose * cam.T_body_cam).inverse_transform_point(&(*p).into());
+            for (c, cam) in cameras.iter().enumerate() {
+                let p_cam = (pose * cam.calibration.T_body_cam).inverse_transform_point(&(*p).into());
                 if !(p_cam.z > 0.3 && p_cam.z < 20.0) {
                     continue;
                 }
-                let Some(px) = cam.model.project(&p_cam.coords) else {
+                let Some(px) = cam.project(&p_cam.coords) else {
                     continue;
                 };
-                let (w, h) = (cam.model.width() as f64, cam.model.height() as f64);
+                let model = &cam.calibration.model;
+                let (w, h) = (model.width() as f64, model.height() as f64);
                 if !(px.x >= 0.0 && px.y >= 0.0 && px.x < w && px.y < h) {
                     continue;
                 }
