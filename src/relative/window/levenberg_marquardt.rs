@@ -489,14 +489,17 @@ impl Window {
         let Some(newest) = self.keyframes.back() else {
             return;
         };
+        let mut z = std::mem::take(&mut self.problem.z_buffer);
         let p = &self.problem;
+        if z.nrows() != p.eq.dim {
+            z = DMatrix::<f64>::zeros(p.eq.dim, 3);
+        }
         let newest_pos = self.keyframes.len() - 1;
         let newest_offset = (newest_pos >= p.n_fixed).then(|| (newest_pos - p.n_fixed) * p.state_dim);
         let r_wb = newest.state.T_world_body.rotation.to_rotation_matrix().into_inner();
         let r_bw = r_wb.transpose();
         let t = newest.state.T_world_body.translation.vector;
         let chi2 = self.config.outlier_chi2;
-        let mut z = DMatrix::<f64>::zeros(p.eq.dim, 3);
         for lm in &p.landmarks {
             let rows = &p.rows[lm.rows.clone()];
             let seen = rows
@@ -547,6 +550,7 @@ impl Window {
                 });
             }
         }
+        self.problem.z_buffer = z;
     }
 }
 

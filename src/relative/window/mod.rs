@@ -35,7 +35,7 @@ mod synthetic;
 #[cfg(test)]
 mod tests;
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::{HashMap, HashSet, VecDeque};
 
 use nalgebra::{DMatrix, Isometry3, Matrix3x2, Vector3};
 
@@ -234,6 +234,8 @@ pub(crate) struct Problem {
     pub backup_states: Vec<KeyframeState>,
     pub backup_landmarks: Vec<Vector3<f64>>,
     pub backup_gravity: Vector3<f64>,
+    /// `S^-1 Y` of one landmark (body-frame covariances).
+    pub z_buffer: DMatrix<f64>,
 }
 
 /// The sliding-window estimator.
@@ -257,6 +259,8 @@ pub struct Window {
     body_landmarks: Vec<BodyLandmark>,
     /// Scratch for the stereo pairing of a new keyframe.
     scratch_pairs: Vec<(LandmarkId, usize)>,
+    /// Scratch for the landmarks still seen after a slide.
+    scratch_seen: HashSet<LandmarkId>,
     track: frame_pose::TrackBuffers,
 }
 
@@ -291,6 +295,7 @@ impl Window {
             state_covariance: None,
             body_landmarks: Vec::new(),
             scratch_pairs: Vec::new(),
+            scratch_seen: HashSet::new(),
             track: frame_pose::TrackBuffers::default(),
         })
     }
@@ -396,15 +401,16 @@ impl Window {
     fn forget_unobserved(&mut self) {
         let oldest = self.keyframes.front().map_or(u64::MAX, |k| k.seq);
         self.pending.retain(|_, p| p.seq >= oldest);
-        let mut seen: HashMap<LandmarkId, ()> = HashMap::with_capacity(self.landmarks.len());
+        self.scratch_seen.clear();
         for kf in &self.keyframes {
             for o in &kf.observations {
                 if self.landmarks.contains_key(&o.landmark) {
-                    seen.insert(o.landmark, ());
+                    self.scratch_seen.insert(o.landmark);
                 }
             }
         }
-        self.landmarks.retain(|id, _| seen.contains_key(id));
+        let seen = &self.scratch_seen;
+        self.landmarks.retain(|id, _| seen.contains(id));
     }
 
     /// Number of keyframes held fixed now: the oldest L-M, and at least

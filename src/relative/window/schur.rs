@@ -234,15 +234,21 @@ pub(crate) fn reduce(
         lm.usable = true;
         lm.v_inv = v_inv;
         let lm_rows = &rows[lm.rows.clone()];
-        for ra in lm_rows {
+        for (ia, ra) in lm_rows.iter().enumerate() {
             let Some(oa) = ra.offset.filter(|_| ra.valid) else { continue };
             let wv = ra.w_block * v_inv;
             let mut bs = eq.bs.fixed_rows_mut::<6>(oa);
             bs -= wv * lm.b;
-            for rb in lm_rows {
+            // S is symmetric: each pair once, mirrored.
+            for rb in &lm_rows[ia..] {
                 let Some(ob) = rb.offset.filter(|_| rb.valid) else { continue };
+                let m = wv * rb.w_block.transpose();
                 let mut block = eq.s.fixed_view_mut::<6, 6>(oa, ob);
-                block -= wv * rb.w_block.transpose();
+                block -= m;
+                if oa != ob || !std::ptr::eq(ra, rb) {
+                    let mut mirror = eq.s.fixed_view_mut::<6, 6>(ob, oa);
+                    mirror -= m.transpose();
+                }
             }
         }
     }
@@ -293,7 +299,13 @@ pub(crate) fn reduced_inverse(
     landmarks: &mut [LandmarkBlock],
 ) -> Option<DMatrix<f64>> {
     reduce(eq, rows, landmarks, 1e-9);
-    let inv = eq.s.clone().cholesky()?.inverse();
+    let s = std::mem::replace(&mut eq.s, DMatrix::zeros(0, 0));
+    let Some(chol) = s.cholesky() else {
+        eq.s = DMatrix::zeros(eq.dim, eq.dim);
+        return None;
+    };
+    let inv = chol.inverse();
+    eq.s = chol.unpack();
     inv.iter().all(|v| v.is_finite()).then_some(inv)
 }
 

@@ -584,3 +584,84 @@ fn optimize_and_track_timing() {
         assert!(track < 2.0, "track_frame {track:.3} ms");
     }
 }
+
+#[test]
+fn mono_start_takes_its_scale_from_the_first_distance() {
+    // One fixed keyframe, vision only: the distance to the second keyframe
+    // is held. Give the second keyframe 1.1 times the true distance: the
+    // solution must be the truth scaled by 1.1 about the first keyframe.
+    let mut r = rng(41);
+    let scene = Scene::new(&mut r, 2000, 6.0);
+    let mut w = Window::new(config(false), &scene.rig).expect("valid");
+    let p0 = scene.truth(keyframe_time(0)).T_world_body.translation.vector;
+    // Guesses: body positions scaled by 1.1 about the first keyframe.
+    let scaled = |s: &KeyframeState| {
+        let mut out = *s;
+        out.T_world_body.translation.vector = p0 + (s.T_world_body.translation.vector - p0) * 1.1;
+        out
+    };
+    for k in 0..5 {
+        let t = keyframe_time(k);
+        let truth = scene.truth(t);
+        let guess = match k {
+            0 => truth,
+            1 => scaled(&truth),
+            _ => perturb(&scaled(&truth), &mut r, 0.03, 0.5f64.to_radians(), 0.0),
+        };
+        let frame = scene.frame(t, false, 0.0, 0.0, &mut r);
+        w.push_keyframe(guess, &frame, None).expect("valid");
+    }
+    assert_eq!(w.fixed_count(), 1);
+    let report = w.optimize();
+    // The exact solution is the truth under a similarity of the camera
+    // centres about the first camera, whose scale makes the held body
+    // distance |p1 - p0| = 1.1 |p1 - p0|_true (the body-camera offset does
+    // not scale, so that scale is near, not at, 1.1).
+    let t_bc = scene.rig.cameras[0].T_body_cam.translation.vector;
+    let centre = |s: &KeyframeState| s.T_world_body.translation.vector + s.T_world_body.rotation * t_bc;
+    let truth0 = scene.truth(keyframe_time(0));
+    let truth1 = scene.truth(keyframe_time(1));
+    let c0 = centre(&truth0);
+    let similar = |s: &KeyframeState, scale: f64| {
+        let mut out = *s;
+        out.T_world_body.translation.vector =
+            c0 + (centre(s) - c0) * scale - s.T_world_body.rotation * t_bc;
+        out
+    };
+    let held = 1.1 * (truth1.T_world_body.translation.vector - p0).norm();
+    let gap = |scale: f64| (similar(&truth1, scale).T_world_body.translation.vector - p0).norm() - held;
+    let (mut lo, mut hi) = (1.0, 1.2);
+    assert!(gap(lo) < 0.0 && gap(hi) > 0.0);
+    for _ in 0..100 {
+        let mid = 0.5 * (lo + hi);
+        if gap(mid) < 0.0 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    let scale = 0.5 * (lo + hi);
+    assert!((scale - 1.1).abs() < 0.02, "{scale}");
+    for s in w.keyframes() {
+        let (dp, dr) = pose_error(s, &similar(&scene.truth(s.t_ns), scale));
+        assert!(dp < 1e-4 && dr < 0.001, "keyframe at {} ns: {dp} m {dr} deg {report:?}", s.t_ns);
+    }
+}
+
+#[test]
+fn gravity_direction_is_estimated() {
+    let mut r = rng(43);
+    let scene = Scene::new(&mut r, 2000, 6.0);
+    let mut w = filled_window(&scene, config(true), 10, 3, true, 0.0, 0.0, &mut r);
+    let wrong = Vector3::new(0.02, -0.015, -1.0);
+    w.set_gravity(wrong, 0.05).expect("valid");
+    let angle = |w: &Window| w.gravity_world_m_s2().angle(&Vector3::new(0.0, 0.0, -1.0)).to_degrees();
+    let start = angle(&w);
+    assert!(start > 1.0, "{start}");
+    w.optimize();
+    let first = angle(&w);
+    w.optimize();
+    let second = angle(&w);
+    assert!(first < 0.05 && second <= first + 1e-9, "{start} -> {first} -> {second} deg");
+    assert!((w.gravity_world_m_s2().norm() - GRAVITY_M_S2).abs() < 1e-12);
+}
