@@ -665,3 +665,36 @@ fn gravity_direction_is_estimated() {
     assert!(first < 0.05 && second <= first + 1e-9, "{start} -> {first} -> {second} deg");
     assert!((w.gravity_world_m_s2().norm() - GRAVITY_M_S2).abs() < 1e-12);
 }
+
+#[test]
+fn body_landmark_covariances_are_consistent_with_the_errors() {
+    // Normalised estimation error squared of the body-frame landmarks,
+    // averaged over the landmarks of several noisy runs: about 3 when
+    // the covariances describe the errors (1 px noise, stereo and mono).
+    for stereo in [true, false] {
+        let mut nees = Vec::new();
+        for seed in 0..4 {
+            let mut r = rng(100 + seed);
+            let scene = Scene::new(&mut r, 1500, 6.0);
+            let mut w = filled_window(&scene, config(false), 10, 3, stereo, 1.0, 0.0, &mut r);
+            w.optimize();
+            let report = w.optimize();
+            assert!(report.exact_marginals);
+            let newest = *w.latest().expect("keyframes");
+            for l in w.landmarks_in_body() {
+                let truth = newest
+                    .T_world_body
+                    .inverse_transform_point(&scene.points[l.id as usize].into())
+                    .coords;
+                let e = l.position_body_m - truth;
+                let info = l.covariance_body_m2.try_inverse().expect("invertible");
+                nees.push(e.dot(&(info * e)));
+            }
+        }
+        let mean = nees.iter().sum::<f64>() / nees.len() as f64;
+        println!("stereo {stereo}: body landmark NEES {mean:.2} over {} landmarks", nees.len());
+        assert!(nees.len() > 200);
+        // A covariance off by a factor of two in either direction fails.
+        assert!(mean > 2.0 && mean < 4.5, "stereo {stereo}: NEES {mean}");
+    }
+}
