@@ -12,7 +12,7 @@ use std::time::Instant;
 use nalgebra::{DMatrix, Matrix2, SMatrix, SVector, Vector2};
 
 use super::inertial::{bias_walk_factor, inertial_factor, tangent_basis, update_direction, GRAVITY_COL};
-use super::prior::{sqrt_information2, sqrt_information3, GravityPrior, VelocityPrior};
+use super::prior::{sqrt_information2, GravityPrior, OldestFreePrior};
 use super::reprojection::{reproject, reprojection_error, GATE_SQ};
 use super::schur::{self, Chunk, LandmarkBlock, ObservationRow};
 use super::state::{apply_update, BG, FULL_DIM, POSE_DIM, VEL};
@@ -98,9 +98,9 @@ impl Window {
         report
     }
 
-    /// Moves the eq. 34 velocity prior to the oldest free keyframe when it
+    /// Moves the eq. 34 prior to the oldest free keyframe when it
     /// changed: centred on its estimate, with `prior_weight` times the
-    /// marginal information of the last solve (or the configured sigma).
+    /// marginal information of the last solve (or the configured sigmas).
     fn refresh_velocity_prior(&mut self, n_fixed: usize) {
         if !self.use_imu || n_fixed >= self.keyframes.len() {
             return;
@@ -109,17 +109,20 @@ impl Window {
         if self.velocity_prior.map(|p| p.seq) == Some(kf.seq) {
             return;
         }
-        let v = kf.state.velocity_world_m_s;
+        let c = &self.config;
         let prior = kf
-            .velocity_marginal
-            .and_then(|c| sqrt_information3(&c, self.config.prior_weight))
-            .map(|sqrt_info| VelocityPrior {
-                seq: kf.seq,
-                mean_m_s: v,
-                sqrt_info,
-            })
+            .state_marginal
+            .and_then(|m| OldestFreePrior::from_covariance(kf.seq, &kf.state, &m, c.prior_weight))
             .unwrap_or_else(|| {
-                VelocityPrior::isotropic(kf.seq, v, self.config.velocity_prior_sigma_m_s)
+                OldestFreePrior::isotropic(
+                    kf.seq,
+                    &kf.state,
+                    [
+                        c.velocity_prior_sigma_m_s,
+                        c.gyro_bias_prior_sigma_rad_s,
+                        c.accel_bias_prior_sigma_m_s2,
+                    ],
+                )
             });
         self.velocity_prior = Some(prior);
     }
@@ -305,7 +308,8 @@ impl Window {
         let (nf, sd) = (p.n_fixed, p.state_dim);
         let offset = |pos: usize| (pos >= nf).then(|| (pos - nf) * sd);
         if self.use_imu {
-            for pos in nf.max(1)..n {
+            // Between free keyframes only (see the module doc).
+            for pos in (nf + 1)..n {
                 let (ki, kj) = (&keyframes[pos - 1], &keyframes[pos]);
                 if let Some(link) = &kj.imu {
                     let (r, j) = inertial_factor(
@@ -347,13 +351,13 @@ impl Window {
                 let front = keyframes.front().map_or(0, |k| k.seq);
                 let pos = prior.seq.wrapping_sub(front) as usize;
                 if pos >= nf && pos < n && keyframes[pos].seq == prior.seq {
-                    let (r, j) = prior.factor(&keyframes[pos].state.velocity_world_m_s);
+                    let (r, j) = prior.factor(&keyframes[pos].state);
                     cost += 0.5 * r.norm_squared();
                     if build {
                         p.eq.add_factor(
                             &r,
                             &j,
-                            &[Chunk { col: 0, len: 3, offset: offset(pos).map(|o| o + VEL) }],
+                            &[Chunk { col: 0, len: 9, offset: offset(pos).map(|o| o + VEL) }],
                         );
                     }
                 }
@@ -462,7 +466,7 @@ impl Window {
             if self.use_imu {
                 for (slot, kf) in self.keyframes.iter_mut().skip(p.n_fixed).enumerate() {
                     let o = slot * p.state_dim + VEL;
-                    kf.velocity_marginal = Some(cov.fixed_view::<3, 3>(o, o).into_owned());
+                    kf.state_marginal = Some(cov.fixed_view::<9, 9>(o, o).into_owned());
                 }
             }
             if let Some(og) = p.gravity_offset {

@@ -4,9 +4,12 @@
 //!
 //! Cost (eq. 29): reprojection error of every observation in the window
 //! (sigma `pixel_sigma`, robust kernel, [`reprojection`]) + the inertial
-//! residual and the bias random walk between consecutive keyframes
-//! ([`inertial`]) + the prior on the oldest free velocity and on gravity
-//! (eq. 34, [`prior`]). The normal equations are solved with the Schur
+//! residual and the bias random walk between consecutive free keyframes
+//! ([`inertial`]) + the prior on the oldest free keyframe's velocity (and
+//! biases) and on gravity (eq. 34, [`prior`]). The fixed keyframes enter
+//! through their observations only: their velocities and biases are old
+//! estimates, and an inertial term to them would hold the free states to
+//! those as if exact; the eq. 34 prior carries that information instead. The normal equations are solved with the Schur
 //! complement on the landmarks ([`schur`]); the LM loop is in
 //! [`levenberg_marquardt`]. Frames between keyframes get their pose from
 //! the window's landmarks ([`frame_pose`]); new landmarks come from stereo
@@ -44,7 +47,7 @@ pub use levenberg_marquardt::WindowReport;
 pub use reprojection::RobustKernel;
 
 use inertial::{bias_walk_sqrt_info, tangent_basis, InertialLink};
-use prior::{GravityPrior, ScaleAnchor, VelocityPrior};
+use prior::{GravityPrior, OldestFreePrior, ScaleAnchor};
 use schur::{LandmarkBlock, NormalEquations, ObservationRow};
 use state::{state_is_finite, Keyframe, KeyframeObservation};
 
@@ -85,8 +88,11 @@ pub struct WindowConfig {
     pub init_max_error_px: f64,
     /// Gravity prior before any solve, rad [0.02].
     pub gravity_prior_sigma_rad: f64,
-    /// Velocity prior when no marginal is known yet, m/s [0.5].
+    /// Prior on the oldest free keyframe when no marginal is known yet:
+    /// velocity m/s [0.5], gyro bias rad/s [0.01], accel bias m/s^2 [0.2].
     pub velocity_prior_sigma_m_s: f64,
+    pub gyro_bias_prior_sigma_rad_s: f64,
+    pub accel_bias_prior_sigma_m_s2: f64,
     /// Share of the previous solve's marginal information kept as prior [0.5].
     pub prior_weight: f64,
     /// Inliers for [`Window::track_frame`] to call a pose good [12].
@@ -113,6 +119,8 @@ impl Default for WindowConfig {
             init_max_error_px: 5.0,
             gravity_prior_sigma_rad: 0.02,
             velocity_prior_sigma_m_s: 0.5,
+            gyro_bias_prior_sigma_rad_s: 0.01,
+            accel_bias_prior_sigma_m_s2: 0.2,
             prior_weight: 0.5,
             min_track_inliers: 12,
             track_max_iterations: 8,
@@ -184,6 +192,8 @@ impl WindowConfig {
             ("init_max_error_px", self.init_max_error_px),
             ("gravity_prior_sigma_rad", self.gravity_prior_sigma_rad),
             ("velocity_prior_sigma_m_s", self.velocity_prior_sigma_m_s),
+            ("gyro_bias_prior_sigma_rad_s", self.gyro_bias_prior_sigma_rad_s),
+            ("accel_bias_prior_sigma_m_s2", self.accel_bias_prior_sigma_m_s2),
             ("prior_weight", self.prior_weight),
         ];
         for (key, v) in positive {
@@ -250,7 +260,7 @@ pub struct Window {
     landmarks: HashMap<LandmarkId, Landmark>,
     pending: HashMap<LandmarkId, PendingTrack>,
     gravity_dir: Vector3<f64>,
-    velocity_prior: Option<VelocityPrior>,
+    velocity_prior: Option<OldestFreePrior>,
     gravity_prior: GravityPrior,
     scale_anchor: Option<ScaleAnchor>,
     problem: Problem,
@@ -373,7 +383,7 @@ impl Window {
             observations,
             imu: link,
             bias_walk_sqrt_info: bias_walk,
-            velocity_marginal: None,
+            state_marginal: None,
         });
         if self.keyframes.len() > self.config.keyframes_kept {
             self.keyframes.pop_front();
@@ -465,7 +475,7 @@ impl Window {
         }
         for (kf, s) in self.keyframes.iter_mut().zip(states) {
             kf.state = *s;
-            kf.velocity_marginal = None;
+            kf.state_marginal = None;
         }
         self.velocity_prior = None;
         Ok(())
@@ -495,7 +505,7 @@ impl Window {
         for ((kf, v), b) in self.keyframes.iter_mut().zip(velocities_world_m_s).zip(biases) {
             kf.state.velocity_world_m_s = *v;
             kf.state.biases = *b;
-            kf.velocity_marginal = None;
+            kf.state_marginal = None;
         }
         self.velocity_prior = None;
         Ok(())
@@ -504,6 +514,13 @@ impl Window {
     /// Maps everything (keyframes, landmarks, gravity, priors) by
     /// `x_new = T_new_old (scale x_old)`: how the initialiser hands over
     /// a metric, gravity-aligned frame. Velocities scale and rotate.
+    ///
+    /// What scales is what the images determine: landmarks and the centres
+    /// of camera 0. Each body is then placed at its camera's centre minus
+    /// the (metric) body-camera offset, so a vision-only solution at an
+    /// arbitrary scale stays consistent with its images after the
+    /// handover; scaling body positions instead would misplace every
+    /// camera by `(1 - scale) |t_body_cam|`.
     #[allow(non_snake_case)]
     pub fn transform(&mut self, scale: f64, T_new_old: Isometry3<f64>) -> Result<(), WindowError> {
         let finite = T_new_old.translation.vector.iter().all(|v| v.is_finite())
@@ -513,13 +530,14 @@ impl Window {
         }
         let rot = T_new_old.rotation;
         let map_point = |p: &Vector3<f64>| T_new_old.transform_point(&(p * scale).into()).coords;
+        let t_bc = self.cameras[0].calibration.T_body_cam.translation.vector;
         for kf in self.keyframes.iter_mut() {
             let s = &mut kf.state;
-            let p = map_point(&s.T_world_body.translation.vector);
+            let centre = s.T_world_body.translation.vector + s.T_world_body.rotation * t_bc;
             s.T_world_body.rotation = rot * s.T_world_body.rotation;
-            s.T_world_body.translation.vector = p;
+            s.T_world_body.translation.vector = map_point(&centre) - s.T_world_body.rotation * t_bc;
             s.velocity_world_m_s = rot * (s.velocity_world_m_s * scale);
-            kf.velocity_marginal = None;
+            kf.state_marginal = None;
         }
         for lm in self.landmarks.values_mut() {
             lm.position_world_m = map_point(&lm.position_world_m);
@@ -540,7 +558,39 @@ impl Window {
         Ok(())
     }
 
+    /// Replaces the preintegrated IMU that ends at keyframe `t_end_ns`
+    /// (e.g. integrated again with the biases the initialiser found); it
+    /// must start at the previous keyframe.
+    pub fn set_preintegrated(&mut self, pre: Preintegrated) -> Result<(), WindowError> {
+        let pos = self
+            .keyframes
+            .iter()
+            .position(|k| k.state.t_ns == pre.t_end_ns)
+            .filter(|&p| p > 0);
+        let Some(pos) = pos else {
+            return Err(WindowError::ImuIntervalMismatch {
+                start_ns: pre.t_start_ns,
+                end_ns: pre.t_end_ns,
+                expected_start_ns: self.keyframes.front().map_or(0, |k| k.state.t_ns),
+                expected_end_ns: self.keyframes.back().map_or(0, |k| k.state.t_ns),
+            });
+        };
+        let start = self.keyframes[pos - 1].state.t_ns;
+        if pre.t_start_ns != start || !(pre.dt_s.is_finite() && pre.dt_s > 0.0) {
+            return Err(WindowError::ImuIntervalMismatch {
+                start_ns: pre.t_start_ns,
+                end_ns: pre.t_end_ns,
+                expected_start_ns: start,
+                expected_end_ns: pre.t_end_ns,
+            });
+        }
+        self.keyframes[pos].imu = Some(InertialLink::new(pre));
+        Ok(())
+    }
+
     /// Switches the inertial terms on or off (needs an IMU in the rig).
+    /// Preintegrated intervals given to [`Self::push_keyframe`] are kept
+    /// while it is off, so switching on after a vision-only start uses them.
     pub fn enable_imu(&mut self, on: bool) -> Result<(), WindowError> {
         if on && self.imu_noise.is_none() {
             return Err(WindowError::NoImu);

@@ -1,29 +1,26 @@
-//! The prior of eq. 34 on the oldest free keyframe's velocity and on
-//! gravity, and (vision-only monocular start) the anchor that holds the
+//! The prior of eq. 34 on the oldest free keyframe's velocity (and
+//! biases) and on gravity, and (vision-only monocular start) the anchor that holds the
 //! distance between the first two keyframes.
 //!
 //! Update rule: after each optimisation the marginal covariance of the
-//! gravity direction and of every free velocity is read from the inverse
-//! of the reduced (Schur) system. The next solve puts a prior on the
-//! then oldest free velocity and on gravity with `prior_weight` times
+//! gravity direction and of every free keyframe's `[v, b_g, b_a]` is read
+//! from the inverse of the reduced (Schur) system. The next solve puts a
+//! prior on the then oldest free keyframe's `[v, b_g, b_a]` and on gravity with `prior_weight` times
 //! that marginal information, centred on the estimate. The marginal
 //! counts measurements that are still in the window; with the default
 //! weight 1/2 the gravity prior's information converges to the window's
 //! own (a geometric series), so they are counted at most twice.
 
-use nalgebra::{Matrix2, Matrix3, Matrix3x2, RowVector3, Vector2, Vector3};
+use nalgebra::{Matrix2, Matrix3x2, RowVector3, SMatrix, SVector, Vector2, Vector3};
 
 use super::inertial::tangent_basis;
+use crate::relative::types::KeyframeState;
+
+pub(crate) type Matrix9 = SMatrix<f64, 9, 9>;
+pub(crate) type Vector9 = SVector<f64, 9>;
 use crate::imu::so3::hat;
 
 /// Upper factor `U` with `U^T U = weight * cov^-1`.
-pub(crate) fn sqrt_information3(cov: &Matrix3<f64>, weight: f64) -> Option<Matrix3<f64>> {
-    let sym = (cov + cov.transpose()) * 0.5;
-    let info = sym.cholesky()?.inverse() * weight;
-    let u = info.cholesky()?.l().transpose();
-    u.iter().all(|v| v.is_finite()).then_some(u)
-}
-
 pub(crate) fn sqrt_information2(cov: &Matrix2<f64>, weight: f64) -> Option<Matrix2<f64>> {
     let sym = (cov + cov.transpose()) * 0.5;
     let info = sym.cholesky()?.inverse() * weight;
@@ -31,26 +28,56 @@ pub(crate) fn sqrt_information2(cov: &Matrix2<f64>, weight: f64) -> Option<Matri
     u.iter().all(|v| v.is_finite()).then_some(u)
 }
 
-/// Prior on one keyframe's velocity.
+/// The eq. 34 prior on the oldest free keyframe: its velocity (the
+/// paper's) and, here, its biases too. The inertial terms to the fixed
+/// keyframes are left out of the cost (their velocities and biases are
+/// stale estimates that must not act as hard constraints), so this prior
+/// is what carries the earlier keyframes' information on `[v, b_g, b_a]`.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct VelocityPrior {
+pub(crate) struct OldestFreePrior {
     pub seq: u64,
-    pub mean_m_s: Vector3<f64>,
-    pub sqrt_info: Matrix3<f64>,
+    /// `[v, b_g, b_a]`
+    pub mean: Vector9,
+    pub sqrt_info: Matrix9,
 }
 
-impl VelocityPrior {
-    pub fn isotropic(seq: u64, mean_m_s: Vector3<f64>, sigma_m_s: f64) -> Self {
+fn stacked(s: &KeyframeState) -> Vector9 {
+    let mut x = Vector9::zeros();
+    x.fixed_rows_mut::<3>(0).copy_from(&s.velocity_world_m_s);
+    x.fixed_rows_mut::<3>(3).copy_from(&s.biases.gyro_rad_s);
+    x.fixed_rows_mut::<3>(6).copy_from(&s.biases.accel_m_s2);
+    x
+}
+
+impl OldestFreePrior {
+    /// Independent standard deviations of velocity, gyro and accel bias.
+    pub fn isotropic(seq: u64, state: &KeyframeState, sigmas: [f64; 3]) -> Self {
+        let mut d = Vector9::zeros();
+        for k in 0..9 {
+            d[k] = 1.0 / sigmas[k / 3];
+        }
         Self {
             seq,
-            mean_m_s,
-            sqrt_info: Matrix3::identity() / sigma_m_s,
+            mean: stacked(state),
+            sqrt_info: Matrix9::from_diagonal(&d),
         }
     }
 
-    /// Whitened residual and its Jacobian with respect to `dv`.
-    pub fn factor(&self, v: &Vector3<f64>) -> (Vector3<f64>, Matrix3<f64>) {
-        (self.sqrt_info * (v - self.mean_m_s), self.sqrt_info)
+    /// Centred on `state` with `weight` times the information of `cov`.
+    pub fn from_covariance(seq: u64, state: &KeyframeState, cov: &Matrix9, weight: f64) -> Option<Self> {
+        let sym = (cov + cov.transpose()) * 0.5;
+        let info = sym.cholesky()?.inverse() * weight;
+        let sqrt_info = info.cholesky()?.l().transpose();
+        sqrt_info.iter().all(|v| v.is_finite()).then_some(Self {
+            seq,
+            mean: stacked(state),
+            sqrt_info,
+        })
+    }
+
+    /// Whitened residual and its Jacobian with respect to `[dv, dbg, dba]`.
+    pub fn factor(&self, state: &KeyframeState) -> (Vector9, Matrix9) {
+        (self.sqrt_info * (stacked(state) - self.mean), self.sqrt_info)
     }
 }
 

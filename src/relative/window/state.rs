@@ -6,7 +6,7 @@
 //! perturbation, as in [`crate::imu::residual`]), `p <- p + dp` and
 //! `v <- v + dv` in the world frame, biases additive.
 
-use nalgebra::{Matrix3, UnitQuaternion, Vector2, Vector3, Vector6};
+use nalgebra::{SMatrix, UnitQuaternion, Vector2, Vector3, Vector6};
 
 use super::inertial::InertialLink;
 use crate::imu::NavState;
@@ -44,9 +44,9 @@ pub(crate) struct Keyframe {
     pub imu: Option<InertialLink>,
     /// `1 / sigma` of the bias random walk from the previous keyframe.
     pub bias_walk_sqrt_info: Option<Vector6<f64>>,
-    /// Marginal covariance of the velocity after the last optimisation
+    /// Marginal covariance of `[v, b_g, b_a]` after the last optimisation
     /// (source of the eq. 34 prior once this keyframe is the oldest free).
-    pub velocity_marginal: Option<Matrix3<f64>>,
+    pub state_marginal: Option<SMatrix<f64, 9, 9>>,
 }
 
 pub(crate) fn nav_state(s: &KeyframeState) -> NavState {
