@@ -9,7 +9,7 @@
 
 use std::time::Instant;
 
-use nalgebra::{DMatrix, Matrix2, SMatrix, SVector, Vector2};
+use nalgebra::{DMatrix, Matrix2, SMatrix, SVector, Vector2, Vector3};
 
 use super::inertial::{bias_walk_factor, inertial_factor, tangent_basis, update_direction, GRAVITY_COL};
 use super::prior::{sqrt_information2, GravityPrior, OldestFreePrior};
@@ -24,6 +24,9 @@ use crate::relative::types::BodyLandmark;
 /// not project (behind the camera): a step that pushes points behind the
 /// cameras must not look like a cost decrease.
 const INVALID_SQ_ERROR: f64 = GATE_SQ;
+
+/// The estimated part of the newest fixed keyframe: `[v, b_g, b_a]`.
+const BOUNDARY_DIM: usize = 9;
 
 /// A step that lowers the cost by less than this share ends the loop.
 const RELATIVE_DECREASE: f64 = 1e-6;
@@ -102,10 +105,10 @@ impl Window {
     /// changed: centred on its estimate, with `prior_weight` times the
     /// marginal information of the last solve (or the configured sigmas).
     fn refresh_velocity_prior(&mut self, n_fixed: usize) {
-        if !self.use_imu || n_fixed >= self.keyframes.len() {
+        if !self.use_imu || n_fixed == 0 || n_fixed >= self.keyframes.len() {
             return;
         }
-        let kf = &self.keyframes[n_fixed];
+        let kf = &self.keyframes[n_fixed - 1];
         if self.velocity_prior.map(|p| p.seq) == Some(kf.seq) {
             return;
         }
@@ -137,7 +140,8 @@ impl Window {
         p.state_dim = sd;
         let free = n - n_fixed;
         p.gravity_offset = self.use_imu.then_some(free * sd);
-        let dim = free * sd + if self.use_imu { 2 } else { 0 };
+        p.boundary_offset = self.use_imu.then_some(free * sd + 2);
+        let dim = free * sd + if self.use_imu { 2 + BOUNDARY_DIM } else { 0 };
         p.eq.reset(dim);
         p.rows.clear();
         p.landmarks.clear();
@@ -308,8 +312,12 @@ impl Window {
         let (nf, sd) = (p.n_fixed, p.state_dim);
         let offset = |pos: usize| (pos >= nf).then(|| (pos - nf) * sd);
         if self.use_imu {
-            // Between free keyframes only (see the module doc).
-            for pos in (nf + 1)..n {
+            // From the newest fixed keyframe (its pose held, its velocity
+            // and biases estimated) through the free ones.
+            let ob = p.boundary_offset;
+            // Columns of keyframe `pos`'s [v, b_g, b_a] in the system.
+            let rest = |pos: usize| if pos + 1 == nf { ob } else { offset(pos).map(|o| o + VEL) };
+            for pos in nf.max(1)..n {
                 let (ki, kj) = (&keyframes[pos - 1], &keyframes[pos]);
                 if let Some(link) = &kj.imu {
                     let (r, j) = inertial_factor(
@@ -325,7 +333,8 @@ impl Window {
                             &r,
                             &j,
                             &[
-                                Chunk { col: 0, len: FULL_DIM, offset: offset(pos - 1) },
+                                Chunk { col: 0, len: VEL, offset: offset(pos - 1) },
+                                Chunk { col: VEL, len: BOUNDARY_DIM, offset: rest(pos - 1) },
                                 Chunk { col: FULL_DIM, len: FULL_DIM, offset: offset(pos) },
                                 Chunk { col: GRAVITY_COL, len: 2, offset: p.gravity_offset },
                             ],
@@ -336,29 +345,26 @@ impl Window {
                     let (r, j) = bias_walk_factor(sqrt_info, &ki.state, &kj.state);
                     cost += 0.5 * r.norm_squared();
                     if build {
+                        let bias = |pos: usize| rest(pos).map(|o| o + (BG - VEL));
                         p.eq.add_factor(
                             &r,
                             &j,
                             &[
-                                Chunk { col: 0, len: 6, offset: offset(pos - 1).map(|o| o + BG) },
-                                Chunk { col: 6, len: 6, offset: offset(pos).map(|o| o + BG) },
+                                Chunk { col: 0, len: 6, offset: bias(pos - 1) },
+                                Chunk { col: 6, len: 6, offset: bias(pos) },
                             ],
                         );
                     }
                 }
             }
+            // Eq. 34: the prior on the newest fixed keyframe's [v, b_g, b_a].
             if let Some(prior) = &self.velocity_prior {
-                let front = keyframes.front().map_or(0, |k| k.seq);
-                let pos = prior.seq.wrapping_sub(front) as usize;
-                if pos >= nf && pos < n && keyframes[pos].seq == prior.seq {
-                    let (r, j) = prior.factor(&keyframes[pos].state);
+                if nf >= 1 && keyframes[nf - 1].seq == prior.seq {
+                    let (r, j) = prior.factor(&keyframes[nf - 1].state);
                     cost += 0.5 * r.norm_squared();
                     if build {
-                        p.eq.add_factor(
-                            &r,
-                            &j,
-                            &[Chunk { col: 0, len: 9, offset: offset(pos).map(|o| o + VEL) }],
-                        );
+                        p.eq
+                            .add_factor(&r, &j, &[Chunk { col: 0, len: BOUNDARY_DIM, offset: ob }]);
                     }
                 }
             }
@@ -394,8 +400,7 @@ impl Window {
     pub(super) fn save_backup(&mut self) {
         let p = &mut self.problem;
         p.backup_states.clear();
-        p.backup_states
-            .extend(self.keyframes.iter().skip(p.n_fixed).map(|k| k.state));
+        p.backup_states.extend(self.keyframes.iter().map(|k| k.state));
         p.backup_landmarks.clear();
         p.backup_landmarks
             .extend(p.landmarks.iter().map(|l| l.position_world_m));
@@ -404,7 +409,7 @@ impl Window {
 
     pub(super) fn restore_backup(&mut self) {
         let p = &mut self.problem;
-        for (kf, s) in self.keyframes.iter_mut().skip(p.n_fixed).zip(&p.backup_states) {
+        for (kf, s) in self.keyframes.iter_mut().zip(&p.backup_states) {
             kf.state = *s;
         }
         for (l, b) in p.landmarks.iter_mut().zip(&p.backup_landmarks) {
@@ -429,6 +434,13 @@ impl Window {
         if let Some(og) = p.gravity_offset {
             let d = Vector2::new(delta[og], delta[og + 1]);
             self.gravity_dir = update_direction(&self.gravity_dir, &p.gravity_basis, &d);
+        }
+        if let (Some(ob), Some(kf)) = (p.boundary_offset, p.n_fixed.checked_sub(1)) {
+            let s = &mut self.keyframes[kf].state;
+            let v3 = |o: usize| Vector3::new(delta[o], delta[o + 1], delta[o + 2]);
+            s.velocity_world_m_s += v3(ob);
+            s.biases.gyro_rad_s += v3(ob + 3);
+            s.biases.accel_m_s2 += v3(ob + 6);
         }
         largest
     }
@@ -471,7 +483,7 @@ impl Window {
             }
             if let Some(og) = p.gravity_offset {
                 let c2: Matrix2<f64> = cov.fixed_view::<2, 2>(og, og).into_owned();
-                if let Some(sqrt_info) = sqrt_information2(&c2, self.config.prior_weight) {
+                if let Some(sqrt_info) = sqrt_information2(&c2, self.config.gravity_prior_weight) {
                     self.gravity_prior = GravityPrior {
                         mean_dir: self.gravity_dir,
                         basis: p.gravity_basis,

@@ -4,12 +4,14 @@
 //!
 //! Cost (eq. 29): reprojection error of every observation in the window
 //! (sigma `pixel_sigma`, robust kernel, [`reprojection`]) + the inertial
-//! residual and the bias random walk between consecutive free keyframes
-//! ([`inertial`]) + the prior on the oldest free keyframe's velocity (and
-//! biases) and on gravity (eq. 34, [`prior`]). The fixed keyframes enter
-//! through their observations only: their velocities and biases are old
-//! estimates, and an inertial term to them would hold the free states to
-//! those as if exact; the eq. 34 prior carries that information instead. The normal equations are solved with the Schur
+//! residual and the bias random walk between consecutive keyframes from
+//! the newest fixed one on ([`inertial`]) + the eq. 34 prior ([`prior`])
+//! on gravity and on the velocity (and biases) at the boundary of the free
+//! part. The boundary is the newest fixed keyframe: its pose is held, but
+//! its velocity and biases are estimated under that prior, so the inertial
+//! term that links it to the oldest free keyframe (which carries the scale
+//! at a monocular start) does not treat an old velocity estimate as exact.
+//! Older fixed keyframes enter through their observations only. The normal equations are solved with the Schur
 //! complement on the landmarks ([`schur`]); the LM loop is in
 //! [`levenberg_marquardt`]. Frames between keyframes get their pose from
 //! the window's landmarks ([`frame_pose`]); new landmarks come from stereo
@@ -93,8 +95,12 @@ pub struct WindowConfig {
     pub velocity_prior_sigma_m_s: f64,
     pub gyro_bias_prior_sigma_rad_s: f64,
     pub accel_bias_prior_sigma_m_s2: f64,
-    /// Share of the previous solve's marginal information kept as prior [0.5].
+    /// Share of the previous solve's marginal information kept as the
+    /// prior on the boundary keyframe's velocity and biases [0.5].
     pub prior_weight: f64,
+    /// The same for gravity [0.9]: gravity is a constant of the whole run,
+    /// so its information may accumulate (to about 9 windows' worth).
+    pub gravity_prior_weight: f64,
     /// Inliers for [`Window::track_frame`] to call a pose good [12].
     pub min_track_inliers: usize,
     /// LM iterations of [`Window::track_frame`] [8].
@@ -122,6 +128,7 @@ impl Default for WindowConfig {
             gyro_bias_prior_sigma_rad_s: 0.01,
             accel_bias_prior_sigma_m_s2: 0.2,
             prior_weight: 0.5,
+            gravity_prior_weight: 0.9,
             min_track_inliers: 12,
             track_max_iterations: 8,
         }
@@ -195,6 +202,7 @@ impl WindowConfig {
             ("gyro_bias_prior_sigma_rad_s", self.gyro_bias_prior_sigma_rad_s),
             ("accel_bias_prior_sigma_m_s2", self.accel_bias_prior_sigma_m_s2),
             ("prior_weight", self.prior_weight),
+            ("gravity_prior_weight", self.gravity_prior_weight),
         ];
         for (key, v) in positive {
             if !(v.is_finite() && v > 0.0) {
@@ -239,6 +247,8 @@ pub(crate) struct Problem {
     pub state_dim: usize,
     /// Column of the gravity direction (IMU on).
     pub gravity_offset: Option<usize>,
+    /// Columns of the newest fixed keyframe's `[v, b_g, b_a]` (IMU on).
+    pub boundary_offset: Option<usize>,
     pub gravity_basis: Matrix3x2<f64>,
     pub stereo_rows: usize,
     pub backup_states: Vec<KeyframeState>,
@@ -630,6 +640,25 @@ impl Window {
     /// be inverted it falls back to `V^-1` (the landmark given the poses).
     pub fn landmarks_in_body(&self) -> &[BodyLandmark] {
         &self.body_landmarks
+    }
+
+    /// [`Self::landmarks_in_body`] moved into the body frame of a frame
+    /// at `T_world_frame` (e.g. from [`Self::track_frame`]): positions
+    /// mapped through the newest keyframe's pose, covariances rotated. The
+    /// uncertainty of the frame relative to that keyframe is not added.
+    #[allow(non_snake_case)]
+    pub fn landmarks_in_frame_into(&self, T_world_frame: &Isometry3<f64>, out: &mut Vec<BodyLandmark>) {
+        out.clear();
+        let Some(newest) = self.keyframes.back() else {
+            return;
+        };
+        let T_frame_key = T_world_frame.inverse() * newest.state.T_world_body;
+        let r = T_frame_key.rotation.to_rotation_matrix().into_inner();
+        out.extend(self.body_landmarks.iter().map(|l| BodyLandmark {
+            id: l.id,
+            position_body_m: T_frame_key.transform_point(&l.position_body_m.into()).coords,
+            covariance_body_m2: r * l.covariance_body_m2 * r.transpose(),
+        }));
     }
 
     /// Marginal covariance of the free states (15 per free keyframe,

@@ -7,9 +7,13 @@
 //! from the inverse of the reduced (Schur) system. The next solve puts a
 //! prior on the then oldest free keyframe's `[v, b_g, b_a]` and on gravity with `prior_weight` times
 //! that marginal information, centred on the estimate. The marginal
-//! counts measurements that are still in the window; with the default
-//! weight 1/2 the gravity prior's information converges to the window's
-//! own (a geometric series), so they are counted at most twice.
+//! (The prior sits on the newest fixed keyframe, the one just before the
+//! oldest free; see the window's module doc.) The marginal
+//! counts measurements that are still in the window: with weight `w` the
+//! prior's information converges to `w / (1 - w)` times the window's own
+//! (a geometric series). For the boundary velocity and biases `w = 1/2`
+//! (counted at most twice); for gravity, a constant of the whole run whose
+//! information truly accumulates, `w = 0.9`.
 
 use nalgebra::{Matrix2, Matrix3x2, RowVector3, SMatrix, SVector, Vector2, Vector3};
 
@@ -28,11 +32,11 @@ pub(crate) fn sqrt_information2(cov: &Matrix2<f64>, weight: f64) -> Option<Matri
     u.iter().all(|v| v.is_finite()).then_some(u)
 }
 
-/// The eq. 34 prior on the oldest free keyframe: its velocity (the
-/// paper's) and, here, its biases too. The inertial terms to the fixed
-/// keyframes are left out of the cost (their velocities and biases are
-/// stale estimates that must not act as hard constraints), so this prior
-/// is what carries the earlier keyframes' information on `[v, b_g, b_a]`.
+/// The eq. 34 prior at the boundary of the free part: on the velocity
+/// (the paper's) and, here, the biases of the newest fixed keyframe,
+/// whose pose is held and whose `[v, b_g, b_a]` is estimated. It carries
+/// the information of the keyframes before it; its source is that
+/// keyframe's marginal from the solve in which it was still free.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct OldestFreePrior {
     pub seq: u64,
