@@ -139,7 +139,7 @@ impl Window {
                 Some(p) if p.seq != newest.seq => {
                     let Some(first) = self
                         .keyframes
-                        .get((p.seq - front_seq) as usize)
+                        .get(p.seq.wrapping_sub(front_seq) as usize)
                         .filter(|k| k.seq == p.seq)
                     else {
                         self.pending.insert(
