@@ -13,6 +13,7 @@ pub mod estimator;
 pub mod imu_buffer;
 pub mod tracker;
 pub mod types;
+pub mod window;
 
 pub use config::{ConfigError, EstimatorKind, RelativeConfig};
 pub use estimator::{

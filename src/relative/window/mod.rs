@@ -1,0 +1,669 @@
+//! The window estimator of the relative stage (paper eq. 29-40): L
+//! keyframes kept, the newest M optimised by Levenberg-Marquardt, the
+//! oldest L-M held fixed.
+//!
+//! Cost (eq. 29): reprojection error of every observation in the window
+//! (sigma `pixel_sigma`, robust kernel, [`reprojection`]) + the inertial
+//! residual and the bias random walk between consecutive keyframes from
+//! the newest fixed one on ([`inertial`]) + the eq. 34 prior ([`prior`])
+//! on gravity and on the velocity (and biases) at the boundary of the free
+//! part. The boundary is the newest fixed keyframe: its pose is held, but
+//! its velocity and biases are estimated under that prior, so the inertial
+//! term that links it to the oldest free keyframe (which carries the scale
+//! at a monocular start) does not treat an old velocity estimate as exact.
+//! Older fixed keyframes enter through their observations only. The normal equations are solved with the Schur
+//! complement on the landmarks ([`schur`]); the LM loop is in
+//! [`levenberg_marquardt`]. Frames between keyframes get their pose from
+//! the window's landmarks ([`frame_pose`]); new landmarks come from stereo
+//! pairs or from two keyframes with parallax ([`new_landmarks`]).
+//!
+//! Gauge: the fixed keyframes (at least the first one) fix the world
+//! frame. In monocular vision-only mode with a single fixed keyframe the
+//! distance between the first two keyframes is held ([`prior::ScaleAnchor`]),
+//! which fixes the scale the initialiser chose (unit first translation);
+//! from two fixed keyframes on they fix it. With the IMU the world is
+//! gravity-aligned; gravity is a 2-DoF direction state (see [`inertial`])
+//! with the eq. 34 prior.
+
+pub mod frame_pose;
+pub mod inertial;
+pub mod levenberg_marquardt;
+pub mod new_landmarks;
+pub mod prior;
+pub mod reprojection;
+pub mod rig_camera;
+pub mod schur;
+pub mod state;
+
+#[cfg(test)]
+mod synthetic;
+#[cfg(test)]
+mod tests;
+
+use std::collections::{HashMap, HashSet, VecDeque};
+
+use nalgebra::{DMatrix, Isometry3, Matrix3x2, Vector3};
+
+pub use frame_pose::FramePose;
+pub use levenberg_marquardt::WindowReport;
+pub use reprojection::RobustKernel;
+
+use inertial::{bias_walk_sqrt_info, tangent_basis, InertialLink};
+use prior::{GravityPrior, OldestFreePrior, ScaleAnchor};
+use schur::{LandmarkBlock, NormalEquations, ObservationRow};
+use state::{state_is_finite, Keyframe, KeyframeObservation};
+
+use crate::imu::{ImuBiases, Preintegrated, GRAVITY_M_S2};
+use crate::relative::estimator::RigModel;
+use crate::relative::types::{BodyLandmark, KeyframeState, LandmarkId, TrackedFrame};
+use crate::rig::ImuNoise;
+use rig_camera::RigCamera;
+
+/// Settings of the window (defaults in brackets).
+#[derive(Debug, Clone, PartialEq)]
+pub struct WindowConfig {
+    /// L: keyframes kept [10].
+    pub keyframes_kept: usize,
+    /// M: newest keyframes optimised [7]; the oldest L-M are held fixed.
+    pub keyframes_free: usize,
+    /// Standard deviation of a pixel measurement [1.0].
+    pub pixel_sigma: f64,
+    pub robust_kernel: RobustKernel,
+    /// Kernel threshold in pixels [1.5].
+    pub huber_px: f64,
+    /// Squared whitened error above which an observation is flagged an
+    /// outlier after an optimisation [5.991, chi-square 2 DoF at 95%].
+    pub outlier_chi2: f64,
+    /// LM iterations per optimisation [10].
+    pub max_iterations: usize,
+    /// Inertial terms on [false]; see [`Window::enable_imu`].
+    pub use_imu: bool,
+    /// Smallest ray angle to triangulate from two keyframes [1 deg].
+    pub min_parallax_deg: f64,
+    /// Smallest ray angle to triangulate from a stereo pair [0.25 deg].
+    pub stereo_min_parallax_deg: f64,
+    /// Depth range of a new landmark in either camera, window units [0.05, 200].
+    pub min_depth_m: f64,
+    pub max_depth_m: f64,
+    /// Largest reprojection error of a new landmark in the two views it
+    /// is triangulated from, px [5.0].
+    pub init_max_error_px: f64,
+    /// Gravity prior before any solve, rad [0.02].
+    pub gravity_prior_sigma_rad: f64,
+    /// Prior on the oldest free keyframe when no marginal is known yet:
+    /// velocity m/s [0.5], gyro bias rad/s [0.01], accel bias m/s^2 [0.2].
+    pub velocity_prior_sigma_m_s: f64,
+    pub gyro_bias_prior_sigma_rad_s: f64,
+    pub accel_bias_prior_sigma_m_s2: f64,
+    /// Share of the previous solve's marginal information kept as the
+    /// prior on the boundary keyframe's velocity and biases [0.5].
+    pub prior_weight: f64,
+    /// The same for gravity [0.9]: gravity is a constant of the whole run,
+    /// so its information may accumulate (to about 9 windows' worth).
+    pub gravity_prior_weight: f64,
+    /// Inliers for [`Window::track_frame`] to call a pose good [12].
+    pub min_track_inliers: usize,
+    /// LM iterations of [`Window::track_frame`] [8].
+    pub track_max_iterations: usize,
+}
+
+impl Default for WindowConfig {
+    fn default() -> Self {
+        Self {
+            keyframes_kept: 10,
+            keyframes_free: 7,
+            pixel_sigma: 1.0,
+            robust_kernel: RobustKernel::Huber,
+            huber_px: 1.5,
+            outlier_chi2: 5.991,
+            max_iterations: 10,
+            use_imu: false,
+            min_parallax_deg: 1.0,
+            stereo_min_parallax_deg: 0.25,
+            min_depth_m: 0.05,
+            max_depth_m: 200.0,
+            init_max_error_px: 5.0,
+            gravity_prior_sigma_rad: 0.02,
+            velocity_prior_sigma_m_s: 0.5,
+            gyro_bias_prior_sigma_rad_s: 0.01,
+            accel_bias_prior_sigma_m_s2: 0.2,
+            prior_weight: 0.5,
+            gravity_prior_weight: 0.9,
+            min_track_inliers: 12,
+            track_max_iterations: 8,
+        }
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum WindowError {
+    #[error("window config `{key}` = {value}: {allowed}")]
+    InvalidConfig {
+        key: &'static str,
+        value: String,
+        allowed: &'static str,
+    },
+    #[error("the rig has no camera")]
+    NoCamera,
+    #[error("use_imu is set but the rig has no IMU")]
+    NoImu,
+    #[error("keyframe state at {t_ns} ns is not finite")]
+    NonFiniteState { t_ns: i64 },
+    #[error("keyframe at {t_ns} ns does not come after the latest one at {latest_ns} ns")]
+    NotIncreasing { t_ns: i64, latest_ns: i64 },
+    #[error(
+        "preintegrated IMU spans {start_ns}..{end_ns} ns, expected {expected_start_ns}..{expected_end_ns} ns"
+    )]
+    ImuIntervalMismatch {
+        start_ns: i64,
+        end_ns: i64,
+        expected_start_ns: i64,
+        expected_end_ns: i64,
+    },
+    #[error("{what}: got {got} values for {expected} keyframes")]
+    LengthMismatch {
+        what: &'static str,
+        got: usize,
+        expected: usize,
+    },
+    #[error("{what} is not finite or out of range")]
+    InvalidValue { what: &'static str },
+}
+
+impl WindowConfig {
+    fn validate(&self) -> Result<(), WindowError> {
+        let bad = |key: &'static str, value: String, allowed: &'static str| {
+            Err(WindowError::InvalidConfig {
+                key,
+                value,
+                allowed,
+            })
+        };
+        if self.keyframes_kept < 2 {
+            return bad("keyframes_kept", self.keyframes_kept.to_string(), "at least 2");
+        }
+        if self.keyframes_free == 0 || self.keyframes_free >= self.keyframes_kept {
+            return bad(
+                "keyframes_free",
+                self.keyframes_free.to_string(),
+                "between 1 and keyframes_kept - 1",
+            );
+        }
+        let positive = [
+            ("pixel_sigma", self.pixel_sigma),
+            ("huber_px", self.huber_px),
+            ("min_parallax_deg", self.min_parallax_deg),
+            ("stereo_min_parallax_deg", self.stereo_min_parallax_deg),
+            ("min_depth_m", self.min_depth_m),
+            ("max_depth_m", self.max_depth_m),
+            ("init_max_error_px", self.init_max_error_px),
+            ("gravity_prior_sigma_rad", self.gravity_prior_sigma_rad),
+            ("velocity_prior_sigma_m_s", self.velocity_prior_sigma_m_s),
+            ("gyro_bias_prior_sigma_rad_s", self.gyro_bias_prior_sigma_rad_s),
+            ("accel_bias_prior_sigma_m_s2", self.accel_bias_prior_sigma_m_s2),
+            ("prior_weight", self.prior_weight),
+            ("gravity_prior_weight", self.gravity_prior_weight),
+        ];
+        for (key, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return bad(key, v.to_string(), "a finite number > 0");
+            }
+        }
+        // Infinity switches the outlier flagging off.
+        if self.outlier_chi2.is_nan() || self.outlier_chi2 <= 0.0 {
+            return bad("outlier_chi2", self.outlier_chi2.to_string(), "a number > 0 (inf: no flagging)");
+        }
+        if self.max_depth_m <= self.min_depth_m {
+            return bad("max_depth_m", self.max_depth_m.to_string(), "above min_depth_m");
+        }
+        Ok(())
+    }
+}
+
+/// A landmark of the window.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Landmark {
+    pub position_world_m: Vector3<f64>,
+}
+
+/// The first view of a track not yet triangulated.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct PendingTrack {
+    pub seq: u64,
+    pub obs_index: usize,
+}
+
+/// The reusable buffers of one optimisation.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Problem {
+    pub rows: Vec<ObservationRow>,
+    pub landmarks: Vec<LandmarkBlock>,
+    pub index: HashMap<LandmarkId, usize>,
+    pub counts: Vec<(usize, bool)>,
+    pub remap: Vec<usize>,
+    pub eq: NormalEquations,
+    /// Keyframes `n_fixed..` are free; each has `state_dim` columns.
+    pub n_fixed: usize,
+    pub state_dim: usize,
+    /// Column of the gravity direction (IMU on).
+    pub gravity_offset: Option<usize>,
+    /// Columns of the newest fixed keyframe's `[v, b_g, b_a]` (IMU on).
+    pub boundary_offset: Option<usize>,
+    pub gravity_basis: Matrix3x2<f64>,
+    pub stereo_rows: usize,
+    pub backup_states: Vec<KeyframeState>,
+    pub backup_landmarks: Vec<Vector3<f64>>,
+    pub backup_gravity: Vector3<f64>,
+    /// `S^-1 Y` of one landmark (body-frame covariances).
+    pub z_buffer: DMatrix<f64>,
+}
+
+/// The sliding-window estimator.
+#[derive(Debug, Clone)]
+pub struct Window {
+    config: WindowConfig,
+    cameras: Vec<RigCamera>,
+    imu_noise: Option<ImuNoise>,
+    use_imu: bool,
+    keyframes: VecDeque<Keyframe>,
+    next_seq: u64,
+    landmarks: HashMap<LandmarkId, Landmark>,
+    pending: HashMap<LandmarkId, PendingTrack>,
+    gravity_dir: Vector3<f64>,
+    velocity_prior: Option<OldestFreePrior>,
+    gravity_prior: GravityPrior,
+    scale_anchor: Option<ScaleAnchor>,
+    problem: Problem,
+    /// Marginal covariance of the free states after the last optimise.
+    state_covariance: Option<DMatrix<f64>>,
+    body_landmarks: Vec<BodyLandmark>,
+    /// Scratch for the stereo pairing of a new keyframe.
+    scratch_pairs: Vec<(LandmarkId, usize)>,
+    /// Scratch for the landmarks still seen after a slide.
+    scratch_seen: HashSet<LandmarkId>,
+    track: frame_pose::TrackBuffers,
+}
+
+impl Window {
+    pub fn new(config: WindowConfig, rig: &RigModel) -> Result<Self, WindowError> {
+        config.validate()?;
+        if rig.cameras.is_empty() {
+            return Err(WindowError::NoCamera);
+        }
+        let imu_noise = rig.imu.as_ref().map(|i| i.noise);
+        if config.use_imu && imu_noise.is_none() {
+            return Err(WindowError::NoImu);
+        }
+        let down = Vector3::new(0.0, 0.0, -1.0);
+        Ok(Self {
+            use_imu: config.use_imu,
+            gravity_prior: GravityPrior::isotropic(down, config.gravity_prior_sigma_rad),
+            config,
+            cameras: rig.cameras.iter().cloned().map(RigCamera::new).collect(),
+            imu_noise,
+            keyframes: VecDeque::new(),
+            next_seq: 0,
+            landmarks: HashMap::new(),
+            pending: HashMap::new(),
+            gravity_dir: down,
+            velocity_prior: None,
+            scale_anchor: None,
+            problem: Problem {
+                gravity_basis: tangent_basis(&down),
+                ..Problem::default()
+            },
+            state_covariance: None,
+            body_landmarks: Vec::new(),
+            scratch_pairs: Vec::new(),
+            scratch_seen: HashSet::new(),
+            track: frame_pose::TrackBuffers::default(),
+        })
+    }
+
+    pub fn config(&self) -> &WindowConfig {
+        &self.config
+    }
+
+    /// Adds a keyframe: its initial guess, its observations (distorted
+    /// pixels, left and, in stereo, right camera) and the preintegrated
+    /// IMU from the previous keyframe (None for the first one or without
+    /// IMU). Slides the window (the oldest beyond L leaves with its
+    /// observations; landmarks no keyframe sees any more are removed) and
+    /// initialises new landmarks. Observations with non-finite pixels or
+    /// an unknown camera are skipped.
+    pub fn push_keyframe(
+        &mut self,
+        guess: KeyframeState,
+        frame: &TrackedFrame,
+        imu: Option<Preintegrated>,
+    ) -> Result<(), WindowError> {
+        if !state_is_finite(&guess) {
+            return Err(WindowError::NonFiniteState { t_ns: guess.t_ns });
+        }
+        let previous = self.keyframes.back().map(|k| k.state.t_ns);
+        if let Some(latest_ns) = previous {
+            if guess.t_ns <= latest_ns {
+                return Err(WindowError::NotIncreasing {
+                    t_ns: guess.t_ns,
+                    latest_ns,
+                });
+            }
+        }
+        let link = match (imu, previous) {
+            (Some(pre), Some(start)) => {
+                if pre.t_start_ns != start
+                    || pre.t_end_ns != guess.t_ns
+                    || !(pre.dt_s.is_finite() && pre.dt_s > 0.0)
+                {
+                    return Err(WindowError::ImuIntervalMismatch {
+                        start_ns: pre.t_start_ns,
+                        end_ns: pre.t_end_ns,
+                        expected_start_ns: start,
+                        expected_end_ns: guess.t_ns,
+                    });
+                }
+                Some(InertialLink::new(pre))
+            }
+            _ => None,
+        };
+        let bias_walk = match (self.imu_noise, previous) {
+            (Some(noise), Some(start)) => Some(bias_walk_sqrt_info(
+                &noise,
+                (guess.t_ns - start) as f64 * 1e-9,
+            )),
+            _ => None,
+        };
+        let n_cameras = self.cameras.len();
+        let observations = frame
+            .observations
+            .iter()
+            .filter(|o| (o.camera_index as usize) < n_cameras && o.pixel.iter().all(|v| v.is_finite()))
+            .map(|o| KeyframeObservation {
+                landmark: o.landmark,
+                camera: o.camera_index,
+                pixel: o.pixel,
+                outlier: false,
+            })
+            .collect();
+        let seq = self.next_seq;
+        self.next_seq += 1;
+        self.keyframes.push_back(Keyframe {
+            seq,
+            state: guess,
+            observations,
+            imu: link,
+            bias_walk_sqrt_info: bias_walk,
+            state_marginal: None,
+        });
+        if self.keyframes.len() > self.config.keyframes_kept {
+            self.keyframes.pop_front();
+            self.forget_unobserved();
+        }
+        if self.keyframes.len() == 2 && self.scale_anchor.is_none() {
+            let p0 = self.keyframes[0].state.T_world_body.translation.vector;
+            let p1 = self.keyframes[1].state.T_world_body.translation.vector;
+            let distance = (p1 - p0).norm();
+            if distance.is_finite() && distance > 0.0 {
+                self.scale_anchor = Some(ScaleAnchor {
+                    seq_first: self.keyframes[0].seq,
+                    seq_second: self.keyframes[1].seq,
+                    distance,
+                });
+            }
+        }
+        self.initialise_landmarks();
+        self.state_covariance = None;
+        self.body_landmarks.clear();
+        Ok(())
+    }
+
+    /// Drops landmarks and pending tracks no keyframe in the window sees.
+    fn forget_unobserved(&mut self) {
+        let oldest = self.keyframes.front().map_or(u64::MAX, |k| k.seq);
+        self.pending.retain(|_, p| p.seq >= oldest);
+        self.scratch_seen.clear();
+        for kf in &self.keyframes {
+            for o in &kf.observations {
+                if self.landmarks.contains_key(&o.landmark) {
+                    self.scratch_seen.insert(o.landmark);
+                }
+            }
+        }
+        let seen = &self.scratch_seen;
+        self.landmarks.retain(|id, _| seen.contains(id));
+    }
+
+    /// Number of keyframes held fixed now: the oldest L-M, and at least
+    /// the first one.
+    pub fn fixed_count(&self) -> usize {
+        let n = self.keyframes.len();
+        n.saturating_sub(self.config.keyframes_free).max(1).min(n)
+    }
+
+    pub fn latest(&self) -> Option<&KeyframeState> {
+        self.keyframes.back().map(|k| &k.state)
+    }
+
+    /// The keyframes' states, oldest first.
+    pub fn keyframes(&self) -> impl ExactSizeIterator<Item = &KeyframeState> + '_ {
+        self.keyframes.iter().map(|k| &k.state)
+    }
+
+    pub fn keyframe_count(&self) -> usize {
+        self.keyframes.len()
+    }
+
+    pub fn gravity_world_m_s2(&self) -> Vector3<f64> {
+        self.gravity_dir * GRAVITY_M_S2
+    }
+
+    /// Sets gravity (its direction; the magnitude is 9.81) with a prior of
+    /// `sigma_rad` around it.
+    pub fn set_gravity(&mut self, gravity_world_m_s2: Vector3<f64>, sigma_rad: f64) -> Result<(), WindowError> {
+        let n = gravity_world_m_s2.norm();
+        if !(n.is_finite() && n > 0.0 && sigma_rad.is_finite() && sigma_rad > 0.0) {
+            return Err(WindowError::InvalidValue { what: "gravity or its sigma" });
+        }
+        self.gravity_dir = gravity_world_m_s2 / n;
+        self.gravity_prior = GravityPrior::isotropic(self.gravity_dir, sigma_rad);
+        self.state_covariance = None;
+        Ok(())
+    }
+
+    /// Replaces the keyframes' states (same count and order as
+    /// [`Self::keyframes`]).
+    pub fn set_states(&mut self, states: &[KeyframeState]) -> Result<(), WindowError> {
+        if states.len() != self.keyframes.len() {
+            return Err(WindowError::LengthMismatch {
+                what: "states",
+                got: states.len(),
+                expected: self.keyframes.len(),
+            });
+        }
+        if !states.iter().all(state_is_finite) {
+            return Err(WindowError::InvalidValue { what: "states" });
+        }
+        for (kf, s) in self.keyframes.iter_mut().zip(states) {
+            kf.state = *s;
+            kf.state_marginal = None;
+        }
+        self.velocity_prior = None;
+        Ok(())
+    }
+
+    /// Sets every keyframe's velocity and biases (the visual-inertial
+    /// alignment's answer), oldest first; the velocity prior restarts at
+    /// `velocity_prior_sigma_m_s`.
+    pub fn set_velocities_and_biases(
+        &mut self,
+        velocities_world_m_s: &[Vector3<f64>],
+        biases: &[ImuBiases],
+    ) -> Result<(), WindowError> {
+        let n = self.keyframes.len();
+        for (what, got) in [("velocities", velocities_world_m_s.len()), ("biases", biases.len())] {
+            if got != n {
+                return Err(WindowError::LengthMismatch { what, got, expected: n });
+            }
+        }
+        let finite = velocities_world_m_s.iter().all(|v| v.iter().all(|x| x.is_finite()))
+            && biases
+                .iter()
+                .all(|b| b.gyro_rad_s.iter().chain(b.accel_m_s2.iter()).all(|x| x.is_finite()));
+        if !finite {
+            return Err(WindowError::InvalidValue { what: "velocities or biases" });
+        }
+        for ((kf, v), b) in self.keyframes.iter_mut().zip(velocities_world_m_s).zip(biases) {
+            kf.state.velocity_world_m_s = *v;
+            kf.state.biases = *b;
+            kf.state_marginal = None;
+        }
+        self.velocity_prior = None;
+        Ok(())
+    }
+
+    /// Maps everything (keyframes, landmarks, gravity, priors) by
+    /// `x_new = T_new_old (scale x_old)`: how the initialiser hands over
+    /// a metric, gravity-aligned frame. Velocities scale and rotate.
+    ///
+    /// What scales is what the images determine: landmarks and the centres
+    /// of camera 0. Each body is then placed at its camera's centre minus
+    /// the (metric) body-camera offset, so a vision-only solution at an
+    /// arbitrary scale stays consistent with its images after the
+    /// handover; scaling body positions instead would misplace every
+    /// camera by `(1 - scale) |t_body_cam|`.
+    #[allow(non_snake_case)]
+    pub fn transform(&mut self, scale: f64, T_new_old: Isometry3<f64>) -> Result<(), WindowError> {
+        let finite = T_new_old.translation.vector.iter().all(|v| v.is_finite())
+            && T_new_old.rotation.coords.iter().all(|v| v.is_finite());
+        if !(scale.is_finite() && scale > 0.0 && finite) {
+            return Err(WindowError::InvalidValue { what: "scale or transform" });
+        }
+        let rot = T_new_old.rotation;
+        let map_point = |p: &Vector3<f64>| T_new_old.transform_point(&(p * scale).into()).coords;
+        let t_bc = self.cameras[0].calibration.T_body_cam.translation.vector;
+        for kf in self.keyframes.iter_mut() {
+            let s = &mut kf.state;
+            let centre = s.T_world_body.translation.vector + s.T_world_body.rotation * t_bc;
+            s.T_world_body.rotation = rot * s.T_world_body.rotation;
+            s.T_world_body.translation.vector = map_point(&centre) - s.T_world_body.rotation * t_bc;
+            s.velocity_world_m_s = rot * (s.velocity_world_m_s * scale);
+            kf.state_marginal = None;
+        }
+        for lm in self.landmarks.values_mut() {
+            lm.position_world_m = map_point(&lm.position_world_m);
+        }
+        self.gravity_dir = rot * self.gravity_dir;
+        let g = self.gravity_prior;
+        self.gravity_prior = GravityPrior {
+            mean_dir: rot * g.mean_dir,
+            basis: rot.to_rotation_matrix().into_inner() * g.basis,
+            sqrt_info: g.sqrt_info,
+        };
+        self.velocity_prior = None;
+        if let Some(a) = self.scale_anchor.as_mut() {
+            a.distance *= scale;
+        }
+        self.state_covariance = None;
+        self.body_landmarks.clear();
+        Ok(())
+    }
+
+    /// Replaces the preintegrated IMU that ends at keyframe `t_end_ns`
+    /// (e.g. integrated again with the biases the initialiser found); it
+    /// must start at the previous keyframe.
+    pub fn set_preintegrated(&mut self, pre: Preintegrated) -> Result<(), WindowError> {
+        let pos = self
+            .keyframes
+            .iter()
+            .position(|k| k.state.t_ns == pre.t_end_ns)
+            .filter(|&p| p > 0);
+        let Some(pos) = pos else {
+            return Err(WindowError::ImuIntervalMismatch {
+                start_ns: pre.t_start_ns,
+                end_ns: pre.t_end_ns,
+                expected_start_ns: self.keyframes.front().map_or(0, |k| k.state.t_ns),
+                expected_end_ns: self.keyframes.back().map_or(0, |k| k.state.t_ns),
+            });
+        };
+        let start = self.keyframes[pos - 1].state.t_ns;
+        if pre.t_start_ns != start || !(pre.dt_s.is_finite() && pre.dt_s > 0.0) {
+            return Err(WindowError::ImuIntervalMismatch {
+                start_ns: pre.t_start_ns,
+                end_ns: pre.t_end_ns,
+                expected_start_ns: start,
+                expected_end_ns: pre.t_end_ns,
+            });
+        }
+        self.keyframes[pos].imu = Some(InertialLink::new(pre));
+        Ok(())
+    }
+
+    /// Switches the inertial terms on or off (needs an IMU in the rig).
+    /// Preintegrated intervals given to [`Self::push_keyframe`] are kept
+    /// while it is off, so switching on after a vision-only start uses them.
+    pub fn enable_imu(&mut self, on: bool) -> Result<(), WindowError> {
+        if on && self.imu_noise.is_none() {
+            return Err(WindowError::NoImu);
+        }
+        self.use_imu = on;
+        self.velocity_prior = None;
+        self.state_covariance = None;
+        Ok(())
+    }
+
+    pub fn imu_enabled(&self) -> bool {
+        self.use_imu
+    }
+
+    pub fn landmark_world(&self, id: LandmarkId) -> Option<Vector3<f64>> {
+        self.landmarks.get(&id).map(|l| l.position_world_m)
+    }
+
+    pub fn landmark_count(&self) -> usize {
+        self.landmarks.len()
+    }
+
+    /// Tracks seen once and waiting for a second view to triangulate.
+    pub fn pending_count(&self) -> usize {
+        self.pending.len()
+    }
+
+    /// Landmarks seen (as inliers) in the newest keyframe, in its body
+    /// frame, with the 3x3 covariance of that body-frame position, as of
+    /// the last [`Self::optimize`] (empty before one, and after a push).
+    ///
+    /// The covariance is the exact linearised marginal: the landmark's
+    /// marginal `V^-1 + V^-1 W^T S^-1 W V^-1` (S the reduced system), its
+    /// cross-covariance with the newest keyframe's pose, and that pose's
+    /// marginal, propagated through `p_body = R^T (p_world - p)`;
+    /// relative to the fixed keyframes. If the reduced system could not
+    /// be inverted it falls back to `V^-1` (the landmark given the poses).
+    pub fn landmarks_in_body(&self) -> &[BodyLandmark] {
+        &self.body_landmarks
+    }
+
+    /// [`Self::landmarks_in_body`] moved into the body frame of a frame
+    /// at `T_world_frame` (e.g. from [`Self::track_frame`]): positions
+    /// mapped through the newest keyframe's pose, covariances rotated. The
+    /// uncertainty of the frame relative to that keyframe is not added.
+    #[allow(non_snake_case)]
+    pub fn landmarks_in_frame_into(&self, T_world_frame: &Isometry3<f64>, out: &mut Vec<BodyLandmark>) {
+        out.clear();
+        let Some(newest) = self.keyframes.back() else {
+            return;
+        };
+        let T_frame_key = T_world_frame.inverse() * newest.state.T_world_body;
+        let r = T_frame_key.rotation.to_rotation_matrix().into_inner();
+        out.extend(self.body_landmarks.iter().map(|l| BodyLandmark {
+            id: l.id,
+            position_body_m: T_frame_key.transform_point(&l.position_body_m.into()).coords,
+            covariance_body_m2: r * l.covariance_body_m2 * r.transpose(),
+        }));
+    }
+
+    /// Marginal covariance of the free states (15 per free keyframe,
+    /// oldest free first, then gravity's 2) after the last optimisation.
+    pub fn state_covariance(&self) -> Option<&DMatrix<f64>> {
+        self.state_covariance.as_ref()
+    }
+}
