@@ -9,6 +9,7 @@
 //! [`types::RelativeOutput`] for the publisher and the absolute stage.
 
 pub mod estimator;
+pub mod initializer;
 pub mod types;
 
 pub use estimator::{
