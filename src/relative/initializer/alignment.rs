@@ -1033,7 +1033,7 @@ mod tests {
 
     #[test]
     fn stereo_alignment_with_known_scale() {
-        let case = synthetic_case(&standard(), Some(NOISE), 7, 10, 0.3, 1.0);
+        let case = synthetic_case(&standard(), Some(NOISE), 7, 15, 0.3, 1.0);
         let a = run(&case, ScaleMode::Known(1.0)).expect("aligned");
         assert_eq!(a.scale, 1.0);
         assert_eq!(a.scale_std, 0.0);

@@ -300,3 +300,212 @@ pub fn pnp_frame(
         inlier_count: pose.inlier_count,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::relative::types::Observation;
+    use crate::simulate::euroc_rig::euroc_cam0;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, Normal};
+
+    /// Points in front of the first camera, seen through the real EuRoC
+    /// cam0 model from camera poses `T_c0_ck`.
+    struct Scene {
+        points_c0: Vec<Vector3<f64>>,
+        camera: CameraModel,
+    }
+
+    fn scene(seed: u64) -> Scene {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let points_c0 = (0..250)
+            .map(|_| {
+                Vector3::new(
+                    rng.gen_range(-4.0..4.0),
+                    rng.gen_range(-2.5..2.5),
+                    rng.gen_range(4.0..10.0),
+                )
+            })
+            .collect();
+        Scene {
+            points_c0,
+            camera: euroc_cam0().model,
+        }
+    }
+
+    /// Observations of the points visible from `t_c0_cam`, with pixel
+    /// noise and a fraction of outliers moved by 20-60 px.
+    fn frame(
+        scene: &Scene,
+        t_c0_cam: &Isometry3<f64>,
+        t_ns: i64,
+        noise_px: f64,
+        outliers: f64,
+        rng: &mut ChaCha8Rng,
+    ) -> (TrackedFrame, Vec<LandmarkId>) {
+        let normal = Normal::new(0.0, noise_px.max(1e-300)).expect("valid sigma");
+        let mut observations = Vec::new();
+        let mut outlier_ids = Vec::new();
+        for (k, p) in scene.points_c0.iter().enumerate() {
+            let p_cam = t_c0_cam.inverse_transform_point(&(*p).into()).coords;
+            let Some(mut px) = scene.camera.project(&p_cam) else { continue };
+            if !(px.x > 0.0 && px.y > 0.0 && px.x < 752.0 && px.y < 480.0) {
+                continue;
+            }
+            if noise_px > 0.0 {
+                px += Vector2::new(normal.sample(rng), normal.sample(rng));
+            }
+            if rng.gen::<f64>() < outliers {
+                let angle: f64 = rng.gen_range(0.0..std::f64::consts::TAU);
+                px += Vector2::new(angle.cos(), angle.sin()) * rng.gen_range(20.0..60.0);
+                outlier_ids.push(k as LandmarkId);
+            }
+            observations.push(Observation {
+                landmark: k as LandmarkId,
+                camera_index: 0,
+                pixel: px,
+            });
+        }
+        (
+            TrackedFrame {
+                t_ns,
+                observations,
+                is_keyframe: true,
+            },
+            outlier_ids,
+        )
+    }
+
+    fn pose(translation: Vector3<f64>, rotation: Vector3<f64>) -> Isometry3<f64> {
+        Isometry3::from_parts(
+            Translation3::from(translation),
+            UnitQuaternion::from_scaled_axis(rotation),
+        )
+    }
+
+    #[test]
+    fn noise_free_bootstrap_is_exact_up_to_unit_translation() {
+        let s = scene(1);
+        let mut rng = ChaCha8Rng::seed_from_u64(2);
+        let t_c0_c1 = pose(Vector3::new(0.6, 0.1, 0.15), Vector3::new(0.02, -0.05, 0.01));
+        let (f0, _) = frame(&s, &Isometry3::identity(), 0, 0.0, 0.0, &mut rng);
+        let (f1, _) = frame(&s, &t_c0_c1, 1, 0.0, 0.0, &mut rng);
+        let b = bootstrap_two_view(&f0, &f1, &s.camera, &BootstrapConfig::default())
+            .expect("enough parallax");
+        let baseline = t_c0_c1.translation.vector.norm();
+        assert!((b.T_c0_c1.translation.vector.norm() - 1.0).abs() < 1e-12);
+        let t_err = (b.T_c0_c1.translation.vector - t_c0_c1.translation.vector / baseline).norm();
+        assert!(t_err < 1e-6, "translation direction off by {t_err}");
+        let r_err = (b.T_c0_c1.rotation.inverse() * t_c0_c1.rotation).angle();
+        assert!(r_err < 1e-7, "rotation off by {r_err}");
+        assert!(b.landmarks.len() > 150, "{}", b.landmarks.len());
+        assert!(b.landmarks.windows(2).all(|w| w[0].id < w[1].id));
+        for l in &b.landmarks {
+            let truth = s.points_c0[l.id as usize] / baseline;
+            let err = (l.position_c0 - truth).norm() / truth.norm();
+            assert!(err < 1e-5, "landmark {}: relative error {err}", l.id);
+        }
+        assert!(b.median_parallax_px > 20.0);
+    }
+
+    #[test]
+    fn noisy_bootstrap_rejects_outliers_and_pnp_places_the_frame_between() {
+        let s = scene(3);
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let t_c0_c2 = pose(Vector3::new(0.7, -0.1, 0.2), Vector3::new(-0.03, 0.08, 0.02));
+        let t_c0_c1 = pose(Vector3::new(0.35, -0.05, 0.1), Vector3::new(-0.01, 0.04, 0.01));
+        let (f0, out0) = frame(&s, &Isometry3::identity(), 0, 0.5, 0.1, &mut rng);
+        let (f2, out2) = frame(&s, &t_c0_c2, 2, 0.5, 0.1, &mut rng);
+        let b = bootstrap_two_view(&f0, &f2, &s.camera, &BootstrapConfig::default())
+            .expect("enough parallax");
+        let baseline = t_c0_c2.translation.vector.norm();
+        let dir_err = b
+            .T_c0_c1
+            .translation
+            .vector
+            .angle(&t_c0_c2.translation.vector)
+            .to_degrees();
+        assert!(dir_err < 3.0, "translation direction off by {dir_err} deg");
+        let r_err = (b.T_c0_c1.rotation.inverse() * t_c0_c2.rotation).angle().to_degrees();
+        assert!(r_err < 0.3, "rotation off by {r_err} deg");
+        let outliers_kept = b
+            .landmarks
+            .iter()
+            .filter(|l| out0.contains(&l.id) || out2.contains(&l.id))
+            .count();
+        assert!(outliers_kept <= 2, "{outliers_kept} outliers triangulated");
+        let mut errors: Vec<f64> = b
+            .landmarks
+            .iter()
+            .map(|l| {
+                let truth = s.points_c0[l.id as usize] / baseline;
+                (l.position_c0 - truth).norm() / truth.norm()
+            })
+            .collect();
+        errors.sort_by(f64::total_cmp);
+        let median = errors[errors.len() / 2];
+        assert!(median < 0.05, "median landmark error {median}");
+
+        // The frame between, from the landmarks.
+        let (f1, _) = frame(&s, &t_c0_c1, 1, 0.5, 0.1, &mut rng);
+        let p = pnp_frame(&f1, &b.landmarks, &s.camera, &PnpConfig::default()).expect("placed");
+        let expected = t_c0_c1.translation.vector / baseline;
+        let err = (p.T_c0_cam.translation.vector - expected).norm();
+        assert!(err < 0.05, "PnP position off by {err} (units of the first translation)");
+        let r_err = (p.T_c0_cam.rotation.inverse() * t_c0_c1.rotation).angle().to_degrees();
+        assert!(r_err < 0.5, "PnP rotation off by {r_err} deg");
+        assert!(p.inlier_count > 100);
+    }
+
+    #[test]
+    fn pure_rotation_and_small_parallax_are_refused() {
+        let s = scene(5);
+        let mut rng = ChaCha8Rng::seed_from_u64(6);
+        let config = BootstrapConfig::default();
+        let (f0, _) = frame(&s, &Isometry3::identity(), 0, 0.3, 0.0, &mut rng);
+        let turned = pose(Vector3::zeros(), Vector3::new(0.05, 0.1, -0.03));
+        let (f1, _) = frame(&s, &turned, 1, 0.3, 0.0, &mut rng);
+        let r = bootstrap_two_view(&f0, &f1, &s.camera, &config);
+        assert!(
+            matches!(
+                r,
+                Err(BootstrapRefusal::PureRotation { .. })
+                    | Err(BootstrapRefusal::TooLittleParallax { .. })
+            ),
+            "{r:?}"
+        );
+        // 5 cm at 4-10 m: about 3 px of parallax, with a large rotation.
+        let nudged = pose(Vector3::new(0.05, 0.0, 0.0), Vector3::new(0.05, 0.1, -0.03));
+        let (f2, _) = frame(&s, &nudged, 2, 0.3, 0.0, &mut rng);
+        let r = bootstrap_two_view(&f0, &f2, &s.camera, &config);
+        assert!(
+            matches!(
+                r,
+                Err(BootstrapRefusal::PureRotation { .. })
+                    | Err(BootstrapRefusal::TooLittleParallax { .. })
+            ),
+            "{r:?}"
+        );
+        // Too few shared landmarks.
+        let few = TrackedFrame {
+            t_ns: 3,
+            observations: f2.observations[..10].to_vec(),
+            is_keyframe: true,
+        };
+        assert!(matches!(
+            bootstrap_two_view(&f0, &few, &s.camera, &config),
+            Err(BootstrapRefusal::TooFewCorrespondences { found: 10, .. })
+        ));
+        // Non-finite pixels are dropped, not propagated.
+        let mut broken = f2.clone();
+        for o in &mut broken.observations {
+            o.pixel.x = f64::NAN;
+        }
+        assert!(matches!(
+            bootstrap_two_view(&f0, &broken, &s.camera, &config),
+            Err(BootstrapRefusal::TooFewCorrespondences { found: 0, .. })
+        ));
+        assert!(pnp_frame(&broken, &[], &s.camera, &PnpConfig::default()).is_err());
+    }
+}
