@@ -162,6 +162,20 @@ impl PinholeRadtan {
     /// not invertible (see the module documentation); `project` returns
     /// `None` there and `unproject` never returns a ray beyond it.
     pub fn max_valid_radius(&self) -> f64 {
+        let [k1, k2, _, _, k3] = self.distortion;
+        if k3 == 0.0 {
+            // The common case (EuRoC, most OpenCV calibrations): the
+            // derivative is the quadratic 1 + 3 k1 s + 5 k2 s^2 in s = r^2,
+            // solved in closed form. `project` asks for this on every
+            // call, so it must be cheap.
+            return smallest_positive_quadratic_root(5.0 * k2, 3.0 * k1, 1.0)
+                .map_or(f64::INFINITY, f64::sqrt);
+        }
+        self.max_valid_radius_by_root_search()
+    }
+
+    /// The fold radius by the general root search (any k3).
+    fn max_valid_radius_by_root_search(&self) -> f64 {
         let g = self.radial_derivative_polynomial();
         polynomial::root_magnitude_bound(&g)
             .and_then(|bound| polynomial::smallest_positive_root(&g, bound))
@@ -369,6 +383,25 @@ impl PinholeRadtan {
         }
         polynomial::solve_increasing(&radial_map, r_d, lo, hi)
     }
+}
+
+/// Smallest positive root of `a s^2 + b s + c` (c != 0), by the
+/// cancellation-free form of the quadratic formula.
+fn smallest_positive_quadratic_root(a: f64, b: f64, c: f64) -> Option<f64> {
+    if a == 0.0 {
+        let s = -c / b;
+        return (b != 0.0 && s > 0.0).then_some(s);
+    }
+    let disc = b * b - 4.0 * a * c;
+    if disc < 0.0 {
+        return None;
+    }
+    let q = -0.5 * (b + b.signum() * disc.sqrt());
+    let roots = [q / a, if q != 0.0 { c / q } else { f64::NAN }];
+    roots
+        .into_iter()
+        .filter(|s| s.is_finite() && *s > 0.0)
+        .min_by(f64::total_cmp)
 }
 
 #[cfg(test)]
@@ -747,6 +780,27 @@ mod tests {
     /// The radial derivative polynomial's smallest positive root against
     /// closed forms: k1 only, `r^2 = 1 / (3 |k1|)`; k1 and k2, the smaller
     /// root of `1 + 3 k1 s + 5 k2 s^2`.
+    #[test]
+    fn closed_form_fold_radius_agrees_with_the_root_search() {
+        for (k1, k2) in [(-0.3, 0.05), (-0.5, 0.01), (-0.28, 0.07), (0.1, -0.02), (-0.9, 0.3), (0.0, -0.1), (-0.2, 0.0)] {
+            let camera = PinholeRadtan {
+                width: 640,
+                height: 480,
+                fx: 500.0,
+                fy: 500.0,
+                cx: 320.0,
+                cy: 240.0,
+                distortion: [k1, k2, 0.0, 0.0, 0.0],
+            };
+            let fast = camera.max_valid_radius();
+            let general = camera.max_valid_radius_by_root_search();
+            assert!(
+                (fast.is_infinite() && general.is_infinite()) || (fast - general).abs() < 1e-9 * general,
+                "k1 {k1} k2 {k2}: {fast} vs {general}"
+            );
+        }
+    }
+
     #[test]
     fn fold_radius_matches_closed_forms() {
         let k1_only = euroc_cam0_k1_only();

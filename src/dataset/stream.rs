@@ -59,7 +59,7 @@ pub struct StreamOptions {
     /// Deliver the IMU samples.
     pub imu: bool,
     /// Skip frames before this stamp (and IMU samples before the first
-    /// delivered frame's previous 1 s).
+    /// delivered frame's previous 2 s, as a live IMU would have run before the camera).
     pub start_ns: Option<i64>,
     pub max_frames: Option<usize>,
 }
@@ -116,7 +116,7 @@ impl<'a> SensorStream<'a> {
             .start_ns
             .map_or(0, |t| left.partition_point(|e| e.t_ns < t));
         let first_frame_ns = left.get(next_frame).map_or(i64::MAX, |e| e.t_ns);
-        let next_imu = imu.partition_point(|s| s.t_ns < first_frame_ns - 1_000_000_000);
+        let next_imu = imu.partition_point(|s| s.t_ns < first_frame_ns - 2_000_000_000);
         Ok(Self {
             left,
             load_left,

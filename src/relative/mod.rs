@@ -1,21 +1,27 @@
 //! Stage 1 of the method: relative motion by a tightly coupled windowed
 //! visual-inertial odometry (paper Figure 8, eq. 29-40).
 //!
-//! A frame goes through [`types`] as follows: the tracker turns an image
-//! (or a stereo pair) into a [`types::TrackedFrame`] of landmark
-//! observations; until the scale is known the initialiser collects them;
+//! A frame goes through the modules in this order: [`tracker`] turns an
+//! image (or a stereo pair) into a [`types::TrackedFrame`] of landmark
+//! observations; [`imu_buffer`] holds the samples between frames; until
+//! the state is metric [`initializer`] finds a static start, bootstraps
+//! the mono modes and aligns the IMU with the vision-only [`window`];
 //! afterwards the window optimises the newest keyframes with the IMU
-//! intervals between them, and every frame leaves as a
-//! [`types::RelativeOutput`] for the publisher and the absolute stage.
+//! intervals between them. [`odometry`] runs these steps per frame behind
+//! the [`estimator::RelativeEstimator`] interface, and every frame leaves
+//! as a [`types::RelativeOutput`] for the publisher and the absolute stage.
 
 pub mod config;
 pub mod estimator;
 pub mod imu_buffer;
+pub mod initializer;
+pub mod odometry;
 pub mod tracker;
 pub mod types;
 pub mod window;
 
 pub use config::{ConfigError, EstimatorKind, RelativeConfig};
+pub use odometry::{build_estimator, OdometryError, WindowOdometry};
 pub use estimator::{
     FrameInput, FrameTimings, RelativeEstimator, RigError, RigModel, SensorMode,
 };

@@ -230,8 +230,9 @@ impl Tracker {
         })
         .map_err(|e| bad("klt", e.to_string(), "a valid KLT configuration"))?;
         let stereo_klt = KltTracker::new(KltConfig {
-            half_window_px: config.klt_half_window_px + 3,
+            half_window_px: config.klt_half_window_px,
             fb_threshold_px: Some(2.0 * config.fb_threshold_px),
+            max_iterations: 15,
             ..KltConfig::default()
         })
         .map_err(|e| bad("klt", e.to_string(), "a valid KLT configuration"))?;

@@ -8,7 +8,8 @@ use std::path::Path;
 use crate::dataset::{
     groundtruth_trajectory, open_dataset, Dataset, DatasetError, SensorStream, StreamOptions,
 };
-use crate::eval::{evaluate, Alignment, EvalOptions, Evaluation};
+use crate::eval::report::Evaluation;
+use crate::eval::{evaluate, Alignment, EvalOptions};
 use crate::relative::{
     build_estimator, EstimatorKind, OdometryError, RelativeConfig, RelativeOutput, RigModel,
     SensorMode,

@@ -4,7 +4,7 @@
 //! [`crate::dataset::stream`]); this module only times it, keeps the
 //! poses and counts what happened.
 
-// pub mod dataset_run;
+pub mod dataset_run;
 pub mod report;
 
 use std::collections::BTreeMap;

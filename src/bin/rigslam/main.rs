@@ -9,6 +9,7 @@ mod echo;
 mod eval;
 mod imu;
 mod map;
+mod run;
 mod simulate;
 
 #[derive(Parser)]
@@ -38,6 +39,8 @@ enum Command {
     Map(map::MapArgs),
     /// Read a YEI 3-Space IMU: identity, rate, jitter, error counters; optionally record.
     Imu(imu::ImuArgs),
+    /// Run the relative stage on a recorded sequence (EuRoC or KITTI): trajectory, timings, accuracy.
+    Run(run::RunArgs),
     /// Render a synthetic EuRoC-layout dataset (images, IMU, ground truth, calibration).
     Simulate(simulate::SimulateArgs),
 }
@@ -88,5 +91,6 @@ fn run() -> anyhow::Result<()> {
         Command::Imu(args) => imu::run(args),
         Command::Map(args) => map::run(args),
         Command::Simulate(args) => simulate::run(args),
+        Command::Run(args) => run::run(args),
     }
 }

@@ -2,22 +2,16 @@
 //! trajectory (TUM), a one-line summary, and a report with per-stage
 //! timings and, when the dataset has ground truth, the accuracy.
 
-use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
-use rigslam::dataset::{
-    groundtruth_trajectory, open_dataset, read_trajectory_any, write_tum, Dataset, SensorStream,
-    StreamOptions,
-};
+use rigslam::dataset::{read_trajectory_any, write_tum};
 use rigslam::eval::plot::write_plot;
-use rigslam::eval::{evaluate, Alignment, EvalOptions};
-use rigslam::relative::{
-    build_estimator, EstimatorKind, RelativeConfig, RigModel, SensorMode,
-};
-use rigslam::run::{resident_memory_mib, run_stream, RunOptions, RunReport};
-use rigslam::trajectory::Trajectory;
+use rigslam::eval::Alignment;
+use rigslam::relative::{EstimatorKind, RelativeConfig, SensorMode};
+use rigslam::run::dataset_run::{run_dataset, summary_line, DatasetRun};
+use rigslam::run::RunOptions;
 
 #[derive(clap::Args)]
 pub struct RunArgs {
@@ -77,40 +71,21 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         print!("{}", RelativeConfig::default().to_toml()?);
         return Ok(());
     }
-    anyhow::ensure!(
-        args.start_s.is_finite() && args.start_s >= 0.0,
-        "--start-s must be a finite number >= 0, got {}",
-        args.start_s
-    );
     let config = match &args.config {
         Some(path) => RelativeConfig::from_toml_file(path)?,
         None => RelativeConfig::default(),
     };
-    let dataset = open_dataset(&args.dataset)
-        .with_context(|| format!("opening the dataset {}", args.dataset.display()))?;
-    let rig = rig_of(&dataset);
-    let mode = match args.mode {
-        Some(m) => m,
-        None => default_mode(&rig),
+    let groundtruth = match &args.groundtruth {
+        Some(path) => Some(
+            read_trajectory_any(path)
+                .with_context(|| format!("reading the ground truth {}", path.display()))?,
+        ),
+        None => None,
     };
-    rig.check(mode)
-        .with_context(|| format!("dataset {}", args.dataset.display()))?;
-    let mut estimator = build_estimator(args.estimator, mode, &rig, &config)?;
-
-    let first_ns = first_frame_ns(&dataset).context("the dataset lists no frames")?;
-    let mut stream = SensorStream::new(
-        &dataset,
-        StreamOptions {
-            stereo: mode.uses_stereo(),
-            imu: mode.uses_imu(),
-            start_ns: Some(first_ns + (args.start_s * 1e9).round() as i64),
-            max_frames: args.max_frames,
-        },
-    )?;
     let bar = if args.quiet || args.json {
         ProgressBar::hidden()
     } else {
-        let bar = ProgressBar::new(stream.frames_listed() as u64);
+        let bar = ProgressBar::new(0);
         bar.set_style(
             ProgressStyle::with_template(
                 "{spinner} {elapsed_precise} [{bar:30}] {pos}/{len} frames {per_sec} {msg}",
@@ -120,18 +95,24 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         );
         bar
     };
-    let outcome = run_stream(
-        &mut stream,
-        estimator.as_mut(),
-        RunOptions {
+    let run = DatasetRun {
+        mode: args.mode,
+        estimator: args.estimator,
+        config,
+        options: RunOptions {
             realtime: args.realtime,
         },
-        |output| {
-            bar.inc(1);
-            bar.set_message(format!("{:?}", output.state).to_lowercase());
-        },
-    )
-    .context("reading the dataset")?;
+        start_s: args.start_s,
+        max_frames: args.max_frames,
+        groundtruth,
+        align: args.align,
+    };
+    let result = run_dataset(&args.dataset, &run, |output, listed| {
+        bar.set_length(listed as u64);
+        bar.inc(1);
+        bar.set_message(format!("{:?}", output.state).to_lowercase());
+    })
+    .with_context(|| format!("running on {}", args.dataset.display()))?;
     bar.finish_and_clear();
 
     if let Some(path) = &args.trajectory {
@@ -139,156 +120,26 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             std::fs::create_dir_all(dir)
                 .with_context(|| format!("creating {}", dir.display()))?;
         }
-        write_tum(path, &outcome.trajectory)?;
+        write_tum(path, &result.outcome.trajectory)?;
     }
-
-    let ground_truth = match &args.groundtruth {
-        Some(path) => Some(read_trajectory_any(path)?),
-        None => dataset_groundtruth(&dataset),
-    };
-    let align = args.align.unwrap_or(match mode {
-        SensorMode::Mono => Alignment::Sim3,
-        _ => Alignment::Se3,
-    });
-    let evaluation = match &ground_truth {
-        Some(gt) if outcome.trajectory.len() >= 3 => {
-            let options = EvalOptions {
-                alignment: align,
-                scale_by_path: mode == SensorMode::Mono,
-                ..EvalOptions::default()
-            };
-            match evaluate(&outcome.trajectory, gt, &options) {
-                Ok(e) => Some(e),
-                Err(e) => {
-                    tracing::warn!("no accuracy: {e}");
-                    None
-                }
-            }
+    if let Some(path) = &args.plot {
+        match &result.evaluation {
+            Some(e) => write_plot(path, e)?,
+            None => tracing::warn!("no plot: no ground truth to compare with"),
         }
-        _ => None,
-    };
-    if let (Some(path), Some(e)) = (&args.plot, &evaluation) {
-        write_plot(path, e)?;
     }
-
-    let (frame_stats, stages) = outcome.timing_report();
-    let (rss_now, rss_peak) = resident_memory_mib();
-    let counters: BTreeMap<String, u64> = estimator
-        .counters()
-        .into_iter()
-        .map(|(k, v)| (k.to_string(), v))
-        .collect();
-    let sequence_s = outcome.sequence_s();
-    let stream_counts = stream.counts();
-    let report = RunReport {
-        dataset: args.dataset.display().to_string(),
-        mode: mode.name().to_string(),
-        estimator: args.estimator.name().to_string(),
-        frames: stream_counts.frames,
-        imu_samples: stream_counts.imu_samples,
-        wall_s: outcome.wall_s,
-        sequence_s,
-        realtime_factor: if outcome.wall_s > 0.0 {
-            sequence_s / outcome.wall_s
-        } else {
-            0.0
-        },
-        mean_ms_per_frame: frame_stats.map_or(0.0, |s| s.mean_ms),
-        p50_ms_per_frame: frame_stats.map_or(0.0, |s| s.p50_ms),
-        p99_ms_per_frame: frame_stats.map_or(0.0, |s| s.p99_ms),
-        max_ms_per_frame: frame_stats.map_or(0.0, |s| s.max_ms),
-        stages,
-        initialized_at_s: outcome
-            .initialized_at_ns
-            .zip(outcome.first_frame_ns)
-            .map(|(a, b)| (a - b) as f64 * 1e-9),
-        lost_count: outcome.lost_count,
-        lost_frames: outcome.lost_frames,
-        poses_written: outcome.trajectory.len(),
-        stream: stream_counts,
-        counters,
-        peak_rss_mib: rss_peak,
-        rss_at_10pct_mib: outcome.rss_at_10pct_mib,
-        rss_at_end_mib: rss_now,
-        eval: evaluation.as_ref().map(|e| e.report.clone()),
-    };
     if let Some(path) = &args.report {
-        let text = serde_json::to_string_pretty(&report).expect("report serialises");
+        let text = serde_json::to_string_pretty(&result.report).expect("report serialises");
         std::fs::write(path, text + "\n")
             .with_context(|| format!("writing the report {}", path.display()))?;
     }
     if args.json {
         println!(
             "{}",
-            serde_json::to_string(&report).expect("report serialises")
+            serde_json::to_string(&result.report).expect("report serialises")
         );
     } else {
-        println!("{}", summary_line(&report));
+        println!("{}", summary_line(&result.report));
     }
     Ok(())
-}
-
-/// `mono-inertial 2912 frames in 9.1 s (16.0x real time), 3.1 ms/frame mean, 7.9 ms p99; initialised at 0.0 s, lost 0x; ATE 0.041 m (se3), scale error 0.6 %, final drift 0.31 %`
-fn summary_line(r: &RunReport) -> String {
-    let mut line = format!(
-        "{} ({}) {} frames in {:.1} s ({:.1}x real time), {:.2} ms/frame mean, {:.2} ms p99; ",
-        r.mode,
-        r.estimator,
-        r.frames,
-        r.wall_s,
-        r.realtime_factor,
-        r.mean_ms_per_frame,
-        r.p99_ms_per_frame
-    );
-    match r.initialized_at_s {
-        Some(t) => line += &format!("initialised at {t:.2} s, "),
-        None => line += "never initialised, ",
-    }
-    line += &format!("lost {}x, {} poses", r.lost_count, r.poses_written);
-    if let Some(e) = &r.eval {
-        line += &format!("; ATE {:.3} m ({})", e.ate_rmse_m, e.align.name());
-        if let Some(s) = e.scale_error {
-            line += &format!(", scale error {:.2} %", 100.0 * s);
-        }
-        if let Some(d) = e.final_drift_pct {
-            line += &format!(", final drift {d:.2} %");
-        }
-    }
-    line
-}
-
-fn rig_of(dataset: &Dataset) -> RigModel {
-    match dataset {
-        Dataset::Euroc(d) => RigModel {
-            cameras: d.cameras.iter().map(|c| c.calibration.clone()).collect(),
-            imu: d.imu.as_ref().map(|i| i.calibration.clone()),
-        },
-        Dataset::Kitti(k) => RigModel {
-            cameras: vec![k.camera.clone()],
-            imu: None,
-        },
-    }
-}
-
-fn default_mode(rig: &RigModel) -> SensorMode {
-    match (rig.cameras.len() >= 2, rig.imu.is_some()) {
-        (true, true) => SensorMode::StereoInertial,
-        (false, true) => SensorMode::MonoInertial,
-        (true, false) => SensorMode::Stereo,
-        (false, false) => SensorMode::Mono,
-    }
-}
-
-fn first_frame_ns(dataset: &Dataset) -> Option<i64> {
-    match dataset {
-        Dataset::Euroc(d) => d.cameras.first()?.frames.first().map(|f| f.t_ns),
-        Dataset::Kitti(k) => k.frames.first().map(|f| f.t_ns),
-    }
-}
-
-fn dataset_groundtruth(dataset: &Dataset) -> Option<Trajectory> {
-    match dataset {
-        Dataset::Euroc(d) => d.groundtruth.as_deref().map(groundtruth_trajectory),
-        Dataset::Kitti(k) => k.groundtruth.clone(),
-    }
 }

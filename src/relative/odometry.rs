@@ -1,0 +1,849 @@
+//! The relative stage frame by frame (paper Figure 8): the tracker's
+//! observations, the IMU between frames and the window's optimisation
+//! joined into one [`RelativeEstimator`].
+//!
+//! Per frame: the gyroscope predicts the rotation since the last frame
+//! (for the tracker); the tracker hands over RANSAC-checked observations;
+//! the IMU interval from the newest keyframe predicts the state and the
+//! window places the frame against its landmarks (the scale of the new
+//! translation comes from the known points); a keyframe joins the window,
+//! which runs Levenberg-Marquardt over the reprojection and inertial
+//! errors.
+//!
+//! Before that, the initialisation mode brings the stage to a metric,
+//! gravity-aligned state in one of two ways:
+//! - a static start: the IMU (and the images, which must not move either:
+//!   the IMU alone cannot tell rest from constant velocity) says the rig is
+//!   at rest; gravity and the gyro bias come from the samples, the pose is
+//!   held, and the window starts from that state when the rig moves;
+//! - a moving start: the window runs vision-only (stereo depth from the
+//!   first frame; mono from a five-point bootstrap with a unit first
+//!   translation) until the visual-inertial alignment of its keyframes
+//!   gives the scale with good certainty, gravity, velocities and the gyro
+//!   bias; then the window is mapped into the metric world and the
+//!   inertial terms switch on (the paper's hybrid mode).
+//!
+//! When vision fails (black, blank or frozen frames) the IMU carries the
+//! state for at most `imu_only_max_s`; after that the frame is reported
+//! lost and the stage re-initialises, from the IMU-carried state when it
+//! is recent enough, so the pose does not jump.
+
+use std::collections::HashMap;
+
+use nalgebra::{Isometry3, Rotation3, Translation3, Vector2, Vector3};
+
+use crate::imu::{ImuBiases, NavState, Preintegrated, GRAVITY_M_S2};
+use crate::sensors::ImuSample;
+
+use super::config::{EstimatorKind, RelativeConfig};
+use super::estimator::{FrameInput, FrameTimings, RelativeEstimator, RigModel, SensorMode};
+use super::imu_buffer::ImuBuffer;
+use super::initializer::{
+    align_with_reintegration, bootstrap_two_view, detect_static_start, AlignmentConfig,
+    BootstrapConfig, BootstrapRefusal, ScaleMode, StaticStartConfig, VisionKeyframe,
+};
+use super::tracker::{Tracker, TrackerConfig};
+use super::types::{BodyLandmark, KeyframeState, LandmarkId, RelativeOutput, TrackedFrame, TrackingState};
+use super::window::{Window, WindowConfig};
+
+/// Where the stage is.
+#[derive(Debug, Clone, PartialEq)]
+enum Phase {
+    /// No pose yet. The mono modes keep their first keyframe here while
+    /// they wait for parallax.
+    Initializing { first: Option<TrackedFrame> },
+    /// Inertial modes at rest: the pose is held; `frame` is the newest
+    /// frame at rest, the window's first keyframe once the rig moves.
+    Resting {
+        state: KeyframeState,
+        frame: TrackedFrame,
+    },
+    /// Inertial modes after a moving start: the window runs vision-only
+    /// until the IMU is aligned with it.
+    Aligning,
+    /// The window runs; poses are metric and gravity-aligned (inertial
+    /// modes, stereo) or consistently scaled (mono).
+    Tracking,
+}
+
+/// Counters for the run report.
+#[derive(Debug, Clone, Copy, Default)]
+struct Counters {
+    frames: u64,
+    frames_out_of_order: u64,
+    tracker_errors: u64,
+    keyframes: u64,
+    window_errors: u64,
+    resets: u64,
+    static_frames: u64,
+    imu_only_frames: u64,
+    alignments_tried: u64,
+    bootstraps_tried: u64,
+    frames_without_imu: u64,
+}
+
+/// Median image motion under which the images agree that the rig rests, px.
+const REST_FLOW_PX: f64 = 0.5;
+/// A keyframe at least this often, s (the tracker may ask sooner).
+const MAX_KEYFRAME_GAP_NS: i64 = 500_000_000;
+
+/// The paper's relative stage with the windowed estimator.
+pub struct WindowOdometry {
+    mode: SensorMode,
+    rig: RigModel,
+    config: RelativeConfig,
+    tracker: Tracker,
+    window: Window,
+    window_config: WindowConfig,
+    imu: Option<ImuBuffer>,
+    static_config: StaticStartConfig,
+    phase: Phase,
+    /// The newest frame's estimate.
+    last: Option<KeyframeState>,
+    last_output: Option<RelativeOutput>,
+    /// Best gyro bias so far (for the tracker's rotation prediction).
+    gyro_bias_rad_s: Vector3<f64>,
+    /// Left-image positions of the previous frame, for the image motion.
+    previous_pixels: HashMap<LandmarkId, Vector2<f64>>,
+    /// Median image motion of the newest frame, px.
+    last_flow_px: Option<f64>,
+    /// Stamp of the last frame the images placed.
+    last_vision_ns: Option<i64>,
+    /// Consecutive frames without a usable pose.
+    bad_frames: usize,
+    /// The last trusted metric state, carried through a loss by the IMU.
+    last_good: Option<KeyframeState>,
+    timings: FrameTimings,
+    counters: Counters,
+}
+
+/// Why the stage could not be set up.
+#[derive(Debug, thiserror::Error)]
+pub enum OdometryError {
+    #[error(transparent)]
+    Rig(#[from] super::estimator::RigError),
+    #[error(transparent)]
+    Config(#[from] super::config::ConfigError),
+    #[error("setting up the relative stage: {0}")]
+    Setup(String),
+}
+
+/// The estimator `kind` for `mode` on `rig`.
+pub fn build_estimator(
+    kind: EstimatorKind,
+    mode: SensorMode,
+    rig: &RigModel,
+    config: &RelativeConfig,
+) -> Result<Box<dyn RelativeEstimator>, OdometryError> {
+    match kind {
+        EstimatorKind::Window => Ok(Box::new(WindowOdometry::new(mode, rig, config)?)),
+    }
+}
+
+impl WindowOdometry {
+    pub fn new(
+        mode: SensorMode,
+        rig: &RigModel,
+        config: &RelativeConfig,
+    ) -> Result<Self, OdometryError> {
+        rig.check(mode)?;
+        config.validate()?;
+        let cameras = if mode.uses_stereo() {
+            rig.cameras[..2].to_vec()
+        } else {
+            rig.cameras[..1].to_vec()
+        };
+        let tracker_config = TrackerConfig {
+            target_features: config.features,
+            ..TrackerConfig::default()
+        };
+        let tracker = Tracker::new(tracker_config, &cameras, mode.uses_stereo())
+            .map_err(|e| OdometryError::Setup(e.to_string()))?;
+        let used = RigModel {
+            cameras,
+            imu: if mode.uses_imu() { rig.imu.clone() } else { None },
+        };
+        let window_config = WindowConfig {
+            keyframes_kept: config.window_keyframes,
+            keyframes_free: config.window_free,
+            pixel_sigma: config.pixel_sigma_px,
+            use_imu: false,
+            ..WindowConfig::default()
+        };
+        let window = Window::new(window_config.clone(), &used)
+            .map_err(|e| OdometryError::Setup(e.to_string()))?;
+        let imu = used.imu.as_ref().map(|imu| ImuBuffer::new(imu.noise));
+        Ok(Self {
+            mode,
+            rig: used,
+            config: config.clone(),
+            tracker,
+            window,
+            window_config,
+            imu,
+            static_config: StaticStartConfig::default(),
+            phase: Phase::Initializing { first: None },
+            last: None,
+            last_output: None,
+            gyro_bias_rad_s: Vector3::zeros(),
+            previous_pixels: HashMap::new(),
+            last_flow_px: None,
+            last_vision_ns: None,
+            bad_frames: 0,
+            last_good: None,
+            timings: FrameTimings::default(),
+            counters: Counters::default(),
+        })
+    }
+
+    #[allow(non_snake_case)]
+    fn T_body_cam0(&self) -> Isometry3<f64> {
+        self.rig.cameras[0].T_body_cam
+    }
+
+    fn new_window(&mut self) {
+        self.window = Window::new(self.window_config.clone(), &self.rig)
+            .expect("the same config and rig were accepted at start");
+    }
+
+    /// Gyro-predicted rotation of the current left camera in the previous
+    /// one, for the tracker.
+    #[allow(non_snake_case)]
+    fn predicted_camera_rotation(&mut self, t_ns: i64) -> Option<Rotation3<f64>> {
+        let last_ns = self.last_output.as_ref()?.t_ns;
+        let bias = self.gyro_bias_rad_s;
+        let T_bc = self.T_body_cam0();
+        let r_body = self.imu.as_mut()?.rotation(last_ns, t_ns, &bias)?;
+        let r_bc = T_bc.rotation.to_rotation_matrix();
+        Some(r_bc.inverse() * r_body * r_bc)
+    }
+
+    /// Median motion of the left features since the previous frame, px.
+    fn median_flow_px(&mut self, frame: &TrackedFrame) -> Option<f64> {
+        let mut flows: Vec<f64> = frame
+            .in_camera(0)
+            .filter_map(|o| self.previous_pixels.get(&o.landmark).map(|p| (o.pixel - p).norm()))
+            .collect();
+        self.previous_pixels.clear();
+        self.previous_pixels
+            .extend(frame.in_camera(0).map(|o| (o.landmark, o.pixel)));
+        if flows.len() < 10 {
+            return None;
+        }
+        let mid = flows.len() / 2;
+        flows.select_nth_unstable_by(mid, f64::total_cmp);
+        Some(flows[mid])
+    }
+
+    fn output(
+        &mut self,
+        state: &KeyframeState,
+        tracking: TrackingState,
+        frame: Option<&TrackedFrame>,
+    ) -> RelativeOutput {
+        let previous = self
+            .last_output
+            .as_ref()
+            .filter(|o| o.state == TrackingState::Tracking)
+            .map(|o| o.T_world_body.translation.vector);
+        let position = state.T_world_body.translation.vector;
+        let delta = match (tracking, previous) {
+            (TrackingState::Tracking, Some(p)) => position - p,
+            _ => Vector3::zeros(),
+        };
+        let landmarks = match frame {
+            Some(f) if tracking == TrackingState::Tracking => self.body_landmarks(state, f),
+            _ => Vec::new(),
+        };
+        let out = RelativeOutput {
+            t_ns: state.t_ns,
+            state: tracking,
+            T_world_body: state.T_world_body,
+            velocity_world_m_s: state.velocity_world_m_s,
+            biases: state.biases,
+            delta_translation_world_m: delta,
+            landmarks,
+        };
+        self.last_output = Some(out.clone());
+        out
+    }
+
+    /// The window's landmarks seen in `frame`, in the frame's body, with
+    /// covariances: the newest keyframe's body-frame marginals moved
+    /// into this body (the relative pose taken as exact).
+    #[allow(non_snake_case)]
+    fn body_landmarks(&self, state: &KeyframeState, frame: &TrackedFrame) -> Vec<BodyLandmark> {
+        let Some(kf) = self.window.latest() else {
+            return Vec::new();
+        };
+        let seen: std::collections::HashSet<LandmarkId> =
+            frame.in_camera(0).map(|o| o.landmark).collect();
+        let T_cur_kf = state.T_world_body.inverse() * kf.T_world_body;
+        let r = T_cur_kf.rotation.to_rotation_matrix().into_inner();
+        self.window
+            .landmarks_in_body()
+            .iter()
+            .filter(|l| seen.contains(&l.id))
+            .map(|l| BodyLandmark {
+                id: l.id,
+                position_body_m: T_cur_kf.transform_point(&l.position_body_m.into()).coords,
+                covariance_body_m2: r * l.covariance_body_m2 * r.transpose(),
+            })
+            .collect()
+    }
+
+    fn held_state(&self, t_ns: i64) -> KeyframeState {
+        let mut state = self.last.unwrap_or(KeyframeState {
+            t_ns,
+            T_world_body: Isometry3::identity(),
+            velocity_world_m_s: Vector3::zeros(),
+            biases: ImuBiases::default(),
+        });
+        state.t_ns = t_ns;
+        state
+    }
+
+    fn unplaced_output(&mut self, t_ns: i64, tracking: TrackingState) -> RelativeOutput {
+        let state = self.held_state(t_ns);
+        self.output(&state, tracking, None)
+    }
+
+    /// Starts over: new tracks, an empty window.
+    fn reset(&mut self) {
+        self.counters.resets += 1;
+        self.tracker.reset();
+        self.new_window();
+        self.phase = Phase::Initializing { first: None };
+        self.bad_frames = 0;
+        self.previous_pixels.clear();
+    }
+
+    /// The state at `t_ns` from `anchor` by the IMU.
+    fn propagate(&mut self, anchor: &KeyframeState, t_ns: i64) -> Option<(KeyframeState, Preintegrated)> {
+        let gravity = if self.window.imu_enabled() {
+            self.window.gravity_world_m_s2()
+        } else {
+            Vector3::new(0.0, 0.0, -GRAVITY_M_S2)
+        };
+        let pre = self.imu.as_mut()?.preintegrate(anchor.t_ns, t_ns, &anchor.biases)?;
+        let nav = pre.predict(&nav_of(anchor), &anchor.biases, &gravity);
+        let state = KeyframeState {
+            t_ns,
+            T_world_body: Isometry3::from_parts(Translation3::from(nav.position_world_m), nav.R_world_body),
+            velocity_world_m_s: nav.velocity_world_m_s,
+            biases: anchor.biases,
+        };
+        Some((state, pre))
+    }
+
+    /// The state at `t_ns` predicted from the newest keyframe by the IMU
+    /// (inertial terms on) or by constant velocity.
+    fn predict(&mut self, t_ns: i64) -> (KeyframeState, Option<Preintegrated>) {
+        let anchor = *self.window.latest().expect("the window has a keyframe when tracking");
+        if self.window.imu_enabled() {
+            if let Some((state, pre)) = self.propagate(&anchor, t_ns) {
+                return (state, Some(pre));
+            }
+            self.counters.frames_without_imu += 1;
+        }
+        let last = self.last.filter(|l| l.t_ns >= anchor.t_ns).unwrap_or(anchor);
+        let dt_s = (t_ns - last.t_ns) as f64 * 1e-9;
+        let mut state = last;
+        state.t_ns = t_ns;
+        state.T_world_body.translation.vector += last.velocity_world_m_s * dt_s;
+        (state, None)
+    }
+
+    /// One frame with the window running.
+    fn track(&mut self, mut frame: TrackedFrame, tracking: TrackingState) -> RelativeOutput {
+        let t_ns = frame.t_ns;
+        let (guess, pre) = self.predict(t_ns);
+        let placed = {
+            let window = &mut self.window;
+            let pre_ref = pre.as_ref();
+            let frame_ref = &frame;
+            self.timings
+                .time("pose", || window.track_frame(guess, frame_ref, pre_ref))
+        };
+        let mut state = if placed.good {
+            self.last_vision_ns = Some(t_ns);
+            self.bad_frames = 0;
+            placed.state
+        } else {
+            let since_vision_s = self
+                .last_vision_ns
+                .map_or(f64::INFINITY, |v| (t_ns - v) as f64 * 1e-9);
+            // At rest (the images too): hold the pose, as at a static start.
+            if self.mode.uses_imu() && self.window.imu_enabled() {
+                let flow = self.last_flow_px;
+                if let Some(mut rest) = self.rest_state(&frame, flow) {
+                    rest.T_world_body.rotation = guess.T_world_body.rotation;
+                    if let Some(last) = self.last {
+                        rest.T_world_body.translation = last.T_world_body.translation;
+                    }
+                    self.counters.static_frames += 1;
+                    self.last = Some(rest);
+                    self.last_good = Some(rest);
+                    let out = self.output(&rest, TrackingState::Tracking, None);
+                    self.phase = Phase::Resting { state: rest, frame };
+                    return out;
+                }
+            }
+            let carried = pre.is_some() && since_vision_s <= self.config.imu_only_max_s;
+            if !carried {
+                self.bad_frames += 1;
+                if self.bad_frames >= self.config.lost_after_frames {
+                    self.reset();
+                }
+                self.last = Some(guess);
+                return self.output(&guess, TrackingState::Lost, None);
+            }
+            // The IMU carries the state; a keyframe keeps the window's
+            // inertial chain going and lets new landmarks be triangulated.
+            self.counters.imu_only_frames += 1;
+            frame.is_keyframe = true;
+            guess
+        };
+        if !self.window.imu_enabled() {
+            if let Some(last) = self.last.filter(|l| l.t_ns < t_ns) {
+                let dt_s = (t_ns - last.t_ns) as f64 * 1e-9;
+                state.velocity_world_m_s =
+                    (state.T_world_body.translation.vector - last.T_world_body.translation.vector) / dt_s;
+            }
+        }
+        let kf_gap = self.window.latest().map_or(i64::MAX, |k| t_ns - k.t_ns);
+        if frame.is_keyframe || kf_gap >= MAX_KEYFRAME_GAP_NS {
+            if self.add_keyframe(state, &frame, pre) {
+                if let Some(latest) = self.window.latest() {
+                    let velocity = state.velocity_world_m_s;
+                    state = *latest;
+                    if !self.window.imu_enabled() {
+                        state.velocity_world_m_s = velocity;
+                    }
+                }
+            }
+        }
+        self.gyro_bias_rad_s = state.biases.gyro_rad_s;
+        self.last = Some(state);
+        if tracking == TrackingState::Tracking && (self.mode.uses_imu() == self.window.imu_enabled()) {
+            self.last_good = Some(state);
+        }
+        self.output(&state, tracking, Some(&frame))
+    }
+
+    /// Pushes and optimises; false (and counted) when the window refused.
+    fn add_keyframe(&mut self, state: KeyframeState, frame: &TrackedFrame, pre: Option<Preintegrated>) -> bool {
+        let window = &mut self.window;
+        let pushed = self.timings.time("window", || {
+            window.push_keyframe(state, frame, pre)?;
+            window.optimize();
+            Ok::<(), super::window::WindowError>(())
+        });
+        if let Err(e) = pushed {
+            tracing::debug!("keyframe at {} ns refused: {e}", frame.t_ns);
+            self.counters.window_errors += 1;
+            return false;
+        }
+        self.counters.keyframes += 1;
+        self.tracker.mark_keyframe(frame.t_ns);
+        let oldest = self.window.keyframes().next().map(|k| k.t_ns);
+        if let (Some(imu), Some(oldest)) = (self.imu.as_mut(), oldest) {
+            // Keep a second before the oldest keyframe for the static
+            // detector and the alignment.
+            imu.discard_before(oldest.min(frame.t_ns - 1_000_000_000));
+        }
+        true
+    }
+
+    /// Inertial modes: the rest state when the IMU and the images agree
+    /// that nothing moves.
+    fn rest_state(&mut self, frame: &TrackedFrame, flow_px: Option<f64>) -> Option<KeyframeState> {
+        if flow_px.is_some_and(|f| f > REST_FLOW_PX) {
+            return None;
+        }
+        let imu = self.imu.as_ref()?;
+        // Up to the configured window, less while the IMU has not run
+        // that long (a camera that starts with the IMU); 0.4 s at least.
+        let available_s = (frame.t_ns - imu.samples().first()?.t_ns) as f64 * 1e-9;
+        if available_s < 0.4 {
+            return None;
+        }
+        let config = StaticStartConfig {
+            window_s: self.static_config.window_s.min(available_s),
+            ..self.static_config.clone()
+        };
+        let window_ns = (config.window_s * 1e9) as i64;
+        let samples = imu.between(frame.t_ns - window_ns - 50_000_000, frame.t_ns + 50_000_000);
+        let noise = self.rig.imu.as_ref()?.noise;
+        let rest = match detect_static_start(samples, frame.t_ns, &noise, &config) {
+            Ok(r) => r,
+            Err(e) => {
+                tracing::debug!("not at rest at {} ns: {e}", frame.t_ns);
+                return None;
+            }
+        };
+        let position = self.last.map_or(Vector3::zeros(), |s| s.T_world_body.translation.vector);
+        // Once resting, the attitude is held: re-levelling every frame
+        // would make the pose wander with the accelerometer noise.
+        let rotation = match &self.phase {
+            Phase::Resting { state, .. } => state.T_world_body.rotation,
+            _ => rest.R_world_body,
+        };
+        Some(KeyframeState {
+            t_ns: frame.t_ns,
+            T_world_body: Isometry3::from_parts(Translation3::from(position), rotation),
+            velocity_world_m_s: Vector3::zeros(),
+            biases: ImuBiases {
+                gyro_rad_s: rest.gyro_bias_rad_s,
+                accel_m_s2: Vector3::zeros(),
+            },
+        })
+    }
+
+    /// Starts the window, inertial terms on, from a known metric state
+    /// (the last rest frame, or a state the IMU carried through a loss).
+    fn start_inertial_window(&mut self, state: KeyframeState, frame: &TrackedFrame, gravity_sigma_rad: f64) -> bool {
+        self.new_window();
+        let ok = self.window.enable_imu(true).is_ok()
+            && self
+                .window
+                .set_gravity(Vector3::new(0.0, 0.0, -GRAVITY_M_S2), gravity_sigma_rad)
+                .is_ok()
+            && self.window.push_keyframe(state, frame, None).is_ok();
+        if ok {
+            self.counters.keyframes += 1;
+            self.tracker.mark_keyframe(frame.t_ns);
+            self.last_vision_ns = Some(frame.t_ns);
+        }
+        ok
+    }
+
+    fn initialize(&mut self, frame: TrackedFrame, flow_px: Option<f64>) -> RelativeOutput {
+        let t_ns = frame.t_ns;
+        if self.mode.uses_imu() {
+            // 1. At rest (or still at rest).
+            if let Some(state) = self.rest_state(&frame, flow_px) {
+                self.counters.static_frames += 1;
+                self.gyro_bias_rad_s = state.biases.gyro_rad_s;
+                self.last = Some(state);
+                self.last_good = Some(state);
+                let out = self.output(&state, TrackingState::Tracking, None);
+                self.phase = Phase::Resting { state, frame };
+                return out;
+            }
+            // 2. The rig started moving: the window starts from the last
+            //    rest frame, which becomes its first (fixed) keyframe.
+            if let Phase::Resting { state, frame: rest_frame } = self.phase.clone() {
+                if self.start_inertial_window(state, &rest_frame, 0.01) {
+                    self.phase = Phase::Tracking;
+                    let mut frame = frame;
+                    frame.is_keyframe = true;
+                    return self.track(frame, TrackingState::Tracking);
+                }
+            }
+            // 3. Carried through a loss by the IMU.
+            if let Some(good) = self.last_good {
+                let dt_s = (t_ns - good.t_ns) as f64 * 1e-9;
+                if dt_s <= self.config.imu_only_max_s {
+                    if let Some((state, _)) = self.propagate(&good, t_ns) {
+                        if self.start_inertial_window(state, &frame, 0.02) {
+                            self.counters.imu_only_frames += 1;
+                            self.phase = Phase::Tracking;
+                            self.last = Some(state);
+                            return self.output(&state, TrackingState::Tracking, Some(&frame));
+                        }
+                    }
+                }
+                self.last_good = None;
+            }
+        }
+        // 4. Vision first.
+        if self.mode.uses_stereo() {
+            self.start_stereo(frame)
+        } else {
+            self.start_mono(frame)
+        }
+    }
+
+    /// Stereo: metric from the first frame; the window starts vision-only
+    /// at the identity.
+    fn start_stereo(&mut self, frame: TrackedFrame) -> RelativeOutput {
+        let t_ns = frame.t_ns;
+        // After a loss, vision-only modes go on from the last pose, so the
+        // trajectory continues instead of jumping back to the origin.
+        let pose = if self.mode.uses_imu() {
+            Isometry3::identity()
+        } else {
+            self.last.map_or(Isometry3::identity(), |s| s.T_world_body)
+        };
+        let state = KeyframeState {
+            t_ns,
+            T_world_body: pose,
+            velocity_world_m_s: Vector3::zeros(),
+            biases: ImuBiases {
+                gyro_rad_s: self.gyro_bias_rad_s,
+                accel_m_s2: Vector3::zeros(),
+            },
+        };
+        self.new_window();
+        if frame.in_camera(1).count() < 10 || self.window.push_keyframe(state, &frame, None).is_err() {
+            return self.unplaced_output(t_ns, TrackingState::Initializing);
+        }
+        self.counters.keyframes += 1;
+        self.tracker.mark_keyframe(t_ns);
+        self.last = Some(state);
+        self.last_vision_ns = Some(t_ns);
+        if self.mode.uses_imu() {
+            self.phase = Phase::Aligning;
+            self.output(&state, TrackingState::Initializing, None)
+        } else {
+            self.phase = Phase::Tracking;
+            self.output(&state, TrackingState::Tracking, Some(&frame))
+        }
+    }
+
+    /// Mono: wait for parallax against the first keyframe, then the
+    /// five-point bootstrap (first translation of unit length).
+    fn start_mono(&mut self, frame: TrackedFrame) -> RelativeOutput {
+        let t_ns = frame.t_ns;
+        let first = match &self.phase {
+            Phase::Initializing { first: Some(f) } => f.clone(),
+            _ => {
+                self.tracker.mark_keyframe(t_ns);
+                self.phase = Phase::Initializing { first: Some(frame) };
+                return self.unplaced_output(t_ns, TrackingState::Initializing);
+            }
+        };
+        self.counters.bootstraps_tried += 1;
+        let camera = &self.rig.cameras[0].model;
+        let config = BootstrapConfig::default();
+        let boot = self
+            .timings
+            .time("init", || bootstrap_two_view(&first, &frame, camera, &config));
+        let b = match boot {
+            Ok(b) => b,
+            Err(BootstrapRefusal::TooLittleParallax { .. }) | Err(BootstrapRefusal::PureRotation { .. }) => {
+                return self.unplaced_output(t_ns, TrackingState::Initializing);
+            }
+            Err(e) => {
+                // Start again from this frame when the first has aged.
+                tracing::debug!("bootstrap refused: {e}");
+                if t_ns - first.t_ns > 2_000_000_000 {
+                    self.tracker.mark_keyframe(t_ns);
+                    self.phase = Phase::Initializing { first: Some(frame) };
+                }
+                return self.unplaced_output(t_ns, TrackingState::Initializing);
+            }
+        };
+        #[allow(non_snake_case)]
+        let T_cb = self.T_body_cam0().inverse();
+        let biases = ImuBiases {
+            gyro_rad_s: self.gyro_bias_rad_s,
+            accel_m_s2: Vector3::zeros(),
+        };
+        let s0 = KeyframeState {
+            t_ns: first.t_ns,
+            T_world_body: T_cb,
+            velocity_world_m_s: Vector3::zeros(),
+            biases,
+        };
+        let s1 = KeyframeState {
+            t_ns,
+            T_world_body: b.T_c0_c1 * T_cb,
+            velocity_world_m_s: Vector3::zeros(),
+            biases,
+        };
+        self.new_window();
+        let window = &mut self.window;
+        let started = self.timings.time("window", || {
+            window.push_keyframe(s0, &first, None)?;
+            window.push_keyframe(s1, &frame, None)?;
+            window.optimize();
+            Ok::<(), super::window::WindowError>(())
+        });
+        if started.is_err() || self.window.landmark_count() < 20 {
+            self.new_window();
+            return self.unplaced_output(t_ns, TrackingState::Initializing);
+        }
+        self.counters.keyframes += 2;
+        self.tracker.mark_keyframe(t_ns);
+        let state = *self.window.latest().expect("two keyframes pushed");
+        self.last = Some(state);
+        self.last_vision_ns = Some(t_ns);
+        if self.mode.uses_imu() {
+            self.phase = Phase::Aligning;
+            self.output(&state, TrackingState::Initializing, None)
+        } else {
+            self.phase = Phase::Tracking;
+            self.output(&state, TrackingState::Tracking, Some(&frame))
+        }
+    }
+
+    /// Inertial modes after a moving start: vision-only tracking, and after
+    /// each keyframe the visual-inertial alignment; when it is certain the
+    /// window becomes metric and gravity-aligned and the IMU joins.
+    fn align_step(&mut self, frame: TrackedFrame, flow_px: Option<f64>) -> RelativeOutput {
+        // Still at rest (the IMU history may have been too short on the
+        // first frame): a static start beats a vision-only one.
+        if self.window.keyframe_count() <= 2 && self.rest_state(&frame, flow_px).is_some() {
+            self.new_window();
+            self.phase = Phase::Initializing { first: None };
+            return self.initialize(frame, flow_px);
+        }
+        let keyframes_before = self.counters.keyframes;
+        let out = self.track(frame.clone(), TrackingState::Initializing);
+        if out.state == TrackingState::Lost || self.counters.keyframes == keyframes_before {
+            return out;
+        }
+        if !self.try_alignment() {
+            return out;
+        }
+        self.phase = Phase::Tracking;
+        let state = *self.window.latest().expect("an aligned window has keyframes");
+        self.last = Some(state);
+        self.last_good = Some(state);
+        self.gyro_bias_rad_s = state.biases.gyro_rad_s;
+        self.output(&state, TrackingState::Tracking, Some(&frame))
+    }
+
+    #[allow(non_snake_case)]
+    fn try_alignment(&mut self) -> bool {
+        let kfs: Vec<KeyframeState> = self.window.keyframes().copied().collect();
+        if kfs.len() < self.config.init_keyframes {
+            return false;
+        }
+        let span_s = (kfs[kfs.len() - 1].t_ns - kfs[0].t_ns) as f64 * 1e-9;
+        if span_s < self.config.init_min_span_s {
+            return false;
+        }
+        self.counters.alignments_tried += 1;
+        let T_bc = self.T_body_cam0();
+        let vision: Vec<VisionKeyframe> = kfs
+            .iter()
+            .map(|k| VisionKeyframe {
+                t_ns: k.t_ns,
+                T_c0_cam: k.T_world_body * T_bc,
+            })
+            .collect();
+        let scale = if self.mode.uses_stereo() {
+            ScaleMode::Known(1.0)
+        } else {
+            ScaleMode::Estimate
+        };
+        let config = AlignmentConfig {
+            max_scale_rel_std: self.config.init_max_scale_rel_std,
+            ..AlignmentConfig::default()
+        };
+        let Some(imu) = self.imu.as_mut() else {
+            return false;
+        };
+        let (samples, preintegrator) = imu.parts();
+        let aligned = self.timings.time("init", || {
+            align_with_reintegration(&vision, samples, preintegrator, &ImuBiases::default(), &T_bc, scale, &config)
+        });
+        let a = match aligned {
+            Ok(a) => a,
+            Err(e) => {
+                tracing::debug!("alignment not yet: {e}");
+                return false;
+            }
+        };
+        if !(self.mode.uses_stereo() || a.scale_certain) || a.keyframes.len() != kfs.len() {
+            return false;
+        }
+        // x_new = R_world_c0 (s x_old) + t, with t placing the first
+        // camera where the alignment put it.
+        let cam_old = kfs[0].T_world_body * T_bc;
+        let cam_new = a.keyframes[0].T_world_body * T_bc;
+        let t = cam_new.translation.vector - a.R_world_c0 * (a.scale * cam_old.translation.vector);
+        let T_new_old = Isometry3::from_parts(Translation3::from(t), a.R_world_c0);
+        let sigma = a.gravity_std_rad.clamp(0.005, 0.05);
+        let mapped = self.window.transform(a.scale, T_new_old).is_ok()
+            && self.window.set_states(&a.keyframes).is_ok()
+            && self
+                .window
+                .set_gravity(Vector3::new(0.0, 0.0, -GRAVITY_M_S2), sigma)
+                .is_ok()
+            && self.window.enable_imu(true).is_ok();
+        if !mapped {
+            self.reset();
+            return false;
+        }
+        let window = &mut self.window;
+        self.timings.time("window", || {
+            window.optimize();
+        });
+        true
+    }
+}
+
+fn nav_of(s: &KeyframeState) -> NavState {
+    NavState {
+        t_ns: s.t_ns,
+        R_world_body: s.T_world_body.rotation,
+        position_world_m: s.T_world_body.translation.vector,
+        velocity_world_m_s: s.velocity_world_m_s,
+    }
+}
+
+impl RelativeEstimator for WindowOdometry {
+    fn push_imu(&mut self, sample: &ImuSample) {
+        if let Some(imu) = self.imu.as_mut() {
+            imu.push(sample);
+        }
+    }
+
+    fn push_frame(&mut self, frame: &FrameInput<'_>) -> RelativeOutput {
+        self.timings.clear();
+        let t_ns = frame.t_ns;
+        if let Some(last) = &self.last_output {
+            if t_ns <= last.t_ns {
+                self.counters.frames_out_of_order += 1;
+                return last.clone();
+            }
+        }
+        self.counters.frames += 1;
+        let prediction = self.predicted_camera_rotation(t_ns);
+        let tracker = &mut self.tracker;
+        let tracked = self
+            .timings
+            .time("track", || tracker.track(frame, prediction.as_ref()));
+        let tracked = match tracked {
+            Ok(t) => t,
+            Err(e) => {
+                tracing::warn!("frame at {t_ns} ns not tracked: {e}");
+                self.counters.tracker_errors += 1;
+                return self.unplaced_output(t_ns, TrackingState::Lost);
+            }
+        };
+        let flow_px = self.median_flow_px(&tracked);
+        self.last_flow_px = flow_px;
+        match self.phase {
+            Phase::Tracking => self.track(tracked, TrackingState::Tracking),
+            Phase::Aligning => self.align_step(tracked, flow_px),
+            Phase::Initializing { .. } | Phase::Resting { .. } => self.initialize(tracked, flow_px),
+        }
+    }
+
+    fn last_timings(&self) -> &FrameTimings {
+        &self.timings
+    }
+
+    fn counters(&self) -> Vec<(&'static str, u64)> {
+        let c = self.counters;
+        vec![
+            ("frames", c.frames),
+            ("frames_out_of_order", c.frames_out_of_order),
+            ("tracker_errors", c.tracker_errors),
+            ("keyframes", c.keyframes),
+            ("window_errors", c.window_errors),
+            ("resets", c.resets),
+            ("static_frames", c.static_frames),
+            ("imu_only_frames", c.imu_only_frames),
+            ("alignments_tried", c.alignments_tried),
+            ("bootstraps_tried", c.bootstraps_tried),
+            ("frames_without_imu", c.frames_without_imu),
+            ("imu_samples_dropped", self.imu.as_ref().map_or(0, ImuBuffer::dropped)),
+        ]
+    }
+}
