@@ -82,8 +82,12 @@ struct Counters {
     frames_without_imu: u64,
 }
 
-/// Median image motion under which the images agree that the rig rests, px.
-const REST_FLOW_PX: f64 = 0.5;
+/// Median image motion between frames under which the images agree that
+/// the rig rests, px (EuRoC's MAV on the ground with its rotors running
+/// jitters by about 0.7 px).
+const REST_FLOW_PX: f64 = 1.5;
+/// Median displacement since the rest began under which it goes on, px.
+const REST_DRIFT_PX: f64 = 1.5;
 /// A keyframe at least this often, s (the tracker may ask sooner).
 const MAX_KEYFRAME_GAP_NS: i64 = 500_000_000;
 
@@ -105,6 +109,8 @@ pub struct WindowOdometry {
     gyro_bias_rad_s: Vector3<f64>,
     /// Left-image positions of the previous frame, for the image motion.
     previous_pixels: HashMap<LandmarkId, Vector2<f64>>,
+    /// Left-image positions when the current rest began.
+    rest_anchor: HashMap<LandmarkId, Vector2<f64>>,
     /// Median image motion of the newest frame, px.
     last_flow_px: Option<f64>,
     /// Stamp of the last frame the images placed.
@@ -187,6 +193,7 @@ impl WindowOdometry {
             last_output: None,
             gyro_bias_rad_s: Vector3::zeros(),
             previous_pixels: HashMap::new(),
+            rest_anchor: HashMap::new(),
             last_flow_px: None,
             last_vision_ns: None,
             bad_frames: 0,
@@ -385,6 +392,7 @@ impl WindowOdometry {
                     self.last = Some(rest);
                     self.last_good = Some(rest);
                     let out = self.output(&rest, TrackingState::Tracking, None);
+                    self.set_rest_anchor(&frame);
                     self.phase = Phase::Resting { state: rest, frame };
                     return out;
                 }
@@ -455,11 +463,27 @@ impl WindowOdometry {
         true
     }
 
+    fn set_rest_anchor(&mut self, frame: &TrackedFrame) {
+        self.rest_anchor.clear();
+        self.rest_anchor
+            .extend(frame.in_camera(0).map(|o| (o.landmark, o.pixel)));
+    }
+
     /// Inertial modes: the rest state when the IMU and the images agree
     /// that nothing moves.
     fn rest_state(&mut self, frame: &TrackedFrame, flow_px: Option<f64>) -> Option<KeyframeState> {
         if flow_px.is_some_and(|f| f > REST_FLOW_PX) {
+            tracing::debug!("not at rest at {} ns: the image moved {:.2} px", frame.t_ns, flow_px.unwrap_or(0.0));
             return None;
+        }
+        // Vibration jitters the image by a pixel or so; a slow constant
+        // velocity moves it as much per frame but keeps going. So the
+        // features must also stay where they were when the rest began.
+        if let Some(drift) = median_displacement_px(&self.rest_anchor, frame) {
+            if drift > REST_DRIFT_PX {
+                tracing::debug!("not at rest at {} ns: features drifted {drift:.2} px since the rest began", frame.t_ns);
+                return None;
+            }
         }
         let imu = self.imu.as_ref()?;
         // Up to the configured window, less while the IMU has not run
@@ -528,6 +552,9 @@ impl WindowOdometry {
                 self.last = Some(state);
                 self.last_good = Some(state);
                 let out = self.output(&state, TrackingState::Tracking, None);
+                if !matches!(self.phase, Phase::Resting { .. }) {
+                    self.set_rest_anchor(&frame);
+                }
                 self.phase = Phase::Resting { state, frame };
                 return out;
             }
@@ -775,6 +802,21 @@ impl WindowOdometry {
         });
         true
     }
+}
+
+/// Median distance of `frame`'s left features from where `anchor` saw
+/// them, px; `None` with fewer than 10 in common.
+fn median_displacement_px(anchor: &HashMap<LandmarkId, Vector2<f64>>, frame: &TrackedFrame) -> Option<f64> {
+    let mut d: Vec<f64> = frame
+        .in_camera(0)
+        .filter_map(|o| anchor.get(&o.landmark).map(|p| (o.pixel - p).norm()))
+        .collect();
+    if d.len() < 10 {
+        return None;
+    }
+    let mid = d.len() / 2;
+    d.select_nth_unstable_by(mid, f64::total_cmp);
+    Some(d[mid])
 }
 
 fn nav_of(s: &KeyframeState) -> NavState {

@@ -1,0 +1,162 @@
+//! `rigslam run` end to end on the real recordings in ../shared/data:
+//! EuRoC V1_01 at rest (static start, drift) and KITTI seq_a (mono, the
+//! paper's configuration 1), plus the report's contract keys.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn shared(relative: &str) -> Option<PathBuf> {
+    rigslam::shared_data::path_or_skip(relative)
+}
+
+fn run(dataset: &Path, mode: &str, dir: &Path) -> (serde_json::Value, Vec<[f64; 8]>) {
+    let tum = dir.join(format!("{mode}.tum"));
+    let report = dir.join(format!("{mode}.json"));
+    let out = Command::new(env!("CARGO_BIN_EXE_rigslam"))
+        .args(["run", "--quiet", "--mode", mode, "--dataset"])
+        .arg(dataset)
+        .arg("--trajectory")
+        .arg(&tum)
+        .arg("--report")
+        .arg(&report)
+        .output()
+        .expect("run rigslam");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let summary = String::from_utf8_lossy(&out.stdout);
+    assert!(summary.contains(mode) && summary.contains("ms/frame"), "{summary}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");
+    let poses = std::fs::read_to_string(&tum)
+        .expect("trajectory")
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .map(|l| {
+            let v: Vec<f64> = l
+                .split_whitespace()
+                .map(|x| x.parse().expect("number"))
+                .collect();
+            v.try_into().expect("8 fields")
+        })
+        .collect();
+    (report, poses)
+}
+
+fn largest_displacement_m(poses: &[[f64; 8]]) -> f64 {
+    let p0 = &poses[0];
+    poses
+        .iter()
+        .map(|p| ((p[1] - p0[1]).powi(2) + (p[2] - p0[2]).powi(2) + (p[3] - p0[3]).powi(2)).sqrt())
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn euroc_at_rest_initialises_from_the_static_start_and_stays_within_a_centimetre() {
+    let Some(root) = shared("euroc/V1_01_micro") else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    for mode in ["stereo-inertial", "mono-inertial"] {
+        let (report, poses) = run(&root, mode, dir.path());
+        // The IMU starts with the camera: the detector needs 0.4 s of it.
+        let init = report["initialized_at_s"].as_f64().expect("initialised");
+        assert!(init <= 0.5, "{mode}: initialised at {init} s");
+        assert!(report["counters"]["static_frames"].as_u64().expect("count") > 0);
+        assert_eq!(report["lost_count"], 0, "{mode}");
+        assert!(poses.len() >= 85, "{mode}: {} poses", poses.len());
+        assert!(poses.iter().all(|p| p.iter().all(|v| v.is_finite())));
+        // The vehicle moved 2 mm in these 4.7 s (ground truth).
+        let moved = largest_displacement_m(&poses);
+        assert!(moved < 0.01, "{mode}: drifted {moved} m at rest");
+    }
+}
+
+#[test]
+fn run_report_has_the_contract_keys() {
+    let Some(root) = shared("euroc/V1_01_micro") else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (report, _) = run(&root, "stereo", dir.path());
+    for key in [
+        "frames",
+        "wall_s",
+        "mean_ms_per_frame",
+        "p99_ms_per_frame",
+        "stages",
+        "mode",
+        "initialized_at_s",
+        "lost_count",
+    ] {
+        assert!(report.get(key).is_some(), "missing {key}: {report}");
+    }
+    assert_eq!(report["frames"], 95);
+    assert_eq!(report["mode"], "stereo");
+    for stage in ["track", "pose", "window"] {
+        let s = &report["stages"][stage];
+        let (mean, p50, p99) = (
+            s["mean_ms"].as_f64().expect("mean"),
+            s["p50_ms"].as_f64().expect("p50"),
+            s["p99_ms"].as_f64().expect("p99"),
+        );
+        assert!(mean > 0.0 && p50 <= p99, "{stage}: {s}");
+    }
+    // Stereo from the first frame: metric at once.
+    assert_eq!(report["initialized_at_s"].as_f64(), Some(0.0));
+}
+
+#[test]
+fn kitti_mono_meets_the_papers_configuration_1_bar() {
+    let Some(root) = shared("kitti/seq_a") else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (report, poses) = run(&root, "mono", dir.path());
+    assert!(poses.len() >= 45, "{} poses of 51 frames", poses.len());
+    let eval = &report["eval"];
+    assert_eq!(eval["align"], "sim3");
+    assert_eq!(eval["scale_by_path"], true);
+    // The paper's eq. 72 with the scale from the path length: <= 2 %.
+    let drift = eval["final_drift_pct"].as_f64().expect("final drift");
+    assert!(drift <= 2.0, "final drift {drift} %");
+    let ate = eval["ate_rmse_m"].as_f64().expect("ate");
+    assert!(ate < 0.5, "ATE {ate} m");
+}
+
+#[test]
+fn bad_requests_say_what_is_wrong() {
+    let Some(root) = shared("kitti/seq_a") else {
+        return;
+    };
+    let out = Command::new(env!("CARGO_BIN_EXE_rigslam"))
+        .args(["run", "--quiet", "--mode", "stereo-inertial", "--dataset"])
+        .arg(&root)
+        .output()
+        .expect("run rigslam");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("needs 2 camera"), "{err}");
+    let out = Command::new(env!("CARGO_BIN_EXE_rigslam"))
+        .args(["run", "--quiet", "--dataset", "/nonexistent/rigslam"])
+        .output()
+        .expect("run rigslam");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("/nonexistent/rigslam"), "{err}");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let config = dir.path().join("bad.toml");
+    std::fs::write(&config, "window_free = 0\n").expect("write");
+    let out = Command::new(env!("CARGO_BIN_EXE_rigslam"))
+        .args(["run", "--quiet", "--dataset"])
+        .arg(&root)
+        .arg("--config")
+        .arg(&config)
+        .output()
+        .expect("run rigslam");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("window_free"), "{err}");
+}
