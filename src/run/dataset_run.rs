@@ -231,11 +231,17 @@ pub fn summary_line(r: &RunReport) -> String {
     line += &format!("lost {}x, {} poses", r.lost_count, r.poses_written);
     if let Some(e) = &r.eval {
         line += &format!("; ATE {:.3} m ({})", e.ate_rmse_m, e.align.name());
-        if let Some(s) = e.scale_error {
-            line += &format!(", scale error {:.2} %", 100.0 * s);
-        }
-        if let Some(d) = e.final_drift_pct {
-            line += &format!(", final drift {d:.2} %");
+        // Relative numbers only mean something over a real path, and a
+        // mono run's scale is arbitrary by construction.
+        if e.path_length_m < 1.0 {
+            line += &format!(", true path only {:.3} m", e.path_length_m);
+        } else {
+            if let (Some(s), false) = (e.scale_error, r.mode == "mono") {
+                line += &format!(", scale error {:.2} %", 100.0 * s);
+            }
+            if let Some(d) = e.final_drift_pct {
+                line += &format!(", final drift {d:.2} % of {:.1} m", e.path_length_m);
+            }
         }
     }
     line

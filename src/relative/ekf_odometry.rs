@@ -1,0 +1,258 @@
+//! The paper's EKF variant of the relative stage as a
+//! [`RelativeEstimator`] (`rigslam run --estimator ekf`): the same
+//! tracker, the filter of [`super::ekf`] instead of the window. A baseline
+//! to compare the window against, in the inertial modes only.
+//!
+//! It starts from a static start (gravity and gyro bias from the IMU at
+//! rest, the images still); a start in flight needs the window's
+//! visual-inertial alignment, which this baseline does not have: it stays
+//! initialising until the rig rests.
+
+use std::collections::VecDeque;
+
+use nalgebra::{Isometry3, Rotation3, Translation3, Vector3};
+
+use crate::imu::ImuBiases;
+use crate::sensors::ImuSample;
+
+use super::config::RelativeConfig;
+use super::ekf::{EkfConfig, EkfFilter, InitialSigmas};
+use super::estimator::{FrameInput, FrameTimings, RelativeEstimator, RigModel, SensorMode};
+use super::imu_buffer::ImuBuffer;
+use super::initializer::{detect_static_start, StaticStartConfig};
+use super::odometry::OdometryError;
+use super::tracker::{Tracker, TrackerConfig};
+use super::types::{KeyframeState, RelativeOutput, TrackingState};
+
+/// Tracker + EKF.
+pub struct EkfOdometry {
+    rig: RigModel,
+    tracker: Tracker,
+    filter: EkfFilter,
+    imu: ImuBuffer,
+    /// Samples not yet given to the filter (it must not run past a frame
+    /// it has not seen).
+    pending: VecDeque<ImuSample>,
+    last_output: Option<RelativeOutput>,
+    previous_position: Option<Vector3<f64>>,
+    gyro_bias_rad_s: Vector3<f64>,
+    timings: FrameTimings,
+    frames: u64,
+    frames_out_of_order: u64,
+    tracker_errors: u64,
+    resets: u64,
+}
+
+impl EkfOdometry {
+    pub fn new(mode: SensorMode, rig: &RigModel, config: &RelativeConfig) -> Result<Self, OdometryError> {
+        rig.check(mode)?;
+        config.validate()?;
+        if !mode.uses_imu() {
+            return Err(OdometryError::Setup(format!(
+                "the EKF baseline propagates with the IMU: use mono-inertial or stereo-inertial, not {mode}"
+            )));
+        }
+        let cameras = if mode.uses_stereo() {
+            rig.cameras[..2].to_vec()
+        } else {
+            rig.cameras[..1].to_vec()
+        };
+        let used = RigModel {
+            cameras: cameras.clone(),
+            imu: rig.imu.clone(),
+        };
+        let tracker = Tracker::new(
+            TrackerConfig {
+                target_features: config.features,
+                ..TrackerConfig::default()
+            },
+            &cameras,
+            mode.uses_stereo(),
+        )
+        .map_err(|e| OdometryError::Setup(e.to_string()))?;
+        let filter = EkfFilter::new(
+            EkfConfig {
+                pixel_sigma: config.pixel_sigma_px,
+                ..EkfConfig::default()
+            },
+            &used,
+        )
+        .map_err(|e| OdometryError::Setup(e.to_string()))?;
+        let noise = used.imu.as_ref().expect("checked: inertial mode").noise;
+        Ok(Self {
+            rig: used,
+            tracker,
+            filter,
+            imu: ImuBuffer::new(noise),
+            pending: VecDeque::new(),
+            last_output: None,
+            previous_position: None,
+            gyro_bias_rad_s: Vector3::zeros(),
+            timings: FrameTimings::default(),
+            frames: 0,
+            frames_out_of_order: 0,
+            tracker_errors: 0,
+            resets: 0,
+        })
+    }
+
+    fn output(&mut self, state: KeyframeState, tracking: TrackingState, landmarks: bool) -> RelativeOutput {
+        let position = state.T_world_body.translation.vector;
+        let delta = match (tracking, self.previous_position) {
+            (TrackingState::Tracking, Some(p)) => position - p,
+            _ => Vector3::zeros(),
+        };
+        if tracking == TrackingState::Tracking {
+            self.previous_position = Some(position);
+        }
+        let out = RelativeOutput {
+            t_ns: state.t_ns,
+            state: tracking,
+            T_world_body: state.T_world_body,
+            velocity_world_m_s: state.velocity_world_m_s,
+            biases: state.biases,
+            delta_translation_world_m: delta,
+            landmarks: if landmarks { self.filter.landmarks_in_body() } else { Vec::new() },
+        };
+        self.last_output = Some(out.clone());
+        out
+    }
+
+    fn waiting(&mut self, t_ns: i64, tracking: TrackingState) -> RelativeOutput {
+        let mut state = self.last_output.as_ref().map_or(
+            KeyframeState {
+                t_ns,
+                T_world_body: Isometry3::identity(),
+                velocity_world_m_s: Vector3::zeros(),
+                biases: ImuBiases::default(),
+            },
+            |o| KeyframeState {
+                t_ns,
+                T_world_body: o.T_world_body,
+                velocity_world_m_s: o.velocity_world_m_s,
+                biases: o.biases,
+            },
+        );
+        state.t_ns = t_ns;
+        self.output(state, tracking, false)
+    }
+
+    /// A static start at `t_ns`, when the IMU says so.
+    fn static_start(&self, t_ns: i64) -> Option<KeyframeState> {
+        let first = self.imu.samples().first()?.t_ns;
+        let available_s = (t_ns - first) as f64 * 1e-9;
+        if available_s < 0.4 {
+            return None;
+        }
+        let config = StaticStartConfig {
+            window_s: available_s.min(1.0),
+            ..StaticStartConfig::default()
+        };
+        let window_ns = (config.window_s * 1e9) as i64;
+        let samples = self.imu.between(t_ns - window_ns - 50_000_000, t_ns + 50_000_000);
+        let noise = self.rig.imu.as_ref()?.noise;
+        let rest = detect_static_start(samples, t_ns, &noise, &config).ok()?;
+        let position = self
+            .last_output
+            .as_ref()
+            .map_or(Vector3::zeros(), |o| o.T_world_body.translation.vector);
+        Some(KeyframeState {
+            t_ns,
+            T_world_body: Isometry3::from_parts(Translation3::from(position), rest.R_world_body),
+            velocity_world_m_s: Vector3::zeros(),
+            biases: ImuBiases {
+                gyro_rad_s: rest.gyro_bias_rad_s,
+                accel_m_s2: Vector3::zeros(),
+            },
+        })
+    }
+}
+
+impl RelativeEstimator for EkfOdometry {
+    fn push_imu(&mut self, sample: &ImuSample) {
+        self.imu.push(sample);
+        self.pending.push_back(*sample);
+    }
+
+    fn push_frame(&mut self, frame: &FrameInput<'_>) -> RelativeOutput {
+        self.timings.clear();
+        let t_ns = frame.t_ns;
+        if let Some(last) = &self.last_output {
+            if t_ns <= last.t_ns {
+                self.frames_out_of_order += 1;
+                return last.clone();
+            }
+        }
+        self.frames += 1;
+        let prediction: Option<Rotation3<f64>> = match &self.last_output {
+            Some(last) => {
+                let bias = self.gyro_bias_rad_s;
+                let r_bc = self.rig.cameras[0].T_body_cam.rotation.to_rotation_matrix();
+                self.imu
+                    .rotation(last.t_ns, t_ns, &bias)
+                    .map(|r| r_bc.inverse() * r * r_bc)
+            }
+            None => None,
+        };
+        let tracker = &mut self.tracker;
+        let tracked = match self.timings.time("track", || tracker.track(frame, prediction.as_ref())) {
+            Ok(t) => t,
+            Err(e) => {
+                tracing::warn!("frame at {t_ns} ns not tracked: {e}");
+                self.tracker_errors += 1;
+                return self.waiting(t_ns, TrackingState::Lost);
+            }
+        };
+        if !self.filter.is_initialized() {
+            // Samples before the start are of no use to the filter.
+            while self.pending.front().is_some_and(|s| s.t_ns <= t_ns) {
+                self.pending.pop_front();
+            }
+            return match self.static_start(t_ns) {
+                Some(state) => {
+                    self.filter.initialize(state, &InitialSigmas::default());
+                    self.gyro_bias_rad_s = state.biases.gyro_rad_s;
+                    self.output(state, TrackingState::Tracking, false)
+                }
+                None => self.waiting(t_ns, TrackingState::Initializing),
+            };
+        }
+        let filter = &mut self.filter;
+        let pending = &mut self.pending;
+        let update = self.timings.time("ekf", || {
+            while pending.front().is_some_and(|s| s.t_ns <= t_ns) {
+                if let Some(s) = pending.pop_front() {
+                    filter.propagate(&s);
+                }
+            }
+            filter.update(&tracked)
+        });
+        let state = update.state;
+        let finite = state.T_world_body.translation.vector.iter().all(|v| v.is_finite())
+            && state.velocity_world_m_s.iter().all(|v| v.is_finite());
+        if !finite {
+            self.resets += 1;
+            self.filter.reset();
+            self.tracker.reset();
+            return self.waiting(t_ns, TrackingState::Lost);
+        }
+        self.gyro_bias_rad_s = state.biases.gyro_rad_s;
+        self.imu.discard_before(t_ns - 2_000_000_000);
+        self.output(state, TrackingState::Tracking, true)
+    }
+
+    fn last_timings(&self) -> &FrameTimings {
+        &self.timings
+    }
+
+    fn counters(&self) -> Vec<(&'static str, u64)> {
+        vec![
+            ("frames", self.frames),
+            ("frames_out_of_order", self.frames_out_of_order),
+            ("tracker_errors", self.tracker_errors),
+            ("resets", self.resets),
+            ("imu_samples_dropped", self.imu.dropped()),
+            ("ekf_samples_ignored", self.filter.ignored_samples()),
+        ]
+    }
+}
