@@ -8,6 +8,7 @@
 //! intervals between them, and every frame leaves as a
 //! [`types::RelativeOutput`] for the publisher and the absolute stage.
 
+pub mod ekf;
 pub mod estimator;
 pub mod types;
 
