@@ -160,3 +160,43 @@ fn bad_requests_say_what_is_wrong() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("window_free"), "{err}");
 }
+
+#[test]
+fn the_ekf_baseline_runs_the_inertial_modes_and_refuses_the_others() {
+    let Some(root) = shared("euroc/V1_01_micro") else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let tum = dir.path().join("ekf.tum");
+    let out = Command::new(env!("CARGO_BIN_EXE_rigslam"))
+        .args(["run", "--quiet", "--json", "--estimator", "ekf", "--mode", "stereo-inertial", "--dataset"])
+        .arg(&root)
+        .arg("--trajectory")
+        .arg(&tum)
+        .output()
+        .expect("run rigslam");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    assert_eq!(report["estimator"], "ekf");
+    assert!(report["initialized_at_s"].as_f64().expect("initialised") <= 0.5);
+    let poses: Vec<[f64; 8]> = std::fs::read_to_string(&tum)
+        .expect("trajectory")
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
+        .map(|l| {
+            let v: Vec<f64> = l.split_whitespace().map(|x| x.parse().expect("number")).collect();
+            v.try_into().expect("8 fields")
+        })
+        .collect();
+    assert!(poses.len() >= 85);
+    let moved = largest_displacement_m(&poses);
+    assert!(moved < 0.02, "the EKF drifted {moved} m at rest with stereo");
+    let out = Command::new(env!("CARGO_BIN_EXE_rigslam"))
+        .args(["run", "--quiet", "--estimator", "ekf", "--mode", "stereo", "--dataset"])
+        .arg(&root)
+        .output()
+        .expect("run rigslam");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("propagates with the IMU"), "{err}");
+}

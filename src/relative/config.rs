@@ -10,12 +10,15 @@ use std::path::Path;
 pub enum EstimatorKind {
     /// The paper's windowed Levenberg-Marquardt optimisation.
     Window,
+    /// The paper's EKF variant, a baseline (inertial modes, static start).
+    Ekf,
 }
 
 impl EstimatorKind {
     pub fn name(self) -> &'static str {
         match self {
             EstimatorKind::Window => "window",
+            EstimatorKind::Ekf => "ekf",
         }
     }
 }

@@ -12,6 +12,8 @@
 //! as a [`types::RelativeOutput`] for the publisher and the absolute stage.
 
 pub mod config;
+pub mod ekf;
+pub mod ekf_odometry;
 pub mod estimator;
 pub mod imu_buffer;
 pub mod initializer;

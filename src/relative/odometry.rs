@@ -143,6 +143,9 @@ pub fn build_estimator(
 ) -> Result<Box<dyn RelativeEstimator>, OdometryError> {
     match kind {
         EstimatorKind::Window => Ok(Box::new(WindowOdometry::new(mode, rig, config)?)),
+        EstimatorKind::Ekf => Ok(Box::new(super::ekf_odometry::EkfOdometry::new(
+            mode, rig, config,
+        )?)),
     }
 }
 
