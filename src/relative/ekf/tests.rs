@@ -2,7 +2,7 @@
 //! the triangulation covariance against Monte-Carlo scatter, and
 //! closed-loop runs on a synthetic room with EuRoC's rig and IMU noise.
 
-use nalgebra::{Isometry3, Vector2, Vector3};
+use nalgebra::{Isometry3, Matrix3, Vector2, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -267,6 +267,10 @@ struct SimResult {
     mean_position_nees: f64,
     position_nees_first_half: f64,
     position_nees_second_half: f64,
+    /// Mean NEES of the vertical position alone (1 is ideal) and of the
+    /// yaw angle alone (1 is ideal).
+    vertical_nees: f64,
+    yaw_nees: f64,
     /// Mean NEES of the handed-over body-frame landmarks.
     mean_body_landmark_nees: f64,
     frames: usize,
@@ -353,6 +357,7 @@ fn run_sim(setup: SimSetup) -> SimResult {
     let mut result = SimResult::default();
     let (mut sq_sum, mut landmark_sum, mut ms_sum) = (0.0, 0.0, 0.0);
     let mut nees = Vec::new();
+    let (mut vertical_sum, mut yaw_sum) = (0.0, 0.0);
     let (mut body_nees_sum, mut body_count) = (0.0, 0usize);
     let mut frame_t_ns = frame_period_ns;
     let mut observations = Vec::new();
@@ -449,6 +454,13 @@ fn run_sim(setup: SimSetup) -> SimResult {
         let e_r = log(&(est.T_world_body.rotation.inverse() * truth.T_world_body.rotation)
             .to_rotation_matrix()
             .into_inner());
+        vertical_sum += e_p.z * e_p.z / cov[(2, 2)];
+        // Yaw error: the world-z part of the world-frame attitude error.
+        let r_est = est.T_world_body.rotation.to_rotation_matrix().into_inner();
+        let e_world = r_est * e_r;
+        let p_theta: Matrix3<f64> = filter.navigation_covariance().fixed_view::<3, 3>(0, 0).into();
+        let var_yaw = (r_est * p_theta * r_est.transpose())[(2, 2)];
+        yaw_sum += e_world.z * e_world.z / var_yaw;
         result.max_orientation_error_deg =
             result.max_orientation_error_deg.max(e_r.norm().to_degrees());
         for l in filter.landmarks_in_body() {
@@ -473,6 +485,8 @@ fn run_sim(setup: SimSetup) -> SimResult {
     result.mean_position_nees = mean(&nees);
     result.position_nees_first_half = mean(&nees[..half]);
     result.position_nees_second_half = mean(&nees[half..]);
+    result.vertical_nees = vertical_sum / n;
+    result.yaw_nees = yaw_sum / n;
     result.mean_body_landmark_nees = body_nees_sum / body_count.max(1) as f64;
     result.mean_landmarks = landmark_sum / n;
     result.mean_update_ms = ms_sum / n;
@@ -531,7 +545,7 @@ fn ten_percent_outliers_are_gated_without_breaking_the_estimate() {
 }
 
 #[test]
-#[ignore = "known failure, kept as the target: mean position NEES ~8.5 over 20 stereo runs (3 is ideal, bound 6): standard-EKF heading inconsistency, and in ~2 of 20 runs a stereo landmark initialised near the camera at the image's left edge"]
+#[ignore = "known failure, kept as the target: mean position NEES ~8.3 over 20 stereo runs of 10 s (3 is ideal, bound 6), most likely the standard EKF's spurious heading information (no first-estimate Jacobians); run with --ignored"]
 fn position_nees_over_monte_carlo_runs() {
     let runs = 20;
     let results: Vec<SimResult> = (0..runs)
@@ -560,6 +574,9 @@ fn position_nees_over_monte_carlo_runs() {
     let first = mean(&|r| r.position_nees_first_half);
     let second = mean(&|r| r.position_nees_second_half);
     let body = mean(&|r| r.mean_body_landmark_nees);
+    let vertical = mean(&|r| r.vertical_nees);
+    let yaw = mean(&|r| r.yaw_nees);
+    println!("vertical position NEES {vertical:.2}, yaw NEES {yaw:.2} (1 is ideal for both)");
     let rmse = mean(&|r| r.position_rmse_m);
     let ms = mean(&|r| r.mean_update_ms);
     println!(
@@ -690,3 +707,4 @@ fn bad_config_and_rig_are_reported_by_name() {
         Some(EkfError::NoCamera)
     );
 }
+
