@@ -200,3 +200,39 @@ fn the_ekf_baseline_runs_the_inertial_modes_and_refuses_the_others() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("propagates with the IMU"), "{err}");
 }
+
+#[test]
+fn absolute_writes_both_trajectories_and_scores_both() {
+    let Some(root) = shared("euroc/V1_01_micro") else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (corrected, relative) = (dir.path().join("abs.tum"), dir.path().join("rel.tum"));
+    let out = Command::new(env!("CARGO_BIN_EXE_rigslam"))
+        .args(["run", "--quiet", "--json", "--absolute", "--mode", "stereo-inertial", "--dataset"])
+        .arg(&root)
+        .arg("--trajectory")
+        .arg(&corrected)
+        .arg("--trajectory-relative")
+        .arg(&relative)
+        .output()
+        .expect("run rigslam");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    assert_eq!(report["absolute"]["frames"], 95);
+    assert!(report["absolute"]["solves"].as_u64().expect("solves") > 0);
+    assert!(report["stages"]["absolute"]["count"].as_u64().expect("count") == 95);
+    let lines = |p: &Path| {
+        std::fs::read_to_string(p)
+            .expect("trajectory")
+            .lines()
+            .filter(|l| !l.starts_with('#'))
+            .count()
+    };
+    assert_eq!(lines(&corrected), lines(&relative));
+    // At rest both stay put.
+    for key in ["eval", "eval_relative"] {
+        let ate = report[key]["ate_rmse_m"].as_f64().expect("ate");
+        assert!(ate < 0.01, "{key}: ATE {ate} m");
+    }
+}

@@ -14,7 +14,9 @@ use crate::relative::{
     build_estimator, EstimatorKind, OdometryError, RelativeConfig, RelativeOutput, RigModel,
     SensorMode,
 };
-use crate::trajectory::Trajectory;
+use crate::edge_map::{AbsoluteConfig, AbsoluteStage};
+use crate::relative::TrackingState;
+use crate::trajectory::{StampedPose, Trajectory};
 
 use super::report::{resident_memory_mib, RunReport};
 use super::{run_stream, RunOptions, RunOutcome};
@@ -33,6 +35,10 @@ pub struct DatasetRun {
     pub groundtruth: Option<Trajectory>,
     /// `None`: se3 for metric modes, sim3 for `mono`.
     pub align: Option<Alignment>,
+    /// Run the absolute stage (edge map + position filter, issue 6) on
+    /// the relative stage's outputs; the corrected trajectory becomes
+    /// the run's trajectory and the relative one is kept beside it.
+    pub absolute: bool,
 }
 
 impl Default for DatasetRun {
@@ -46,6 +52,7 @@ impl Default for DatasetRun {
             max_frames: None,
             groundtruth: None,
             align: None,
+            absolute: false,
         }
     }
 }
@@ -55,6 +62,10 @@ pub struct DatasetRunResult {
     pub report: RunReport,
     pub outcome: RunOutcome,
     pub evaluation: Option<Evaluation>,
+    /// The relative stage's own trajectory when the absolute stage ran
+    /// (then `outcome.trajectory` is the corrected one).
+    pub trajectory_relative: Option<Trajectory>,
+    pub evaluation_relative: Option<Evaluation>,
 }
 
 /// Why a run could not happen.
@@ -96,9 +107,38 @@ pub fn run_dataset(
         },
     )?;
     let listed = stream.frames_listed();
-    let outcome = run_stream(&mut stream, estimator.as_mut(), run.options, |o| {
+    let mut absolute = run
+        .absolute
+        .then(|| AbsoluteStage::new(AbsoluteConfig::default()));
+    let mut corrected = Vec::new();
+    let mut absolute_ms = Vec::new();
+    let mut outcome = run_stream(&mut stream, estimator.as_mut(), run.options, |o| {
+        if let Some(stage) = absolute.as_mut() {
+            let start = std::time::Instant::now();
+            let pose = stage.push(o);
+            absolute_ms.push(start.elapsed().as_secs_f64() * 1e3);
+            if o.state == TrackingState::Tracking {
+                corrected.push(StampedPose::new(
+                    pose.t_ns,
+                    pose.T_world_body.translation.vector,
+                    pose.T_world_body.rotation,
+                ));
+            }
+        }
         on_frame(o, listed)
     })?;
+    let mut trajectory_relative = None;
+    if let Some(stage) = absolute.as_mut() {
+        stage.wait_for_solve();
+        for (frame, ms) in outcome.frame_ms.iter_mut().zip(&absolute_ms) {
+            *frame += ms;
+        }
+        outcome.stage_ms.insert("absolute", absolute_ms);
+        trajectory_relative = Some(std::mem::replace(
+            &mut outcome.trajectory,
+            Trajectory::new(corrected),
+        ));
+    }
 
     let ground_truth = run
         .groundtruth
@@ -108,14 +148,14 @@ pub fn run_dataset(
         SensorMode::Mono => Alignment::Sim3,
         _ => Alignment::Se3,
     });
-    let evaluation = match &ground_truth {
-        Some(gt) if outcome.trajectory.len() >= 3 => {
+    let score = |trajectory: &Trajectory| match &ground_truth {
+        Some(gt) if trajectory.len() >= 3 => {
             let options = EvalOptions {
                 alignment: align,
                 scale_by_path: mode == SensorMode::Mono,
                 ..EvalOptions::default()
             };
-            match evaluate(&outcome.trajectory, gt, &options) {
+            match evaluate(trajectory, gt, &options) {
                 Ok(e) => Some(e),
                 Err(e) => {
                     tracing::warn!("no accuracy: {e}");
@@ -125,6 +165,8 @@ pub fn run_dataset(
         }
         _ => None,
     };
+    let evaluation = score(&outcome.trajectory);
+    let evaluation_relative = trajectory_relative.as_ref().and_then(score);
 
     let (frame_stats, stages) = outcome.timing_report();
     let (rss_now, rss_peak) = resident_memory_mib();
@@ -166,11 +208,15 @@ pub fn run_dataset(
         rss_at_10pct_mib: outcome.rss_at_10pct_mib,
         rss_at_end_mib: rss_now,
         eval: evaluation.as_ref().map(|e| e.report.clone()),
+        eval_relative: evaluation_relative.as_ref().map(|e| e.report.clone()),
+        absolute: absolute.as_ref().map(|s| s.stats().clone()),
     };
     Ok(DatasetRunResult {
         report,
         outcome,
         evaluation,
+        trajectory_relative,
+        evaluation_relative,
     })
 }
 
@@ -229,6 +275,9 @@ pub fn summary_line(r: &RunReport) -> String {
         None => line += "never initialised, ",
     }
     line += &format!("lost {}x, {} poses", r.lost_count, r.poses_written);
+    if let Some(e) = &r.eval_relative {
+        line += &format!("; relative stage alone ATE {:.3} m", e.ate_rmse_m);
+    }
     if let Some(e) = &r.eval {
         line += &format!("; ATE {:.3} m ({})", e.ate_rmse_m, e.align.name());
         // Relative numbers only mean something over a real path, and a

@@ -5,6 +5,7 @@
 use std::collections::BTreeMap;
 
 use crate::dataset::StreamCounts;
+use crate::edge_map::AbsoluteStats;
 use crate::eval::EvalReport;
 
 /// Mean, median and 99th percentile of a set of durations, ms.
@@ -76,8 +77,14 @@ pub struct RunReport {
     /// shows as two close numbers.
     pub rss_at_10pct_mib: Option<f64>,
     pub rss_at_end_mib: Option<f64>,
-    /// Against the dataset's ground truth, when it has one.
+    /// Against the dataset's ground truth, when it has one (the corrected
+    /// trajectory when the absolute stage ran).
     pub eval: Option<EvalReport>,
+    /// The relative stage's own trajectory against the ground truth, when
+    /// the absolute stage ran.
+    pub eval_relative: Option<EvalReport>,
+    /// The absolute stage's counters and times, when it ran.
+    pub absolute: Option<AbsoluteStats>,
 }
 
 /// The process's resident memory now and at its peak, MiB, from

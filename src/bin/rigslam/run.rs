@@ -28,9 +28,17 @@ pub struct RunArgs {
     /// optimisation) or `ekf` (the paper's EKF baseline).
     #[arg(long, value_enum, default_value_t = EstimatorKind::Window)]
     estimator: EstimatorKind,
-    /// Write the body trajectory here (TUM: t[s] tx ty tz qx qy qz qw).
+    /// Write the body trajectory here (TUM: t[s] tx ty tz qx qy qz qw);
+    /// with --absolute, the corrected one.
     #[arg(long)]
     trajectory: Option<PathBuf>,
+    /// Also run the absolute stage (the linear edge map and the Kalman
+    /// position filter) on the relative stage's output.
+    #[arg(long)]
+    absolute: bool,
+    /// With --absolute: write the relative stage's own trajectory here.
+    #[arg(long, requires = "absolute")]
+    trajectory_relative: Option<PathBuf>,
     /// Estimator settings (TOML; see `rigslam run --print-config`).
     #[arg(long)]
     config: Option<PathBuf>,
@@ -106,6 +114,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         max_frames: args.max_frames,
         groundtruth,
         align: args.align,
+        absolute: args.absolute,
     };
     let result = run_dataset(&args.dataset, &run, |output, listed| {
         bar.set_length(listed as u64);
@@ -121,6 +130,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                 .with_context(|| format!("creating {}", dir.display()))?;
         }
         write_tum(path, &result.outcome.trajectory)?;
+    }
+    if let (Some(path), Some(relative)) = (&args.trajectory_relative, &result.trajectory_relative) {
+        write_tum(path, relative)?;
     }
     if let Some(path) = &args.plot {
         match &result.evaluation {
