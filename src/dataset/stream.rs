@@ -33,13 +33,16 @@ pub struct StreamCounts {
     pub frames_missing_right: u64,
 }
 
+/// Decodes listed image `index` of a camera.
+type LoadFrame<'a> = Box<dyn Fn(usize) -> Result<Option<Frame>, DatasetError> + 'a>;
+
 /// Merges a dataset's frames and IMU samples in time order. Before each
 /// frame it delivers every IMU sample up to the frame's stamp and the first
 /// one after it, so that the interval ending at the frame can be
 /// integrated right away.
 pub struct SensorStream<'a> {
     left: &'a [ImageEntry],
-    load_left: Box<dyn Fn(usize) -> Result<Option<Frame>, DatasetError> + 'a>,
+    load_left: LoadFrame<'a>,
     right: Option<&'a EurocCamera>,
     imu: &'a [ImuSample],
     next_frame: usize,
@@ -69,7 +72,7 @@ impl<'a> SensorStream<'a> {
     pub fn new(dataset: &'a Dataset, options: StreamOptions) -> Result<Self, DatasetError> {
         let (left, load_left, right, imu): (
             &'a [ImageEntry],
-            Box<dyn Fn(usize) -> Result<Option<Frame>, DatasetError> + 'a>,
+            LoadFrame<'a>,
             Option<&'a EurocCamera>,
             &'a [ImuSample],
         ) = match dataset {

@@ -19,7 +19,7 @@ use super::config::RelativeConfig;
 use super::ekf::{EkfConfig, EkfFilter, InitialSigmas};
 use super::estimator::{FrameInput, FrameTimings, RelativeEstimator, RigModel, SensorMode};
 use super::imu_buffer::ImuBuffer;
-use super::initializer::{detect_static_start, StaticStartConfig};
+use super::initializer::StaticStartConfig;
 use super::odometry::OdometryError;
 use super::tracker::{Tracker, TrackerConfig};
 use super::types::{KeyframeState, RelativeOutput, TrackingState};
@@ -139,19 +139,10 @@ impl EkfOdometry {
 
     /// A static start at `t_ns`, when the IMU says so.
     fn static_start(&self, t_ns: i64) -> Option<KeyframeState> {
-        let first = self.imu.samples().first()?.t_ns;
-        let available_s = (t_ns - first) as f64 * 1e-9;
-        if available_s < 0.4 {
-            return None;
-        }
-        let config = StaticStartConfig {
-            window_s: available_s.min(1.0),
-            ..StaticStartConfig::default()
-        };
-        let window_ns = (config.window_s * 1e9) as i64;
-        let samples = self.imu.between(t_ns - window_ns - 50_000_000, t_ns + 50_000_000);
         let noise = self.rig.imu.as_ref()?.noise;
-        let rest = detect_static_start(samples, t_ns, &noise, &config).ok()?;
+        let rest = self
+            .imu
+            .static_start(t_ns, &noise, &StaticStartConfig::default())?;
         let position = self
             .last_output
             .as_ref()

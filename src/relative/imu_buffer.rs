@@ -9,6 +9,8 @@ use crate::imu::{
     Preintegrator,
 };
 use crate::rig::ImuNoise;
+
+use super::initializer::{detect_static_start, StaticStart, StaticStartConfig};
 use crate::sensors::ImuSample;
 
 /// Samples of the stream with the preintegrator that reads them.
@@ -90,6 +92,34 @@ impl ImuBuffer {
     /// integrate several intervals themselves (the alignment).
     pub fn parts(&mut self) -> (&[ImuSample], &mut Preintegrator) {
         (self.stream.samples(), &mut self.preintegrator)
+    }
+
+    /// A static start ending at `t_ns` when the samples show one: over the
+    /// configured window, or less while the IMU has not run that long (a
+    /// camera that starts with the IMU), but over 0.4 s at least.
+    pub fn static_start(
+        &self,
+        t_ns: i64,
+        noise: &ImuNoise,
+        config: &StaticStartConfig,
+    ) -> Option<StaticStart> {
+        let available_s = (t_ns - self.samples().first()?.t_ns) as f64 * 1e-9;
+        if available_s < 0.4 {
+            return None;
+        }
+        let config = StaticStartConfig {
+            window_s: config.window_s.min(available_s),
+            ..config.clone()
+        };
+        let window_ns = (config.window_s * 1e9) as i64;
+        let samples = self.between(t_ns - window_ns - 50_000_000, t_ns + 50_000_000);
+        match detect_static_start(samples, t_ns, noise, &config) {
+            Ok(rest) => Some(rest),
+            Err(e) => {
+                tracing::debug!("not at rest at {t_ns} ns: {e}");
+                None
+            }
+        }
     }
 
     /// Samples with stamps in `[t_start_ns, t_end_ns]`.

@@ -39,7 +39,7 @@ use super::config::{EstimatorKind, RelativeConfig};
 use super::estimator::{FrameInput, FrameTimings, RelativeEstimator, RigModel, SensorMode};
 use super::imu_buffer::ImuBuffer;
 use super::initializer::{
-    align_with_reintegration, bootstrap_two_view, detect_static_start, AlignmentConfig,
+    align_with_reintegration, bootstrap_two_view, AlignmentConfig,
     BootstrapConfig, BootstrapRefusal, ScaleMode, StaticStartConfig, VisionKeyframe,
 };
 use super::tracker::{Tracker, TrackerConfig};
@@ -423,14 +423,13 @@ impl WindowOdometry {
             }
         }
         let kf_gap = self.window.latest().map_or(i64::MAX, |k| t_ns - k.t_ns);
-        if frame.is_keyframe || kf_gap >= MAX_KEYFRAME_GAP_NS {
-            if self.add_keyframe(state, &frame, pre) {
-                if let Some(latest) = self.window.latest() {
-                    let velocity = state.velocity_world_m_s;
-                    state = *latest;
-                    if !self.window.imu_enabled() {
-                        state.velocity_world_m_s = velocity;
-                    }
+        let keyframe = frame.is_keyframe || kf_gap >= MAX_KEYFRAME_GAP_NS;
+        if keyframe && self.add_keyframe(state, &frame, pre) {
+            if let Some(latest) = self.window.latest() {
+                let velocity = state.velocity_world_m_s;
+                state = *latest;
+                if !self.window.imu_enabled() {
+                    state.velocity_world_m_s = velocity;
                 }
             }
         }
@@ -489,26 +488,8 @@ impl WindowOdometry {
             }
         }
         let imu = self.imu.as_ref()?;
-        // Up to the configured window, less while the IMU has not run
-        // that long (a camera that starts with the IMU); 0.4 s at least.
-        let available_s = (frame.t_ns - imu.samples().first()?.t_ns) as f64 * 1e-9;
-        if available_s < 0.4 {
-            return None;
-        }
-        let config = StaticStartConfig {
-            window_s: self.static_config.window_s.min(available_s),
-            ..self.static_config.clone()
-        };
-        let window_ns = (config.window_s * 1e9) as i64;
-        let samples = imu.between(frame.t_ns - window_ns - 50_000_000, frame.t_ns + 50_000_000);
         let noise = self.rig.imu.as_ref()?.noise;
-        let rest = match detect_static_start(samples, frame.t_ns, &noise, &config) {
-            Ok(r) => r,
-            Err(e) => {
-                tracing::debug!("not at rest at {} ns: {e}", frame.t_ns);
-                return None;
-            }
-        };
+        let rest = imu.static_start(frame.t_ns, &noise, &self.static_config)?;
         let position = self.last.map_or(Vector3::zeros(), |s| s.T_world_body.translation.vector);
         // Once resting, the attitude is held: re-levelling every frame
         // would make the pose wander with the accelerometer noise.

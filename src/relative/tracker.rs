@@ -477,8 +477,8 @@ impl Tracker {
             keep[i] = pose.inliers[k];
         }
         let mut write = 0;
-        for i in 0..n {
-            if keep[i] {
+        for (i, &kept) in keep.iter().enumerate() {
+            if kept {
                 self.ids[write] = self.ids[i];
                 self.points[write] = self.points[i];
                 write += 1;

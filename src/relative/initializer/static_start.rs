@@ -19,7 +19,7 @@
 //!   For the ADIS16448 the white-noise term is 2.7e-3 rad/s and
 //!   0.032 m/s^2 (5 sigma), so on EuRoC the allowances decide: 0.02 rad/s
 //!   (EuRoC at rest: 0.004-0.008; every 1 s window of V1_02's flight:
-//!   >= 0.08) and 0.2 m/s^2 (rest: 0.03-0.11). The price: a sway of
+//!   at least 0.08) and 0.2 m/s^2 (rest: 0.03-0.11). The price: a sway of
 //!   1 cm at 1 Hz (0.4 m/s^2 peak, 6 cm/s) passes for rest.
 //! - the mean gyro must be a plausible bias (`max_gyro_bias_rad_s`): a
 //!   steady turn about the vertical leaves both spreads small and only

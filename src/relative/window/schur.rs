@@ -7,7 +7,7 @@
 //! keyframe sees a landmark. Eliminating the landmarks gives the reduced
 //! system `S = U - sum_j W_j V_j^-1 W_j^T`, built landmark by landmark from
 //! the few keyframes each one touches; `S` is small (15 per free keyframe
-//! + 2) and is solved densely by Cholesky, then each landmark's step is
+//! plus 2) and is solved densely by Cholesky, then each landmark's step is
 //! `V_j^-1 (b_j - W_j^T dx)`. The full system is never formed (except by
 //! the dense reference in the tests).
 
