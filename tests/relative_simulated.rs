@@ -118,12 +118,9 @@ fn damaged_input_never_gives_nan_or_an_unannounced_jump() {
     let dataset = open_dataset(&dir).expect("open");
     let rig = rig_of(&dataset);
     for mode in [SensorMode::StereoInertial, SensorMode::MonoInertial] {
-        // Black frames lose every track. Stereo re-triangulates at once;
-        // mono-inertial must rebuild its map from IMU-carried keyframes
-        // and today drifts away doing so (velocity error growing to
-        // ~3 m/s within a second), so it is not exposed to them here:
-        // a known weakness, see the issue note.
-        let black_frames = if mode == SensorMode::StereoInertial { 60..65 } else { 0..0 };
+        // Black frames lose every track: stereo re-triangulates at once,
+        // mono-inertial rebuilds its map from IMU-carried keyframes.
+        let black_frames = 60..65;
         let mut estimator =
             build_estimator(EstimatorKind::Window, mode, &rig, &RelativeConfig::default())
                 .expect("estimator");

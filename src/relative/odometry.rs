@@ -365,7 +365,7 @@ impl WindowOdometry {
     }
 
     /// One frame with the window running.
-    fn track(&mut self, mut frame: TrackedFrame, tracking: TrackingState) -> RelativeOutput {
+    fn track(&mut self, frame: TrackedFrame, tracking: TrackingState) -> RelativeOutput {
         let t_ns = frame.t_ns;
         let (guess, pre) = self.predict(t_ns);
         let placed = {
@@ -409,10 +409,12 @@ impl WindowOdometry {
                 self.last = Some(guess);
                 return self.output(&guess, TrackingState::Lost, None);
             }
-            // The IMU carries the state; a keyframe keeps the window's
-            // inertial chain going and lets new landmarks be triangulated.
+            // The IMU carries the state; keyframes stay as the tracker
+            // spaces them, so that new landmarks get the parallax to be
+            // triangulated and the window keeps older, vision-anchored
+            // keyframes (a keyframe every frame filled it with 0.5 s of
+            // IMU-only states whose biases wandered off).
             self.counters.imu_only_frames += 1;
-            frame.is_keyframe = true;
             guess
         };
         if !self.window.imu_enabled() {
