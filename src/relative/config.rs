@@ -59,7 +59,7 @@ impl Default for RelativeConfig {
             pixel_sigma_px: 1.0,
             init_keyframes: 6,
             init_min_span_s: 1.0,
-            init_max_scale_rel_std: 0.02,
+            init_max_scale_rel_std: 0.03,
             lost_after_frames: 3,
             imu_only_max_s: 1.0,
         }
