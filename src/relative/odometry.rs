@@ -603,15 +603,21 @@ impl WindowOdometry {
             return self.unplaced_output(t_ns, TrackingState::Initializing);
         }
         self.counters.keyframes += 1;
-        self.tracker.mark_keyframe(t_ns);
+        self.vision_started(state, &frame)
+    }
+
+    /// The window holds a vision-only start ending at `frame`: tracking
+    /// in the vision-only modes, waiting for the IMU alignment otherwise.
+    fn vision_started(&mut self, state: KeyframeState, frame: &TrackedFrame) -> RelativeOutput {
+        self.tracker.mark_keyframe(frame.t_ns);
         self.last = Some(state);
-        self.last_vision_ns = Some(t_ns);
+        self.last_vision_ns = Some(frame.t_ns);
         if self.mode.uses_imu() {
             self.phase = Phase::Aligning;
             self.output(&state, TrackingState::Initializing, None)
         } else {
             self.phase = Phase::Tracking;
-            self.output(&state, TrackingState::Tracking, Some(&frame))
+            self.output(&state, TrackingState::Tracking, Some(frame))
         }
     }
 
@@ -679,17 +685,8 @@ impl WindowOdometry {
             return self.unplaced_output(t_ns, TrackingState::Initializing);
         }
         self.counters.keyframes += 2;
-        self.tracker.mark_keyframe(t_ns);
         let state = *self.window.latest().expect("two keyframes pushed");
-        self.last = Some(state);
-        self.last_vision_ns = Some(t_ns);
-        if self.mode.uses_imu() {
-            self.phase = Phase::Aligning;
-            self.output(&state, TrackingState::Initializing, None)
-        } else {
-            self.phase = Phase::Tracking;
-            self.output(&state, TrackingState::Tracking, Some(&frame))
-        }
+        self.vision_started(state, &frame)
     }
 
     /// Inertial modes after a moving start: vision-only tracking, and after
