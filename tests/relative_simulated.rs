@@ -11,8 +11,7 @@ use rigslam::dataset::{
     StreamOptions,
 };
 use rigslam::relative::{
-    build_estimator, EstimatorKind, FrameInput, RelativeConfig, SensorMode,
-    TrackingState,
+    build_estimator, EstimatorKind, FrameInput, RelativeConfig, SensorMode, TrackingState,
 };
 use rigslam::run::dataset_run::{rig_of, run_dataset, DatasetRun};
 use rigslam::sensors::Image;
@@ -61,7 +60,10 @@ fn ate_and_init(dir: &Path, mode: SensorMode) -> (f64, f64, u64, serde_json::Val
     let report = serde_json::to_value(&result.report).expect("json");
     let eval = result.report.eval.as_ref().expect("ground truth");
     let init = result.report.initialized_at_s.expect("initialised");
-    eprintln!("{mode}: ATE {:.3} m, initialised at {init:.2} s", eval.ate_rmse_m);
+    eprintln!(
+        "{mode}: ATE {:.3} m, initialised at {init:.2} s",
+        eval.ate_rmse_m
+    );
     (eval.ate_rmse_m, init, result.report.lost_count, report)
 }
 
@@ -79,7 +81,10 @@ fn a_start_at_rest_uses_the_static_start() {
     ] {
         let (ate, init, lost, report) = ate_and_init(&dir, mode);
         assert!(init < 0.6, "{mode}: initialised at {init} s");
-        assert!(report["counters"]["static_frames"].as_u64().unwrap_or(0) > 10, "{mode}: {report}");
+        assert!(
+            report["counters"]["static_frames"].as_u64().unwrap_or(0) > 10,
+            "{mode}: {report}"
+        );
         assert_eq!(lost, 0, "{mode}");
         assert!(ate < bar_m, "{mode}: ATE {ate} m over 12 s (bar {bar_m})");
     }
@@ -124,9 +129,13 @@ fn damaged_input_never_gives_nan_or_an_unannounced_jump() {
         // Black frames lose every track: stereo re-triangulates at once,
         // mono-inertial rebuilds its map from IMU-carried keyframes.
         let black_frames = 60..65;
-        let mut estimator =
-            build_estimator(EstimatorKind::Window, mode, &rig, &RelativeConfig::default())
-                .expect("estimator");
+        let mut estimator = build_estimator(
+            EstimatorKind::Window,
+            mode,
+            &rig,
+            &RelativeConfig::default(),
+        )
+        .expect("estimator");
         let stream = SensorStream::new(
             &dataset,
             StreamOptions {
@@ -145,10 +154,7 @@ fn damaged_input_never_gives_nan_or_an_unannounced_jump() {
                 _ => None,
             })
             .expect("frames");
-        let (w, h) = (
-            rig.cameras[0].model.width(),
-            rig.cameras[0].model.height(),
-        );
+        let (w, h) = (rig.cameras[0].model.width(), rig.cameras[0].model.height());
         let black = Image::mono8(w, h, vec![0; (w * h) as usize]).expect("image");
         let mut frame_index = 0usize;
         let mut last_frame: Option<Image> = None;
@@ -205,11 +211,23 @@ fn damaged_input_never_gives_nan_or_an_unannounced_jump() {
                     outputs += 1;
                     let p = out.T_world_body.translation.vector;
                     if std::env::var_os("RIGSLAM_TEST_TRACE").is_some() {
-                        eprintln!("{mode} {frame_index} {:?} {:.3} {:.3} {:.3} {:?}", out.state, p.x, p.y, p.z, estimator.counters());
+                        eprintln!(
+                            "{mode} {frame_index} {:?} {:.3} {:.3} {:.3} {:?}",
+                            out.state,
+                            p.x,
+                            p.y,
+                            p.z,
+                            estimator.counters()
+                        );
                     }
                     assert!(
                         p.iter().all(|v| v.is_finite())
-                            && out.T_world_body.rotation.coords.iter().all(|v| v.is_finite())
+                            && out
+                                .T_world_body
+                                .rotation
+                                .coords
+                                .iter()
+                                .all(|v| v.is_finite())
                             && out.velocity_world_m_s.iter().all(|v| v.is_finite()),
                         "{mode}: non-finite output at frame {frame_index}"
                     );
@@ -218,7 +236,8 @@ fn damaged_input_never_gives_nan_or_an_unannounced_jump() {
                         assert!(l.covariance_body_m2.iter().all(|v| v.is_finite()));
                     }
                     if let Some((t_prev, p_prev, s_prev)) = previous {
-                        if s_prev == TrackingState::Tracking && out.state == TrackingState::Tracking {
+                        if s_prev == TrackingState::Tracking && out.state == TrackingState::Tracking
+                        {
                             let dt = (*t_ns - t_prev) as f64 * 1e-9;
                             let speed = (p - p_prev).norm() / dt;
                             // V1_02 flies at most about 1.5 m/s.
@@ -246,6 +265,10 @@ fn damaged_input_never_gives_nan_or_an_unannounced_jump() {
         assert!(counters["frames_out_of_order"] >= 2, "{counters:?}");
         assert!(counters["imu_samples_dropped"] >= 2, "{counters:?}");
         // Tracking at the end despite everything.
-        assert_eq!(previous.expect("frames").2, TrackingState::Tracking, "{mode}");
+        assert_eq!(
+            previous.expect("frames").2,
+            TrackingState::Tracking,
+            "{mode}"
+        );
     }
 }

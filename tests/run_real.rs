@@ -27,7 +27,10 @@ fn run(dataset: &Path, mode: &str, dir: &Path) -> (serde_json::Value, Vec<[f64; 
         String::from_utf8_lossy(&out.stderr)
     );
     let summary = String::from_utf8_lossy(&out.stdout);
-    assert!(summary.contains(mode) && summary.contains("ms/frame"), "{summary}");
+    assert!(
+        summary.contains(mode) && summary.contains("ms/frame"),
+        "{summary}"
+    );
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");
     let poses = std::fs::read_to_string(&tum)
@@ -169,13 +172,26 @@ fn the_ekf_baseline_runs_the_inertial_modes_and_refuses_the_others() {
     let dir = tempfile::tempdir().expect("tempdir");
     let tum = dir.path().join("ekf.tum");
     let out = Command::new(env!("CARGO_BIN_EXE_rigslam"))
-        .args(["run", "--quiet", "--json", "--estimator", "ekf", "--mode", "stereo-inertial", "--dataset"])
+        .args([
+            "run",
+            "--quiet",
+            "--json",
+            "--estimator",
+            "ekf",
+            "--mode",
+            "stereo-inertial",
+            "--dataset",
+        ])
         .arg(&root)
         .arg("--trajectory")
         .arg(&tum)
         .output()
         .expect("run rigslam");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
     assert_eq!(report["estimator"], "ekf");
     assert!(report["initialized_at_s"].as_f64().expect("initialised") <= 0.5);
@@ -184,15 +200,29 @@ fn the_ekf_baseline_runs_the_inertial_modes_and_refuses_the_others() {
         .lines()
         .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
         .map(|l| {
-            let v: Vec<f64> = l.split_whitespace().map(|x| x.parse().expect("number")).collect();
+            let v: Vec<f64> = l
+                .split_whitespace()
+                .map(|x| x.parse().expect("number"))
+                .collect();
             v.try_into().expect("8 fields")
         })
         .collect();
     assert!(poses.len() >= 85);
     let moved = largest_displacement_m(&poses);
-    assert!(moved < 0.02, "the EKF drifted {moved} m at rest with stereo");
+    assert!(
+        moved < 0.02,
+        "the EKF drifted {moved} m at rest with stereo"
+    );
     let out = Command::new(env!("CARGO_BIN_EXE_rigslam"))
-        .args(["run", "--quiet", "--estimator", "ekf", "--mode", "stereo", "--dataset"])
+        .args([
+            "run",
+            "--quiet",
+            "--estimator",
+            "ekf",
+            "--mode",
+            "stereo",
+            "--dataset",
+        ])
         .arg(&root)
         .output()
         .expect("run rigslam");
@@ -209,7 +239,15 @@ fn absolute_writes_both_trajectories_and_scores_both() {
     let dir = tempfile::tempdir().expect("tempdir");
     let (corrected, relative) = (dir.path().join("abs.tum"), dir.path().join("rel.tum"));
     let out = Command::new(env!("CARGO_BIN_EXE_rigslam"))
-        .args(["run", "--quiet", "--json", "--absolute", "--mode", "stereo-inertial", "--dataset"])
+        .args([
+            "run",
+            "--quiet",
+            "--json",
+            "--absolute",
+            "--mode",
+            "stereo-inertial",
+            "--dataset",
+        ])
         .arg(&root)
         .arg("--trajectory")
         .arg(&corrected)
@@ -217,11 +255,20 @@ fn absolute_writes_both_trajectories_and_scores_both() {
         .arg(&relative)
         .output()
         .expect("run rigslam");
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
     assert_eq!(report["absolute"]["frames"], 95);
     assert!(report["absolute"]["solves"].as_u64().expect("solves") > 0);
-    assert!(report["stages"]["absolute"]["count"].as_u64().expect("count") == 95);
+    assert!(
+        report["stages"]["absolute"]["count"]
+            .as_u64()
+            .expect("count")
+            == 95
+    );
     let lines = |p: &Path| {
         std::fs::read_to_string(p)
             .expect("trajectory")

@@ -782,7 +782,15 @@ mod tests {
     /// root of `1 + 3 k1 s + 5 k2 s^2`.
     #[test]
     fn closed_form_fold_radius_agrees_with_the_root_search() {
-        for (k1, k2) in [(-0.3, 0.05), (-0.5, 0.01), (-0.28, 0.07), (0.1, -0.02), (-0.9, 0.3), (0.0, -0.1), (-0.2, 0.0)] {
+        for (k1, k2) in [
+            (-0.3, 0.05),
+            (-0.5, 0.01),
+            (-0.28, 0.07),
+            (0.1, -0.02),
+            (-0.9, 0.3),
+            (0.0, -0.1),
+            (-0.2, 0.0),
+        ] {
             let camera = PinholeRadtan {
                 width: 640,
                 height: 480,
@@ -795,7 +803,8 @@ mod tests {
             let fast = camera.max_valid_radius();
             let general = camera.max_valid_radius_by_root_search();
             assert!(
-                (fast.is_infinite() && general.is_infinite()) || (fast - general).abs() < 1e-9 * general,
+                (fast.is_infinite() && general.is_infinite())
+                    || (fast - general).abs() < 1e-9 * general,
                 "k1 {k1} k2 {k2}: {fast} vs {general}"
             );
         }

@@ -77,9 +77,10 @@ impl<'a> SensorStream<'a> {
             &'a [ImuSample],
         ) = match dataset {
             Dataset::Euroc(d) => {
-                let cam0 = d.cameras.first().ok_or_else(|| {
-                    DatasetError::layout(&d.root, "has no camera folder (cam0/)")
-                })?;
+                let cam0 = d
+                    .cameras
+                    .first()
+                    .ok_or_else(|| DatasetError::layout(&d.root, "has no camera folder (cam0/)"))?;
                 let right = if options.stereo {
                     Some(d.cameras.get(1).ok_or_else(|| {
                         DatasetError::layout(

@@ -312,7 +312,7 @@ fn unusable_inputs_are_left_out_not_propagated() {
 /// Prints the NEES of every combination (not a check; run with
 /// `--ignored --nocapture` for the numbers in bench/README.md).
 #[test]
-#[ignore]
+#[ignore = "measurement, not a check: prints the NEES table for bench/README.md (--ignored --nocapture)"]
 fn print_nees_table() {
     for isotropic in [true, false] {
         let options = RoomRunOptions {
@@ -353,7 +353,7 @@ fn print_nees_table() {
 /// Prints how often each symbolic path is taken and the per-frame cost on
 /// the room run (`--ignored --nocapture`).
 #[test]
-#[ignore]
+#[ignore = "measurement, not a check: prints symbolic-path counts and per-frame cost (--ignored --nocapture)"]
 fn print_stage_stats() {
     for laps in [1.0, 4.0] {
         for covariance in [
@@ -395,7 +395,7 @@ fn print_stage_stats() {
 /// Per-frame cost of the exact covariance against the sub-matrix rule as
 /// the map grows (`--ignored --nocapture`).
 #[test]
-#[ignore]
+#[ignore = "measurement, not a check: prints the correction cost by map size (--ignored --nocapture)"]
 fn print_correction_cost_by_map_size() {
     for (landmarks, room) in [
         (400, (16.0, 10.0)),

@@ -295,7 +295,7 @@ mod tests {
 /// check; `--ignored --nocapture` prints the table in bench/README.md).
 #[cfg(test)]
 #[test]
-#[ignore]
+#[ignore = "measurement, not a check: prints warm vs cold CG iterations (--ignored --nocapture)"]
 fn print_warm_start_table() {
     use crate::edge_map::simulate::{simulate_city, CityOptions};
     let landmarks: usize = std::env::var("RIGSLAM_WARM_LANDMARKS")

@@ -278,7 +278,7 @@ mod tests {
     /// growing map (`--ignored --nocapture`; RIGSLAM_GROW_LANDMARKS sets
     /// the size, default 100000).
     #[test]
-    #[ignore]
+    #[ignore = "measurement, not a check: prints ordering reuse vs fresh AMD (--ignored --nocapture)"]
     fn print_ordering_reuse_table() {
         let landmarks: usize = std::env::var("RIGSLAM_GROW_LANDMARKS")
             .ok()

@@ -5,7 +5,9 @@
 use std::path::Path;
 
 /// Which estimator runs the relative stage.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize,
+)]
 #[serde(rename_all = "kebab-case")]
 pub enum EstimatorKind {
     /// The paper's windowed Levenberg-Marquardt optimisation.
@@ -189,10 +191,14 @@ mod tests {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = dir.path().join("bad.toml");
         std::fs::write(&path, "window_keyframes = 10\nwindow_free = 12\n").expect("write");
-        let err = RelativeConfig::from_toml_file(&path).unwrap_err().to_string();
+        let err = RelativeConfig::from_toml_file(&path)
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("window_free") && err.contains("1 to"), "{err}");
         std::fs::write(&path, "featurs = 100\n").expect("write");
-        let err = RelativeConfig::from_toml_file(&path).unwrap_err().to_string();
+        let err = RelativeConfig::from_toml_file(&path)
+            .unwrap_err()
+            .to_string();
         assert!(err.contains("featurs"), "{err}");
     }
 }

@@ -44,7 +44,11 @@ pub struct EkfOdometry {
 }
 
 impl EkfOdometry {
-    pub fn new(mode: SensorMode, rig: &RigModel, config: &RelativeConfig) -> Result<Self, OdometryError> {
+    pub fn new(
+        mode: SensorMode,
+        rig: &RigModel,
+        config: &RelativeConfig,
+    ) -> Result<Self, OdometryError> {
         rig.check(mode)?;
         config.validate()?;
         if !mode.uses_imu() {
@@ -96,7 +100,12 @@ impl EkfOdometry {
         })
     }
 
-    fn output(&mut self, state: KeyframeState, tracking: TrackingState, landmarks: bool) -> RelativeOutput {
+    fn output(
+        &mut self,
+        state: KeyframeState,
+        tracking: TrackingState,
+        landmarks: bool,
+    ) -> RelativeOutput {
         let position = state.T_world_body.translation.vector;
         let delta = match (tracking, self.previous_position) {
             (TrackingState::Tracking, Some(p)) => position - p,
@@ -112,7 +121,11 @@ impl EkfOdometry {
             velocity_world_m_s: state.velocity_world_m_s,
             biases: state.biases,
             delta_translation_world_m: delta,
-            landmarks: if landmarks { self.filter.landmarks_in_body() } else { Vec::new() },
+            landmarks: if landmarks {
+                self.filter.landmarks_in_body()
+            } else {
+                Vec::new()
+            },
         };
         self.last_output = Some(out.clone());
         out
@@ -186,7 +199,10 @@ impl RelativeEstimator for EkfOdometry {
             None => None,
         };
         let tracker = &mut self.tracker;
-        let tracked = match self.timings.time("track", || tracker.track(frame, prediction.as_ref())) {
+        let tracked = match self
+            .timings
+            .time("track", || tracker.track(frame, prediction.as_ref()))
+        {
             Ok(t) => t,
             Err(e) => {
                 tracing::warn!("frame at {t_ns} ns not tracked: {e}");
@@ -219,7 +235,12 @@ impl RelativeEstimator for EkfOdometry {
             filter.update(&tracked)
         });
         let state = update.state;
-        let finite = state.T_world_body.translation.vector.iter().all(|v| v.is_finite())
+        let finite = state
+            .T_world_body
+            .translation
+            .vector
+            .iter()
+            .all(|v| v.is_finite())
             && state.velocity_world_m_s.iter().all(|v| v.is_finite());
         if !finite {
             self.resets += 1;

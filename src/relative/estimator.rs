@@ -68,7 +68,9 @@ impl FromStr for SensorMode {
             .into_iter()
             .find(|m| m.name() == s)
             .ok_or_else(|| {
-                format!("unknown mode {s:?}: expected mono, mono-inertial, stereo or stereo-inertial")
+                format!(
+                    "unknown mode {s:?}: expected mono, mono-inertial, stereo or stereo-inertial"
+                )
             })
     }
 }

@@ -173,7 +173,9 @@ mod tests {
         assert_eq!(buf.dropped(), 3);
         assert_eq!(buf.samples().len(), 2);
         // Not covered past the last sample: the camera ran ahead.
-        assert!(buf.preintegrate(0, 9_000_000, &ImuBiases::default()).is_none());
+        assert!(buf
+            .preintegrate(0, 9_000_000, &ImuBiases::default())
+            .is_none());
         let pre = buf
             .preintegrate(0, 5_000_000, &ImuBiases::default())
             .expect("covered");

@@ -23,10 +23,8 @@ pub mod types;
 pub mod window;
 
 pub use config::{ConfigError, EstimatorKind, RelativeConfig};
+pub use estimator::{FrameInput, FrameTimings, RelativeEstimator, RigError, RigModel, SensorMode};
 pub use odometry::{build_estimator, OdometryError, WindowOdometry};
-pub use estimator::{
-    FrameInput, FrameTimings, RelativeEstimator, RigError, RigModel, SensorMode,
-};
 pub use types::{
     BodyLandmark, KeyframeState, LandmarkId, Observation, RelativeOutput, TrackedFrame,
     TrackingState,

@@ -39,11 +39,13 @@ use super::config::{EstimatorKind, RelativeConfig};
 use super::estimator::{FrameInput, FrameTimings, RelativeEstimator, RigModel, SensorMode};
 use super::imu_buffer::ImuBuffer;
 use super::initializer::{
-    align_with_reintegration, bootstrap_two_view, AlignmentConfig,
-    BootstrapConfig, BootstrapRefusal, ScaleMode, StaticStartConfig, VisionKeyframe,
+    align_with_reintegration, bootstrap_two_view, AlignmentConfig, BootstrapConfig,
+    BootstrapRefusal, ScaleMode, StaticStartConfig, VisionKeyframe,
 };
 use super::tracker::{Tracker, TrackerConfig};
-use super::types::{BodyLandmark, KeyframeState, LandmarkId, RelativeOutput, TrackedFrame, TrackingState};
+use super::types::{
+    BodyLandmark, KeyframeState, LandmarkId, RelativeOutput, TrackedFrame, TrackingState,
+};
 use super::window::{Window, WindowConfig};
 
 /// Where the stage is.
@@ -170,7 +172,11 @@ impl WindowOdometry {
             .map_err(|e| OdometryError::Setup(e.to_string()))?;
         let used = RigModel {
             cameras,
-            imu: if mode.uses_imu() { rig.imu.clone() } else { None },
+            imu: if mode.uses_imu() {
+                rig.imu.clone()
+            } else {
+                None
+            },
         };
         let window_config = WindowConfig {
             keyframes_kept: config.window_keyframes,
@@ -232,7 +238,11 @@ impl WindowOdometry {
     fn median_flow_px(&mut self, frame: &TrackedFrame) -> Option<f64> {
         let mut flows: Vec<f64> = frame
             .in_camera(0)
-            .filter_map(|o| self.previous_pixels.get(&o.landmark).map(|p| (o.pixel - p).norm()))
+            .filter_map(|o| {
+                self.previous_pixels
+                    .get(&o.landmark)
+                    .map(|p| (o.pixel - p).norm())
+            })
             .collect();
         self.previous_pixels.clear();
         self.previous_pixels
@@ -329,17 +339,27 @@ impl WindowOdometry {
     }
 
     /// The state at `t_ns` from `anchor` by the IMU.
-    fn propagate(&mut self, anchor: &KeyframeState, t_ns: i64) -> Option<(KeyframeState, Preintegrated)> {
+    fn propagate(
+        &mut self,
+        anchor: &KeyframeState,
+        t_ns: i64,
+    ) -> Option<(KeyframeState, Preintegrated)> {
         let gravity = if self.window.imu_enabled() {
             self.window.gravity_world_m_s2()
         } else {
             Vector3::new(0.0, 0.0, -GRAVITY_M_S2)
         };
-        let pre = self.imu.as_mut()?.preintegrate(anchor.t_ns, t_ns, &anchor.biases)?;
+        let pre = self
+            .imu
+            .as_mut()?
+            .preintegrate(anchor.t_ns, t_ns, &anchor.biases)?;
         let nav = pre.predict(&nav_of(anchor), &anchor.biases, &gravity);
         let state = KeyframeState {
             t_ns,
-            T_world_body: Isometry3::from_parts(Translation3::from(nav.position_world_m), nav.R_world_body),
+            T_world_body: Isometry3::from_parts(
+                Translation3::from(nav.position_world_m),
+                nav.R_world_body,
+            ),
             velocity_world_m_s: nav.velocity_world_m_s,
             biases: anchor.biases,
         };
@@ -349,14 +369,20 @@ impl WindowOdometry {
     /// The state at `t_ns` predicted from the newest keyframe by the IMU
     /// (inertial terms on) or by constant velocity.
     fn predict(&mut self, t_ns: i64) -> (KeyframeState, Option<Preintegrated>) {
-        let anchor = *self.window.latest().expect("the window has a keyframe when tracking");
+        let anchor = *self
+            .window
+            .latest()
+            .expect("the window has a keyframe when tracking");
         if self.window.imu_enabled() {
             if let Some((state, pre)) = self.propagate(&anchor, t_ns) {
                 return (state, Some(pre));
             }
             self.counters.frames_without_imu += 1;
         }
-        let last = self.last.filter(|l| l.t_ns >= anchor.t_ns).unwrap_or(anchor);
+        let last = self
+            .last
+            .filter(|l| l.t_ns >= anchor.t_ns)
+            .unwrap_or(anchor);
         let dt_s = (t_ns - last.t_ns) as f64 * 1e-9;
         let mut state = last;
         state.t_ns = t_ns;
@@ -420,8 +446,9 @@ impl WindowOdometry {
         if !self.window.imu_enabled() {
             if let Some(last) = self.last.filter(|l| l.t_ns < t_ns) {
                 let dt_s = (t_ns - last.t_ns) as f64 * 1e-9;
-                state.velocity_world_m_s =
-                    (state.T_world_body.translation.vector - last.T_world_body.translation.vector) / dt_s;
+                state.velocity_world_m_s = (state.T_world_body.translation.vector
+                    - last.T_world_body.translation.vector)
+                    / dt_s;
             }
         }
         let kf_gap = self.window.latest().map_or(i64::MAX, |k| t_ns - k.t_ns);
@@ -437,14 +464,21 @@ impl WindowOdometry {
         }
         self.gyro_bias_rad_s = state.biases.gyro_rad_s;
         self.last = Some(state);
-        if tracking == TrackingState::Tracking && (self.mode.uses_imu() == self.window.imu_enabled()) {
+        if tracking == TrackingState::Tracking
+            && (self.mode.uses_imu() == self.window.imu_enabled())
+        {
             self.last_good = Some(state);
         }
         self.output(&state, tracking, Some(&frame))
     }
 
     /// Pushes and optimises; false (and counted) when the window refused.
-    fn add_keyframe(&mut self, state: KeyframeState, frame: &TrackedFrame, pre: Option<Preintegrated>) -> bool {
+    fn add_keyframe(
+        &mut self,
+        state: KeyframeState,
+        frame: &TrackedFrame,
+        pre: Option<Preintegrated>,
+    ) -> bool {
         let window = &mut self.window;
         let pushed = self.timings.time("window", || {
             window.push_keyframe(state, frame, pre)?;
@@ -477,7 +511,11 @@ impl WindowOdometry {
     /// that nothing moves.
     fn rest_state(&mut self, frame: &TrackedFrame, flow_px: Option<f64>) -> Option<KeyframeState> {
         if flow_px.is_some_and(|f| f > REST_FLOW_PX) {
-            tracing::debug!("not at rest at {} ns: the image moved {:.2} px", frame.t_ns, flow_px.unwrap_or(0.0));
+            tracing::debug!(
+                "not at rest at {} ns: the image moved {:.2} px",
+                frame.t_ns,
+                flow_px.unwrap_or(0.0)
+            );
             return None;
         }
         // Vibration jitters the image by a pixel or so; a slow constant
@@ -485,14 +523,19 @@ impl WindowOdometry {
         // features must also stay where they were when the rest began.
         if let Some(drift) = median_displacement_px(&self.rest_anchor, frame) {
             if drift > REST_DRIFT_PX {
-                tracing::debug!("not at rest at {} ns: features drifted {drift:.2} px since the rest began", frame.t_ns);
+                tracing::debug!(
+                    "not at rest at {} ns: features drifted {drift:.2} px since the rest began",
+                    frame.t_ns
+                );
                 return None;
             }
         }
         let imu = self.imu.as_ref()?;
         let noise = self.rig.imu.as_ref()?.noise;
         let rest = imu.static_start(frame.t_ns, &noise, &self.static_config)?;
-        let position = self.last.map_or(Vector3::zeros(), |s| s.T_world_body.translation.vector);
+        let position = self
+            .last
+            .map_or(Vector3::zeros(), |s| s.T_world_body.translation.vector);
         // Once resting, the attitude is held: re-levelling every frame
         // would make the pose wander with the accelerometer noise.
         let rotation = match &self.phase {
@@ -512,7 +555,12 @@ impl WindowOdometry {
 
     /// Starts the window, inertial terms on, from a known metric state
     /// (the last rest frame, or a state the IMU carried through a loss).
-    fn start_inertial_window(&mut self, state: KeyframeState, frame: &TrackedFrame, gravity_sigma_rad: f64) -> bool {
+    fn start_inertial_window(
+        &mut self,
+        state: KeyframeState,
+        frame: &TrackedFrame,
+        gravity_sigma_rad: f64,
+    ) -> bool {
         self.new_window();
         let ok = self.window.enable_imu(true).is_ok()
             && self
@@ -546,7 +594,11 @@ impl WindowOdometry {
             }
             // 2. The rig started moving: the window starts from the last
             //    rest frame, which becomes its first (fixed) keyframe.
-            if let Phase::Resting { state, frame: rest_frame } = self.phase.clone() {
+            if let Phase::Resting {
+                state,
+                frame: rest_frame,
+            } = self.phase.clone()
+            {
                 if self.start_inertial_window(state, &rest_frame, 0.01) {
                     self.phase = Phase::Tracking;
                     let mut frame = frame;
@@ -599,7 +651,9 @@ impl WindowOdometry {
             },
         };
         self.new_window();
-        if frame.in_camera(1).count() < 10 || self.window.push_keyframe(state, &frame, None).is_err() {
+        if frame.in_camera(1).count() < 10
+            || self.window.push_keyframe(state, &frame, None).is_err()
+        {
             return self.unplaced_output(t_ns, TrackingState::Initializing);
         }
         self.counters.keyframes += 1;
@@ -636,12 +690,13 @@ impl WindowOdometry {
         self.counters.bootstraps_tried += 1;
         let camera = &self.rig.cameras[0].model;
         let config = BootstrapConfig::default();
-        let boot = self
-            .timings
-            .time("init", || bootstrap_two_view(&first, &frame, camera, &config));
+        let boot = self.timings.time("init", || {
+            bootstrap_two_view(&first, &frame, camera, &config)
+        });
         let b = match boot {
             Ok(b) => b,
-            Err(BootstrapRefusal::TooLittleParallax { .. }) | Err(BootstrapRefusal::PureRotation { .. }) => {
+            Err(BootstrapRefusal::TooLittleParallax { .. })
+            | Err(BootstrapRefusal::PureRotation { .. }) => {
                 return self.unplaced_output(t_ns, TrackingState::Initializing);
             }
             Err(e) => {
@@ -709,7 +764,10 @@ impl WindowOdometry {
             return out;
         }
         self.phase = Phase::Tracking;
-        let state = *self.window.latest().expect("an aligned window has keyframes");
+        let state = *self
+            .window
+            .latest()
+            .expect("an aligned window has keyframes");
         self.last = Some(state);
         self.last_good = Some(state);
         self.gyro_bias_rad_s = state.biases.gyro_rad_s;
@@ -749,7 +807,15 @@ impl WindowOdometry {
         };
         let (samples, preintegrator) = imu.parts();
         let aligned = self.timings.time("init", || {
-            align_with_reintegration(&vision, samples, preintegrator, &ImuBiases::default(), &T_bc, scale, &config)
+            align_with_reintegration(
+                &vision,
+                samples,
+                preintegrator,
+                &ImuBiases::default(),
+                &T_bc,
+                scale,
+                &config,
+            )
         });
         let a = match aligned {
             Ok(a) => a,
@@ -789,7 +855,10 @@ impl WindowOdometry {
 
 /// Median distance of `frame`'s left features from where `anchor` saw
 /// them, px; `None` with fewer than 10 in common.
-fn median_displacement_px(anchor: &HashMap<LandmarkId, Vector2<f64>>, frame: &TrackedFrame) -> Option<f64> {
+fn median_displacement_px(
+    anchor: &HashMap<LandmarkId, Vector2<f64>>,
+    frame: &TrackedFrame,
+) -> Option<f64> {
     let mut d: Vec<f64> = frame
         .in_camera(0)
         .filter_map(|o| anchor.get(&o.landmark).map(|p| (o.pixel - p).norm()))
@@ -868,7 +937,10 @@ impl RelativeEstimator for WindowOdometry {
             ("alignments_tried", c.alignments_tried),
             ("bootstraps_tried", c.bootstraps_tried),
             ("frames_without_imu", c.frames_without_imu),
-            ("imu_samples_dropped", self.imu.as_ref().map_or(0, ImuBuffer::dropped)),
+            (
+                "imu_samples_dropped",
+                self.imu.as_ref().map_or(0, ImuBuffer::dropped),
+            ),
         ]
     }
 }

@@ -31,8 +31,8 @@ use nalgebra::{Matrix3, Rotation3, Vector2, Vector3};
 
 use crate::camera::CameraModel;
 use crate::features::{
-    predict_from_rotation, Corner, CornerConfig, CornerDetector, GridConfig, KltConfig,
-    KltTracker, Pyramid, PyramidConfig, TrackStatus,
+    predict_from_rotation, Corner, CornerConfig, CornerDetector, GridConfig, KltConfig, KltTracker,
+    Pyramid, PyramidConfig, TrackStatus,
 };
 use crate::rig::CameraCalibration;
 use crate::two_view::{estimate_relative_pose, RelativePoseConfig};
@@ -183,10 +183,18 @@ impl Tracker {
             allowed,
         };
         if !(10..=5000).contains(&config.target_features) {
-            return Err(bad("target_features", config.target_features.to_string(), "10 to 5000"));
+            return Err(bad(
+                "target_features",
+                config.target_features.to_string(),
+                "10 to 5000",
+            ));
         }
         if !(1..=8).contains(&config.pyramid_levels) {
-            return Err(bad("pyramid_levels", config.pyramid_levels.to_string(), "1 to 8"));
+            return Err(bad(
+                "pyramid_levels",
+                config.pyramid_levels.to_string(),
+                "1 to 8",
+            ));
         }
         for (key, v) in [
             ("ransac_threshold_px", config.ransac_threshold_px),
@@ -200,7 +208,11 @@ impl Tracker {
             }
         }
         if !(0.0..=1.0).contains(&config.keyframe_min_tracked) {
-            return Err(bad("keyframe_min_tracked", config.keyframe_min_tracked.to_string(), "0 to 1"));
+            return Err(bad(
+                "keyframe_min_tracked",
+                config.keyframe_min_tracked.to_string(),
+                "0 to 1",
+            ));
         }
         if cameras.is_empty() {
             return Err(TrackerError::NoCamera);
@@ -212,7 +224,11 @@ impl Tracker {
             let [fx, fy, _, _] = c.model.pinhole();
             if !(fx.is_finite() && fy.is_finite() && fx > 0.0 && fy > 0.0) {
                 return Err(bad(
-                    if i == 0 { "camera 0 focal length" } else { "camera 1 focal length" },
+                    if i == 0 {
+                        "camera 0 focal length"
+                    } else {
+                        "camera 1 focal length"
+                    },
                     format!("{fx}, {fy}"),
                     "finite and positive",
                 ));
@@ -468,7 +484,8 @@ impl Tracker {
             return;
         }
         let [fx, fy, _, _] = camera.pinhole();
-        let config = RelativePoseConfig::for_pixels(self.config.ransac_threshold_px, 0.5 * (fx + fy));
+        let config =
+            RelativePoseConfig::for_pixels(self.config.ransac_threshold_px, 0.5 * (fx + fy));
         let Ok(pose) = estimate_relative_pose(&x1, &x2, &config) else {
             return;
         };
@@ -492,7 +509,10 @@ impl Tracker {
 
     /// New corners up to the target count, away from the tracked ones.
     fn detect_new(&mut self) {
-        let budget = self.config.target_features.saturating_sub(self.points.len());
+        let budget = self
+            .config
+            .target_features
+            .saturating_sub(self.points.len());
         // Refill only when a fifth is missing: detection costs as much as
         // tracking, and a few features more or less change nothing.
         if budget < self.config.target_features / 5 && !self.points.is_empty() {
@@ -555,7 +575,9 @@ impl Tracker {
             let mut still = Vec::with_capacity(pending.len());
             for (k, &i) in pending.iter().enumerate() {
                 let q = self.scratch_tracked[k];
-                if self.scratch_status[k] == TrackStatus::Tracked && self.on_epipolar_line(&self.points[i], &q) {
+                if self.scratch_status[k] == TrackStatus::Tracked
+                    && self.on_epipolar_line(&self.points[i], &q)
+                {
                     matched[i] = Some(q);
                 } else {
                     still.push(i);
@@ -596,7 +618,8 @@ impl Tracker {
     /// calibrated pair, and both depths positive.
     fn on_epipolar_line(&self, p: &[f32; 2], q: &[f32; 2]) -> bool {
         let right = &self.cameras[1].model;
-        let (Some(x0), Some(x1)) = (normalised(&self.cameras[0].model, p), normalised(right, q)) else {
+        let (Some(x0), Some(x1)) = (normalised(&self.cameras[0].model, p), normalised(right, q))
+        else {
             return false;
         };
         let [fx, fy, _, _] = right.pinhole();
@@ -659,7 +682,12 @@ fn normalised(camera: &CameraModel, px: &[f32; 2]) -> Option<Vector2<f64>> {
 /// Whether the rays `h0` (left) and `h1` (right) meet in front of both
 /// cameras (midpoint depths positive); parallel rays count as far.
 #[allow(non_snake_case)]
-fn positive_depth(R_c1_c0: &Matrix3<f64>, t_c1_c0: &Vector3<f64>, h0: &Vector3<f64>, h1: &Vector3<f64>) -> bool {
+fn positive_depth(
+    R_c1_c0: &Matrix3<f64>,
+    t_c1_c0: &Vector3<f64>,
+    h0: &Vector3<f64>,
+    h1: &Vector3<f64>,
+) -> bool {
     // Solve d1 h1 = d0 R h0 + t for (d0, d1) in least squares.
     let a = R_c1_c0 * h0;
     let b = -h1;

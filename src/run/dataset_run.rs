@@ -8,14 +8,14 @@ use std::path::Path;
 use crate::dataset::{
     groundtruth_trajectory, open_dataset, Dataset, DatasetError, SensorStream, StreamOptions,
 };
+use crate::edge_map::{AbsoluteConfig, AbsoluteStage};
 use crate::eval::report::Evaluation;
 use crate::eval::{evaluate, Alignment, EvalOptions};
+use crate::relative::TrackingState;
 use crate::relative::{
     build_estimator, EstimatorKind, OdometryError, RelativeConfig, RelativeOutput, RigModel,
     SensorMode,
 };
-use crate::edge_map::{AbsoluteConfig, AbsoluteStage};
-use crate::relative::TrackingState;
 use crate::trajectory::{StampedPose, Trajectory};
 
 use super::report::{resident_memory_mib, RunReport};

@@ -75,19 +75,34 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
     }
 
     let mut jobs: Vec<(String, PathBuf, SensorMode)> = vec![
-        ("synthetic".into(), dataset_dir.clone(), SensorMode::StereoInertial),
-        ("synthetic".into(), dataset_dir.clone(), SensorMode::MonoInertial),
+        (
+            "synthetic".into(),
+            dataset_dir.clone(),
+            SensorMode::StereoInertial,
+        ),
+        (
+            "synthetic".into(),
+            dataset_dir.clone(),
+            SensorMode::MonoInertial,
+        ),
     ];
     let euroc = args.real_data.join("euroc/V1_01_micro");
     let kitti = args.real_data.join("kitti/seq_a");
     if euroc.is_dir() {
-        jobs.push(("real EuRoC V1_01, at rest".into(), euroc, SensorMode::StereoInertial));
+        jobs.push((
+            "real EuRoC V1_01, at rest".into(),
+            euroc,
+            SensorMode::StereoInertial,
+        ));
     }
     if kitti.is_dir() {
         jobs.push(("real KITTI seq_a".into(), kitti, SensorMode::Mono));
     }
     if jobs.len() == 2 && !args.json {
-        println!("({} is missing: the real recordings are skipped)", args.real_data.display());
+        println!(
+            "({} is missing: the real recordings are skipped)",
+            args.real_data.display()
+        );
     }
     let mut runs = Vec::new();
     for (label, dir, mode) in jobs {
@@ -97,8 +112,15 @@ pub fn run(args: DemoArgs) -> anyhow::Result<()> {
         };
         let result = run_dataset(&dir, &run, |_, _| {})
             .with_context(|| format!("running {mode} on {}", dir.display()))?;
-        let stem = format!("{}_{}", label.split_whitespace().next().unwrap_or("run"), mode);
-        write_tum(&args.out.join(format!("{stem}.tum")), &result.outcome.trajectory)?;
+        let stem = format!(
+            "{}_{}",
+            label.split_whitespace().next().unwrap_or("run"),
+            mode
+        );
+        write_tum(
+            &args.out.join(format!("{stem}.tum")),
+            &result.outcome.trajectory,
+        )?;
         if let Some(e) = &result.evaluation {
             write_plot(&args.out.join(format!("{stem}.png")), e)?;
         }

@@ -126,8 +126,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
 
     if let Some(path) = &args.trajectory {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(dir)
-                .with_context(|| format!("creating {}", dir.display()))?;
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         }
         write_tum(path, &result.outcome.trajectory)?;
     }

@@ -102,8 +102,7 @@ pub(crate) fn triangulate_with_covariance(
     let q2 = second.r_21 * q1 + second.t_21_m;
     let (z1, j1) = reference.model.project_with_point_jacobian(&q1)?;
     let (z2, j2) = second.camera.model.project_with_point_jacobian(&q2)?;
-    if (z1 - pixel_1).norm() > max_reprojection_px || (z2 - pixel_2).norm() > max_reprojection_px
-    {
+    if (z1 - pixel_1).norm() > max_reprojection_px || (z2 - pixel_2).norm() > max_reprojection_px {
         return None;
     }
     let h2 = j2 * second.r_21;
@@ -135,5 +134,8 @@ pub(crate) fn mono_point_covariance(
     let information = j.transpose() * j / (sigma_px * sigma_px) + u * u.transpose() / depth_var;
     let covariance = information.try_inverse()?;
     let covariance = (covariance + covariance.transpose()) * 0.5;
-    covariance.iter().all(|v| v.is_finite()).then_some(covariance)
+    covariance
+        .iter()
+        .all(|v| v.is_finite())
+        .then_some(covariance)
 }

@@ -66,7 +66,7 @@ use init::{
     landmark_from_camera_point, mono_point_covariance, triangulate_with_covariance, NewLandmark,
     RelativeView,
 };
-use propagation::{step_nominal, step_noise, step_transition};
+use propagation::{step_noise, step_nominal, step_transition};
 use state::{landmark_column, Matrix15, NavNominal, StateLandmark, NAV_DIM, POS};
 use update::{
     batch_update, mahalanobis_squared, project_landmark, ObservationRow, RigCamera, UpdateScratch,
@@ -394,7 +394,13 @@ impl EkfFilter {
         }
         // Orientation: the sigmas are about world axes; the error state
         // is in the body frame, dtheta_body = R^T dtheta_world.
-        let finite_var = |sigma: f64| if sigma.is_finite() { sigma * sigma } else { 1.0 };
+        let finite_var = |sigma: f64| {
+            if sigma.is_finite() {
+                sigma * sigma
+            } else {
+                1.0
+            }
+        };
         let world = Matrix3::from_diagonal(&Vector3::new(
             finite_var(sigmas.roll_pitch_rad),
             finite_var(sigmas.roll_pitch_rad),
@@ -451,7 +457,11 @@ impl EkfFilter {
 
     /// Gyro and accel at `t_ns`: interpolated between the held sample and
     /// `next`, or held constant past the last sample.
-    fn input_at(&self, t_ns: i64, next: Option<&HeldSample>) -> Option<(Vector3<f64>, Vector3<f64>)> {
+    fn input_at(
+        &self,
+        t_ns: i64,
+        next: Option<&HeldSample>,
+    ) -> Option<(Vector3<f64>, Vector3<f64>)> {
         match (self.last_sample.as_ref(), next) {
             (Some(a), Some(b)) => {
                 let span = (b.t_ns - a.t_ns) as f64;
@@ -483,7 +493,9 @@ impl EkfFilter {
         while nav.t_ns < t_ns {
             let dt_ns = (t_ns - nav.t_ns).min(max_step_ns.max(1));
             let (g0, a0) = self.input_at(nav.t_ns, next).expect("checked above");
-            let (g1, a1) = self.input_at(nav.t_ns + dt_ns, next).expect("checked above");
+            let (g1, a1) = self
+                .input_at(nav.t_ns + dt_ns, next)
+                .expect("checked above");
             let gyro = (g0 + g1) * 0.5;
             let accel = (a0 + a1) * 0.5;
             let dt_s = dt_ns as f64 * 1e-9;
@@ -493,7 +505,9 @@ impl EkfFilter {
             self.pending_transition = phi * self.pending_transition;
         }
         prr = (prr + prr.transpose()) * 0.5;
-        self.covariance.fixed_view_mut::<15, 15>(0, 0).copy_from(&prr);
+        self.covariance
+            .fixed_view_mut::<15, 15>(0, 0)
+            .copy_from(&prr);
         self.nav = Some(nav);
     }
 
@@ -502,7 +516,8 @@ impl EkfFilter {
     fn flush_cross_covariance(&mut self) {
         let n = self.covariance.nrows();
         if n > NAV_DIM && self.pending_transition != Matrix15::identity() {
-            let cross = self.pending_transition * self.covariance.view((0, NAV_DIM), (NAV_DIM, n - NAV_DIM));
+            let cross = self.pending_transition
+                * self.covariance.view((0, NAV_DIM), (NAV_DIM, n - NAV_DIM));
             self.covariance
                 .view_mut((0, NAV_DIM), (NAV_DIM, n - NAV_DIM))
                 .copy_from(&cross);
@@ -549,8 +564,8 @@ impl EkfFilter {
         let sigma = self.config.pixel_sigma;
         for obs in &frame.observations {
             let camera_index = obs.camera_index as usize;
-            let usable = camera_index < self.cameras.len()
-                && obs.pixel.iter().all(|v| v.is_finite());
+            let usable =
+                camera_index < self.cameras.len() && obs.pixel.iter().all(|v| v.is_finite());
             let Some(slot) = self.slot_of(obs.landmark) else {
                 if !usable {
                     out.ignored += 1;
@@ -693,7 +708,10 @@ impl EkfFilter {
             entry.last_seen_frame = frame_id;
         }
         self.candidates.retain(|_, c| c.last_seen_frame == frame_id);
-        let room = self.config.max_landmarks.saturating_sub(self.landmarks.len());
+        let room = self
+            .config
+            .max_landmarks
+            .saturating_sub(self.landmarks.len());
         if room == 0 {
             return 0;
         }
@@ -744,7 +762,9 @@ impl EkfFilter {
             let cam1 = self.cameras.get(1)?;
             // x_c1 = R_c1_c0 x_c0 + t_c1_c0.
             let r_10 = cam1.r_body_cam.transpose() * cam0.r_body_cam;
-            let t_10 = cam1.r_body_cam.tr_mul(&(cam0.t_body_cam_m - cam1.t_body_cam_m));
+            let t_10 = cam1
+                .r_body_cam
+                .tr_mul(&(cam0.t_body_cam_m - cam1.t_body_cam_m));
             let config = TriangulationConfig {
                 min_parallax_rad: self.config.min_parallax_stereo_rad,
                 min_depth: self.config.min_depth_m,
@@ -766,8 +786,7 @@ impl EkfFilter {
             .filter(|(q, cov)| {
                 let depth = q.norm();
                 let u = q / depth;
-                u.dot(&(cov * u)).sqrt()
-                    <= self.config.max_stereo_depth_sigma_fraction * depth
+                u.dot(&(cov * u)).sqrt() <= self.config.max_stereo_depth_sigma_fraction * depth
             })
         });
         let (point_cam, cov_cam) = match stereo {
@@ -833,15 +852,17 @@ impl EkfFilter {
         // J P_pose,. (3 x n), pose = the first 6 error states.
         let cross = new.d_pose * self.covariance.fixed_rows::<6>(0);
         let pose_block: SMatrix<f64, 6, 6> = self.covariance.fixed_view::<6, 6>(0, 0).into();
-        let p_ll = new.d_pose * pose_block * new.d_pose.transpose()
-            + new.measurement_covariance_world;
+        let p_ll =
+            new.d_pose * pose_block * new.d_pose.transpose() + new.measurement_covariance_world;
         self.covariance.resize_mut(n + 3, n + 3, 0.0);
         self.covariance.view_mut((n, 0), (3, n)).copy_from(&cross);
         self.covariance
             .view_mut((0, n), (n, 3))
             .copy_from(&cross.transpose());
         let p_ll = (p_ll + p_ll.transpose()) * 0.5;
-        self.covariance.fixed_view_mut::<3, 3>(n, n).copy_from(&p_ll);
+        self.covariance
+            .fixed_view_mut::<3, 3>(n, n)
+            .copy_from(&p_ll);
         self.landmarks.push(StateLandmark {
             id,
             position_world_m: new.position_world_m,
@@ -879,7 +900,9 @@ impl EkfFilter {
     /// that of `p_b = R^T (l - p)`, so it includes the body pose's
     /// uncertainty and its correlation with the landmark.
     pub fn landmarks_in_body(&self) -> Vec<BodyLandmark> {
-        let Some(nav) = self.nav else { return Vec::new() };
+        let Some(nav) = self.nav else {
+            return Vec::new();
+        };
         let r = nav.rotation();
         let prr: SMatrix<f64, 6, 6> = self.covariance.fixed_view::<6, 6>(0, 0).into();
         self.landmarks
@@ -892,15 +915,19 @@ impl EkfFilter {
                 j_pose
                     .fixed_view_mut::<3, 3>(0, 0)
                     .copy_from(&crate::imu::so3::hat(&p_body));
-                j_pose.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-r.transpose()));
+                j_pose
+                    .fixed_view_mut::<3, 3>(0, 3)
+                    .copy_from(&(-r.transpose()));
                 let j_l = r.transpose();
                 // Cross block brought up to date with the pending transition.
-                let cross15: SMatrix<f64, 15, 3> = self.pending_transition
-                    * self.covariance.fixed_view::<15, 3>(0, c);
+                let cross15: SMatrix<f64, 15, 3> =
+                    self.pending_transition * self.covariance.fixed_view::<15, 3>(0, c);
                 let cross: SMatrix<f64, 6, 3> = cross15.fixed_rows::<6>(0).into();
                 let pll: Matrix3<f64> = self.covariance.fixed_view::<3, 3>(c, c).into();
                 let jc = j_pose * cross * j_l.transpose();
-                let cov = j_pose * prr * j_pose.transpose() + jc + jc.transpose()
+                let cov = j_pose * prr * j_pose.transpose()
+                    + jc
+                    + jc.transpose()
                     + j_l * pll * j_l.transpose();
                 BodyLandmark {
                     id: l.id,

@@ -24,8 +24,8 @@
 use nalgebra::{Matrix3, Vector3};
 
 use super::state::{Matrix15, NavNominal, BA, BG, POS, THETA, VEL};
-use crate::imu::strapdown::gravity_world_m_s2;
 use crate::imu::so3::{exp, exp_and_right_jacobian, hat};
+use crate::imu::strapdown::gravity_world_m_s2;
 use crate::rig::ImuNoise;
 
 /// The nominal state after one step of `dt_s` with the raw (bias-included)

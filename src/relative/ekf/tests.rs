@@ -14,8 +14,8 @@ use super::update::{project_landmark, RigCamera};
 use super::*;
 use crate::imu::so3::log;
 use crate::imu::ImuBiases;
-use crate::sensors::ImuSample;
 use crate::relative::types::Observation;
+use crate::sensors::ImuSample;
 use crate::simulate::euroc_rig::{euroc_cam0, euroc_cam1, euroc_imu0};
 use crate::simulate::imu_synth::{synthesize, ImuSynthConfig};
 use crate::simulate::motion::{BuiltinMotion, Motion};
@@ -33,7 +33,11 @@ fn rig(stereo: bool) -> RigModel {
 }
 
 fn rig_camera(index: usize) -> RigCamera {
-    let c = if index == 0 { euroc_cam0() } else { euroc_cam1() };
+    let c = if index == 0 {
+        euroc_cam0()
+    } else {
+        euroc_cam1()
+    };
     RigCamera {
         model: c.model.clone(),
         r_body_cam: *c.T_body_cam.rotation.to_rotation_matrix().matrix(),
@@ -125,7 +129,9 @@ fn measurement_jacobian_matches_finite_differences() {
         let proj = project_landmark(&nav, &camera, &l, 0.01).expect("point in view");
         let eps = 1e-6;
         let pixel = |n: &NavNominal, l: &Vector3<f64>| {
-            project_landmark(n, &camera, l, 0.01).expect("in view").pixel
+            project_landmark(n, &camera, l, 0.01)
+                .expect("in view")
+                .pixel
         };
         for i in 0..6 {
             let numeric = (pixel(&perturbed(&nav, i, eps), &l)
@@ -200,20 +206,23 @@ fn stereo_triangulation_covariance_matches_monte_carlo_scatter() {
     let truth = Vector3::new(0.5, -0.3, 4.0);
     let z0 = cam0.model.project(&truth).expect("in view");
     let z1 = cam1.model.project(&(r_10 * truth + t_10)).expect("in view");
-    let (_, predicted) =
-        triangulate_with_covariance(&cam0, &z0, &view, &z1, &config, 1.0, 100.0)
-            .expect("triangulates");
+    let (_, predicted) = triangulate_with_covariance(&cam0, &z0, &view, &z1, &config, 1.0, 100.0)
+        .expect("triangulates");
     let info = predicted.try_inverse().expect("definite");
     let mut rng = ChaCha8Rng::seed_from_u64(7);
-    let mut noise = || Vector2::new(StandardNormal.sample(&mut rng), StandardNormal.sample(&mut rng));
+    let mut noise = || {
+        Vector2::new(
+            StandardNormal.sample(&mut rng),
+            StandardNormal.sample(&mut rng),
+        )
+    };
     let draws = 2000;
     let mut nees = 0.0;
     let mut used = 0;
     for _ in 0..draws {
         let a = z0 + noise();
         let b = z1 + noise();
-        if let Some((q, _)) =
-            triangulate_with_covariance(&cam0, &a, &view, &b, &config, 1.0, 100.0)
+        if let Some((q, _)) = triangulate_with_covariance(&cam0, &a, &view, &b, &config, 1.0, 100.0)
         {
             let e = q - truth;
             nees += e.dot(&(info * e));
@@ -221,7 +230,10 @@ fn stereo_triangulation_covariance_matches_monte_carlo_scatter() {
         }
     }
     let mean = nees / used as f64;
-    println!("stereo triangulation at 4 m: depth sigma {:.3} m, mean NEES {mean:.2} over {used} draws", predicted[(2, 2)].sqrt());
+    println!(
+        "stereo triangulation at 4 m: depth sigma {:.3} m, mean NEES {mean:.2} over {used} draws",
+        predicted[(2, 2)].sqrt()
+    );
     assert!(used > draws * 99 / 100, "{used}");
     // std of the mean of chi2(3) over 2000 draws is 0.055; depth is a
     // ratio so its distribution is skewed: allow 10%.
@@ -446,30 +458,44 @@ fn run_sim(setup: SimSetup) -> SimResult {
         result.accepted += up.accepted;
         result.rejected += up.rejected;
         let est = up.state;
-        assert!(est.T_world_body.translation.vector.iter().all(|v| v.is_finite()));
+        assert!(est
+            .T_world_body
+            .translation
+            .vector
+            .iter()
+            .all(|v| v.is_finite()));
         let e_p = est.T_world_body.translation.vector - truth.T_world_body.translation.vector;
         sq_sum += e_p.norm_squared();
         let cov = filter.position_covariance();
         nees.push(e_p.dot(&(cov.try_inverse().expect("definite position covariance") * e_p)));
-        let e_r = log(&(est.T_world_body.rotation.inverse() * truth.T_world_body.rotation)
-            .to_rotation_matrix()
-            .into_inner());
+        let e_r = log(
+            &(est.T_world_body.rotation.inverse() * truth.T_world_body.rotation)
+                .to_rotation_matrix()
+                .into_inner(),
+        );
         vertical_sum += e_p.z * e_p.z / cov[(2, 2)];
         // Yaw error: the world-z part of the world-frame attitude error.
         let r_est = est.T_world_body.rotation.to_rotation_matrix().into_inner();
         let e_world = r_est * e_r;
-        let p_theta: Matrix3<f64> = filter.navigation_covariance().fixed_view::<3, 3>(0, 0).into();
+        let p_theta: Matrix3<f64> = filter
+            .navigation_covariance()
+            .fixed_view::<3, 3>(0, 0)
+            .into();
         let var_yaw = (r_est * p_theta * r_est.transpose())[(2, 2)];
         yaw_sum += e_world.z * e_world.z / var_yaw;
-        result.max_orientation_error_deg =
-            result.max_orientation_error_deg.max(e_r.norm().to_degrees());
+        result.max_orientation_error_deg = result
+            .max_orientation_error_deg
+            .max(e_r.norm().to_degrees());
         for l in filter.landmarks_in_body() {
             let truth_body = truth
                 .T_world_body
                 .inverse_transform_point(&points[point_of_id[&l.id]].into())
                 .coords;
             let e = l.position_body_m - truth_body;
-            let info = l.covariance_body_m2.try_inverse().expect("definite landmark covariance");
+            let info = l
+                .covariance_body_m2
+                .try_inverse()
+                .expect("definite landmark covariance");
             let nees_l = e.dot(&(info * e));
             body_nees_sum += nees_l;
             body_count += 1;
@@ -539,7 +565,10 @@ fn ten_percent_outliers_are_gated_without_breaking_the_estimate() {
     );
     // At 99% gating about 1% of inliers are refused; 3% would mean an
     // inflated residual.
-    assert!(r.inliers_rejected * 100 <= 3 * r.inliers_seen_by_gate, "{r:?}");
+    assert!(
+        r.inliers_rejected * 100 <= 3 * r.inliers_seen_by_gate,
+        "{r:?}"
+    );
     assert!(r.position_rmse_m < 0.05, "{r:?}");
     assert!(r.max_orientation_error_deg < 1.0, "{r:?}");
 }
@@ -584,8 +613,14 @@ fn position_nees_over_monte_carlo_runs() {
     );
     // 3 is ideal; a filter within a factor of two of it is usable as a
     // baseline.
-    assert!(nees.is_finite() && nees < NEES_BOUND, "position NEES {nees}");
-    assert!(body.is_finite() && body < NEES_BOUND, "body landmark NEES {body}");
+    assert!(
+        nees.is_finite() && nees < NEES_BOUND,
+        "position NEES {nees}"
+    );
+    assert!(
+        body.is_finite() && body < NEES_BOUND,
+        "body landmark NEES {body}"
+    );
 }
 
 const NEES_BOUND: f64 = 6.0;
@@ -636,8 +671,14 @@ fn non_finite_and_out_of_order_input_is_ignored() {
     let camera = rig_camera(0);
     let cam1 = rig_camera(1);
     let p_body = camera.r_body_cam * Vector3::new(0.2, 0.1, 3.0) + camera.t_body_cam_m;
-    let px0 = camera.model.project(&camera.body_to_cam(&p_body)).expect("in view");
-    let px1 = cam1.model.project(&cam1.body_to_cam(&p_body)).expect("in view");
+    let px0 = camera
+        .model
+        .project(&camera.body_to_cam(&p_body))
+        .expect("in view");
+    let px1 = cam1
+        .model
+        .project(&cam1.body_to_cam(&p_body))
+        .expect("in view");
     let obs = |landmark, camera_index, pixel| Observation {
         landmark,
         camera_index,
@@ -661,16 +702,26 @@ fn non_finite_and_out_of_order_input_is_ignored() {
     filter.propagate(&still(15_000_000));
     let mut frame2 = frame.clone();
     frame2.t_ns = 15_000_000;
-    frame2.observations.push(obs(1, 0, Vector2::new(f64::NAN, f64::NAN)));
+    frame2
+        .observations
+        .push(obs(1, 0, Vector2::new(f64::NAN, f64::NAN)));
     let up = filter.update(&frame2);
     assert_eq!(up.accepted, 2, "{up:?}");
     assert_eq!(up.ignored, 4, "{up:?}");
     let state = filter.state();
-    assert!(state.T_world_body.translation.vector.iter().all(|v| v.is_finite()));
+    assert!(state
+        .T_world_body
+        .translation
+        .vector
+        .iter()
+        .all(|v| v.is_finite()));
     assert!(state.velocity_world_m_s.norm() < 0.01, "{state:?}");
     let landmarks = filter.landmarks_in_body();
     assert_eq!(landmarks.len(), 1);
-    assert!((landmarks[0].position_body_m - p_body).norm() < 0.05, "{landmarks:?}");
+    assert!(
+        (landmarks[0].position_body_m - p_body).norm() < 0.05,
+        "{landmarks:?}"
+    );
     // A frame from the past is refused.
     let mut old = frame.clone();
     old.t_ns = 1;
@@ -707,4 +758,3 @@ fn bad_config_and_rig_are_reported_by_name() {
         Some(EkfError::NoCamera)
     );
 }
-

@@ -64,7 +64,9 @@ pub(crate) fn project_landmark(
     d_pose
         .fixed_view_mut::<2, 3>(0, 0)
         .copy_from(&(j_body * hat(&p_body)));
-    d_pose.fixed_view_mut::<2, 3>(0, 3).copy_from(&(-d_landmark));
+    d_pose
+        .fixed_view_mut::<2, 3>(0, 3)
+        .copy_from(&(-d_landmark));
     Some(Projection {
         pixel,
         d_pose,

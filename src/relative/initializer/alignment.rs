@@ -196,7 +196,13 @@ pub fn align_mono(
     T_body_cam: &Isometry3<f64>,
     config: &AlignmentConfig,
 ) -> Result<Alignment, AlignmentError> {
-    align(keyframes, intervals, T_body_cam, ScaleMode::Estimate, config)
+    align(
+        keyframes,
+        intervals,
+        T_body_cam,
+        ScaleMode::Estimate,
+        config,
+    )
 }
 
 /// Alignment of a stereo rig: the poses are metric, scale fixed at 1.
@@ -207,7 +213,13 @@ pub fn align_stereo(
     T_body_cam: &Isometry3<f64>,
     config: &AlignmentConfig,
 ) -> Result<Alignment, AlignmentError> {
-    align(keyframes, intervals, T_body_cam, ScaleMode::Known(1.0), config)
+    align(
+        keyframes,
+        intervals,
+        T_body_cam,
+        ScaleMode::Known(1.0),
+        config,
+    )
 }
 
 /// Per keyframe: body rotation and camera position in c0.
@@ -236,7 +248,12 @@ fn check_inputs(
     config: &AlignmentConfig,
 ) -> Result<(), AlignmentError> {
     let checks: [(&'static str, f64, bool, &'static str); 4] = [
-        ("gravity_m_s2", config.gravity_m_s2, config.gravity_m_s2 > 0.0, "> 0"),
+        (
+            "gravity_m_s2",
+            config.gravity_m_s2,
+            config.gravity_m_s2 > 0.0,
+            "> 0",
+        ),
         (
             "accel_bias_prior_std_m_s2",
             config.accel_bias_prior_std_m_s2,
@@ -320,7 +337,11 @@ pub fn estimate_gyro_bias(
 ) -> Result<GyroBiasEstimate, AlignmentError> {
     check_inputs(keyframes, intervals, T_body_cam, config)?;
     let frames = frames(keyframes, T_body_cam);
-    Ok(gyro_bias(&frames, intervals, config.gyro_bias_iterations.max(1)))
+    Ok(gyro_bias(
+        &frames,
+        intervals,
+        config.gyro_bias_iterations.max(1),
+    ))
 }
 
 /// Rotation residual of one interval and its Jacobian with respect to the
@@ -370,7 +391,9 @@ fn gyro_bias(frames: &[Frame], intervals: &[Preintegrated], iterations: usize) -
     }
     let dof = (3 * intervals.len()).saturating_sub(3).max(1) as f64;
     let inflation = (chi2 / dof).max(1.0);
-    let cov = info.try_inverse().unwrap_or_else(|| Matrix3::from_element(f64::INFINITY));
+    let cov = info
+        .try_inverse()
+        .unwrap_or_else(|| Matrix3::from_element(f64::INFINITY));
     GyroBiasEstimate {
         gyro_rad_s: bg,
         sigma_rad_s: cov.diagonal().map(|v| (v * inflation).abs().sqrt()),
@@ -502,24 +525,30 @@ fn build_system(
         match gravity {
             GravityParam::Free => {
                 raw.fixed_view_mut::<3, 3>(0, gc).copy_from(&(-id * dt));
-                raw.fixed_view_mut::<3, 3>(3, gc).copy_from(&(-id * (0.5 * dt * dt)));
+                raw.fixed_view_mut::<3, 3>(3, gc)
+                    .copy_from(&(-id * (0.5 * dt * dt)));
             }
             GravityParam::Tangent { g0, basis } => {
                 raw.fixed_view_mut::<3, 2>(0, gc).copy_from(&(-basis * dt));
-                raw.fixed_view_mut::<3, 2>(3, gc).copy_from(&(-basis * (0.5 * dt * dt)));
+                raw.fixed_view_mut::<3, 2>(3, gc)
+                    .copy_from(&(-basis * (0.5 * dt * dt)));
                 rhs_v += g0 * dt;
                 rhs_p += g0 * (0.5 * dt * dt);
             }
         }
         let dpc = fj.p_c0_c - fi.p_c0_c;
         match scale {
-            ScaleMode::Estimate => raw.fixed_view_mut::<3, 1>(3, layout.scale()).copy_from(&dpc),
+            ScaleMode::Estimate => raw
+                .fixed_view_mut::<3, 1>(3, layout.scale())
+                .copy_from(&dpc),
             ScaleMode::Known(s) => rhs_p -= dpc * s,
         }
         if layout.accel_bias {
             let c = layout.accel_bias();
-            raw.fixed_view_mut::<3, 3>(0, c).copy_from(&(-r_bi * it.dv_dba));
-            raw.fixed_view_mut::<3, 3>(3, c).copy_from(&(-r_bi * it.dp_dba));
+            raw.fixed_view_mut::<3, 3>(0, c)
+                .copy_from(&(-r_bi * it.dv_dba));
+            raw.fixed_view_mut::<3, 3>(3, c)
+                .copy_from(&(-r_bi * it.dp_dba));
         }
         let mut rhs = SMatrix::<f64, 6, 1>::zeros();
         rhs.fixed_view_mut::<3, 1>(0, 0).copy_from(&rhs_v);
@@ -608,13 +637,22 @@ fn solve(a: &DMatrix<f64>, b: &DVector<f64>) -> Option<Solution> {
     if dof > 0 {
         var *= (rss / dof as f64).max(1.0);
     }
-    Some(Solution { x, var, rss, rows: m })
+    Some(Solution {
+        x,
+        var,
+        rss,
+        rows: m,
+    })
 }
 
 /// Two unit vectors orthogonal to `g` (and to each other).
 fn tangent_basis(g: &Vector3<f64>) -> Matrix3x2<f64> {
     let n = g.normalize();
-    let helper = if n.x.abs() < 0.9 { Vector3::x() } else { Vector3::y() };
+    let helper = if n.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
     let b1 = n.cross(&helper).normalize();
     let b2 = n.cross(&b1);
     Matrix3x2::from_columns(&[b1, b2])
@@ -661,7 +699,10 @@ pub fn align(
         scale: estimate_scale,
         accel_bias: false,
     };
-    let accel_prior = (intervals[0].biases.accel_m_s2, config.accel_bias_prior_std_m_s2);
+    let accel_prior = (
+        intervals[0].biases.accel_m_s2,
+        config.accel_bias_prior_std_m_s2,
+    );
     let (a, b) = build_system(
         &frames,
         &prepared,
@@ -671,7 +712,9 @@ pub fn align(
         scale,
         accel_prior,
     );
-    let free = solve(&a, &b).ok_or(AlignmentError::Degenerate("the linear system has no solution"))?;
+    let free = solve(&a, &b).ok_or(AlignmentError::Degenerate(
+        "the linear system has no solution",
+    ))?;
     let g_free: Vector3<f64> = free.x.fixed_rows::<3>(layout.gravity()).into();
     let unconstrained_gravity_m_s2 = g_free.norm();
     if !(unconstrained_gravity_m_s2 > 1e-3 * gravity_g && unconstrained_gravity_m_s2.is_finite()) {
@@ -694,19 +737,20 @@ pub fn align(
             };
             let basis = tangent_basis(&g) * gravity_g;
             let param = GravityParam::Tangent { g0: g, basis };
-            let (a, b) =
-                build_system(&frames, &prepared, &p_bc, layout, param, scale, accel_prior);
+            let (a, b) = build_system(&frames, &prepared, &p_bc, layout, param, scale, accel_prior);
             let Some(sol) = solve(&a, &b) else {
                 if with_ba {
                     with_ba = false;
                     continue;
                 }
-                return Err(AlignmentError::Degenerate("the refined system has no solution"));
+                return Err(AlignmentError::Degenerate(
+                    "the refined system has no solution",
+                ));
             };
             if with_ba {
                 let c = layout.accel_bias();
-                accel_bias_std_m_s2 = Vector3::new(sol.var[c], sol.var[c + 1], sol.var[c + 2])
-                    .map(f64::sqrt);
+                accel_bias_std_m_s2 =
+                    Vector3::new(sol.var[c], sol.var[c + 1], sol.var[c + 2]).map(f64::sqrt);
             }
             let w = basis * sol.x.fixed_rows::<2>(layout.gravity());
             g = (g + w).normalize() * gravity_g;
@@ -1114,8 +1158,13 @@ mod tests {
             .keyframes
             .windows(2)
             .map(|w| {
-                pre.integrate(&case.imu.samples, w[0].t_ns, w[1].t_ns, &ImuBiases::default())
-                    .expect("covered")
+                pre.integrate(
+                    &case.imu.samples,
+                    w[0].t_ns,
+                    w[1].t_ns,
+                    &ImuBiases::default(),
+                )
+                .expect("covered")
             })
             .collect();
         let t_bc = euroc_cam0().T_body_cam;
@@ -1148,7 +1197,13 @@ mod tests {
             Err(AlignmentError::NotFinite { index: 0 })
         ));
         assert!(matches!(
-            align(&case.keyframes, &intervals, &t_bc, ScaleMode::Known(-1.0), &config),
+            align(
+                &case.keyframes,
+                &intervals,
+                &t_bc,
+                ScaleMode::Known(-1.0),
+                &config
+            ),
             Err(AlignmentError::InvalidConfig { .. })
         ));
     }
@@ -1159,13 +1214,15 @@ mod tests {
     /// deviations): it is held only to an honest standard deviation.
     #[test]
     fn euroc_v1_02_real_imu_alignment() {
-        let Some(data) = shared_data_dir() else { return };
+        let Some(data) = shared_data_dir() else {
+            return;
+        };
         let dir = data.join("euroc/ground_truth");
         let imu = read_euroc_imu_csv(&dir.join("V1_02_imu0.csv"))
             .expect("V1_02 IMU")
             .samples;
-        let truth = read_euroc_groundtruth(&dir.join("V1_02_groundtruth.csv"))
-            .expect("V1_02 ground truth");
+        let truth =
+            read_euroc_groundtruth(&dir.join("V1_02_groundtruth.csv")).expect("V1_02 ground truth");
         let vision_scale = 0.37;
         let mut failures = Vec::new();
         for start_s in [8.0, 15.0, 30.0, 50.0, 70.0] {
@@ -1217,6 +1274,9 @@ mod tests {
                 failures.push(start_s);
             }
         }
-        assert!(failures.is_empty(), "segments starting at {failures:?} s failed");
+        assert!(
+            failures.is_empty(),
+            "segments starting at {failures:?} s failed"
+        );
     }
 }

@@ -349,7 +349,9 @@ mod tests {
         let mut outlier_ids = Vec::new();
         for (k, p) in scene.points_c0.iter().enumerate() {
             let p_cam = t_c0_cam.inverse_transform_point(&(*p).into()).coords;
-            let Some(mut px) = scene.camera.project(&p_cam) else { continue };
+            let Some(mut px) = scene.camera.project(&p_cam) else {
+                continue;
+            };
             if !(px.x > 0.0 && px.y > 0.0 && px.x < 752.0 && px.y < 480.0) {
                 continue;
             }
@@ -388,7 +390,10 @@ mod tests {
     fn noise_free_bootstrap_is_exact_up_to_unit_translation() {
         let s = scene(1);
         let mut rng = ChaCha8Rng::seed_from_u64(2);
-        let t_c0_c1 = pose(Vector3::new(0.6, 0.1, 0.15), Vector3::new(0.02, -0.05, 0.01));
+        let t_c0_c1 = pose(
+            Vector3::new(0.6, 0.1, 0.15),
+            Vector3::new(0.02, -0.05, 0.01),
+        );
         let (f0, _) = frame(&s, &Isometry3::identity(), 0, 0.0, 0.0, &mut rng);
         let (f1, _) = frame(&s, &t_c0_c1, 1, 0.0, 0.0, &mut rng);
         let b = bootstrap_two_view(&f0, &f1, &s.camera, &BootstrapConfig::default())
@@ -413,8 +418,14 @@ mod tests {
     fn noisy_bootstrap_rejects_outliers_and_pnp_places_the_frame_between() {
         let s = scene(3);
         let mut rng = ChaCha8Rng::seed_from_u64(4);
-        let t_c0_c2 = pose(Vector3::new(0.7, -0.1, 0.2), Vector3::new(-0.03, 0.08, 0.02));
-        let t_c0_c1 = pose(Vector3::new(0.35, -0.05, 0.1), Vector3::new(-0.01, 0.04, 0.01));
+        let t_c0_c2 = pose(
+            Vector3::new(0.7, -0.1, 0.2),
+            Vector3::new(-0.03, 0.08, 0.02),
+        );
+        let t_c0_c1 = pose(
+            Vector3::new(0.35, -0.05, 0.1),
+            Vector3::new(-0.01, 0.04, 0.01),
+        );
         let (f0, out0) = frame(&s, &Isometry3::identity(), 0, 0.5, 0.1, &mut rng);
         let (f2, out2) = frame(&s, &t_c0_c2, 2, 0.5, 0.1, &mut rng);
         let b = bootstrap_two_view(&f0, &f2, &s.camera, &BootstrapConfig::default())
@@ -427,7 +438,9 @@ mod tests {
             .angle(&t_c0_c2.translation.vector)
             .to_degrees();
         assert!(dir_err < 3.0, "translation direction off by {dir_err} deg");
-        let r_err = (b.T_c0_c1.rotation.inverse() * t_c0_c2.rotation).angle().to_degrees();
+        let r_err = (b.T_c0_c1.rotation.inverse() * t_c0_c2.rotation)
+            .angle()
+            .to_degrees();
         assert!(r_err < 0.3, "rotation off by {r_err} deg");
         let outliers_kept = b
             .landmarks
@@ -452,8 +465,13 @@ mod tests {
         let p = pnp_frame(&f1, &b.landmarks, &s.camera, &PnpConfig::default()).expect("placed");
         let expected = t_c0_c1.translation.vector / baseline;
         let err = (p.T_c0_cam.translation.vector - expected).norm();
-        assert!(err < 0.05, "PnP position off by {err} (units of the first translation)");
-        let r_err = (p.T_c0_cam.rotation.inverse() * t_c0_c1.rotation).angle().to_degrees();
+        assert!(
+            err < 0.05,
+            "PnP position off by {err} (units of the first translation)"
+        );
+        let r_err = (p.T_c0_cam.rotation.inverse() * t_c0_c1.rotation)
+            .angle()
+            .to_degrees();
         assert!(r_err < 0.5, "PnP rotation off by {r_err} deg");
         assert!(p.inlier_count > 100);
     }

@@ -66,7 +66,10 @@ mod tests {
         for up in ups {
             let r = level_rotation(&up).expect("non-zero");
             let mapped = r * up.normalize();
-            assert!((mapped - Vector3::z()).norm() < 1e-12, "{up:?} -> {mapped:?}");
+            assert!(
+                (mapped - Vector3::z()).norm() < 1e-12,
+                "{up:?} -> {mapped:?}"
+            );
             let (_, _, yaw) = r.euler_angles();
             assert!(yaw.abs() < 1e-12, "yaw {yaw}");
         }

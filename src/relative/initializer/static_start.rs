@@ -305,7 +305,11 @@ fn validate(config: &StaticStartConfig) -> Result<(), StaticRefusal> {
         ("gyro_vibration_rad_s", config.gyro_vibration_rad_s, "> 0"),
         ("accel_vibration_m_s2", config.accel_vibration_m_s2, "> 0"),
         ("max_gyro_bias_rad_s", config.max_gyro_bias_rad_s, "> 0"),
-        ("max_gravity_error_m_s2", config.max_gravity_error_m_s2, "> 0"),
+        (
+            "max_gravity_error_m_s2",
+            config.max_gravity_error_m_s2,
+            "> 0",
+        ),
         ("max_gap_s", config.max_gap_s, "> 0"),
     ];
     for (key, value, allowed) in checks {
@@ -404,7 +408,10 @@ mod tests {
         let config = StaticStartConfig::default();
         for t_s in 1..20 {
             let result = detect_static_start(&imu.samples, t_s * 1_000_000_000, &NOISE, &config);
-            assert!(result.is_err(), "accepted a window ending at {t_s} s in motion");
+            assert!(
+                result.is_err(),
+                "accepted a window ending at {t_s} s in motion"
+            );
         }
     }
 
@@ -489,7 +496,9 @@ mod tests {
     /// its rotors running.
     #[test]
     fn euroc_v1_01_rest_matches_ground_truth() {
-        let Some(data) = shared_data_dir() else { return };
+        let Some(data) = shared_data_dir() else {
+            return;
+        };
         let dir = data.join("euroc/V1_01_micro/mav0");
         let imu = read_euroc_imu_csv(&dir.join("imu0/data.csv"))
             .expect("V1_01 IMU")
@@ -502,8 +511,12 @@ mod tests {
         // Every 1 s window ending between 1.0 and 4.7 s.
         for k in 0..=15 {
             let t_end = t0 + 1_000_000_000 + k * 245_000_000;
-            let start = detect_static_start(&imu, t_end, &NOISE, &config)
-                .unwrap_or_else(|e| panic!("window ending {} s refused: {e}", (t_end - t0) as f64 * 1e-9));
+            let start = detect_static_start(&imu, t_end, &NOISE, &config).unwrap_or_else(|e| {
+                panic!(
+                    "window ending {} s refused: {e}",
+                    (t_end - t0) as f64 * 1e-9
+                )
+            });
             accepted += 1;
             let gt = &truth[truth.partition_point(|s| s.t_ns <= t_end) - 1];
             let up_true = gt.T_world_body.rotation.inverse() * Vector3::z();
@@ -517,7 +530,10 @@ mod tests {
                 // while they spin up); 1e-3 rad/s allows for the error of
                 // EuRoC's own bias estimate.
                 assert!(sigma < 5e-3, "axis {axis}: sigma {sigma}");
-                assert!(err < 3.0 * sigma + 1e-3, "axis {axis}: bias off by {err}, sigma {sigma}");
+                assert!(
+                    err < 3.0 * sigma + 1e-3,
+                    "axis {axis}: bias off by {err}, sigma {sigma}"
+                );
             }
         }
         assert_eq!(accepted, 16);
@@ -527,13 +543,15 @@ mod tests {
     /// is taken for rest; the windows on the ground before take-off are.
     #[test]
     fn euroc_v1_02_flight_is_never_rest() {
-        let Some(data) = shared_data_dir() else { return };
+        let Some(data) = shared_data_dir() else {
+            return;
+        };
         let dir = data.join("euroc/ground_truth");
         let imu = read_euroc_imu_csv(&dir.join("V1_02_imu0.csv"))
             .expect("V1_02 IMU")
             .samples;
-        let truth = read_euroc_groundtruth(&dir.join("V1_02_groundtruth.csv"))
-            .expect("V1_02 ground truth");
+        let truth =
+            read_euroc_groundtruth(&dir.join("V1_02_groundtruth.csv")).expect("V1_02 ground truth");
         let config = StaticStartConfig::default();
         let (mut flight_windows, mut ground_windows, mut ground_accepted) = (0, 0, 0);
         let last = imu.last().expect("samples").t_ns;

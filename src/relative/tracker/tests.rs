@@ -8,7 +8,11 @@ fn euroc_frames(n: usize) -> Option<(Vec<CameraCalibration>, Vec<(i64, Frame, Op
     let root = shared_data::path_or_skip("euroc/V1_01_micro")?;
     let dataset = crate::dataset::open_dataset(&root).expect("open V1_01_micro");
     let euroc = EurocDataset::open(&root).expect("open");
-    let cameras = euroc.cameras.iter().map(|c| c.calibration.clone()).collect();
+    let cameras = euroc
+        .cameras
+        .iter()
+        .map(|c| c.calibration.clone())
+        .collect();
     let stream = SensorStream::new(
         &dataset,
         StreamOptions {
@@ -39,20 +43,34 @@ fn real_euroc_tracks_persist_and_stereo_matches_lie_at_plausible_depths() {
     };
     let mut tracker = Tracker::new(TrackerConfig::default(), &cameras, true).expect("tracker");
     let first = tracker
-        .track(&input(frames[0].0, &frames[0].1.image, frames[0].2.as_ref().map(|f| &f.image)), None)
+        .track(
+            &input(
+                frames[0].0,
+                &frames[0].1.image,
+                frames[0].2.as_ref().map(|f| &f.image),
+            ),
+            None,
+        )
         .expect("first frame");
     assert!(first.is_keyframe);
     tracker.mark_keyframe(first.t_ns);
-    let first_ids: std::collections::HashSet<LandmarkId> = first.in_camera(0).map(|o| o.landmark).collect();
+    let first_ids: std::collections::HashSet<LandmarkId> =
+        first.in_camera(0).map(|o| o.landmark).collect();
     assert!(first_ids.len() >= 140, "{} features", first_ids.len());
     let mut last = first.clone();
     for (t_ns, left, right) in &frames[1..21] {
         last = tracker
-            .track(&input(*t_ns, &left.image, right.as_ref().map(|f| &f.image)), None)
+            .track(
+                &input(*t_ns, &left.image, right.as_ref().map(|f| &f.image)),
+                None,
+            )
             .expect("track");
     }
     // At rest nearly every feature survives 20 frames, with its id.
-    let alive = last.in_camera(0).filter(|o| first_ids.contains(&o.landmark)).count();
+    let alive = last
+        .in_camera(0)
+        .filter(|o| first_ids.contains(&o.landmark))
+        .count();
     assert!(
         alive as f64 >= 0.8 * first_ids.len() as f64,
         "{alive} of {} alive",
@@ -73,8 +91,14 @@ fn real_euroc_tracks_persist_and_stereo_matches_lie_at_plausible_depths() {
     let t_c0_c1 = cameras[0].T_body_cam.inverse() * cameras[1].T_body_cam;
     let mut depths = Vec::new();
     for o in last.in_camera(0) {
-        let Some(q) = right.get(&o.landmark) else { continue };
-        let a = cameras[0].model.unproject(&o.pixel).expect("ray").normalize();
+        let Some(q) = right.get(&o.landmark) else {
+            continue;
+        };
+        let a = cameras[0]
+            .model
+            .unproject(&o.pixel)
+            .expect("ray")
+            .normalize();
         let b = t_c0_c1.rotation * cameras[1].model.unproject(q).expect("ray").normalize();
         let c = t_c0_c1.translation.vector;
         // Closest points of the two rays a*s and c + b*u.
@@ -87,7 +111,11 @@ fn real_euroc_tracks_persist_and_stereo_matches_lie_at_plausible_depths() {
     let median = depths[depths.len() / 2];
     assert!((0.5..20.0).contains(&median), "median depth {median} m");
     let implausible = depths.iter().filter(|d| !(0.2..60.0).contains(*d)).count();
-    assert!(implausible * 20 <= depths.len(), "{implausible} of {} implausible depths", depths.len());
+    assert!(
+        implausible * 20 <= depths.len(),
+        "{implausible} of {} implausible depths",
+        depths.len()
+    );
     let stats = tracker.stats();
     assert!(stats.stereo_matched > 0 && stats.frames == 21);
 }
@@ -97,22 +125,42 @@ fn black_constant_and_frozen_frames_do_not_panic_and_tracking_recovers() {
     let Some((cameras, frames)) = euroc_frames(6) else {
         return;
     };
-    let mut tracker = Tracker::new(TrackerConfig::default(), &cameras[..1], false).expect("tracker");
+    let mut tracker =
+        Tracker::new(TrackerConfig::default(), &cameras[..1], false).expect("tracker");
     let (w, h) = (cameras[0].model.width(), cameras[0].model.height());
     let black = Image::mono8(w, h, vec![0; (w * h) as usize]).expect("image");
     let white = Image::mono8(w, h, vec![255; (w * h) as usize]).expect("image");
     let t0 = frames[0].0;
-    let a = tracker.track(&input(t0, &frames[0].1.image, None), None).expect("textured");
+    let a = tracker
+        .track(&input(t0, &frames[0].1.image, None), None)
+        .expect("textured");
     assert!(a.observations.len() >= 100);
-    let b = tracker.track(&input(t0 + 1, &black, None), None).expect("black");
-    assert!(b.observations.is_empty(), "{} on a black frame", b.observations.len());
-    let c = tracker.track(&input(t0 + 2, &white, None), None).expect("saturated");
+    let b = tracker
+        .track(&input(t0 + 1, &black, None), None)
+        .expect("black");
+    assert!(
+        b.observations.is_empty(),
+        "{} on a black frame",
+        b.observations.len()
+    );
+    let c = tracker
+        .track(&input(t0 + 2, &white, None), None)
+        .expect("saturated");
     assert!(c.observations.is_empty());
-    let d = tracker.track(&input(t0 + 3, &frames[1].1.image, None), None).expect("back");
-    assert!(d.observations.len() >= 100, "recovered {}", d.observations.len());
+    let d = tracker
+        .track(&input(t0 + 3, &frames[1].1.image, None), None)
+        .expect("back");
+    assert!(
+        d.observations.len() >= 100,
+        "recovered {}",
+        d.observations.len()
+    );
     // Frozen: the same image again keeps every track at the same place.
-    let e = tracker.track(&input(t0 + 4, &frames[1].1.image, None), None).expect("frozen");
-    let before: HashMap<LandmarkId, Vector2<f64>> = d.in_camera(0).map(|o| (o.landmark, o.pixel)).collect();
+    let e = tracker
+        .track(&input(t0 + 4, &frames[1].1.image, None), None)
+        .expect("frozen");
+    let before: HashMap<LandmarkId, Vector2<f64>> =
+        d.in_camera(0).map(|o| (o.landmark, o.pixel)).collect();
     let moved = e
         .in_camera(0)
         .filter_map(|o| before.get(&o.landmark).map(|p| (o.pixel - p).norm()))
@@ -128,12 +176,21 @@ fn bad_input_gives_clear_errors() {
     let mut tracker = Tracker::new(TrackerConfig::default(), &cameras, true).expect("tracker");
     let small = Image::mono8(64, 48, vec![100; 64 * 48]).expect("image");
     let err = tracker.track(&input(1, &small, None), None).unwrap_err();
-    assert!(matches!(err, TrackerError::ImageSize { camera: 0, .. }), "{err}");
+    assert!(
+        matches!(err, TrackerError::ImageSize { camera: 0, .. }),
+        "{err}"
+    );
     let t = frames[0].0;
-    tracker.track(&input(t, &frames[0].1.image, None), None).expect("frame");
-    let err = tracker.track(&input(t, &frames[1].1.image, None), None).unwrap_err();
+    tracker
+        .track(&input(t, &frames[0].1.image, None), None)
+        .expect("frame");
+    let err = tracker
+        .track(&input(t, &frames[1].1.image, None), None)
+        .unwrap_err();
     assert!(err.to_string().contains("does not come after"), "{err}");
-    let err = Tracker::new(TrackerConfig::default(), &cameras[..1], true).err().expect("refused");
+    let err = Tracker::new(TrackerConfig::default(), &cameras[..1], true)
+        .err()
+        .expect("refused");
     assert_eq!(err, TrackerError::NeedsTwoCameras(1));
     let mut nan = cameras[0].clone();
     if let CameraModel::PinholeRadtan(m) = &mut nan.model {
@@ -146,7 +203,9 @@ fn bad_input_gives_clear_errors() {
         target_features: 3,
         ..TrackerConfig::default()
     };
-    let err = Tracker::new(config, &cameras, false).err().expect("refused");
+    let err = Tracker::new(config, &cameras, false)
+        .err()
+        .expect("refused");
     assert!(err.to_string().contains("target_features"), "{err}");
 }
 
@@ -174,14 +233,19 @@ fn rendered_motion_matches_the_tracks_and_swapped_tracks_are_rejected() {
         let i = gt.partition_point(|s| s.t_ns < t_ns).min(gt.len() - 1);
         gt[i].T_world_body * cam.calibration.T_body_cam
     };
-    let mut tracker = Tracker::new(TrackerConfig::default(), &[cam.calibration.clone()], false).expect("tracker");
+    let mut tracker =
+        Tracker::new(TrackerConfig::default(), &[cam.calibration.clone()], false).expect("tracker");
     let mut previous: Option<TrackedFrame> = None;
     let mut errors_deg = Vec::new();
     let mut keyframes = 0;
     for index in 0..cam.frames.len() {
         let frame = cam.load(index).expect("load").expect("image");
         let t_w_c = pose_at(frame.t_ns);
-        let prediction = previous.as_ref().map(|p| (pose_at(p.t_ns).inverse() * t_w_c).rotation.to_rotation_matrix());
+        let prediction = previous.as_ref().map(|p| {
+            (pose_at(p.t_ns).inverse() * t_w_c)
+                .rotation
+                .to_rotation_matrix()
+        });
         let tracked = tracker
             .track(&input(frame.t_ns, &frame.image, None), prediction.as_ref())
             .expect("track");
@@ -214,17 +278,25 @@ fn rendered_motion_matches_the_tracks_and_swapped_tracks_are_rejected() {
             for id in &swapped {
                 assert!(!tracker.ids.contains(id), "swapped track {id} survived");
             }
-            assert!(tracker.ids.len() + 10 >= n, "{} of {n} kept", tracker.ids.len());
+            assert!(
+                tracker.ids.len() + 10 >= n,
+                "{} of {n} kept",
+                tracker.ids.len()
+            );
         }
         if let Some(p) = &previous {
             // Five-point rotation of the tracks against the truth.
-            let before: HashMap<LandmarkId, Vector2<f64>> = p.in_camera(0).map(|o| (o.landmark, o.pixel)).collect();
+            let before: HashMap<LandmarkId, Vector2<f64>> =
+                p.in_camera(0).map(|o| (o.landmark, o.pixel)).collect();
             let (mut x1, mut x2) = (Vec::new(), Vec::new());
             for o in tracked.in_camera(0) {
                 if let Some(b) = before.get(&o.landmark) {
                     let pa = [b.x as f32, b.y as f32];
                     let pb = [o.pixel.x as f32, o.pixel.y as f32];
-                    if let (Some(a), Some(c)) = (normalised(&cam.calibration.model, &pa), normalised(&cam.calibration.model, &pb)) {
+                    if let (Some(a), Some(c)) = (
+                        normalised(&cam.calibration.model, &pa),
+                        normalised(&cam.calibration.model, &pb),
+                    ) {
                         x1.push(a);
                         x2.push(c);
                     }
@@ -232,7 +304,9 @@ fn rendered_motion_matches_the_tracks_and_swapped_tracks_are_rejected() {
             }
             let config = RelativePoseConfig::for_pixels(1.0, 458.0);
             if let Ok(pose) = estimate_relative_pose(&x1, &x2, &config) {
-                let truth = (pose_at(tracked.t_ns).inverse() * pose_at(p.t_ns)).rotation.to_rotation_matrix();
+                let truth = (pose_at(tracked.t_ns).inverse() * pose_at(p.t_ns))
+                    .rotation
+                    .to_rotation_matrix();
                 errors_deg.push((truth.inverse() * pose.rotation_c2_c1).angle().to_degrees());
             }
         }

@@ -82,7 +82,9 @@ impl Window {
         let rows = &mut self.track.rows;
         rows.clear();
         for o in &frame.observations {
-            if (o.camera_index as usize) >= self.cameras.len() || !o.pixel.iter().all(|v| v.is_finite()) {
+            if (o.camera_index as usize) >= self.cameras.len()
+                || !o.pixel.iter().all(|v| v.is_finite())
+            {
                 continue;
             }
             if let Some(lm) = self.landmarks.get(&o.landmark) {

@@ -11,7 +11,9 @@ use std::time::Instant;
 
 use nalgebra::{DMatrix, Matrix2, SMatrix, SVector, Vector2, Vector3};
 
-use super::inertial::{bias_walk_factor, inertial_factor, tangent_basis, update_direction, GRAVITY_COL};
+use super::inertial::{
+    bias_walk_factor, inertial_factor, tangent_basis, update_direction, GRAVITY_COL,
+};
 use super::prior::{sqrt_information2, GravityPrior, OldestFreePrior};
 use super::reprojection::{reproject, reprojection_error, GATE_SQ};
 use super::schur::{self, Chunk, LandmarkBlock, ObservationRow};
@@ -226,7 +228,9 @@ impl Window {
                 let step = self.apply_step();
                 let new_cost = self.linearize(false);
                 if new_cost.is_finite() && new_cost <= cost {
-                    converged = cost - new_cost <= RELATIVE_DECREASE * cost || step < 1e-12 || new_cost <= 1e-24;
+                    converged = cost - new_cost <= RELATIVE_DECREASE * cost
+                        || step < 1e-12
+                        || new_cost <= 1e-24;
                     cost = new_cost;
                     accepted = true;
                     lambda = (lambda * 0.1).max(1e-10);
@@ -316,7 +320,13 @@ impl Window {
             // and biases estimated) through the free ones.
             let ob = p.boundary_offset;
             // Columns of keyframe `pos`'s [v, b_g, b_a] in the system.
-            let rest = |pos: usize| if pos + 1 == nf { ob } else { offset(pos).map(|o| o + VEL) };
+            let rest = |pos: usize| {
+                if pos + 1 == nf {
+                    ob
+                } else {
+                    offset(pos).map(|o| o + VEL)
+                }
+            };
             for pos in nf.max(1)..n {
                 let (ki, kj) = (&keyframes[pos - 1], &keyframes[pos]);
                 if let Some(link) = &kj.imu {
@@ -333,10 +343,26 @@ impl Window {
                             &r,
                             &j,
                             &[
-                                Chunk { col: 0, len: VEL, offset: offset(pos - 1) },
-                                Chunk { col: VEL, len: BOUNDARY_DIM, offset: rest(pos - 1) },
-                                Chunk { col: FULL_DIM, len: FULL_DIM, offset: offset(pos) },
-                                Chunk { col: GRAVITY_COL, len: 2, offset: p.gravity_offset },
+                                Chunk {
+                                    col: 0,
+                                    len: VEL,
+                                    offset: offset(pos - 1),
+                                },
+                                Chunk {
+                                    col: VEL,
+                                    len: BOUNDARY_DIM,
+                                    offset: rest(pos - 1),
+                                },
+                                Chunk {
+                                    col: FULL_DIM,
+                                    len: FULL_DIM,
+                                    offset: offset(pos),
+                                },
+                                Chunk {
+                                    col: GRAVITY_COL,
+                                    len: 2,
+                                    offset: p.gravity_offset,
+                                },
                             ],
                         );
                     }
@@ -350,8 +376,16 @@ impl Window {
                             &r,
                             &j,
                             &[
-                                Chunk { col: 0, len: 6, offset: bias(pos - 1) },
-                                Chunk { col: 6, len: 6, offset: bias(pos) },
+                                Chunk {
+                                    col: 0,
+                                    len: 6,
+                                    offset: bias(pos - 1),
+                                },
+                                Chunk {
+                                    col: 6,
+                                    len: 6,
+                                    offset: bias(pos),
+                                },
                             ],
                         );
                     }
@@ -363,23 +397,40 @@ impl Window {
                     let (r, j) = prior.factor(&keyframes[nf - 1].state);
                     cost += 0.5 * r.norm_squared();
                     if build {
-                        p.eq
-                            .add_factor(&r, &j, &[Chunk { col: 0, len: BOUNDARY_DIM, offset: ob }]);
+                        p.eq.add_factor(
+                            &r,
+                            &j,
+                            &[Chunk {
+                                col: 0,
+                                len: BOUNDARY_DIM,
+                                offset: ob,
+                            }],
+                        );
                     }
                 }
             }
             if let Some(og) = p.gravity_offset {
-                let (r, j) = self.gravity_prior.factor(&self.gravity_dir, &p.gravity_basis);
+                let (r, j) = self
+                    .gravity_prior
+                    .factor(&self.gravity_dir, &p.gravity_basis);
                 cost += 0.5 * r.norm_squared();
                 if build {
-                    p.eq
-                        .add_factor(&r, &j, &[Chunk { col: 0, len: 2, offset: Some(og) }]);
+                    p.eq.add_factor(
+                        &r,
+                        &j,
+                        &[Chunk {
+                            col: 0,
+                            len: 2,
+                            offset: Some(og),
+                        }],
+                    );
                 }
             }
         } else if p.stereo_rows == 0 && nf == 1 && n >= 2 {
-            if let Some(anchor) = self.scale_anchor.filter(|a| {
-                a.seq_first == keyframes[0].seq && a.seq_second == keyframes[1].seq
-            }) {
+            if let Some(anchor) = self
+                .scale_anchor
+                .filter(|a| a.seq_first == keyframes[0].seq && a.seq_second == keyframes[1].seq)
+            {
                 let (r, j) = anchor.factor(
                     &keyframes[0].state.T_world_body.translation.vector,
                     &keyframes[1].state.T_world_body.translation.vector,
@@ -389,7 +440,11 @@ impl Window {
                     p.eq.add_factor(
                         &SVector::<f64, 1>::new(r),
                         &SMatrix::<f64, 1, 3>::from(j),
-                        &[Chunk { col: 0, len: 3, offset: offset(1).map(|o| o + 3) }],
+                        &[Chunk {
+                            col: 0,
+                            len: 3,
+                            offset: offset(1).map(|o| o + 3),
+                        }],
                     );
                 }
             }
@@ -400,7 +455,8 @@ impl Window {
     pub(super) fn save_backup(&mut self) {
         let p = &mut self.problem;
         p.backup_states.clear();
-        p.backup_states.extend(self.keyframes.iter().map(|k| k.state));
+        p.backup_states
+            .extend(self.keyframes.iter().map(|k| k.state));
         p.backup_landmarks.clear();
         p.backup_landmarks
             .extend(p.landmarks.iter().map(|l| l.position_world_m));
@@ -511,8 +567,14 @@ impl Window {
             z = DMatrix::<f64>::zeros(p.eq.dim, 3);
         }
         let newest_pos = self.keyframes.len() - 1;
-        let newest_offset = (newest_pos >= p.n_fixed).then(|| (newest_pos - p.n_fixed) * p.state_dim);
-        let r_wb = newest.state.T_world_body.rotation.to_rotation_matrix().into_inner();
+        let newest_offset =
+            (newest_pos >= p.n_fixed).then(|| (newest_pos - p.n_fixed) * p.state_dim);
+        let r_wb = newest
+            .state
+            .T_world_body
+            .rotation
+            .to_rotation_matrix()
+            .into_inner();
         let r_bw = r_wb.transpose();
         let t = newest.state.T_world_body.translation.vector;
         let chi2 = self.config.outlier_chi2;

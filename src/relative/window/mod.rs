@@ -180,7 +180,11 @@ impl WindowConfig {
             })
         };
         if self.keyframes_kept < 2 {
-            return bad("keyframes_kept", self.keyframes_kept.to_string(), "at least 2");
+            return bad(
+                "keyframes_kept",
+                self.keyframes_kept.to_string(),
+                "at least 2",
+            );
         }
         if self.keyframes_free == 0 || self.keyframes_free >= self.keyframes_kept {
             return bad(
@@ -199,8 +203,14 @@ impl WindowConfig {
             ("init_max_error_px", self.init_max_error_px),
             ("gravity_prior_sigma_rad", self.gravity_prior_sigma_rad),
             ("velocity_prior_sigma_m_s", self.velocity_prior_sigma_m_s),
-            ("gyro_bias_prior_sigma_rad_s", self.gyro_bias_prior_sigma_rad_s),
-            ("accel_bias_prior_sigma_m_s2", self.accel_bias_prior_sigma_m_s2),
+            (
+                "gyro_bias_prior_sigma_rad_s",
+                self.gyro_bias_prior_sigma_rad_s,
+            ),
+            (
+                "accel_bias_prior_sigma_m_s2",
+                self.accel_bias_prior_sigma_m_s2,
+            ),
             ("prior_weight", self.prior_weight),
             ("gravity_prior_weight", self.gravity_prior_weight),
         ];
@@ -211,10 +221,18 @@ impl WindowConfig {
         }
         // Infinity switches the outlier flagging off.
         if self.outlier_chi2.is_nan() || self.outlier_chi2 <= 0.0 {
-            return bad("outlier_chi2", self.outlier_chi2.to_string(), "a number > 0 (inf: no flagging)");
+            return bad(
+                "outlier_chi2",
+                self.outlier_chi2.to_string(),
+                "a number > 0 (inf: no flagging)",
+            );
         }
         if self.max_depth_m <= self.min_depth_m {
-            return bad("max_depth_m", self.max_depth_m.to_string(), "above min_depth_m");
+            return bad(
+                "max_depth_m",
+                self.max_depth_m.to_string(),
+                "above min_depth_m",
+            );
         }
         Ok(())
     }
@@ -377,7 +395,9 @@ impl Window {
         let observations = frame
             .observations
             .iter()
-            .filter(|o| (o.camera_index as usize) < n_cameras && o.pixel.iter().all(|v| v.is_finite()))
+            .filter(|o| {
+                (o.camera_index as usize) < n_cameras && o.pixel.iter().all(|v| v.is_finite())
+            })
             .map(|o| KeyframeObservation {
                 landmark: o.landmark,
                 camera: o.camera_index,
@@ -459,10 +479,16 @@ impl Window {
 
     /// Sets gravity (its direction; the magnitude is 9.81) with a prior of
     /// `sigma_rad` around it.
-    pub fn set_gravity(&mut self, gravity_world_m_s2: Vector3<f64>, sigma_rad: f64) -> Result<(), WindowError> {
+    pub fn set_gravity(
+        &mut self,
+        gravity_world_m_s2: Vector3<f64>,
+        sigma_rad: f64,
+    ) -> Result<(), WindowError> {
         let n = gravity_world_m_s2.norm();
         if !(n.is_finite() && n > 0.0 && sigma_rad.is_finite() && sigma_rad > 0.0) {
-            return Err(WindowError::InvalidValue { what: "gravity or its sigma" });
+            return Err(WindowError::InvalidValue {
+                what: "gravity or its sigma",
+            });
         }
         self.gravity_dir = gravity_world_m_s2 / n;
         self.gravity_prior = GravityPrior::isotropic(self.gravity_dir, sigma_rad);
@@ -500,19 +526,38 @@ impl Window {
         biases: &[ImuBiases],
     ) -> Result<(), WindowError> {
         let n = self.keyframes.len();
-        for (what, got) in [("velocities", velocities_world_m_s.len()), ("biases", biases.len())] {
+        for (what, got) in [
+            ("velocities", velocities_world_m_s.len()),
+            ("biases", biases.len()),
+        ] {
             if got != n {
-                return Err(WindowError::LengthMismatch { what, got, expected: n });
+                return Err(WindowError::LengthMismatch {
+                    what,
+                    got,
+                    expected: n,
+                });
             }
         }
-        let finite = velocities_world_m_s.iter().all(|v| v.iter().all(|x| x.is_finite()))
-            && biases
-                .iter()
-                .all(|b| b.gyro_rad_s.iter().chain(b.accel_m_s2.iter()).all(|x| x.is_finite()));
+        let finite = velocities_world_m_s
+            .iter()
+            .all(|v| v.iter().all(|x| x.is_finite()))
+            && biases.iter().all(|b| {
+                b.gyro_rad_s
+                    .iter()
+                    .chain(b.accel_m_s2.iter())
+                    .all(|x| x.is_finite())
+            });
         if !finite {
-            return Err(WindowError::InvalidValue { what: "velocities or biases" });
+            return Err(WindowError::InvalidValue {
+                what: "velocities or biases",
+            });
         }
-        for ((kf, v), b) in self.keyframes.iter_mut().zip(velocities_world_m_s).zip(biases) {
+        for ((kf, v), b) in self
+            .keyframes
+            .iter_mut()
+            .zip(velocities_world_m_s)
+            .zip(biases)
+        {
             kf.state.velocity_world_m_s = *v;
             kf.state.biases = *b;
             kf.state_marginal = None;
@@ -536,7 +581,9 @@ impl Window {
         let finite = T_new_old.translation.vector.iter().all(|v| v.is_finite())
             && T_new_old.rotation.coords.iter().all(|v| v.is_finite());
         if !(scale.is_finite() && scale > 0.0 && finite) {
-            return Err(WindowError::InvalidValue { what: "scale or transform" });
+            return Err(WindowError::InvalidValue {
+                what: "scale or transform",
+            });
         }
         let rot = T_new_old.rotation;
         let map_point = |p: &Vector3<f64>| T_new_old.transform_point(&(p * scale).into()).coords;
@@ -647,17 +694,25 @@ impl Window {
     /// mapped through the newest keyframe's pose, covariances rotated. The
     /// uncertainty of the frame relative to that keyframe is not added.
     #[allow(non_snake_case)]
-    pub fn landmarks_in_frame_into(&self, T_world_frame: &Isometry3<f64>, out: &mut Vec<BodyLandmark>) {
+    pub fn landmarks_in_frame_into(
+        &self,
+        T_world_frame: &Isometry3<f64>,
+        out: &mut Vec<BodyLandmark>,
+    ) {
         out.clear();
         let Some(newest) = self.keyframes.back() else {
             return;
         };
         let T_frame_key = T_world_frame.inverse() * newest.state.T_world_body;
         let r = T_frame_key.rotation.to_rotation_matrix().into_inner();
-        out.extend(self.body_landmarks.iter().map(|l| BodyLandmark {
-            id: l.id,
-            position_body_m: T_frame_key.transform_point(&l.position_body_m.into()).coords,
-            covariance_body_m2: r * l.covariance_body_m2 * r.transpose(),
+        out.extend(self.body_landmarks.iter().map(|l| {
+            BodyLandmark {
+                id: l.id,
+                position_body_m: T_frame_key
+                    .transform_point(&l.position_body_m.into())
+                    .coords,
+                covariance_body_m2: r * l.covariance_body_m2 * r.transpose(),
+            }
         }));
     }
 

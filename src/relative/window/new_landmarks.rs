@@ -9,9 +9,9 @@
 
 use nalgebra::{Isometry3, Vector2, Vector3};
 
-use super::{Landmark, PendingTrack, Window};
-use super::rig_camera::RigCamera;
 use super::reprojection::reprojection_error;
+use super::rig_camera::RigCamera;
+use super::{Landmark, PendingTrack, Window};
 use crate::two_view::triangulation::{triangulate, TriangulationConfig, TriangulationFailure};
 
 /// The normalised image point (z = 1) of a pixel, if it unprojects in
@@ -124,8 +124,12 @@ impl Window {
                     &stereo_config,
                     max_error_px,
                 ) {
-                    self.landmarks
-                        .insert(o.landmark, Landmark { position_world_m: p });
+                    self.landmarks.insert(
+                        o.landmark,
+                        Landmark {
+                            position_world_m: p,
+                        },
+                    );
                     self.pending.remove(&o.landmark);
                 }
             }

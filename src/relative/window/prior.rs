@@ -68,7 +68,12 @@ impl OldestFreePrior {
     }
 
     /// Centred on `state` with `weight` times the information of `cov`.
-    pub fn from_covariance(seq: u64, state: &KeyframeState, cov: &Matrix9, weight: f64) -> Option<Self> {
+    pub fn from_covariance(
+        seq: u64,
+        state: &KeyframeState,
+        cov: &Matrix9,
+        weight: f64,
+    ) -> Option<Self> {
         let sym = (cov + cov.transpose()) * 0.5;
         let info = sym.cholesky()?.inverse() * weight;
         let sqrt_info = info.cholesky()?.l().transpose();
@@ -81,7 +86,10 @@ impl OldestFreePrior {
 
     /// Whitened residual and its Jacobian with respect to `[dv, dbg, dba]`.
     pub fn factor(&self, state: &KeyframeState) -> (Vector9, Matrix9) {
-        (self.sqrt_info * (stacked(state) - self.mean), self.sqrt_info)
+        (
+            self.sqrt_info * (stacked(state) - self.mean),
+            self.sqrt_info,
+        )
     }
 }
 
@@ -104,11 +112,7 @@ impl GravityPrior {
 
     /// Whitened `B0^T (d - d0)` and its Jacobian with respect to the
     /// direction step in the basis `basis` of the current `d`.
-    pub fn factor(
-        &self,
-        d: &Vector3<f64>,
-        basis: &Matrix3x2<f64>,
-    ) -> (Vector2<f64>, Matrix2<f64>) {
+    pub fn factor(&self, d: &Vector3<f64>, basis: &Matrix3x2<f64>) -> (Vector2<f64>, Matrix2<f64>) {
         let r = self.sqrt_info * (self.basis.transpose() * (d - self.mean_dir));
         let j = self.sqrt_info * (self.basis.transpose() * (-hat(d) * basis));
         (r, j)

@@ -11,8 +11,8 @@
 
 use nalgebra::{Isometry3, Matrix2x3, SMatrix, Vector2, Vector3};
 
-use crate::imu::so3::hat;
 use super::rig_camera::RigCamera;
+use crate::imu::so3::hat;
 
 pub type Matrix2x6 = SMatrix<f64, 2, 6>;
 
@@ -35,10 +35,11 @@ fn point_in_camera(
     T_world_body: &Isometry3<f64>,
     point_world_m: &Vector3<f64>,
 ) -> Vector3<f64> {
-    camera.calibration.T_body_cam.inverse_transform_point(
-        &T_world_body.inverse_transform_point(&(*point_world_m).into()),
-    )
-    .coords
+    camera
+        .calibration
+        .T_body_cam
+        .inverse_transform_point(&T_world_body.inverse_transform_point(&(*point_world_m).into()))
+        .coords
 }
 
 /// The reprojection error and its Jacobians; `None` when the point does
@@ -57,11 +58,7 @@ pub fn reproject(
         .transpose();
     let p_body = r_bw * (point_world_m - T_world_body.translation.vector);
     let t_bc = &camera.calibration.T_body_cam;
-    let r_cb = t_bc
-        .rotation
-        .to_rotation_matrix()
-        .into_inner()
-        .transpose();
+    let r_cb = t_bc.rotation.to_rotation_matrix().into_inner().transpose();
     let p_cam = r_cb * (p_body - t_bc.translation.vector);
     let (px, d_px) = camera.project_with_point_jacobian(&p_cam)?;
     let d_body = d_px * r_cb;

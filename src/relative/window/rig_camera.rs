@@ -51,8 +51,7 @@ impl RigCamera {
                 let d = c.distort(&xn);
                 let px = Vector2::new(c.fx * d.x + c.cx, c.fy * d.y + c.cy);
                 let inv_z = 1.0 / p_cam.z;
-                let dxn_dp =
-                    Matrix2x3::new(inv_z, 0.0, -xn.x * inv_z, 0.0, inv_z, -xn.y * inv_z);
+                let dxn_dp = Matrix2x3::new(inv_z, 0.0, -xn.x * inv_z, 0.0, inv_z, -xn.y * inv_z);
                 let focal = Matrix2::new(c.fx, 0.0, 0.0, c.fy);
                 Some((px, focal * c.distort_jacobian(&xn) * dxn_dp))
             }
@@ -82,8 +81,13 @@ mod tests {
         // EuRoC's cam0 does not fold; with k1 alone it folds at r ~ 1.09.
         let mut folding = euroc_cam0();
         folding.model = CameraModel::PinholeRadtan(
-            PinholeRadtan::new(752, 480, [458.654, 457.296, 367.215, 248.375], [-0.28, 0.0, 0.0, 0.0, 0.0])
-                .expect("valid"),
+            PinholeRadtan::new(
+                752,
+                480,
+                [458.654, 457.296, 367.215, 248.375],
+                [-0.28, 0.0, 0.0, 0.0, 0.0],
+            )
+            .expect("valid"),
         );
         for (cal, expect_fold) in [(euroc_cam0(), false), (folding, true)] {
             let cam = RigCamera::new(cal.clone());

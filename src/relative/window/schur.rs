@@ -235,13 +235,17 @@ pub(crate) fn reduce(
         lm.v_inv = v_inv;
         let lm_rows = &rows[lm.rows.clone()];
         for (ia, ra) in lm_rows.iter().enumerate() {
-            let Some(oa) = ra.offset.filter(|_| ra.valid) else { continue };
+            let Some(oa) = ra.offset.filter(|_| ra.valid) else {
+                continue;
+            };
             let wv = ra.w_block * v_inv;
             let mut bs = eq.bs.fixed_rows_mut::<6>(oa);
             bs -= wv * lm.b;
             // S is symmetric: each pair once, mirrored.
             for rb in &lm_rows[ia..] {
-                let Some(ob) = rb.offset.filter(|_| rb.valid) else { continue };
+                let Some(ob) = rb.offset.filter(|_| rb.valid) else {
+                    continue;
+                };
                 let m = wv * rb.w_block.transpose();
                 let mut block = eq.s.fixed_view_mut::<6, 6>(oa, ob);
                 block -= m;

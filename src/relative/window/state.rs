@@ -73,7 +73,11 @@ pub(crate) fn apply_update(state: &mut KeyframeState, delta: &[f64]) {
 
 pub(crate) fn state_is_finite(s: &KeyframeState) -> bool {
     s.T_world_body.rotation.coords.iter().all(|v| v.is_finite())
-        && s.T_world_body.translation.vector.iter().all(|v| v.is_finite())
+        && s.T_world_body
+            .translation
+            .vector
+            .iter()
+            .all(|v| v.is_finite())
         && s.velocity_world_m_s.iter().all(|v| v.is_finite())
         && s.biases.gyro_rad_s.iter().all(|v| v.is_finite())
         && s.biases.accel_m_s2.iter().all(|v| v.is_finite())

@@ -126,7 +126,8 @@ impl Scene {
         let mut observations = Vec::new();
         for (i, p) in self.points.iter().enumerate() {
             for (c, cam) in cameras.iter().enumerate() {
-                let p_cam = (pose * cam.calibration.T_body_cam).inverse_transform_point(&(*p).into());
+                let p_cam =
+                    (pose * cam.calibration.T_body_cam).inverse_transform_point(&(*p).into());
                 if !(p_cam.z > 0.3 && p_cam.z < 20.0) {
                     continue;
                 }
@@ -196,8 +197,8 @@ pub(crate) fn perturb(
 
 /// Position (m) and rotation (deg) error of `estimate` against `truth`.
 pub(crate) fn pose_error(estimate: &KeyframeState, truth: &KeyframeState) -> (f64, f64) {
-    let dp = (estimate.T_world_body.translation.vector - truth.T_world_body.translation.vector)
-        .norm();
+    let dp =
+        (estimate.T_world_body.translation.vector - truth.T_world_body.translation.vector).norm();
     let dr = (truth.T_world_body.rotation.inverse() * estimate.T_world_body.rotation)
         .angle()
         .to_degrees();

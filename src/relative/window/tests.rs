@@ -39,7 +39,9 @@ fn reprojection_jacobians_match_finite_differences() {
     );
     // A point 3 m in front of the camera, off-centre so distortion matters.
     let p_cam = Vector3::new(0.9, -0.6, 3.0);
-    let point = (pose * camera.calibration.T_body_cam).transform_point(&p_cam.into()).coords;
+    let point = (pose * camera.calibration.T_body_cam)
+        .transform_point(&p_cam.into())
+        .coords;
     let pixel = Vector2::new(400.0, 200.0);
     let r = reproject(&camera, &pose, &point, &pixel).expect("projects");
     let state = KeyframeState {
@@ -59,15 +61,25 @@ fn reprojection_jacobians_match_finite_differences() {
         };
         let num = (f(1.0) - f(-1.0)) / (2.0 * eps);
         let ana = r.d_pose.column(k);
-        assert!((num - ana).norm() < 1e-5 * (1.0 + ana.norm()), "pose {k}: {num} vs {ana}");
+        assert!(
+            (num - ana).norm() < 1e-5 * (1.0 + ana.norm()),
+            "pose {k}: {num} vs {ana}"
+        );
     }
     for k in 0..3 {
         let mut d = Vector3::zeros();
         d[k] = eps;
-        let f = |p: Vector3<f64>| reproject(&camera, &pose, &p, &pixel).expect("projects").error_px;
+        let f = |p: Vector3<f64>| {
+            reproject(&camera, &pose, &p, &pixel)
+                .expect("projects")
+                .error_px
+        };
         let num = (f(point + d) - f(point - d)) / (2.0 * eps);
         let ana = r.d_point.column(k);
-        assert!((num - ana).norm() < 1e-5 * (1.0 + ana.norm()), "point {k}: {num} vs {ana}");
+        assert!(
+            (num - ana).norm() < 1e-5 * (1.0 + ana.norm()),
+            "point {k}: {num} vs {ana}"
+        );
     }
     assert!((r.depth_m - 3.0).abs() < 1e-12);
 }
@@ -94,7 +106,10 @@ fn gravity_and_prior_jacobians_match_finite_differences() {
         let num = (plus - minus) * GRAVITY_M_S2 / (2.0 * eps);
         assert!((num - jg.column(k)).norm() < 1e-6, "gravity {k}");
         let num = (prior.factor(&plus, &basis).0 - prior.factor(&minus, &basis).0) / (2.0 * eps);
-        assert!((num - jp.column(k)).norm() < 1e-6 * (1.0 + num.norm()), "gravity prior {k}");
+        assert!(
+            (num - jp.column(k)).norm() < 1e-6 * (1.0 + num.norm()),
+            "gravity prior {k}"
+        );
     }
     let anchor = ScaleAnchor {
         seq_first: 0,
@@ -107,7 +122,11 @@ fn gravity_and_prior_jacobians_match_finite_differences() {
         let mut dp = Vector3::zeros();
         dp[k] = 1e-9;
         let num = (anchor.factor(&p0, &(p1 + dp)).0 - anchor.factor(&p0, &(p1 - dp)).0) / 2e-9;
-        assert!((num - ja[k]).abs() < 1e-4 * ja.norm(), "anchor {k}: {num} vs {}", ja[k]);
+        assert!(
+            (num - ja[k]).abs() < 1e-4 * ja.norm(),
+            "anchor {k}: {num} vs {}",
+            ja[k]
+        );
     }
 }
 
@@ -122,7 +141,11 @@ fn inertial_factor_jacobians_match_finite_differences() {
     let d = Vector3::new(0.02, -0.03, -1.0).normalize();
     let basis = tangent_basis(&d);
     let (_, j) = inertial_factor(&link, &si, &sj, &d, &basis);
-    let (_, jw) = bias_walk_factor(&link.sqrt_info.diagonal().fixed_rows::<6>(0).into_owned(), &si, &sj);
+    let (_, jw) = bias_walk_factor(
+        &link.sqrt_info.diagonal().fixed_rows::<6>(0).into_owned(),
+        &si,
+        &sj,
+    );
     let eps = 1e-7;
     for c in 0..2 * FULL_DIM + 2 {
         let eval = |sign: f64| {
@@ -226,7 +249,12 @@ fn schur_solve_equals_dense_solve() {
         let p = &mut w.problem;
         assert!(p.landmarks.len() > 20, "{} landmarks", p.landmarks.len());
         let lambda = 1e-3;
-        assert!(schur::solve_step(&mut p.eq, &p.rows, &mut p.landmarks, lambda));
+        assert!(schur::solve_step(
+            &mut p.eq,
+            &p.rows,
+            &mut p.landmarks,
+            lambda
+        ));
         let dense = schur::dense_step(&p.eq, &p.rows, &p.landmarks, lambda).expect("PD");
         let mut scale = 0.0f64;
         let mut diff = 0.0f64;
@@ -242,7 +270,10 @@ fn schur_solve_equals_dense_solve() {
             }
         }
         assert!(scale > 1e-6, "a non-trivial step");
-        assert!(diff <= 1e-9 * scale.max(1.0), "imu {use_imu}: Schur vs dense differ by {diff} (scale {scale})");
+        assert!(
+            diff <= 1e-9 * scale.max(1.0),
+            "imu {use_imu}: Schur vs dense differ by {diff} (scale {scale})"
+        );
     }
 }
 
@@ -255,7 +286,8 @@ fn normal_equations_hold_the_cost_gradient() {
     let mut r = rng(6);
     let scene = Scene::new(&mut r, 200, 4.0);
     let mut w = filled_window(&scene, config(true), 5, 1, true, 0.5, 0.0, &mut r);
-    w.set_gravity(Vector3::new(0.03, -0.02, -1.0), 0.01).expect("valid");
+    w.set_gravity(Vector3::new(0.03, -0.02, -1.0), 0.01)
+        .expect("valid");
     let n_fixed = w.fixed_count();
     w.build_problem(n_fixed);
     w.refresh_velocity_prior_for_tests(n_fixed);
@@ -314,13 +346,19 @@ fn stereo_vision_only_converges_to_the_truth() {
 #[test]
 fn mono_inertial_converges_to_the_truth() {
     let (dp, dr, dv, report) = converge(false, true);
-    assert!(dp < 1e-3 && dr < 0.01 && dv < 5e-3, "{dp} m {dr} deg {dv} m/s, {report:?}");
+    assert!(
+        dp < 1e-3 && dr < 0.01 && dv < 5e-3,
+        "{dp} m {dr} deg {dv} m/s, {report:?}"
+    );
 }
 
 #[test]
 fn stereo_inertial_converges_to_the_truth() {
     let (dp, dr, dv, report) = converge(true, true);
-    assert!(dp < 1e-3 && dr < 0.01 && dv < 5e-3, "{dp} m {dr} deg {dv} m/s, {report:?}");
+    assert!(
+        dp < 1e-3 && dr < 0.01 && dv < 5e-3,
+        "{dp} m {dr} deg {dv} m/s, {report:?}"
+    );
 }
 
 fn noisy_run(kernel: RobustKernel, use_imu: bool, outliers: f64) -> (f64, f64, WindowReport) {
@@ -348,12 +386,18 @@ fn robust_kernel_keeps_errors_small_with_noise_and_outliers() {
         for kernel in [RobustKernel::Huber, RobustKernel::Cauchy] {
             let (dp, dr, report) = noisy_run(kernel, use_imu, 0.1);
             println!("imu {use_imu} {kernel:?}: {dp} m {dr} deg (no outliers, least squares: {dp_ref} m {dr_ref} deg) {report:?}");
-            assert!(report.new_outliers > 100, "{kernel:?}: outliers flagged {report:?}");
+            assert!(
+                report.new_outliers > 100,
+                "{kernel:?}: outliers flagged {report:?}"
+            );
             assert!(
                 dp < 2.0 * dp_ref + 1e-3 && dr < 2.0 * dr_ref + 0.01,
                 "{kernel:?} imu {use_imu}: {dp} m {dr} deg against {dp_ref} m {dr_ref} deg without outliers"
             );
-            assert!(dp < 0.02 && dr < 0.3, "{kernel:?} imu {use_imu}: {dp} m {dr} deg");
+            assert!(
+                dp < 0.02 && dr < 0.3,
+                "{kernel:?} imu {use_imu}: {dp} m {dr} deg"
+            );
         }
         let (dp, dr, _) = noisy_run(RobustKernel::Quadratic, use_imu, 0.1);
         assert!(
@@ -376,7 +420,11 @@ fn sliding_keeps_l_keyframes_fixed_ones_still_and_memory_bounded() {
     for k in 0..30 {
         let t = keyframe_time(k);
         let truth = scene.truth(t);
-        let guess = if k == 0 { truth } else { perturb(&truth, &mut r, 0.01, 0.2f64.to_radians(), 0.02) };
+        let guess = if k == 0 {
+            truth
+        } else {
+            perturb(&truth, &mut r, 0.01, 0.2f64.to_radians(), 0.02)
+        };
         let frame = scene.frame(t, true, 0.5, 0.0, &mut r);
         let imu = (k > 0).then(|| scene.preintegrate(keyframe_time(k - 1), t));
         w.push_keyframe(guess, &frame, imu).expect("valid");
@@ -388,7 +436,10 @@ fn sliding_keeps_l_keyframes_fixed_ones_still_and_memory_bounded() {
         let report = w.optimize();
         let fixed_after: Vec<KeyframeState> = w.keyframes().take(n_fixed).copied().collect();
         for (i, (a, b)) in fixed_before.iter().zip(&fixed_after).enumerate() {
-            assert_eq!(a.T_world_body, b.T_world_body, "keyframe {k}: fixed pose {i} moved");
+            assert_eq!(
+                a.T_world_body, b.T_world_body,
+                "keyframe {k}: fixed pose {i} moved"
+            );
             if i + 1 < n_fixed {
                 assert_eq!(a, b, "keyframe {k}: fixed keyframe {i} changed");
             }
@@ -409,7 +460,10 @@ fn sliding_keeps_l_keyframes_fixed_ones_still_and_memory_bounded() {
     assert_eq!(w.keyframe_count(), 10);
     assert_eq!(w.fixed_count(), 3);
     let (dp, dr, dv) = worst_errors(&w, &scene);
-    assert!(dp < 0.01 && dr < 0.1 && dv < 0.02, "after 30 keyframes: {dp} m {dr} deg {dv} m/s");
+    assert!(
+        dp < 0.01 && dr < 0.1 && dv < 0.02,
+        "after 30 keyframes: {dp} m {dr} deg {dv} m/s"
+    );
     // Bounded: far fewer than the 2000 points the run has seen.
     assert!(max_landmarks < 1000, "{max_landmarks} landmarks");
     assert!(w.landmark_count() > 100);
@@ -436,13 +490,20 @@ fn track_frame_recovers_a_perturbed_pose() {
         let (dp, dr) = pose_error(&pose.state, &truth);
         assert!(pose.good && pose.inliers >= 30, "{pose:?}");
         assert!(pose.inliers < pose.matched, "outliers dropped: {pose:?}");
-        assert!(dp < 1e-3 && dr < 0.01, "imu {use_imu}: {dp} m {dr} deg {pose:?}");
+        assert!(
+            dp < 1e-3 && dr < 0.01,
+            "imu {use_imu}: {dp} m {dr} deg {pose:?}"
+        );
         if use_imu {
             let dv = (pose.state.velocity_world_m_s - truth.velocity_world_m_s).norm();
             assert!(dv < 0.01, "velocity {dv}");
         }
         // Nothing to match: not good.
-        let empty = TrackedFrame { t_ns: t, observations: vec![], is_keyframe: false };
+        let empty = TrackedFrame {
+            t_ns: t,
+            observations: vec![],
+            is_keyframe: false,
+        };
         assert!(!w.track_frame(guess, &empty, None).good);
     }
 }
@@ -452,7 +513,10 @@ fn body_landmarks_sit_where_the_truth_is_with_depth_shaped_covariances() {
     let mut r = rng(23);
     let scene = Scene::new(&mut r, 2000, 6.0);
     let mut w = filled_window(&scene, config(false), 10, 3, true, 0.0, 0.0, &mut r);
-    assert!(w.landmarks_in_body().is_empty(), "nothing before an optimisation");
+    assert!(
+        w.landmarks_in_body().is_empty(),
+        "nothing before an optimisation"
+    );
     let report = w.optimize();
     assert!(report.exact_marginals);
     let newest = *w.latest().expect("keyframes");
@@ -461,8 +525,15 @@ fn body_landmarks_sit_where_the_truth_is_with_depth_shaped_covariances() {
     let cam = &scene.rig.cameras[0];
     let mut along_ray = 0;
     for l in body {
-        let truth = newest.T_world_body.inverse_transform_point(&scene.points[l.id as usize].into()).coords;
-        assert!((l.position_body_m - truth).norm() < 1e-3, "landmark {}", l.id);
+        let truth = newest
+            .T_world_body
+            .inverse_transform_point(&scene.points[l.id as usize].into())
+            .coords;
+        assert!(
+            (l.position_body_m - truth).norm() < 1e-3,
+            "landmark {}",
+            l.id
+        );
         let eig = l.covariance_body_m2.symmetric_eigen();
         assert!(eig.eigenvalues.min() > 0.0, "positive definite");
         let (k, _) = eig.eigenvalues.argmax();
@@ -473,7 +544,11 @@ fn body_landmarks_sit_where_the_truth_is_with_depth_shaped_covariances() {
         }
     }
     // Depth is the least known direction of nearly every point.
-    assert!(along_ray * 10 >= body.len() * 9, "{along_ray} of {}", body.len());
+    assert!(
+        along_ray * 10 >= body.len() * 9,
+        "{along_ray} of {}",
+        body.len()
+    );
 }
 
 #[test]
@@ -481,20 +556,42 @@ fn rejects_bad_input() {
     let mut r = rng(29);
     let scene = Scene::new(&mut r, 100, 4.0);
     assert!(matches!(
-        Window::new(WindowConfig { keyframes_free: 10, ..WindowConfig::default() }, &scene.rig),
-        Err(WindowError::InvalidConfig { key: "keyframes_free", .. })
+        Window::new(
+            WindowConfig {
+                keyframes_free: 10,
+                ..WindowConfig::default()
+            },
+            &scene.rig
+        ),
+        Err(WindowError::InvalidConfig {
+            key: "keyframes_free",
+            ..
+        })
     ));
     assert!(matches!(
-        Window::new(WindowConfig { pixel_sigma: f64::NAN, ..WindowConfig::default() }, &scene.rig),
-        Err(WindowError::InvalidConfig { key: "pixel_sigma", .. })
+        Window::new(
+            WindowConfig {
+                pixel_sigma: f64::NAN,
+                ..WindowConfig::default()
+            },
+            &scene.rig
+        ),
+        Err(WindowError::InvalidConfig {
+            key: "pixel_sigma",
+            ..
+        })
     ));
     let mut w = Window::new(WindowConfig::default(), &scene.rig).expect("valid");
     let t = keyframe_time(0);
     let frame = scene.frame(t, false, 0.0, 0.0, &mut r);
     let mut bad = scene.truth(t);
     bad.velocity_world_m_s.x = f64::NAN;
-    assert!(matches!(w.push_keyframe(bad, &frame, None), Err(WindowError::NonFiniteState { .. })));
-    w.push_keyframe(scene.truth(t), &frame, None).expect("valid");
+    assert!(matches!(
+        w.push_keyframe(bad, &frame, None),
+        Err(WindowError::NonFiniteState { .. })
+    ));
+    w.push_keyframe(scene.truth(t), &frame, None)
+        .expect("valid");
     assert!(matches!(
         w.push_keyframe(scene.truth(t), &frame, None),
         Err(WindowError::NotIncreasing { .. })
@@ -529,11 +626,24 @@ fn transform_maps_states_and_landmarks() {
     let kf_after = *w.latest().expect("keyframes");
     let t_bc = scene.rig.cameras[0].T_body_cam.translation.vector;
     let centre = kf_before.T_world_body.translation.vector + kf_before.T_world_body.rotation * t_bc;
-    let expect_p = t.transform_point(&(centre * scale).into()).coords - (t.rotation * kf_before.T_world_body.rotation) * t_bc;
-    assert!((kf_after.T_world_body.rotation.angle_to(&(t.rotation * kf_before.T_world_body.rotation))) < 1e-12);
+    let expect_p = t.transform_point(&(centre * scale).into()).coords
+        - (t.rotation * kf_before.T_world_body.rotation) * t_bc;
+    assert!(
+        (kf_after
+            .T_world_body
+            .rotation
+            .angle_to(&(t.rotation * kf_before.T_world_body.rotation)))
+            < 1e-12
+    );
     assert!((kf_after.T_world_body.translation.vector - expect_p).norm() < 1e-12);
-    assert!((kf_after.velocity_world_m_s - t.rotation * kf_before.velocity_world_m_s * scale).norm() < 1e-12);
-    assert!((w.gravity_world_m_s2() - t.rotation * Vector3::new(0.0, 0.0, -GRAVITY_M_S2)).norm() < 1e-12);
+    assert!(
+        (kf_after.velocity_world_m_s - t.rotation * kf_before.velocity_world_m_s * scale).norm()
+            < 1e-12
+    );
+    assert!(
+        (w.gravity_world_m_s2() - t.rotation * Vector3::new(0.0, 0.0, -GRAVITY_M_S2)).norm()
+            < 1e-12
+    );
     assert!(w.transform(f64::NAN, t).is_err());
 }
 
@@ -543,7 +653,10 @@ fn transform_maps_states_and_landmarks() {
 fn timing(n_points: usize) -> (f64, f64, (usize, usize), f64) {
     let mut r = rng(37);
     let scene = Scene::new(&mut r, n_points, 12.0);
-    let cfg = WindowConfig { use_imu: true, ..WindowConfig::default() };
+    let cfg = WindowConfig {
+        use_imu: true,
+        ..WindowConfig::default()
+    };
     let mut w = Window::new(cfg, &scene.rig).expect("valid");
     let mut optimize_ms = Vec::new();
     let mut track_ms = Vec::new();
@@ -551,7 +664,11 @@ fn timing(n_points: usize) -> (f64, f64, (usize, usize), f64) {
     for k in 0..30 {
         let t = keyframe_time(k);
         let truth = scene.truth(t);
-        let guess = if k == 0 { truth } else { perturb(&truth, &mut r, 0.01, 0.2f64.to_radians(), 0.02) };
+        let guess = if k == 0 {
+            truth
+        } else {
+            perturb(&truth, &mut r, 0.01, 0.2f64.to_radians(), 0.02)
+        };
         let frame = scene.frame(t, false, 1.0, 0.0, &mut r);
         let imu = (k > 0).then(|| scene.preintegrate(keyframe_time(k - 1), t));
         w.push_keyframe(guess, &frame, imu).expect("valid");
@@ -563,7 +680,11 @@ fn timing(n_points: usize) -> (f64, f64, (usize, usize), f64) {
             let tf = t + 100_000_000;
             let f = scene.frame(tf, false, 1.0, 0.0, &mut r);
             let pre = scene.preintegrate(t, tf);
-            let pose = w.track_frame(perturb(&scene.truth(tf), &mut r, 0.01, 0.01, 0.01), &f, Some(&pre));
+            let pose = w.track_frame(
+                perturb(&scene.truth(tf), &mut r, 0.01, 0.01, 0.01),
+                &f,
+                Some(&pre),
+            );
             assert!(pose.good);
             track_ms.push(pose.ms);
         }
@@ -603,7 +724,11 @@ fn mono_start_takes_its_scale_from_the_first_distance() {
     let mut r = rng(41);
     let scene = Scene::new(&mut r, 2000, 6.0);
     let mut w = Window::new(config(false), &scene.rig).expect("valid");
-    let p0 = scene.truth(keyframe_time(0)).T_world_body.translation.vector;
+    let p0 = scene
+        .truth(keyframe_time(0))
+        .T_world_body
+        .translation
+        .vector;
     // Guesses: body positions scaled by 1.1 about the first keyframe.
     let scaled = |s: &KeyframeState| {
         let mut out = *s;
@@ -628,7 +753,8 @@ fn mono_start_takes_its_scale_from_the_first_distance() {
     // distance |p1 - p0| = 1.1 |p1 - p0|_true (the body-camera offset does
     // not scale, so that scale is near, not at, 1.1).
     let t_bc = scene.rig.cameras[0].T_body_cam.translation.vector;
-    let centre = |s: &KeyframeState| s.T_world_body.translation.vector + s.T_world_body.rotation * t_bc;
+    let centre =
+        |s: &KeyframeState| s.T_world_body.translation.vector + s.T_world_body.rotation * t_bc;
     let truth0 = scene.truth(keyframe_time(0));
     let truth1 = scene.truth(keyframe_time(1));
     let c0 = centre(&truth0);
@@ -639,7 +765,8 @@ fn mono_start_takes_its_scale_from_the_first_distance() {
         out
     };
     let held = 1.1 * (truth1.T_world_body.translation.vector - p0).norm();
-    let gap = |scale: f64| (similar(&truth1, scale).T_world_body.translation.vector - p0).norm() - held;
+    let gap =
+        |scale: f64| (similar(&truth1, scale).T_world_body.translation.vector - p0).norm() - held;
     let (mut lo, mut hi) = (1.0, 1.2);
     assert!(gap(lo) < 0.0 && gap(hi) > 0.0);
     for _ in 0..100 {
@@ -654,7 +781,11 @@ fn mono_start_takes_its_scale_from_the_first_distance() {
     assert!((scale - 1.1).abs() < 0.02, "{scale}");
     for s in w.keyframes() {
         let (dp, dr) = pose_error(s, &similar(&scene.truth(s.t_ns), scale));
-        assert!(dp < 1e-4 && dr < 0.001, "keyframe at {} ns: {dp} m {dr} deg {report:?}", s.t_ns);
+        assert!(
+            dp < 1e-4 && dr < 0.001,
+            "keyframe at {} ns: {dp} m {dr} deg {report:?}",
+            s.t_ns
+        );
     }
 }
 
@@ -664,17 +795,28 @@ fn gravity_direction_is_estimated() {
     // bias are hard to tell apart (only rotation separates them): with a
     // loose accel-bias prior the tilt falls from 1.4 deg to a fraction;
     // with the accel bias known to 5 mm/s^2 it goes to the truth.
-    let angle = |w: &Window| w.gravity_world_m_s2().angle(&Vector3::new(0.0, 0.0, -1.0)).to_degrees();
+    let angle = |w: &Window| {
+        w.gravity_world_m_s2()
+            .angle(&Vector3::new(0.0, 0.0, -1.0))
+            .to_degrees()
+    };
     let wrong = Vector3::new(0.02, -0.015, -1.0);
     for (sigma_ba, bound_deg) in [(0.2, 0.5), (0.005, 0.05)] {
         let mut r = rng(43);
         let scene = Scene::new(&mut r, 2000, 6.0);
-        let cfg = WindowConfig { accel_bias_prior_sigma_m_s2: sigma_ba, ..config(true) };
+        let cfg = WindowConfig {
+            accel_bias_prior_sigma_m_s2: sigma_ba,
+            ..config(true)
+        };
         let mut w = filled_window(&scene, cfg, 10, 3, true, 0.0, 0.0, &mut r);
         let n = w.keyframe_count();
         let times: Vec<i64> = w.keyframes().map(|s| s.t_ns).collect();
-        let velocities: Vec<Vector3<f64>> = times.iter().map(|&t| scene.truth(t).velocity_world_m_s).collect();
-        w.set_velocities_and_biases(&velocities, &vec![scene.biases; n]).expect("valid");
+        let velocities: Vec<Vector3<f64>> = times
+            .iter()
+            .map(|&t| scene.truth(t).velocity_world_m_s)
+            .collect();
+        w.set_velocities_and_biases(&velocities, &vec![scene.biases; n])
+            .expect("valid");
         w.set_gravity(wrong, 0.05).expect("valid");
         let start = angle(&w);
         assert!(start > 1.0, "{start}");
@@ -716,7 +858,10 @@ fn body_landmark_covariances_are_consistent_with_the_errors() {
             }
         }
         let mean = nees.iter().sum::<f64>() / nees.len() as f64;
-        println!("stereo {stereo}: body landmark NEES {mean:.2} over {} landmarks", nees.len());
+        println!(
+            "stereo {stereo}: body landmark NEES {mean:.2} over {} landmarks",
+            nees.len()
+        );
         assert!(nees.len() > 200);
         // A covariance off by a factor of two in either direction fails.
         assert!(mean > 2.0 && mean < 4.5, "stereo {stereo}: NEES {mean}");
@@ -754,7 +899,11 @@ fn vision_only_start_hands_over_to_visual_inertial() {
     for k in 0..10 {
         let t = keyframe_time(k);
         let vis = to_vis(&scene.truth(t));
-        let guess = if k < 3 { vis } else { perturb(&vis, &mut r, 0.01, 0.3f64.to_radians(), 0.0) };
+        let guess = if k < 3 {
+            vis
+        } else {
+            perturb(&vis, &mut r, 0.01, 0.3f64.to_radians(), 0.0)
+        };
         let frame = scene.frame(t, false, 0.0, 0.0, &mut r);
         let imu = (k > 0).then(|| scene.preintegrate(keyframe_time(k - 1), t));
         w.push_keyframe(guess, &frame, imu).expect("valid");
@@ -762,10 +911,16 @@ fn vision_only_start_hands_over_to_visual_inertial() {
     let report = w.optimize();
     // Handover: x_world = T (x_vis / scale_vis) with T = t_vis_world^-1 / scale.
     let inv = t_vis_world.inverse();
-    let t = Isometry3::from_parts(Translation3::from(inv.translation.vector / scale_vis), inv.rotation);
+    let t = Isometry3::from_parts(
+        Translation3::from(inv.translation.vector / scale_vis),
+        inv.rotation,
+    );
     w.transform(1.0 / scale_vis, t).expect("valid");
     let (dp, dr, _) = worst_errors(&w, &scene);
-    assert!(dp < 1e-3 && dr < 0.01, "vision-only window after the handover: {dp} m {dr} deg {report:?}");
+    assert!(
+        dp < 1e-3 && dr < 0.01,
+        "vision-only window after the handover: {dp} m {dr} deg {report:?}"
+    );
     let n = w.keyframe_count();
     let times: Vec<i64> = w.keyframes().map(|s| s.t_ns).collect();
     let velocities: Vec<Vector3<f64>> = times
@@ -779,8 +934,10 @@ fn vision_only_start_hands_over_to_visual_inertial() {
     handed.gyro_rad_s += Vector3::new(2e-4, -1e-4, 1e-4);
     handed.accel_m_s2 += Vector3::new(0.005, 0.003, -0.004);
     let biases = vec![handed; n];
-    w.set_velocities_and_biases(&velocities, &biases).expect("valid");
-    w.set_gravity(Vector3::new(0.0, 0.0, -GRAVITY_M_S2), 0.02).expect("valid");
+    w.set_velocities_and_biases(&velocities, &biases)
+        .expect("valid");
+    w.set_gravity(Vector3::new(0.0, 0.0, -GRAVITY_M_S2), 0.02)
+        .expect("valid");
     w.enable_imu(true).expect("the rig has an IMU");
     w.optimize();
     w.optimize();
@@ -792,9 +949,16 @@ fn vision_only_start_hands_over_to_visual_inertial() {
         .skip(w.fixed_count())
         .map(|s| (s.velocity_world_m_s - scene.truth(s.t_ns).velocity_world_m_s).norm())
         .fold(0.0, f64::max);
-    assert!(dp < 1e-3 && dr < 0.01 && dv < 0.005, "visual-inertial: {dp} m {dr} deg {dv} m/s");
+    assert!(
+        dp < 1e-3 && dr < 0.01 && dv < 0.005,
+        "visual-inertial: {dp} m {dr} deg {dv} m/s"
+    );
     let latest = w.latest().expect("keyframes");
-    assert!((latest.biases.gyro_rad_s - scene.biases.gyro_rad_s).norm() < 1e-3, "{:?}", latest.biases);
+    assert!(
+        (latest.biases.gyro_rad_s - scene.biases.gyro_rad_s).norm() < 1e-3,
+        "{:?}",
+        latest.biases
+    );
 }
 
 #[test]
@@ -805,7 +969,11 @@ fn empty_frames_give_no_nan() {
         let mut w = Window::new(config(use_imu), &scene.rig).expect("valid");
         for k in 0..12 {
             let t = keyframe_time(k);
-            let empty = TrackedFrame { t_ns: t, observations: vec![], is_keyframe: true };
+            let empty = TrackedFrame {
+                t_ns: t,
+                observations: vec![],
+                is_keyframe: true,
+            };
             let imu = (use_imu && k > 0).then(|| scene.preintegrate(keyframe_time(k - 1), t));
             w.push_keyframe(scene.truth(t), &empty, imu).expect("valid");
             let report = w.optimize();
@@ -827,10 +995,17 @@ fn mono_inertial_sliding(cfg: WindowConfig, verbose: bool) -> (f64, f64, f64) {
         let imu = (k > 0).then(|| scene.preintegrate(keyframe_time(k - 1), t));
         let guess = match (&imu, w.latest()) {
             (Some(pre), Some(prev)) => {
-                let nav = pre.predict(&state::nav_state(prev), &prev.biases, &w.gravity_world_m_s2());
+                let nav = pre.predict(
+                    &state::nav_state(prev),
+                    &prev.biases,
+                    &w.gravity_world_m_s2(),
+                );
                 KeyframeState {
                     t_ns: t,
-                    T_world_body: Isometry3::from_parts(nav.position_world_m.into(), nav.R_world_body),
+                    T_world_body: Isometry3::from_parts(
+                        nav.position_world_m.into(),
+                        nav.R_world_body,
+                    ),
                     velocity_world_m_s: nav.velocity_world_m_s,
                     biases: prev.biases,
                 }
@@ -842,10 +1017,16 @@ fn mono_inertial_sliding(cfg: WindowConfig, verbose: bool) -> (f64, f64, f64) {
         w.optimize();
         let latest = *w.latest().expect("keyframes");
         let (dp, dr) = pose_error(&latest, &scene.truth(t));
-        let g = w.gravity_world_m_s2().angle(&Vector3::new(0.0, 0.0, -1.0)).to_degrees();
+        let g = w
+            .gravity_world_m_s2()
+            .angle(&Vector3::new(0.0, 0.0, -1.0))
+            .to_degrees();
         if verbose {
             let dv = (latest.velocity_world_m_s - scene.truth(t).velocity_world_m_s).norm();
-            println!("kf {k}: {dp:.4} m {dr:.3} deg {dv:.4} m/s g {g:.3} deg ba {:.4}", (latest.biases.accel_m_s2 - scene.biases.accel_m_s2).norm());
+            println!(
+                "kf {k}: {dp:.4} m {dr:.3} deg {dv:.4} m/s g {g:.3} deg ba {:.4}",
+                (latest.biases.accel_m_s2 - scene.biases.accel_m_s2).norm()
+            );
         }
         worst = (worst.0.max(dp), worst.1.max(dr), worst.2.max(g));
     }
@@ -867,6 +1048,11 @@ fn mono_inertial_sliding_stays_on_the_truth() {
         ..config(true)
     };
     let (dp, dr, dg) = mono_inertial_sliding(cfg, false);
-    println!("mono-inertial sliding: worst newest keyframe {dp:.4} m {dr:.3} deg, gravity {dg:.3} deg");
-    assert!(dp < 0.035 && dr < 0.5 && dg < 0.3, "{dp} m {dr} deg, gravity {dg} deg");
+    println!(
+        "mono-inertial sliding: worst newest keyframe {dp:.4} m {dr:.3} deg, gravity {dg:.3} deg"
+    );
+    assert!(
+        dp < 0.035 && dr < 0.5 && dg < 0.3,
+        "{dp} m {dr} deg, gravity {dg} deg"
+    );
 }
