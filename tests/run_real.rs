@@ -3,37 +3,40 @@
 //! paper's configuration 1), plus the report's contract keys.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Output};
 
 fn shared(relative: &str) -> Option<PathBuf> {
     rigslam::shared_data::path_or_skip(relative)
 }
 
-fn run(dataset: &Path, mode: &str, dir: &Path) -> (serde_json::Value, Vec<[f64; 8]>) {
-    let tum = dir.join(format!("{mode}.tum"));
-    let report = dir.join(format!("{mode}.json"));
-    let out = Command::new(env!("CARGO_BIN_EXE_rigslam"))
-        .args(["run", "--quiet", "--mode", mode, "--dataset"])
-        .arg(dataset)
-        .arg("--trajectory")
-        .arg(&tum)
-        .arg("--report")
-        .arg(&report)
-        .output()
-        .expect("run rigslam");
+/// `rigslam run --quiet` with more arguments to come.
+fn rigslam_run() -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_rigslam"));
+    cmd.args(["run", "--quiet"]);
+    cmd
+}
+
+/// Runs `cmd`, which must succeed; its output.
+fn succeeds(cmd: &mut Command) -> Output {
+    let out = cmd.output().expect("run rigslam");
     assert!(
         out.status.success(),
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let summary = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        summary.contains(mode) && summary.contains("ms/frame"),
-        "{summary}"
-    );
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");
-    let poses = std::fs::read_to_string(&tum)
+    out
+}
+
+/// Runs `cmd`, which must fail; what it printed on stderr.
+fn fails(cmd: &mut Command) -> String {
+    let out = cmd.output().expect("run rigslam");
+    assert!(!out.status.success());
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// The poses of a TUM file.
+fn read_poses(path: &Path) -> Vec<[f64; 8]> {
+    std::fs::read_to_string(path)
         .expect("trajectory")
         .lines()
         .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
@@ -44,8 +47,29 @@ fn run(dataset: &Path, mode: &str, dir: &Path) -> (serde_json::Value, Vec<[f64; 
                 .collect();
             v.try_into().expect("8 fields")
         })
-        .collect();
-    (report, poses)
+        .collect()
+}
+
+fn run(dataset: &Path, mode: &str, dir: &Path) -> (serde_json::Value, Vec<[f64; 8]>) {
+    let tum = dir.join(format!("{mode}.tum"));
+    let report = dir.join(format!("{mode}.json"));
+    let out = succeeds(
+        rigslam_run()
+            .args(["--mode", mode, "--dataset"])
+            .arg(dataset)
+            .arg("--trajectory")
+            .arg(&tum)
+            .arg("--report")
+            .arg(&report),
+    );
+    let summary = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        summary.contains(mode) && summary.contains("ms/frame"),
+        "{summary}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");
+    (report, read_poses(&tum))
 }
 
 fn largest_displacement_m(poses: &[[f64; 8]]) -> f64 {
@@ -134,33 +158,24 @@ fn bad_requests_say_what_is_wrong() {
     let Some(root) = shared("kitti/seq_a") else {
         return;
     };
-    let out = Command::new(env!("CARGO_BIN_EXE_rigslam"))
-        .args(["run", "--quiet", "--mode", "stereo-inertial", "--dataset"])
-        .arg(&root)
-        .output()
-        .expect("run rigslam");
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = fails(
+        rigslam_run()
+            .args(["--mode", "stereo-inertial", "--dataset"])
+            .arg(&root),
+    );
     assert!(err.contains("needs 2 camera"), "{err}");
-    let out = Command::new(env!("CARGO_BIN_EXE_rigslam"))
-        .args(["run", "--quiet", "--dataset", "/nonexistent/rigslam"])
-        .output()
-        .expect("run rigslam");
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = fails(rigslam_run().args(["--dataset", "/nonexistent/rigslam"]));
     assert!(err.contains("/nonexistent/rigslam"), "{err}");
     let dir = tempfile::tempdir().expect("tempdir");
     let config = dir.path().join("bad.toml");
     std::fs::write(&config, "window_free = 0\n").expect("write");
-    let out = Command::new(env!("CARGO_BIN_EXE_rigslam"))
-        .args(["run", "--quiet", "--dataset"])
-        .arg(&root)
-        .arg("--config")
-        .arg(&config)
-        .output()
-        .expect("run rigslam");
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = fails(
+        rigslam_run()
+            .arg("--dataset")
+            .arg(&root)
+            .arg("--config")
+            .arg(&config),
+    );
     assert!(err.contains("window_free"), "{err}");
 }
 
@@ -171,63 +186,35 @@ fn the_ekf_baseline_runs_the_inertial_modes_and_refuses_the_others() {
     };
     let dir = tempfile::tempdir().expect("tempdir");
     let tum = dir.path().join("ekf.tum");
-    let out = Command::new(env!("CARGO_BIN_EXE_rigslam"))
-        .args([
-            "run",
-            "--quiet",
-            "--json",
-            "--estimator",
-            "ekf",
-            "--mode",
-            "stereo-inertial",
-            "--dataset",
-        ])
-        .arg(&root)
-        .arg("--trajectory")
-        .arg(&tum)
-        .output()
-        .expect("run rigslam");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = succeeds(
+        rigslam_run()
+            .args([
+                "--json",
+                "--estimator",
+                "ekf",
+                "--mode",
+                "stereo-inertial",
+                "--dataset",
+            ])
+            .arg(&root)
+            .arg("--trajectory")
+            .arg(&tum),
     );
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
     assert_eq!(report["estimator"], "ekf");
     assert!(report["initialized_at_s"].as_f64().expect("initialised") <= 0.5);
-    let poses: Vec<[f64; 8]> = std::fs::read_to_string(&tum)
-        .expect("trajectory")
-        .lines()
-        .filter(|l| !l.starts_with('#') && !l.trim().is_empty())
-        .map(|l| {
-            let v: Vec<f64> = l
-                .split_whitespace()
-                .map(|x| x.parse().expect("number"))
-                .collect();
-            v.try_into().expect("8 fields")
-        })
-        .collect();
+    let poses = read_poses(&tum);
     assert!(poses.len() >= 85);
     let moved = largest_displacement_m(&poses);
     assert!(
         moved < 0.02,
         "the EKF drifted {moved} m at rest with stereo"
     );
-    let out = Command::new(env!("CARGO_BIN_EXE_rigslam"))
-        .args([
-            "run",
-            "--quiet",
-            "--estimator",
-            "ekf",
-            "--mode",
-            "stereo",
-            "--dataset",
-        ])
-        .arg(&root)
-        .output()
-        .expect("run rigslam");
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = fails(
+        rigslam_run()
+            .args(["--estimator", "ekf", "--mode", "stereo", "--dataset"])
+            .arg(&root),
+    );
     assert!(err.contains("propagates with the IMU"), "{err}");
 }
 
@@ -238,27 +225,20 @@ fn absolute_writes_both_trajectories_and_scores_both() {
     };
     let dir = tempfile::tempdir().expect("tempdir");
     let (corrected, relative) = (dir.path().join("abs.tum"), dir.path().join("rel.tum"));
-    let out = Command::new(env!("CARGO_BIN_EXE_rigslam"))
-        .args([
-            "run",
-            "--quiet",
-            "--json",
-            "--absolute",
-            "--mode",
-            "stereo-inertial",
-            "--dataset",
-        ])
-        .arg(&root)
-        .arg("--trajectory")
-        .arg(&corrected)
-        .arg("--trajectory-relative")
-        .arg(&relative)
-        .output()
-        .expect("run rigslam");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+    let out = succeeds(
+        rigslam_run()
+            .args([
+                "--json",
+                "--absolute",
+                "--mode",
+                "stereo-inertial",
+                "--dataset",
+            ])
+            .arg(&root)
+            .arg("--trajectory")
+            .arg(&corrected)
+            .arg("--trajectory-relative")
+            .arg(&relative),
     );
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
     assert_eq!(report["absolute"]["frames"], 95);
@@ -269,14 +249,7 @@ fn absolute_writes_both_trajectories_and_scores_both() {
             .expect("count")
             == 95
     );
-    let lines = |p: &Path| {
-        std::fs::read_to_string(p)
-            .expect("trajectory")
-            .lines()
-            .filter(|l| !l.starts_with('#'))
-            .count()
-    };
-    assert_eq!(lines(&corrected), lines(&relative));
+    assert_eq!(read_poses(&corrected).len(), read_poses(&relative).len());
     // At rest both stay put.
     for key in ["eval", "eval_relative"] {
         let ate = report[key]["ate_rmse_m"].as_f64().expect("ate");
