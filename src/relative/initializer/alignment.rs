@@ -855,11 +855,9 @@ pub fn align_with_reintegration(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::dataset::{read_euroc_groundtruth, read_euroc_imu_csv};
     use crate::imu::so3::exp;
     use crate::imu::IntegrationScheme;
     use crate::rig::ImuNoise;
-    use crate::shared_data::shared_data_dir;
     use crate::simulate::euroc_rig::euroc_cam0;
     use crate::simulate::imu_synth::{synthesize, ImuSynthConfig, SynthImu};
     use crate::simulate::motion::{BuiltinMotion, Motion, Sinusoid};
@@ -1214,15 +1212,9 @@ mod tests {
     /// deviations): it is held only to an honest standard deviation.
     #[test]
     fn euroc_v1_02_real_imu_alignment() {
-        let Some(data) = shared_data_dir() else {
+        let Some((imu, truth)) = super::super::v1_02_imu_and_truth() else {
             return;
         };
-        let dir = data.join("euroc/ground_truth");
-        let imu = read_euroc_imu_csv(&dir.join("V1_02_imu0.csv"))
-            .expect("V1_02 IMU")
-            .samples;
-        let truth =
-            read_euroc_groundtruth(&dir.join("V1_02_groundtruth.csv")).expect("V1_02 ground truth");
         let vision_scale = 0.37;
         let mut failures = Vec::new();
         for start_s in [8.0, 15.0, 30.0, 50.0, 70.0] {

@@ -50,6 +50,22 @@ pub fn level_rotation(up_frame: &Vector3<f64>) -> Option<UnitQuaternion<f64>> {
     Some(UnitQuaternion::from_axis_angle(&Vector3::z_axis(), -yaw) * minimal)
 }
 
+/// The real V1_02 IMU and ground truth for the tests (`None` when
+/// ../shared/data is missing outside CI).
+#[cfg(test)]
+fn v1_02_imu_and_truth() -> Option<(
+    Vec<crate::sensors::ImuSample>,
+    Vec<crate::dataset::GroundTruthState>,
+)> {
+    let dir = crate::shared_data::shared_data_dir()?.join("euroc/ground_truth");
+    let imu = crate::dataset::read_euroc_imu_csv(&dir.join("V1_02_imu0.csv"))
+        .expect("V1_02 IMU")
+        .samples;
+    let truth = crate::dataset::read_euroc_groundtruth(&dir.join("V1_02_groundtruth.csv"))
+        .expect("V1_02 ground truth");
+    Some((imu, truth))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

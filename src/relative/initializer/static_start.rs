@@ -543,15 +543,9 @@ mod tests {
     /// is taken for rest; the windows on the ground before take-off are.
     #[test]
     fn euroc_v1_02_flight_is_never_rest() {
-        let Some(data) = shared_data_dir() else {
+        let Some((imu, truth)) = super::super::v1_02_imu_and_truth() else {
             return;
         };
-        let dir = data.join("euroc/ground_truth");
-        let imu = read_euroc_imu_csv(&dir.join("V1_02_imu0.csv"))
-            .expect("V1_02 IMU")
-            .samples;
-        let truth =
-            read_euroc_groundtruth(&dir.join("V1_02_groundtruth.csv")).expect("V1_02 ground truth");
         let config = StaticStartConfig::default();
         let (mut flight_windows, mut ground_windows, mut ground_accepted) = (0, 0, 0);
         let last = imu.last().expect("samples").t_ns;
