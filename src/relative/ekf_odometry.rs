@@ -10,7 +10,7 @@
 
 use std::collections::VecDeque;
 
-use nalgebra::{Isometry3, Rotation3, Translation3, Vector3};
+use nalgebra::{Isometry3, Translation3, Vector3};
 
 use crate::imu::ImuBiases;
 use crate::sensors::ImuSample;
@@ -20,8 +20,8 @@ use super::ekf::{EkfConfig, EkfFilter, InitialSigmas};
 use super::estimator::{FrameInput, FrameTimings, RelativeEstimator, RigModel, SensorMode};
 use super::imu_buffer::ImuBuffer;
 use super::initializer::StaticStartConfig;
-use super::odometry::OdometryError;
-use super::tracker::{Tracker, TrackerConfig};
+use super::odometry::{front_end, OdometryError};
+use super::tracker::Tracker;
 use super::types::{KeyframeState, RelativeOutput, TrackingState};
 
 /// Tracker + EKF.
@@ -49,31 +49,12 @@ impl EkfOdometry {
         rig: &RigModel,
         config: &RelativeConfig,
     ) -> Result<Self, OdometryError> {
-        rig.check(mode)?;
-        config.validate()?;
         if !mode.uses_imu() {
             return Err(OdometryError::Setup(format!(
                 "the EKF baseline propagates with the IMU: use mono-inertial or stereo-inertial, not {mode}"
             )));
         }
-        let cameras = if mode.uses_stereo() {
-            rig.cameras[..2].to_vec()
-        } else {
-            rig.cameras[..1].to_vec()
-        };
-        let used = RigModel {
-            cameras: cameras.clone(),
-            imu: rig.imu.clone(),
-        };
-        let tracker = Tracker::new(
-            TrackerConfig {
-                target_features: config.features,
-                ..TrackerConfig::default()
-            },
-            &cameras,
-            mode.uses_stereo(),
-        )
-        .map_err(|e| OdometryError::Setup(e.to_string()))?;
+        let (used, tracker) = front_end(mode, rig, config)?;
         let filter = EkfFilter::new(
             EkfConfig {
                 pixel_sigma: config.pixel_sigma_px,
@@ -188,16 +169,14 @@ impl RelativeEstimator for EkfOdometry {
             }
         }
         self.frames += 1;
-        let prediction: Option<Rotation3<f64>> = match &self.last_output {
-            Some(last) => {
-                let bias = self.gyro_bias_rad_s;
-                let r_bc = self.rig.cameras[0].T_body_cam.rotation.to_rotation_matrix();
-                self.imu
-                    .rotation(last.t_ns, t_ns, &bias)
-                    .map(|r| r_bc.inverse() * r * r_bc)
-            }
-            None => None,
-        };
+        let prediction = self.last_output.as_ref().and_then(|last| {
+            self.imu.camera_rotation(
+                last.t_ns,
+                t_ns,
+                &self.gyro_bias_rad_s,
+                &self.rig.cameras[0].T_body_cam,
+            )
+        });
         let tracker = &mut self.tracker;
         let tracked = match self
             .timings

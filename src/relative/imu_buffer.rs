@@ -2,7 +2,7 @@
 //! kept for as long as an interval may still need them, preintegrated on
 //! demand between any two stamps (keyframe to frame, frame to frame).
 
-use nalgebra::{Rotation3, Vector3};
+use nalgebra::{Isometry3, Rotation3, Vector3};
 
 use crate::imu::{
     ImuBiases, ImuIntrinsics, ImuStream, IntegrationScheme, IntervalConfig, Preintegrated,
@@ -120,6 +120,22 @@ impl ImuBuffer {
                 None
             }
         }
+    }
+
+    /// The gyroscope's rotation of a camera mounted at `T_body_cam`: the
+    /// camera at `t_end_ns` in the camera at `t_start_ns` (the tracker's
+    /// prediction).
+    #[allow(non_snake_case)]
+    pub fn camera_rotation(
+        &mut self,
+        t_start_ns: i64,
+        t_end_ns: i64,
+        gyro_bias_rad_s: &Vector3<f64>,
+        T_body_cam: &Isometry3<f64>,
+    ) -> Option<Rotation3<f64>> {
+        let r_body = self.rotation(t_start_ns, t_end_ns, gyro_bias_rad_s)?;
+        let r_bc = T_body_cam.rotation.to_rotation_matrix();
+        Some(r_bc.inverse() * r_body * r_bc)
     }
 
     /// Samples with stamps in `[t_start_ns, t_end_ns]`.

@@ -151,33 +151,45 @@ pub fn build_estimator(
     }
 }
 
+/// What both estimators start from: the rig and config checked for
+/// `mode`, the rig cut down to the cameras (and IMU) the mode uses, and
+/// the tracker on those cameras.
+pub(super) fn front_end(
+    mode: SensorMode,
+    rig: &RigModel,
+    config: &RelativeConfig,
+) -> Result<(RigModel, Tracker), OdometryError> {
+    rig.check(mode)?;
+    config.validate()?;
+    let cameras = if mode.uses_stereo() {
+        rig.cameras[..2].to_vec()
+    } else {
+        rig.cameras[..1].to_vec()
+    };
+    let tracker_config = TrackerConfig {
+        target_features: config.features,
+        ..TrackerConfig::default()
+    };
+    let tracker = Tracker::new(tracker_config, &cameras, mode.uses_stereo())
+        .map_err(|e| OdometryError::Setup(e.to_string()))?;
+    let used = RigModel {
+        cameras,
+        imu: if mode.uses_imu() {
+            rig.imu.clone()
+        } else {
+            None
+        },
+    };
+    Ok((used, tracker))
+}
+
 impl WindowOdometry {
     pub fn new(
         mode: SensorMode,
         rig: &RigModel,
         config: &RelativeConfig,
     ) -> Result<Self, OdometryError> {
-        rig.check(mode)?;
-        config.validate()?;
-        let cameras = if mode.uses_stereo() {
-            rig.cameras[..2].to_vec()
-        } else {
-            rig.cameras[..1].to_vec()
-        };
-        let tracker_config = TrackerConfig {
-            target_features: config.features,
-            ..TrackerConfig::default()
-        };
-        let tracker = Tracker::new(tracker_config, &cameras, mode.uses_stereo())
-            .map_err(|e| OdometryError::Setup(e.to_string()))?;
-        let used = RigModel {
-            cameras,
-            imu: if mode.uses_imu() {
-                rig.imu.clone()
-            } else {
-                None
-            },
-        };
+        let (used, tracker) = front_end(mode, rig, config)?;
         let window_config = WindowConfig {
             keyframes_kept: config.window_keyframes,
             keyframes_free: config.window_free,
@@ -229,9 +241,9 @@ impl WindowOdometry {
         let last_ns = self.last_output.as_ref()?.t_ns;
         let bias = self.gyro_bias_rad_s;
         let T_bc = self.T_body_cam0();
-        let r_body = self.imu.as_mut()?.rotation(last_ns, t_ns, &bias)?;
-        let r_bc = T_bc.rotation.to_rotation_matrix();
-        Some(r_bc.inverse() * r_body * r_bc)
+        self.imu
+            .as_mut()?
+            .camera_rotation(last_ns, t_ns, &bias, &T_bc)
     }
 
     /// Median motion of the left features since the previous frame, px.
