@@ -166,7 +166,24 @@ pub struct Tracker {
     scratch_tracked: Vec<[f32; 2]>,
     scratch_status: Vec<TrackStatus>,
     scratch_corners: Vec<Corner>,
+    /// Per-frame working lists, kept so that tracking allocates nothing
+    /// once they have grown.
+    scratch: Scratch,
     stats: TrackerStats,
+}
+
+#[derive(Default)]
+struct Scratch {
+    kept_prev: Vec<[f32; 2]>,
+    flows: Vec<f64>,
+    x1: Vec<Vector2<f64>>,
+    x2: Vec<Vector2<f64>>,
+    usable: Vec<usize>,
+    keep: Vec<bool>,
+    matched: Vec<Option<[f32; 2]>>,
+    pending: Vec<usize>,
+    still: Vec<usize>,
+    sub_points: Vec<[f32; 2]>,
 }
 
 impl Tracker {
@@ -293,6 +310,7 @@ impl Tracker {
             scratch_tracked: Vec::new(),
             scratch_status: Vec::new(),
             scratch_corners: Vec::new(),
+            scratch: Scratch::default(),
             stats: TrackerStats::default(),
             config,
         })
@@ -435,7 +453,8 @@ impl Tracker {
             &mut self.scratch_tracked,
             &mut self.scratch_status,
         );
-        let mut kept_prev = Vec::with_capacity(self.points.len());
+        let mut kept_prev = std::mem::take(&mut self.scratch.kept_prev);
+        kept_prev.clear();
         let mut write = 0;
         for i in 0..self.points.len() {
             if self.scratch_status[i] == TrackStatus::Tracked {
@@ -451,6 +470,7 @@ impl Tracker {
         self.points.truncate(write);
         self.stats.tracked += write as u64;
         self.reject_outliers(&kept_prev);
+        self.scratch.kept_prev = kept_prev;
     }
 
     /// Five-point MSAC between the previous and the current positions.
@@ -459,20 +479,30 @@ impl Tracker {
         if n < 8 {
             return;
         }
-        let mut flows: Vec<f64> = prev_points
-            .iter()
-            .zip(&self.points)
-            .map(|(a, b)| f64::from((a[0] - b[0]).hypot(a[1] - b[1])))
-            .collect();
+        let flows = &mut self.scratch.flows;
+        flows.clear();
+        flows.extend(
+            prev_points
+                .iter()
+                .zip(&self.points)
+                .map(|(a, b)| f64::from((a[0] - b[0]).hypot(a[1] - b[1]))),
+        );
         let mid = n / 2;
         flows.select_nth_unstable_by(mid, f64::total_cmp);
         if flows[mid] < self.config.ransac_min_flow_px {
             return;
         }
         let camera = &self.cameras[0].model;
-        let mut x1 = Vec::with_capacity(n);
-        let mut x2 = Vec::with_capacity(n);
-        let mut usable = Vec::with_capacity(n);
+        let Scratch {
+            x1,
+            x2,
+            usable,
+            keep,
+            ..
+        } = &mut self.scratch;
+        x1.clear();
+        x2.clear();
+        usable.clear();
         for (i, (a, b)) in prev_points.iter().zip(&self.points).enumerate() {
             if let (Some(p), Some(q)) = (normalised(camera, a), normalised(camera, b)) {
                 x1.push(p);
@@ -486,10 +516,11 @@ impl Tracker {
         let [fx, fy, _, _] = camera.pinhole();
         let config =
             RelativePoseConfig::for_pixels(self.config.ransac_threshold_px, 0.5 * (fx + fy));
-        let Ok(pose) = estimate_relative_pose(&x1, &x2, &config) else {
+        let Ok(pose) = estimate_relative_pose(x1, x2, &config) else {
             return;
         };
-        let mut keep = vec![false; n];
+        keep.clear();
+        keep.resize(n, false);
         for (k, &i) in usable.iter().enumerate() {
             keep[i] = pose.inliers[k];
         }
@@ -539,21 +570,30 @@ impl Tracker {
     /// cameras.
     fn match_right(&mut self, observations: &mut Vec<Observation>) {
         let n = self.points.len();
-        let mut matched: Vec<Option<[f32; 2]>> = vec![None; n];
+        let mut scratch = std::mem::take(&mut self.scratch);
+        let Scratch {
+            matched,
+            pending,
+            still,
+            sub_points,
+            ..
+        } = &mut scratch;
+        matched.clear();
+        matched.resize(n, None);
+        pending.clear();
+        pending.extend(0..n);
         let depths = [
             self.config.stereo_prior_depth_m,
             self.config.stereo_prior_depth_m / 3.0,
             self.config.stereo_prior_depth_m * 3.0,
         ];
-        let mut pending: Vec<usize> = (0..n).collect();
-        let mut sub_points: Vec<[f32; 2]> = Vec::with_capacity(n);
         for (pass, depth_m) in depths.into_iter().enumerate() {
             if pending.is_empty() {
                 break;
             }
             sub_points.clear();
             self.scratch_predicted.clear();
-            for &i in &pending {
+            for &i in pending.iter() {
                 let p = self.points[i];
                 let history = if pass == 0 {
                     self.right_points.get(&self.ids[i]).copied()
@@ -567,12 +607,12 @@ impl Tracker {
             self.stereo_klt.track(
                 &self.cur,
                 &self.right,
-                &sub_points,
+                sub_points,
                 Some(&self.scratch_predicted),
                 &mut self.scratch_tracked,
                 &mut self.scratch_status,
             );
-            let mut still = Vec::with_capacity(pending.len());
+            still.clear();
             for (k, &i) in pending.iter().enumerate() {
                 let q = self.scratch_tracked[k];
                 if self.scratch_status[k] == TrackStatus::Tracked
@@ -583,11 +623,11 @@ impl Tracker {
                     still.push(i);
                 }
             }
-            pending = still;
+            std::mem::swap(pending, still);
         }
         self.right_points.clear();
-        for (i, q) in matched.into_iter().enumerate() {
-            match q {
+        for (i, q) in matched.iter().enumerate() {
+            match *q {
                 Some(q) => {
                     self.stats.stereo_matched += 1;
                     self.right_points.insert(self.ids[i], q);
@@ -600,6 +640,7 @@ impl Tracker {
                 None => self.stats.stereo_rejected += 1,
             }
         }
+        self.scratch = scratch;
     }
 
     /// Where a left pixel lands in the right image at `depth_m`.
