@@ -232,6 +232,39 @@ impl OrbExtractor {
     }
 }
 
+impl OrbExtractor {
+    /// Oriented descriptors of given points of one image (e.g. KLT tracks
+    /// at their birth, so that a landmark can be recognised after its
+    /// track is lost): the point rounded to the nearest pixel of `image`,
+    /// oriented and described as a level-0 keypoint would be. None for a
+    /// point closer than `edge_px` to the border.
+    pub fn describe_points(
+        &mut self,
+        image: &GreyImage,
+        points: &[[f32; 2]],
+        out: &mut Vec<Option<Descriptor>>,
+    ) {
+        out.clear();
+        if points.is_empty() {
+            return;
+        }
+        smooth_binomial5(image, &mut self.smoothed, &mut self.row_sums);
+        let edge = self.config.edge_px as f32;
+        let (w, h) = (image.width as f32, image.height as f32);
+        out.extend(points.iter().map(|p| {
+            let (x, y) = (p[0].round(), p[1].round());
+            let inside = x >= edge && y >= edge && x < w - edge && y < h - edge;
+            inside.then(|| {
+                let (x, y) = (x as usize, y as usize);
+                let angle = intensity_centroid_angle(image, x, y, &self.disc_half_width);
+                let bin = ((angle / std::f32::consts::TAU * ROTATION_BINS as f32).round() as i64)
+                    .rem_euclid(ROTATION_BINS as i64) as usize;
+                describe(&self.smoothed, x, y, &self.patterns[bin])
+            })
+        }));
+    }
+}
+
 /// atan2(m01, m10) of the disc of radius 15 around (x, y) (paper eq. 2-3).
 #[inline(always)]
 fn intensity_centroid_angle(image: &GreyImage, x: usize, y: usize, half_width: &[usize]) -> f32 {

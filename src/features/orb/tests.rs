@@ -213,3 +213,64 @@ fn vector_disc_moments_equal_the_scalar_definition_on_noise() {
         centroid_moments_scalar(&white, 32, 32, &half)
     );
 }
+
+#[test]
+fn described_points_equal_the_extractors_level_zero_descriptors() {
+    let mut orb = OrbExtractor::new(OrbConfig::default()).unwrap();
+    let pixels = rotated_image(0.0);
+    let (mut keypoints, mut descriptors) = (Vec::new(), Vec::new());
+    orb.extract_grey(SIZE, SIZE, &pixels, &mut keypoints, &mut descriptors)
+        .unwrap();
+    let level0: Vec<usize> = (0..keypoints.len())
+        .filter(|&k| keypoints[k].level == 0)
+        .collect();
+    assert!(level0.len() > 50, "{} level-0 keypoints", level0.len());
+    let points: Vec<[f32; 2]> = level0
+        .iter()
+        .map(|&k| [keypoints[k].x, keypoints[k].y])
+        .collect();
+    let image = GreyImage::from_vec(SIZE, SIZE, pixels).unwrap();
+    let mut described = Vec::new();
+    orb.describe_points(&image, &points, &mut described);
+    assert_eq!(described.len(), points.len());
+    for (d, &k) in described.iter().zip(&level0) {
+        assert_eq!(d.as_ref(), Some(&descriptors[k]));
+    }
+}
+
+#[test]
+fn described_points_near_the_border_have_no_descriptor_and_a_turned_point_matches() {
+    let mut orb = OrbExtractor::new(OrbConfig::default()).unwrap();
+    let image = GreyImage::from_vec(SIZE, SIZE, rotated_image(0.0)).unwrap();
+    let mut out = Vec::new();
+    orb.describe_points(&image, &[[3.0, 200.0], [200.0, 395.0]], &mut out);
+    assert_eq!(out, vec![None, None]);
+    // The same scene point in an image turned by 40 degrees keeps its
+    // descriptor up to a few bits; an unrelated point does not.
+    let angle = 40f64.to_radians();
+    let turned = GreyImage::from_vec(SIZE, SIZE, rotated_image(angle)).unwrap();
+    let c = SIZE as f64 / 2.0;
+    let (s, co) = angle.sin_cos();
+    let mut close = 0;
+    let probes: Vec<[f32; 2]> = (0..40)
+        .map(|k| {
+            let a = k as f64 * 0.157;
+            [(c + 80.0 * a.cos()) as f32, (c + 80.0 * a.sin()) as f32]
+        })
+        .collect();
+    for p in &probes {
+        let (x, y) = (f64::from(p[0]) - c, f64::from(p[1]) - c);
+        let q = [(co * x - s * y + c) as f32, (s * x + co * y + c) as f32];
+        let (mut a, mut b, mut far) = (Vec::new(), Vec::new(), Vec::new());
+        orb.describe_points(&image, &[*p], &mut a);
+        orb.describe_points(&turned, &[q], &mut b);
+        orb.describe_points(&turned, &[[q[0] + 25.0, q[1]]], &mut far);
+        let (a, b, far) = (a[0].unwrap(), b[0].unwrap(), far[0].unwrap());
+        let same = crate::features::matching::hamming(&a, &b);
+        let other = crate::features::matching::hamming(&a, &far);
+        if same + 30 < other {
+            close += 1;
+        }
+    }
+    assert!(close >= 30, "{close} of 40 points kept their descriptor");
+}
