@@ -51,8 +51,10 @@ use super::ordering_reuse::SymbolicPath;
 use super::policy::EdgePolicy;
 use super::position_filter::{LandmarkFix, PositionFilter};
 use super::problem::MapProblem;
+use super::recognition::{recognise, LandmarkIndex, RecognitionConfig, RecognitionQuery};
 use super::solve::SolverChoice;
 use super::EdgeMapError;
+use crate::features::orb::Descriptor;
 use crate::relative::types::{BodyLandmark, LandmarkId, RelativeOutput, TrackingState};
 
 /// How one frame's landmark pairs are weighted as edge measurements.
@@ -123,6 +125,9 @@ pub struct AbsoluteConfig {
     pub max_correction_landmarks: usize,
     /// Threads for the factorisation.
     pub solver_threads: usize,
+    /// Recognise landmarks that come back under a new track id (None:
+    /// every new id is a new landmark).
+    pub recognition: Option<RecognitionConfig>,
 }
 
 impl Default for AbsoluteConfig {
@@ -139,6 +144,7 @@ impl Default for AbsoluteConfig {
             translation_sigma_per_sqrt_m: 0.02,
             max_correction_landmarks: 30,
             solver_threads: 1,
+            recognition: Some(RecognitionConfig::default()),
         }
     }
 }
@@ -184,6 +190,8 @@ pub struct AbsoluteStats {
     pub frame_total_ms: f64,
     pub frame_max_ms: f64,
     pub solve_errors: usize,
+    /// New track ids recognised as landmarks already in the map.
+    pub recognised: usize,
     /// Landmarks (non-finite, or covariance not positive definite),
     /// increments and poses (non-finite) that were left out.
     pub rejected_inputs: usize,
@@ -195,6 +203,11 @@ pub struct AbsoluteStage {
     edges: EdgeMap,
     map_ids: HashMap<LandmarkId, u32>,
     landmark_ids: Vec<LandmarkId>,
+    /// Descriptor of each map landmark (by map id), for recognition.
+    map_descriptors: Vec<Option<Descriptor>>,
+    /// Solved map landmarks by world position, for recognition.
+    index: LandmarkIndex,
+    candidates: Vec<u32>,
     /// Reference landmark (map id 0) and where the relative stage put it.
     anchor_world_m: Option<Vector3<f64>>,
     filter: Option<PositionFilter>,
@@ -255,6 +268,9 @@ impl AbsoluteStage {
             edges: EdgeMap::new(),
             map_ids: HashMap::new(),
             landmark_ids: Vec::new(),
+            map_descriptors: Vec::new(),
+            index: LandmarkIndex::default(),
+            candidates: Vec::new(),
             anchor_world_m: None,
             filter: None,
             map: None,
@@ -286,6 +302,15 @@ impl AbsoluteStage {
     /// (the map's anchor), once chosen.
     pub fn reference(&self) -> Option<(LandmarkId, Vector3<f64>)> {
         Some((*self.landmark_ids.first()?, self.anchor_world_m?))
+    }
+
+    /// Track ids recognised as a landmark already in the map: (the track
+    /// id, the id the landmark entered the map with).
+    pub fn aliases(&self) -> impl Iterator<Item = (LandmarkId, LandmarkId)> + '_ {
+        self.map_ids.iter().filter_map(|(&id, &map_id)| {
+            let first = self.landmark_ids[map_id as usize];
+            (first != id).then_some((id, first))
+        })
     }
 
     /// The last solved map, if any.
@@ -323,6 +348,7 @@ impl AbsoluteStage {
                     * output.delta_translation_world_m.norm();
                 filter.predict(&output.delta_translation_world_m, &q);
                 if tracking {
+                    self.recognise_new(output, &rotation);
                     report = self.correct(output, &rotation);
                 }
             }
@@ -429,6 +455,14 @@ impl AbsoluteStage {
                     self.stats.pcg_iterations += map.report.cg_iterations;
                     self.stats.pcg_cold_iterations += map.cold_cg_iterations.unwrap_or(0);
                 }
+                if let Some(anchor) = self.anchor_world_m {
+                    let world = map
+                        .positions_m
+                        .iter()
+                        .map(|p| p.map(|p| anchor + p))
+                        .collect();
+                    self.index = LandmarkIndex::build(world, INDEX_CELL_M);
+                }
                 self.map = Some(map);
             }
             Err(e) => {
@@ -474,13 +508,63 @@ impl AbsoluteStage {
         }
     }
 
-    fn map_id(&mut self, id: LandmarkId) -> u32 {
+    fn map_id(&mut self, id: LandmarkId, descriptor: Option<Descriptor>) -> u32 {
         let next = self.landmark_ids.len() as u32;
         let map_id = *self.map_ids.entry(id).or_insert(next);
         if map_id == next {
             self.landmark_ids.push(id);
+            self.map_descriptors.push(descriptor);
+        } else if let Some(slot @ None) = self.map_descriptors.get_mut(map_id as usize) {
+            *slot = descriptor;
         }
         map_id
+    }
+
+    /// Gives the frame's new track ids the map id of the landmark they
+    /// are, where one passes the recognition gates.
+    fn recognise_new(&mut self, output: &RelativeOutput, rotation: &Matrix3<f64>) {
+        let (Some(config), Some(filter)) = (self.config.recognition, self.filter.as_ref()) else {
+            return;
+        };
+        if self.index.is_empty() {
+            return;
+        }
+        let mut taken: Vec<u32> = output
+            .landmarks
+            .iter()
+            .filter_map(|l| self.map_ids.get(&l.id).copied())
+            .collect();
+        let position = filter.position_world_m();
+        let position_covariance = filter.covariance_m2();
+        let mut candidates = std::mem::take(&mut self.candidates);
+        for l in &output.landmarks {
+            let Some(descriptor) = l.descriptor else {
+                continue;
+            };
+            if self.map_ids.contains_key(&l.id) {
+                continue;
+            }
+            let query = RecognitionQuery {
+                predicted_world_m: position + rotation * l.position_body_m,
+                covariance_m2: rotation * l.covariance_body_m2 * rotation.transpose()
+                    + position_covariance,
+                descriptor,
+            };
+            let found = recognise(
+                &self.index,
+                &self.map_descriptors,
+                &query,
+                |id| taken.contains(&id),
+                &config,
+                &mut candidates,
+            );
+            if let Some(found) = found {
+                self.map_ids.insert(l.id, found.map_id);
+                taken.push(found.map_id);
+                self.stats.recognised += 1;
+            }
+        }
+        self.candidates = candidates;
     }
 
     /// Edges of one frame (eq. 41-43) with the configured weighting.
@@ -488,15 +572,21 @@ impl AbsoluteStage {
         if output.landmarks.len() < 2 {
             return;
         }
-        let observations: Vec<LandmarkObservation> = output
+        let mut observations: Vec<LandmarkObservation> = output
             .landmarks
             .iter()
             .map(|l| LandmarkObservation {
-                id: self.map_id(l.id),
+                id: self.map_id(l.id, l.descriptor),
                 p_body_m: l.position_body_m,
                 cov_body_m2: l.covariance_body_m2,
             })
             .collect();
+        // Two live tracks recognised as one landmark: keep the first.
+        let mut seen = std::collections::HashSet::with_capacity(observations.len());
+        observations.retain(|o| seen.insert(o.id));
+        if observations.len() < 2 {
+            return;
+        }
         let positions: Vec<Vector3<f64>> = observations.iter().map(|o| o.p_body_m).collect();
         let pairs = self.config.policy.pairs(&positions);
         match self.config.weighting {
@@ -541,6 +631,8 @@ impl AbsoluteStage {
             })
             .collect();
         visible.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut seen = std::collections::HashSet::with_capacity(visible.len());
+        visible.retain(|v| seen.insert(v.1));
         visible.truncate(self.config.max_correction_landmarks);
         if visible.is_empty() {
             return None;
@@ -582,6 +674,9 @@ impl AbsoluteStage {
         }
     }
 }
+
+/// Grid cell of the recognition index, m.
+const INDEX_CELL_M: f64 = 1.0;
 
 /// A copy of `output` without what would poison the map or the filter:
 /// landmarks with a non-finite position or a covariance that is not

@@ -7,11 +7,14 @@
 //! those covariances. Ground truth comes along, so the absolute stage's
 //! consistency (NEES) can be checked.
 
+use std::collections::HashMap;
+
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 
+use crate::features::orb::Descriptor;
 use crate::imu::ImuBiases;
 use crate::relative::types::{BodyLandmark, LandmarkId, RelativeOutput, TrackingState};
 
@@ -40,6 +43,16 @@ pub struct RoomRunOptions {
     /// Give every landmark the isotropic covariance of its depth error
     /// instead of the stereo-like ellipsoid.
     pub isotropic_landmarks: bool,
+    /// A landmark that leaves the view gets a new track id when it comes
+    /// back, as a KLT tracker gives it (false: its index for the whole run).
+    pub fresh_track_ids: bool,
+    /// Give each track a descriptor: the landmark's own 256 bits with this
+    /// many flipped at the track's birth (None: no descriptors).
+    pub descriptor_bit_flips: Option<u32>,
+    /// Systematic odometry drift, world frame, m per m travelled: added
+    /// to every increment in proportion to its length, so (unlike a scale
+    /// error on a closed path) it accumulates lap after lap.
+    pub drift_per_m: Vector3<f64>,
     pub seed: u64,
 }
 
@@ -57,6 +70,9 @@ impl Default for RoomRunOptions {
             sigma_depth_per_m2: 0.004,
             sigma_translation_per_sqrt_m: 0.02,
             isotropic_landmarks: false,
+            fresh_track_ids: false,
+            descriptor_bit_flips: None,
+            drift_per_m: Vector3::zeros(),
             seed: 0,
         }
     }
@@ -67,8 +83,10 @@ pub struct RoomRun {
     pub outputs: Vec<RelativeOutput>,
     /// True body position per frame, world frame, m.
     pub truth_position_m: Vec<Vector3<f64>>,
-    /// True landmark positions by id, world frame, m.
+    /// True landmark positions by index, world frame, m.
     pub landmarks_m: Vec<Vector3<f64>>,
+    /// The landmark index each track id belongs to.
+    pub track_landmark: HashMap<LandmarkId, usize>,
 }
 
 fn normal3(rng: &mut ChaCha8Rng) -> Vector3<f64> {
@@ -107,6 +125,15 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
             }
         })
         .collect();
+    // Appearance draws from its own generator, so that the noise of runs
+    // without descriptors is what it always was.
+    let mut looks = ChaCha8Rng::seed_from_u64(options.seed ^ 0x6c6f_6f6b_7321);
+    let appearance: Vec<Descriptor> = (0..options.landmarks)
+        .map(|_| [0; 4].map(|_| looks.gen::<u64>()))
+        .collect();
+    let mut live_tracks: HashMap<usize, (LandmarkId, Option<Descriptor>)> = HashMap::new();
+    let mut track_landmark = HashMap::new();
+    let mut next_track: LandmarkId = 0;
     let centre = Vector3::new(w / 2.0, h / 2.0, 1.2);
     let (a, b) = (0.35 * w, 0.35 * h);
     // Arc length per radian is at least min(a, b): step the angle so that
@@ -130,7 +157,7 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
             Some(prev) => {
                 let true_delta: Vector3<f64> = p - prev;
                 let sigma = options.sigma_translation_per_sqrt_m * true_delta.norm().sqrt();
-                true_delta + normal3(&mut rng) * sigma
+                true_delta + options.drift_per_m * true_delta.norm() + normal3(&mut rng) * sigma
             }
         };
         relative_position += delta;
@@ -148,6 +175,29 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
         candidates.sort_by(|x, y| x.0.total_cmp(&y.0));
         candidates.truncate(options.max_visible);
         candidates.sort_by_key(|c| c.1);
+        let mut tracks = HashMap::with_capacity(candidates.len());
+        for &(_, index) in &candidates {
+            let track = live_tracks.get(&index).copied().unwrap_or_else(|| {
+                let id = if options.fresh_track_ids {
+                    next_track += 1;
+                    next_track - 1
+                } else {
+                    index as LandmarkId
+                };
+                let descriptor = options.descriptor_bit_flips.map(|flips| {
+                    let mut d = appearance[index];
+                    for _ in 0..flips {
+                        let bit = looks.gen_range(0..256usize);
+                        d[bit / 64] ^= 1 << (bit % 64);
+                    }
+                    d
+                });
+                (id, descriptor)
+            });
+            track_landmark.insert(track.0, index);
+            tracks.insert(index, track);
+        }
+        live_tracks = tracks;
         let landmarks = candidates
             .iter()
             .map(|&(depth, id)| {
@@ -164,10 +214,12 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
                     * Matrix3::from_diagonal(&sigmas.component_mul(&sigmas))
                     * frame.transpose();
                 let noise = frame * normal3(&mut rng).component_mul(&sigmas);
+                let (track, descriptor) = live_tracks[&id];
                 BodyLandmark {
-                    id: id as LandmarkId,
+                    id: track,
                     position_body_m: body + noise,
                     covariance_body_m2: covariance,
+                    descriptor,
                 }
             })
             .collect();
@@ -193,5 +245,6 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
         outputs,
         truth_position_m,
         landmarks_m,
+        track_landmark,
     }
 }

@@ -103,7 +103,11 @@ impl EkfOdometry {
             biases: state.biases,
             delta_translation_world_m: delta,
             landmarks: if landmarks {
-                self.filter.landmarks_in_body()
+                let mut body = self.filter.landmarks_in_body();
+                for l in &mut body {
+                    l.descriptor = self.tracker.descriptor(l.id);
+                }
+                body
             } else {
                 Vec::new()
             },

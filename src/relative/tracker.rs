@@ -30,6 +30,7 @@ use std::collections::HashMap;
 use nalgebra::{Matrix3, Rotation3, Vector2, Vector3};
 
 use crate::camera::CameraModel;
+use crate::features::orb::{Descriptor, OrbConfig, OrbExtractor};
 use crate::features::{
     predict_from_rotation, Corner, CornerConfig, CornerDetector, GridConfig, KltConfig, KltTracker,
     Pyramid, PyramidConfig, TrackStatus,
@@ -153,6 +154,10 @@ pub struct Tracker {
     detector: CornerDetector,
     /// Features of the previous frame.
     ids: Vec<LandmarkId>,
+    /// Descriptor of each track at its birth, aligned with `ids` (which
+    /// stay in ascending order: new ids are appended, removals compact).
+    descriptors: Vec<Option<Descriptor>>,
+    describer: OrbExtractor,
     points: Vec<[f32; 2]>,
     /// Right-image positions of the previous frame, by id.
     right_points: HashMap<LandmarkId, [f32; 2]>,
@@ -184,6 +189,7 @@ struct Scratch {
     pending: Vec<usize>,
     still: Vec<usize>,
     sub_points: Vec<[f32; 2]>,
+    described: Vec<Option<Descriptor>>,
 }
 
 impl Tracker {
@@ -299,6 +305,9 @@ impl Tracker {
             stereo_klt,
             detector,
             ids: Vec::new(),
+            descriptors: Vec::new(),
+            describer: OrbExtractor::new(OrbConfig::default())
+                .map_err(|e| TrackerError::Image(e.to_string()))?,
             points: Vec::new(),
             right_points: HashMap::new(),
             next_id: 0,
@@ -329,10 +338,17 @@ impl Tracker {
         self.points.len()
     }
 
+    /// The birth descriptor of a live track.
+    pub fn descriptor(&self, id: LandmarkId) -> Option<Descriptor> {
+        let k = self.ids.binary_search(&id).ok()?;
+        self.descriptors[k]
+    }
+
     /// Drops every track (after lost tracking); ids are never reused.
     pub fn reset(&mut self) {
         self.stats.resets += 1;
         self.ids.clear();
+        self.descriptors.clear();
         self.points.clear();
         self.right_points.clear();
         self.keyframe_points.clear();
@@ -401,6 +417,7 @@ impl Tracker {
             self.follow(R_camprev_camcur);
         } else {
             self.ids.clear();
+            self.descriptors.clear();
             self.points.clear();
         }
         if let Some(r) = R_camprev_camcur.filter(|_| had_previous) {
@@ -460,6 +477,7 @@ impl Tracker {
             if self.scratch_status[i] == TrackStatus::Tracked {
                 kept_prev.push(self.points[i]);
                 self.ids[write] = self.ids[i];
+                self.descriptors[write] = self.descriptors[i];
                 self.points[write] = self.scratch_tracked[i];
                 write += 1;
             } else {
@@ -467,6 +485,7 @@ impl Tracker {
             }
         }
         self.ids.truncate(write);
+        self.descriptors.truncate(write);
         self.points.truncate(write);
         self.stats.tracked += write as u64;
         self.reject_outliers(&kept_prev);
@@ -528,6 +547,7 @@ impl Tracker {
         for (i, &kept) in keep.iter().enumerate() {
             if kept {
                 self.ids[write] = self.ids[i];
+                self.descriptors[write] = self.descriptors[i];
                 self.points[write] = self.points[i];
                 write += 1;
             } else {
@@ -535,6 +555,7 @@ impl Tracker {
             }
         }
         self.ids.truncate(write);
+        self.descriptors.truncate(write);
         self.points.truncate(write);
     }
 
@@ -555,11 +576,17 @@ impl Tracker {
             budget,
             &mut self.scratch_corners,
         );
+        let born = self.points.len();
         for c in &self.scratch_corners {
             self.ids.push(self.next_id);
             self.next_id += 1;
             self.points.push([c.x as f32, c.y as f32]);
         }
+        let mut described = std::mem::take(&mut self.scratch.described);
+        self.describer
+            .describe_points(self.cur.level(0), &self.points[born..], &mut described);
+        self.descriptors.extend(described.drain(..));
+        self.scratch.described = described;
         self.stats.detected += self.scratch_corners.len() as u64;
     }
 

@@ -4,6 +4,7 @@
 
 use nalgebra::{Isometry3, Matrix3, Vector2, Vector3};
 
+use crate::features::orb::Descriptor;
 use crate::imu::ImuBiases;
 
 /// Identifies one landmark (one feature track) for the whole run. Ids are
@@ -70,6 +71,10 @@ pub struct BodyLandmark {
     pub id: LandmarkId,
     pub position_body_m: Vector3<f64>,
     pub covariance_body_m2: Matrix3<f64>,
+    /// ORB descriptor of the track at its birth (left image), when the
+    /// tracker could describe it: how the absolute stage recognises the
+    /// landmark after its track was lost or on returning to a place.
+    pub descriptor: Option<Descriptor>,
 }
 
 /// The relative stage's answer for one frame (issue 5, item 5).

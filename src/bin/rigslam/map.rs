@@ -27,6 +27,30 @@ enum MapCommand {
     Policies(PoliciesArgs),
     /// Exact landmark covariance (eq. 59) against the sub-matrix approximation.
     Covariance(CovarianceArgs),
+    /// Laps of one simulated room with drifting odometry: position error
+    /// over time of the relative stage alone, of the absolute stage without
+    /// and with landmark recognition (per-lap table, optional plot).
+    Loop(LoopArgs),
+}
+
+#[derive(clap::Args)]
+struct LoopArgs {
+    #[arg(long, default_value_t = 6)]
+    laps: u32,
+    /// Odometry drift, m per m driven (along x; half of it against y).
+    #[arg(long, default_value_t = 0.01)]
+    drift_per_m: f64,
+    /// Bits of each landmark's descriptor flipped at every new track.
+    #[arg(long, default_value_t = 20)]
+    bit_flips: u32,
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Write the error over time here (.png or .svg).
+    #[arg(long)]
+    plot: Option<PathBuf>,
+    /// Print one JSON object (per-lap RMSE and the per-frame errors).
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(clap::Args)]
@@ -104,7 +128,90 @@ pub fn run(args: MapArgs) -> anyhow::Result<()> {
         MapCommand::Generate(a) => generate(a),
         MapCommand::Policies(a) => policies(a),
         MapCommand::Covariance(a) => covariance(a),
+        MapCommand::Loop(a) => loop_comparison(a),
     }
+}
+
+fn loop_comparison(args: LoopArgs) -> anyhow::Result<()> {
+    use rigslam::edge_map::loop_run::{compare_loops, write_loop_plot};
+    use rigslam::edge_map::simulate_relative::RoomRunOptions;
+    anyhow::ensure!(
+        (1..=100).contains(&args.laps),
+        "--laps {}: between 1 and 100",
+        args.laps
+    );
+    anyhow::ensure!(
+        args.drift_per_m.is_finite() && args.drift_per_m.abs() < 0.5,
+        "--drift-per-m {}: a finite drift below 0.5 m per m",
+        args.drift_per_m
+    );
+    anyhow::ensure!(
+        args.bit_flips <= 256,
+        "--bit-flips {}: a descriptor has 256 bits",
+        args.bit_flips
+    );
+    let options = RoomRunOptions {
+        laps: f64::from(args.laps),
+        fresh_track_ids: true,
+        descriptor_bit_flips: Some(args.bit_flips),
+        drift_per_m: nalgebra::Vector3::new(args.drift_per_m, -0.5 * args.drift_per_m, 0.0),
+        seed: args.seed,
+        ..RoomRunOptions::default()
+    };
+    let config = rigslam::edge_map::AbsoluteConfig {
+        solve_mode: rigslam::edge_map::SolveMode::Inline,
+        ..Default::default()
+    };
+    let c = compare_loops(&options, &config);
+    let laps: Vec<serde_json::Value> = (0..c.laps)
+        .map(|lap| {
+            serde_json::json!({
+                "lap": lap + 1,
+                "relative_rmse_m": c.relative_lap_rmse(lap),
+                "without_recognition_rmse_m": c.unrecognised_lap_rmse(lap),
+                "with_recognition_rmse_m": c.recognised_lap_rmse(lap),
+            })
+        })
+        .collect();
+    if let Some(plot) = &args.plot {
+        let title = format!(
+            "{} laps of a 16 x 10 m room, odometry drift {:.1} % of distance",
+            c.laps,
+            100.0 * args.drift_per_m * 1.25f64.sqrt()
+        );
+        write_loop_plot(plot, &c, &title).map_err(|e| anyhow::anyhow!(e))?;
+    }
+    if args.json {
+        println!(
+            "{}",
+            serde_json::json!({
+                "laps": laps,
+                "recognised": c.recognised,
+                "false_recognitions": c.false_recognitions,
+                "frames": c.t_s.len(),
+                "errors": c,
+            })
+        );
+        return Ok(());
+    }
+    println!("| lap | relative stage alone m | absolute, no recognition m | absolute with recognition m |");
+    println!("|---|---|---|---|");
+    for l in &laps {
+        println!(
+            "| {} | {:.3} | {:.3} | {:.3} |",
+            l["lap"],
+            l["relative_rmse_m"].as_f64().unwrap_or(f64::NAN),
+            l["without_recognition_rmse_m"].as_f64().unwrap_or(f64::NAN),
+            l["with_recognition_rmse_m"].as_f64().unwrap_or(f64::NAN),
+        );
+    }
+    println!(
+        "{} track ids recognised as earlier landmarks, {} of them wrong; {} frames",
+        c.recognised,
+        c.false_recognitions,
+        c.t_s.len()
+    );
+    Ok(())
 }
 
 fn solve(args: SolveArgs) -> anyhow::Result<()> {

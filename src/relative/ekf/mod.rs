@@ -933,6 +933,7 @@ impl EkfFilter {
                     id: l.id,
                     position_body_m: p_body,
                     covariance_body_m2: (cov + cov.transpose()) * 0.5,
+                    descriptor: None,
                 }
             })
             .collect()

@@ -57,6 +57,19 @@ fn real_euroc_tracks_persist_and_stereo_matches_lie_at_plausible_depths() {
     let first_ids: std::collections::HashSet<LandmarkId> =
         first.in_camera(0).map(|o| o.landmark).collect();
     assert!(first_ids.len() >= 140, "{} features", first_ids.len());
+    // Every track gets its birth descriptor (all but those born within the
+    // ORB border), and keeps it while it lives.
+    let born: HashMap<LandmarkId, _> = first_ids
+        .iter()
+        .filter_map(|&id| Some((id, tracker.descriptor(id)?)))
+        .collect();
+    assert!(
+        born.len() as f64 >= 0.85 * first_ids.len() as f64,
+        "{} of {} tracks described",
+        born.len(),
+        first_ids.len()
+    );
+    assert_eq!(tracker.descriptor(u64::MAX), None);
     let mut last = first.clone();
     for (t_ns, left, right) in &frames[1..21] {
         last = tracker
@@ -65,6 +78,11 @@ fn real_euroc_tracks_persist_and_stereo_matches_lie_at_plausible_depths() {
                 None,
             )
             .expect("track");
+    }
+    for o in last.in_camera(0) {
+        if let Some(d) = born.get(&o.landmark) {
+            assert_eq!(tracker.descriptor(o.landmark).as_ref(), Some(d));
+        }
     }
     // At rest nearly every feature survives 20 frames, with its id.
     let alive = last

@@ -625,6 +625,7 @@ impl Window {
                     id: lm.id,
                     position_body_m: p_body,
                     covariance_body_m2: covariance,
+                    descriptor: None,
                 });
             }
         }

@@ -712,6 +712,7 @@ impl Window {
                     .transform_point(&l.position_body_m.into())
                     .coords,
                 covariance_body_m2: r * l.covariance_body_m2 * r.transpose(),
+                descriptor: l.descriptor,
             }
         }));
     }

@@ -1,0 +1,410 @@
+//! Landmark identity (issue 6, item 5): a landmark the relative stage
+//! hands over under a new track id (its track was lost, or the robot came
+//! back to a place) is recognised as a landmark already in the map, so its
+//! new edges join the old ones and the map closes the loop.
+//!
+//! A candidate must pass two gates:
+//! - geometry: the map landmark lies within the chi-square gate of where
+//!   the filter predicts the new observation in the world, with covariance
+//!   `R Σ_body R^T + P + σ_floor² I` (observation, robot position, and a
+//!   floor for the map's own error near the robot);
+//! - appearance: the Hamming distance of the ORB descriptors (taken at each
+//!   track's birth) is at most `max_hamming`, and clearly below the second
+//!   best gated candidate's (`ratio`, `margin_bits`), so that a repeated
+//!   texture is left alone rather than guessed.
+//!
+//! Map landmarks are found through a uniform grid over their solved world
+//! positions ([`LandmarkIndex`]), rebuilt when a new map is installed.
+
+use std::collections::HashMap;
+
+use nalgebra::{Matrix3, Vector3};
+
+use crate::features::matching::hamming;
+use crate::features::orb::Descriptor;
+
+/// Gates of the recognition.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RecognitionConfig {
+    /// Largest Hamming distance (of 256 bits) of a recognised landmark.
+    pub max_hamming: u32,
+    /// The best distance must be below `ratio` times the second best ...
+    pub ratio: f64,
+    /// ... and at least this many bits below it (the ratio alone accepts
+    /// 1 against 2 bits: two lookalikes).
+    pub margin_bits: u32,
+    /// Chi-square gate on the position (3 dof; 16.27 = 99.9 %).
+    pub gate_chi2: f64,
+    /// Standard deviation added on each axis for the map's error, m.
+    pub floor_sigma_m: f64,
+    /// Never search farther than this from the prediction, m.
+    pub max_search_radius_m: f64,
+}
+
+impl Default for RecognitionConfig {
+    fn default() -> Self {
+        Self {
+            max_hamming: 50,
+            ratio: 0.8,
+            margin_bits: 15,
+            gate_chi2: 16.27,
+            floor_sigma_m: 0.05,
+            max_search_radius_m: 5.0,
+        }
+    }
+}
+
+/// Map landmarks by grid cell of their world position.
+#[derive(Clone, Debug, Default)]
+pub struct LandmarkIndex {
+    cell_m: f64,
+    cells: HashMap<[i32; 3], Vec<u32>>,
+    positions: Vec<Option<Vector3<f64>>>,
+}
+
+impl LandmarkIndex {
+    /// Indexes `positions_world_m[id]` (None: not placed) with cubic cells
+    /// of side `cell_m`.
+    pub fn build(positions_world_m: Vec<Option<Vector3<f64>>>, cell_m: f64) -> Self {
+        let cell_m = if cell_m.is_finite() && cell_m > 0.0 {
+            cell_m
+        } else {
+            1.0
+        };
+        let mut cells: HashMap<[i32; 3], Vec<u32>> = HashMap::new();
+        for (id, p) in positions_world_m.iter().enumerate() {
+            if let Some(p) = p.filter(|p| p.iter().all(|v| v.is_finite())) {
+                cells
+                    .entry(cell_of(&p, cell_m))
+                    .or_default()
+                    .push(id as u32);
+            }
+        }
+        Self {
+            cell_m,
+            cells,
+            positions: positions_world_m,
+        }
+    }
+
+    pub fn position(&self, id: u32) -> Option<Vector3<f64>> {
+        *self.positions.get(id as usize)?
+    }
+
+    pub fn len(&self) -> usize {
+        self.positions.iter().flatten().count()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.cells.is_empty()
+    }
+
+    /// Ids whose position is within `radius_m` of `centre` (appended).
+    pub fn within(&self, centre: &Vector3<f64>, radius_m: f64, out: &mut Vec<u32>) {
+        if self.cells.is_empty() || !radius_m.is_finite() || radius_m < 0.0 {
+            return;
+        }
+        let lo = cell_of(&centre.add_scalar(-radius_m), self.cell_m);
+        let hi = cell_of(&centre.add_scalar(radius_m), self.cell_m);
+        let cells_spanned = (0..3)
+            .map(|k| i64::from(hi[k]) - i64::from(lo[k]) + 1)
+            .product::<i64>();
+        let r2 = radius_m * radius_m;
+        let mut keep = |id: u32| {
+            if let Some(p) = self.position(id) {
+                if (p - centre).norm_squared() <= r2 {
+                    out.push(id);
+                }
+            }
+        };
+        if cells_spanned > self.cells.len() as i64 {
+            // A sphere larger than the occupied map: scan the cells.
+            for ids in self.cells.values() {
+                ids.iter().copied().for_each(&mut keep);
+            }
+            return;
+        }
+        for x in lo[0]..=hi[0] {
+            for y in lo[1]..=hi[1] {
+                for z in lo[2]..=hi[2] {
+                    if let Some(ids) = self.cells.get(&[x, y, z]) {
+                        ids.iter().copied().for_each(&mut keep);
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn cell_of(p: &Vector3<f64>, cell_m: f64) -> [i32; 3] {
+    let c = |v: f64| (v / cell_m).floor().clamp(i32::MIN as f64, i32::MAX as f64) as i32;
+    [c(p.x), c(p.y), c(p.z)]
+}
+
+/// One landmark to recognise.
+#[derive(Clone, Copy, Debug)]
+pub struct RecognitionQuery {
+    /// Where the filter places the observation in the world, m.
+    pub predicted_world_m: Vector3<f64>,
+    /// Covariance of that prediction (observation + robot position), m².
+    pub covariance_m2: Matrix3<f64>,
+    pub descriptor: Descriptor,
+}
+
+/// The recognised map landmark and its descriptor distance.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Recognition {
+    pub map_id: u32,
+    pub hamming: u32,
+}
+
+/// Finds the map landmark `query` is, if one passes both gates.
+/// `descriptors[map_id]` are the map's descriptors; `taken(map_id)` says
+/// a map landmark is already seen in this frame (one track each).
+pub fn recognise(
+    index: &LandmarkIndex,
+    descriptors: &[Option<Descriptor>],
+    query: &RecognitionQuery,
+    taken: impl Fn(u32) -> bool,
+    config: &RecognitionConfig,
+    candidates: &mut Vec<u32>,
+) -> Option<Recognition> {
+    let s = query.covariance_m2 + Matrix3::identity() * config.floor_sigma_m.powi(2);
+    let s = 0.5 * (s + s.transpose());
+    let finite = s
+        .iter()
+        .chain(query.predicted_world_m.iter())
+        .all(|v| v.is_finite());
+    if !finite {
+        return None;
+    }
+    let information = s.cholesky()?.inverse();
+    let largest = s.symmetric_eigenvalues().max();
+    let radius = (config.gate_chi2 * largest)
+        .sqrt()
+        .min(config.max_search_radius_m);
+    candidates.clear();
+    index.within(&query.predicted_world_m, radius, candidates);
+    let mut best: Option<Recognition> = None;
+    let mut second = u32::MAX;
+    for &id in candidates.iter() {
+        if taken(id) {
+            continue;
+        }
+        let (Some(p), Some(Some(d))) = (index.position(id), descriptors.get(id as usize)) else {
+            continue;
+        };
+        let e = p - query.predicted_world_m;
+        if e.dot(&(information * e)) > config.gate_chi2 {
+            continue;
+        }
+        let h = hamming(&query.descriptor, d);
+        match best {
+            Some(b) if h >= b.hamming => second = second.min(h),
+            _ => {
+                if let Some(b) = best {
+                    second = second.min(b.hamming);
+                }
+                best = Some(Recognition {
+                    map_id: id,
+                    hamming: h,
+                });
+            }
+        }
+    }
+    let best = best?;
+    let distinct = second == u32::MAX
+        || (f64::from(best.hamming) < config.ratio * f64::from(second)
+            && best.hamming + config.margin_bits <= second);
+    (best.hamming <= config.max_hamming && distinct).then_some(best)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn descriptor(seed: u64) -> Descriptor {
+        let mut z = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        [0; 4].map(|_| {
+            z ^= z << 13;
+            z ^= z >> 7;
+            z ^= z << 17;
+            z
+        })
+    }
+
+    fn flip(mut d: Descriptor, bits: &[usize]) -> Descriptor {
+        for &b in bits {
+            d[b / 64] ^= 1 << (b % 64);
+        }
+        d
+    }
+
+    /// Ten landmarks on a line 1 m apart, each with its own descriptor.
+    fn line_map() -> (LandmarkIndex, Vec<Option<Descriptor>>) {
+        let positions = (0..10)
+            .map(|k| Some(Vector3::new(k as f64, 0.0, 1.0)))
+            .collect();
+        let descriptors = (0..10).map(|k| Some(descriptor(k + 1))).collect();
+        (LandmarkIndex::build(positions, 0.7), descriptors)
+    }
+
+    fn query(at: Vector3<f64>, sigma_m: f64, d: Descriptor) -> RecognitionQuery {
+        RecognitionQuery {
+            predicted_world_m: at,
+            covariance_m2: Matrix3::identity() * sigma_m * sigma_m,
+            descriptor: d,
+        }
+    }
+
+    #[test]
+    fn the_grid_finds_exactly_the_landmarks_inside_the_sphere() {
+        let positions: Vec<Option<Vector3<f64>>> = (0..400)
+            .map(|k| {
+                let k = k as f64;
+                Some(Vector3::new(
+                    (k * 0.37).sin() * 9.0,
+                    (k * 0.11).cos() * 7.0,
+                    k * 0.01,
+                ))
+            })
+            .chain([None])
+            .collect();
+        let index = LandmarkIndex::build(positions.clone(), 0.9);
+        assert_eq!(index.len(), 400);
+        for (centre, radius) in [
+            (Vector3::new(0.0, 0.0, 1.0), 2.5),
+            (Vector3::new(5.0, -3.0, 2.0), 0.4),
+            (Vector3::zeros(), 1e3),
+        ] {
+            let mut found = Vec::new();
+            index.within(&centre, radius, &mut found);
+            found.sort_unstable();
+            let brute: Vec<u32> = positions
+                .iter()
+                .enumerate()
+                .filter_map(|(id, p)| {
+                    ((p.as_ref()? - centre).norm() <= radius).then_some(id as u32)
+                })
+                .collect();
+            assert_eq!(found, brute, "centre {centre:?} radius {radius}");
+        }
+    }
+
+    #[test]
+    fn a_landmark_is_recognised_by_position_and_descriptor() {
+        let (index, descriptors) = line_map();
+        let config = RecognitionConfig::default();
+        let mut scratch = Vec::new();
+        // Landmark 4 seen again, 0.2 m off, 20 bits changed.
+        let d = flip(descriptor(5), &(0..20).map(|k| k * 11).collect::<Vec<_>>());
+        let q = query(Vector3::new(4.2, 0.0, 1.0), 0.15, d);
+        let found = recognise(&index, &descriptors, &q, |_| false, &config, &mut scratch);
+        assert_eq!(
+            found,
+            Some(Recognition {
+                map_id: 4,
+                hamming: 20
+            })
+        );
+        // Already seen in this frame under another track: not again.
+        assert_eq!(
+            recognise(
+                &index,
+                &descriptors,
+                &q,
+                |id| id == 4,
+                &config,
+                &mut scratch
+            ),
+            None
+        );
+    }
+
+    #[test]
+    fn either_gate_alone_rejects() {
+        let (index, descriptors) = line_map();
+        let config = RecognitionConfig::default();
+        let mut scratch = Vec::new();
+        // Right descriptor, but 1.5 m away with a 0.1 m uncertainty.
+        let far = query(Vector3::new(4.0, 1.5, 1.0), 0.1, descriptor(5));
+        assert_eq!(
+            recognise(&index, &descriptors, &far, |_| false, &config, &mut scratch),
+            None
+        );
+        // The same place with a 1 m uncertainty: inside the gate again.
+        let unsure = query(Vector3::new(4.0, 1.5, 1.0), 1.0, descriptor(5));
+        assert_eq!(
+            recognise(
+                &index,
+                &descriptors,
+                &unsure,
+                |_| false,
+                &config,
+                &mut scratch
+            )
+            .map(|r| r.map_id),
+            Some(4)
+        );
+        // Right place, unrelated descriptor.
+        let stranger = query(Vector3::new(4.0, 0.0, 1.0), 0.1, descriptor(99));
+        assert_eq!(
+            recognise(
+                &index,
+                &descriptors,
+                &stranger,
+                |_| false,
+                &config,
+                &mut scratch
+            ),
+            None
+        );
+    }
+
+    #[test]
+    fn two_lookalikes_inside_the_gate_are_left_alone() {
+        let positions = vec![
+            Some(Vector3::new(0.0, 0.0, 0.0)),
+            Some(Vector3::new(0.3, 0.0, 0.0)),
+        ];
+        let base = descriptor(7);
+        let descriptors = vec![Some(base), Some(flip(base, &[3, 70, 140]))];
+        let index = LandmarkIndex::build(positions, 1.0);
+        let q = query(Vector3::new(0.15, 0.0, 0.0), 0.3, flip(base, &[200]));
+        assert_eq!(
+            recognise(
+                &index,
+                &descriptors,
+                &q,
+                |_| false,
+                &RecognitionConfig::default(),
+                &mut Vec::new()
+            ),
+            None
+        );
+    }
+
+    #[test]
+    fn non_finite_queries_and_empty_maps_find_nothing() {
+        let (index, descriptors) = line_map();
+        let config = RecognitionConfig::default();
+        let mut scratch = Vec::new();
+        let nan = query(Vector3::new(f64::NAN, 0.0, 1.0), 0.1, descriptor(5));
+        assert_eq!(
+            recognise(&index, &descriptors, &nan, |_| false, &config, &mut scratch),
+            None
+        );
+        let mut bad = query(Vector3::new(4.0, 0.0, 1.0), 0.1, descriptor(5));
+        bad.covariance_m2[(0, 0)] = f64::NAN;
+        assert_eq!(
+            recognise(&index, &descriptors, &bad, |_| false, &config, &mut scratch),
+            None
+        );
+        let empty = LandmarkIndex::build(Vec::new(), 1.0);
+        let q = query(Vector3::new(4.0, 0.0, 1.0), 0.1, descriptor(5));
+        assert_eq!(
+            recognise(&empty, &[], &q, |_| false, &config, &mut scratch),
+            None
+        );
+    }
+}
