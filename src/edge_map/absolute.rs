@@ -313,6 +313,43 @@ impl AbsoluteStage {
         })
     }
 
+    /// Solves the map with every edge fused so far (waiting for a running
+    /// solve first) and returns its landmarks for saving: world position,
+    /// covariance given the neighbours (inverse of the landmark's diagonal
+    /// block of A, see [`super::map_file`]) and descriptor. None before any
+    /// edge, and in [`SolveMode::Manual`] without a solved map.
+    pub fn finish_map(&mut self) -> Option<super::map_file::SavedMap> {
+        self.wait_for_solve();
+        if self.frames_since_solve > 0 && self.edges.edge_count() > 0 {
+            self.frames_since_solve = 0;
+            self.request_solve();
+            self.wait_for_solve();
+        }
+        let map = self.map.as_ref()?;
+        let anchor = self.anchor_world_m?;
+        let mut information = vec![Matrix3::zeros(); map.problem.landmark_count as usize];
+        for e in &map.problem.edges {
+            information[e.i as usize] += e.info;
+            information[e.j as usize] += e.info;
+        }
+        let landmarks = map
+            .positions_m
+            .iter()
+            .enumerate()
+            .filter_map(|(map_id, p)| {
+                let local = (*map.local_id.get(map_id)?)? as usize;
+                let covariance_m2 = information.get(local)?.try_inverse()?;
+                Some(super::map_file::MapLandmark {
+                    id: map_id as u32,
+                    position_m: anchor + (*p)?,
+                    covariance_m2: 0.5 * (covariance_m2 + covariance_m2.transpose()),
+                    descriptor: self.map_descriptors.get(map_id).copied().flatten(),
+                })
+            })
+            .collect();
+        Some(super::map_file::SavedMap { landmarks })
+    }
+
     /// The last solved map, if any.
     pub fn map(&self) -> Option<&SolvedMap> {
         self.map.as_ref()

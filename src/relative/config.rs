@@ -4,6 +4,8 @@
 
 use std::path::Path;
 
+use crate::edge_map::settings::AbsoluteSettings;
+
 /// Which estimator runs the relative stage.
 #[derive(
     Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize,
@@ -50,6 +52,8 @@ pub struct RelativeConfig {
     /// After a loss, how long the IMU alone may carry the state before a
     /// full re-initialisation is needed, s.
     pub imu_only_max_s: f64,
+    /// The absolute stage's settings (`[absolute]`; used with `--absolute`).
+    pub absolute: AbsoluteSettings,
 }
 
 impl Default for RelativeConfig {
@@ -64,6 +68,7 @@ impl Default for RelativeConfig {
             init_max_scale_rel_std: 0.03,
             lost_after_frames: 3,
             imu_only_max_s: 1.0,
+            absolute: AbsoluteSettings::default(),
         }
     }
 }
@@ -170,7 +175,15 @@ impl RelativeConfig {
             self.imu_only_max_s.is_finite() && self.imu_only_max_s >= 0.0,
             self.imu_only_max_s.to_string(),
             "a number >= 0",
-        )
+        )?;
+        self.absolute
+            .to_config()
+            .map(|_| ())
+            .map_err(|e| ConfigError::OutOfRange {
+                key: e.key,
+                value: e.value,
+                allowed: e.allowed,
+            })
     }
 }
 
@@ -200,5 +213,10 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("featurs"), "{err}");
+        std::fs::write(&path, "[absolute]\npolicy = \"knn:x\"\n").expect("write");
+        let err = RelativeConfig::from_toml_file(&path)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("absolute.policy"), "{err}");
     }
 }

@@ -8,7 +8,7 @@ use std::path::Path;
 use crate::dataset::{
     groundtruth_trajectory, open_dataset, Dataset, DatasetError, SensorStream, StreamOptions,
 };
-use crate::edge_map::{AbsoluteConfig, AbsoluteStage};
+use crate::edge_map::AbsoluteStage;
 use crate::eval::report::Evaluation;
 use crate::eval::{evaluate, Alignment, EvalOptions};
 use crate::relative::TrackingState;
@@ -79,6 +79,8 @@ pub enum RunError {
     BadStart(f64),
     #[error("{0} lists no frames")]
     NoFrames(String),
+    #[error(transparent)]
+    Config(#[from] crate::relative::config::ConfigError),
 }
 
 /// Runs `run` on the dataset at `path`; `on_frame` sees every output and
@@ -109,7 +111,16 @@ pub fn run_dataset(
     let listed = stream.frames_listed();
     let mut absolute = run
         .absolute
-        .then(|| AbsoluteStage::new(AbsoluteConfig::default()));
+        .then(|| run.config.absolute.to_config())
+        .transpose()
+        .map_err(|e| {
+            RunError::Config(crate::relative::config::ConfigError::OutOfRange {
+                key: e.key,
+                value: e.value,
+                allowed: e.allowed,
+            })
+        })?
+        .map(AbsoluteStage::new);
     let mut corrected = Vec::new();
     let mut absolute_ms = Vec::new();
     let mut outcome = run_stream(&mut stream, estimator.as_mut(), run.options, |o| {

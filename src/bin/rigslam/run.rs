@@ -17,8 +17,8 @@ use rigslam::run::RunOptions;
 pub struct RunArgs {
     /// The sequence: a EuRoC ASL folder (holding mav0/, or mav0 itself) or
     /// a KITTI odometry folder (image_0/ or image_l/ with calib.txt).
-    #[arg(long)]
-    dataset: PathBuf,
+    #[arg(long, required_unless_present = "print_config")]
+    dataset: Option<PathBuf>,
     /// Sensors to use: mono, mono-inertial, stereo, stereo-inertial.
     /// Default: stereo-inertial when the dataset has cam1 and imu0,
     /// mono-inertial with cam0 and imu0 only, mono for KITTI.
@@ -79,6 +79,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         print!("{}", RelativeConfig::default().to_toml()?);
         return Ok(());
     }
+    let Some(dataset) = args.dataset.clone() else {
+        anyhow::bail!("--dataset is required (the sequence to run)");
+    };
     let config = match &args.config {
         Some(path) => RelativeConfig::from_toml_file(path)?,
         None => RelativeConfig::default(),
@@ -116,12 +119,12 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         align: args.align,
         absolute: args.absolute,
     };
-    let result = run_dataset(&args.dataset, &run, |output, listed| {
+    let result = run_dataset(&dataset, &run, |output, listed| {
         bar.set_length(listed as u64);
         bar.inc(1);
         bar.set_message(format!("{:?}", output.state).to_lowercase());
     })
-    .with_context(|| format!("running on {}", args.dataset.display()))?;
+    .with_context(|| format!("running on {}", dataset.display()))?;
     bar.finish_and_clear();
 
     if let Some(path) = &args.trajectory {

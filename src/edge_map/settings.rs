@@ -1,0 +1,210 @@
+//! The absolute stage's settings as a user writes them: the `[absolute]`
+//! table of `rigslam run --config FILE` (and of the daemon's `[slam]`),
+//! every key with a default, turned into an [`AbsoluteConfig`].
+
+use super::absolute::{AbsoluteConfig, LandmarkCovariance};
+use super::policy::EdgePolicy;
+use super::recognition::RecognitionConfig;
+
+/// The `[absolute]` table.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AbsoluteSettings {
+    /// Which landmark pairs of a frame become edges: all, mst or knn:K.
+    pub policy: String,
+    /// Map solve every this many frames (the paper: 5).
+    pub solve_every_frames: usize,
+    /// Covariance of the visible landmarks in the correction: `exact`
+    /// (blocks of A^-1 from the factor, consistent, cost grows with the
+    /// map) or `submatrix` (the paper's approximation, cheap, overconfident).
+    pub covariance: String,
+    /// Rings of neighbours of the sub-matrix approximation.
+    pub submatrix_hops: usize,
+    /// At most this many (the most precise) visible landmarks correct a frame.
+    pub max_correction_landmarks: usize,
+    /// Prediction noise, m per sqrt(m) travelled.
+    pub translation_sigma_per_sqrt_m: f64,
+    /// Recognise landmarks that come back under a new track id.
+    pub recognition: bool,
+    /// Largest descriptor distance of a recognised landmark, bits of 256.
+    pub recognition_max_hamming: u32,
+    /// Chi-square gate on the predicted position (3 dof).
+    pub recognition_gate_chi2: f64,
+}
+
+impl Default for AbsoluteSettings {
+    fn default() -> Self {
+        let config = AbsoluteConfig::default();
+        let recognition = RecognitionConfig::default();
+        Self {
+            policy: config.policy.to_string(),
+            solve_every_frames: config.solve_every_frames,
+            covariance: "exact".into(),
+            submatrix_hops: 2,
+            max_correction_landmarks: config.max_correction_landmarks,
+            translation_sigma_per_sqrt_m: config.translation_sigma_per_sqrt_m,
+            recognition: config.recognition.is_some(),
+            recognition_max_hamming: recognition.max_hamming,
+            recognition_gate_chi2: recognition.gate_chi2,
+        }
+    }
+}
+
+/// A setting out of range: its key (under `absolute.`), value and what is
+/// allowed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SettingError {
+    pub key: &'static str,
+    pub value: String,
+    pub allowed: &'static str,
+}
+
+impl AbsoluteSettings {
+    /// The stage's configuration, or the first setting out of range.
+    pub fn to_config(&self) -> Result<AbsoluteConfig, SettingError> {
+        let bad = |key, value: String, allowed| SettingError {
+            key,
+            value,
+            allowed,
+        };
+        let policy: EdgePolicy = self
+            .policy
+            .parse()
+            .map_err(|_| bad("absolute.policy", self.policy.clone(), "all, mst or knn:K"))?;
+        let covariance = match self.covariance.as_str() {
+            "exact" => LandmarkCovariance::Exact,
+            "submatrix" => LandmarkCovariance::SubMatrix {
+                hops: self.submatrix_hops,
+            },
+            other => {
+                return Err(bad(
+                    "absolute.covariance",
+                    other.into(),
+                    "exact or submatrix",
+                ))
+            }
+        };
+        if !(1..=1000).contains(&self.solve_every_frames) {
+            return Err(bad(
+                "absolute.solve_every_frames",
+                self.solve_every_frames.to_string(),
+                "1 to 1000",
+            ));
+        }
+        if self.submatrix_hops > 20 {
+            return Err(bad(
+                "absolute.submatrix_hops",
+                self.submatrix_hops.to_string(),
+                "0 to 20",
+            ));
+        }
+        if !(1..=500).contains(&self.max_correction_landmarks) {
+            return Err(bad(
+                "absolute.max_correction_landmarks",
+                self.max_correction_landmarks.to_string(),
+                "1 to 500",
+            ));
+        }
+        let sigma = self.translation_sigma_per_sqrt_m;
+        if !(sigma.is_finite() && sigma > 0.0) {
+            return Err(bad(
+                "absolute.translation_sigma_per_sqrt_m",
+                sigma.to_string(),
+                "a positive number",
+            ));
+        }
+        if self.recognition_max_hamming > 128 {
+            return Err(bad(
+                "absolute.recognition_max_hamming",
+                self.recognition_max_hamming.to_string(),
+                "0 to 128 (unrelated descriptors differ by about 128 bits)",
+            ));
+        }
+        let gate = self.recognition_gate_chi2;
+        if !(gate.is_finite() && gate > 0.0) {
+            return Err(bad(
+                "absolute.recognition_gate_chi2",
+                gate.to_string(),
+                "a positive number",
+            ));
+        }
+        Ok(AbsoluteConfig {
+            policy,
+            solve_every_frames: self.solve_every_frames,
+            covariance,
+            max_correction_landmarks: self.max_correction_landmarks,
+            translation_sigma_per_sqrt_m: sigma,
+            recognition: self.recognition.then_some(RecognitionConfig {
+                max_hamming: self.recognition_max_hamming,
+                gate_chi2: gate,
+                ..RecognitionConfig::default()
+            }),
+            ..AbsoluteConfig::default()
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_defaults_are_the_stages_defaults() {
+        let config = AbsoluteSettings::default().to_config().expect("valid");
+        let stage = AbsoluteConfig::default();
+        assert_eq!(config.policy, stage.policy);
+        assert_eq!(config.covariance, stage.covariance);
+        assert_eq!(config.recognition, stage.recognition);
+        assert_eq!(config.solve_every_frames, stage.solve_every_frames);
+    }
+
+    #[test]
+    fn each_bad_value_names_its_key() {
+        let cases: [(&str, AbsoluteSettings); 4] = [
+            (
+                "absolute.policy",
+                AbsoluteSettings {
+                    policy: "knn:0".into(),
+                    ..Default::default()
+                },
+            ),
+            (
+                "absolute.covariance",
+                AbsoluteSettings {
+                    covariance: "dense".into(),
+                    ..Default::default()
+                },
+            ),
+            (
+                "absolute.solve_every_frames",
+                AbsoluteSettings {
+                    solve_every_frames: 0,
+                    ..Default::default()
+                },
+            ),
+            (
+                "absolute.translation_sigma_per_sqrt_m",
+                AbsoluteSettings {
+                    translation_sigma_per_sqrt_m: f64::NAN,
+                    ..Default::default()
+                },
+            ),
+        ];
+        for (key, settings) in cases {
+            assert_eq!(settings.to_config().map(|_| ()).unwrap_err().key, key);
+        }
+        let submatrix = AbsoluteSettings {
+            covariance: "submatrix".into(),
+            submatrix_hops: 3,
+            recognition: false,
+            ..Default::default()
+        }
+        .to_config()
+        .expect("valid");
+        assert_eq!(
+            submatrix.covariance,
+            LandmarkCovariance::SubMatrix { hops: 3 }
+        );
+        assert_eq!(submatrix.recognition, None);
+    }
+}
