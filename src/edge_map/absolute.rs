@@ -76,6 +76,12 @@ pub enum EdgeWeighting {
     /// share. The map covariance `A^-1` is then the covariance of the
     /// map, which the filter relies on.
     FrameMarginal,
+    /// The paper's edge `(Σ_yi + Σ_yj)^-1` scaled by `2 / m` for a frame
+    /// of m landmarks: with all pairs and equal isotropic covariances that
+    /// is exactly [`EdgeWeighting::FrameMarginal`] (each landmark's noise
+    /// is counted once instead of m - 1 times), and unlike the
+    /// frame-marginal blocks it is positive definite for any covariances.
+    PaperScaled,
 }
 
 /// Which covariance of the visible landmarks the filter uses (eq. 59).
@@ -134,7 +140,7 @@ impl Default for AbsoluteConfig {
     fn default() -> Self {
         Self {
             policy: EdgePolicy::AllPairs,
-            weighting: EdgeWeighting::FrameMarginal,
+            weighting: EdgeWeighting::PaperScaled,
             solve_every_frames: 5,
             solve_mode: SolveMode::Background,
             solver: SolverChoice::Auto {
@@ -348,6 +354,11 @@ impl AbsoluteStage {
             })
             .collect();
         Some(super::map_file::SavedMap { landmarks })
+    }
+
+    /// The track id a map landmark was first seen under.
+    pub fn landmark_track(&self, map_id: u32) -> Option<LandmarkId> {
+        self.landmark_ids.get(map_id as usize).copied()
     }
 
     /// The last solved map, if any.
@@ -628,6 +639,20 @@ impl AbsoluteStage {
         let pairs = self.config.policy.pairs(&positions);
         match self.config.weighting {
             EdgeWeighting::Paper => self.edges.add_frame(rotation, &observations, &pairs),
+            EdgeWeighting::PaperScaled => {
+                let scale = 2.0 / observations.len() as f64;
+                for &(a, b) in &pairs {
+                    let (oa, ob) = (&observations[a], &observations[b]);
+                    let covariance =
+                        rotation * (oa.cov_body_m2 + ob.cov_body_m2) * rotation.transpose();
+                    let Some(info) = covariance.try_inverse() else {
+                        continue;
+                    };
+                    let info = (0.5 * scale) * (info + info.transpose());
+                    let y = rotation * (ob.p_body_m - oa.p_body_m);
+                    self.edges.add_measurement(oa.id, ob.id, &y, &info);
+                }
+            }
             EdgeWeighting::FrameMarginal => {
                 let infos: Option<Vec<Matrix3<f64>>> = observations
                     .iter()
@@ -638,8 +663,9 @@ impl AbsoluteStage {
                     return;
                 };
                 for &(a, b) in &pairs {
-                    let e = infos[a] * w * infos[b];
-                    let info = 0.5 * (e + e.transpose());
+                    let Some(info) = positive_part(&(infos[a] * w * infos[b])) else {
+                        continue;
+                    };
                     let y = rotation * (observations[b].p_body_m - observations[a].p_body_m);
                     self.edges
                         .add_measurement(observations[a].id, observations[b].id, &y, &info);
@@ -711,6 +737,30 @@ impl AbsoluteStage {
         }
     }
 }
+
+/// The symmetric part of an edge block `S_i W S_j`, with eigenvalues below
+/// a small fraction of the largest raised to it. With anisotropic
+/// covariances (stereo depth along different rays) the symmetric part is
+/// often indefinite; an indefinite edge would make its fused information
+/// singular and the edge unusable, so the direction it is negative in is
+/// given (almost) no weight instead. None when nothing is positive.
+fn positive_part(block: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+    let symmetric = 0.5 * (block + block.transpose());
+    let eigen = symmetric.symmetric_eigen();
+    let largest = eigen.eigenvalues.max();
+    if !(largest > 0.0) || !largest.is_finite() {
+        return None;
+    }
+    let floor = largest * POSITIVE_PART_FLOOR;
+    let clamped = eigen.eigenvalues.map(|v| v.max(floor));
+    let q = eigen.eigenvectors;
+    let info = q * Matrix3::from_diagonal(&clamped) * q.transpose();
+    Some(0.5 * (info + info.transpose()))
+}
+
+/// Smallest eigenvalue kept in an edge's information, relative to its
+/// largest: keeps fused edges positive definite (see [`positive_part`]).
+const POSITIVE_PART_FLOOR: f64 = 1e-6;
 
 /// Grid cell of the recognition index, m.
 const INDEX_CELL_M: f64 = 1.0;

@@ -2,7 +2,9 @@
 //! consistency of the corrected position (NEES over many seeds), and the
 //! solve modes agreeing.
 
-use nalgebra::Vector3;
+use nalgebra::{Isometry3, Matrix3, Vector3};
+
+use crate::relative::types::{BodyLandmark, RelativeOutput, TrackingState};
 
 use super::absolute::{
     AbsoluteConfig, AbsoluteStage, EdgeWeighting, LandmarkCovariance, SolveMode,
@@ -104,9 +106,10 @@ const SEEDS: u64 = 40;
 
 #[test]
 fn corrected_position_is_consistent_over_many_seeds() {
-    // Isotropic landmark covariances: the frame-marginal edge weighting is
-    // then exact, A^-1 is the map's covariance, and the filter with exact
-    // covariance and consider terms must pass the NEES test.
+    // Isotropic landmark covariances: the scaled edge weighting is then
+    // close to the frame's marginal information, A^-1 is close to the
+    // map's covariance, and the filter with exact covariance and consider
+    // terms must pass the NEES test.
     let options = RoomRunOptions {
         isotropic_landmarks: true,
         ..RoomRunOptions::default()
@@ -134,22 +137,22 @@ fn corrected_position_is_consistent_over_many_seeds() {
 }
 
 #[test]
-fn stereo_like_covariances_leave_the_filter_conservative() {
-    // Anisotropic covariances: the frame-marginal edge blocks S_i W S_j
-    // are symmetrised, which drops information, so the map covariance is
-    // too large and the filter errs on the safe side: ANEES below the
-    // upper bound (measured: below the lower one too, see bench/README.md).
+fn stereo_like_covariances_keep_the_filter_consistent() {
+    // Anisotropic (stereo-like) covariances with the default scaled edge
+    // weighting: still consistent. (The frame-marginal blocks' positive
+    // parts are not: measured ANEES 4.13 over these seeds, above the
+    // bound; see bench/README.md.)
     let options = RoomRunOptions::default();
     let config = inline(AbsoluteConfig {
         translation_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
         ..AbsoluteConfig::default()
     });
     let summary = run_nees(&config, &options, 0..SEEDS);
-    let (_, high) = anees_bounds_95(3, SEEDS as usize);
+    let (low, high) = anees_bounds_95(3, SEEDS as usize);
+    let mean = summary.mean_anees();
     assert!(
-        summary.mean_anees() < high,
-        "ANEES {}",
-        summary.mean_anees()
+        mean > low && mean < high,
+        "ANEES {mean} outside [{low}, {high}]"
     );
     assert!(summary.rmse_corrected_m < 0.5 * summary.rmse_relative_m);
 }
@@ -436,5 +439,69 @@ fn print_correction_cost_by_map_size() {
             row[2],
             row[1]
         );
+    }
+}
+
+#[test]
+fn elongated_covariances_along_different_rays_give_usable_edges() {
+    // Stereo depth errors 30x the transverse ones, along rays fanning out
+    // over 90 degrees: the symmetric part of S_i W S_j is indefinite for
+    // many pairs. Every pair must still give an edge with a fused mean
+    // (real EuRoC frames lost almost all their edges to this).
+    let rays: Vec<Vector3<f64>> = (0..12)
+        .map(|k| {
+            let a = (k as f64 / 11.0 - 0.5) * std::f64::consts::FRAC_PI_2;
+            Vector3::new(a.cos(), a.sin(), 0.1 * k as f64 - 0.5).normalize()
+        })
+        .collect();
+    let landmarks: Vec<BodyLandmark> = rays
+        .iter()
+        .enumerate()
+        .map(|(k, ray)| {
+            let helper = if ray.z.abs() < 0.9 {
+                Vector3::z()
+            } else {
+                Vector3::x()
+            };
+            let u = ray.cross(&helper).normalize();
+            let frame = Matrix3::from_columns(&[*ray, u, ray.cross(&u)]);
+            let sigmas = Vector3::new(0.3, 0.01, 0.01);
+            BodyLandmark {
+                id: k as u64,
+                position_body_m: ray * (2.0 + k as f64 * 0.3),
+                covariance_body_m2: frame
+                    * Matrix3::from_diagonal(&sigmas.component_mul(&sigmas))
+                    * frame.transpose(),
+                descriptor: None,
+            }
+        })
+        .collect();
+    let output = RelativeOutput {
+        t_ns: 0,
+        state: TrackingState::Tracking,
+        T_world_body: Isometry3::identity(),
+        velocity_world_m_s: Vector3::zeros(),
+        biases: Default::default(),
+        delta_translation_world_m: Vector3::zeros(),
+        landmarks,
+    };
+    for weighting in [EdgeWeighting::FrameMarginal, EdgeWeighting::PaperScaled] {
+        let mut stage = AbsoluteStage::new(inline(AbsoluteConfig {
+            weighting,
+            solve_every_frames: 1,
+            ..AbsoluteConfig::default()
+        }));
+        stage.push(&output);
+        stage.push(&output);
+        let map = stage.map().expect("solved");
+        assert_eq!(map.problem.edges.len(), 12 * 11 / 2, "{weighting:?}");
+        for e in &map.problem.edges {
+            assert!(e.info.cholesky().is_some(), "{weighting:?}: {e:?}");
+        }
+        // Noise-free: the solved map reproduces the frame's geometry.
+        for l in &output.landmarks {
+            let p = stage.landmark_world_m(l.id).expect("placed");
+            assert!((p - l.position_body_m).norm() < 1e-9, "{weighting:?}");
+        }
     }
 }

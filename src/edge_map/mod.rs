@@ -25,6 +25,7 @@ pub mod covariance;
 pub mod edge;
 pub mod edges_file;
 pub mod laplacian;
+pub mod localise;
 pub mod loop_run;
 pub mod map_file;
 pub mod map_worker;

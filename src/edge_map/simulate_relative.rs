@@ -53,6 +53,11 @@ pub struct RoomRunOptions {
     /// to every increment in proportion to its length, so (unlike a scale
     /// error on a closed path) it accumulates lap after lap.
     pub drift_per_m: Vector3<f64>,
+    /// The room (landmarks and their appearance) comes from `seed`; the
+    /// noise of the drive from this seed when given, so that two drives
+    /// through the same room differ (a map made in one, localised in by
+    /// the other).
+    pub noise_seed: Option<u64>,
     pub seed: u64,
 }
 
@@ -73,6 +78,7 @@ impl Default for RoomRunOptions {
             fresh_track_ids: false,
             descriptor_bit_flips: None,
             drift_per_m: Vector3::zeros(),
+            noise_seed: None,
             seed: 0,
         }
     }
@@ -131,6 +137,10 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
     let appearance: Vec<Descriptor> = (0..options.landmarks)
         .map(|_| [0; 4].map(|_| looks.gen::<u64>()))
         .collect();
+    if let Some(noise_seed) = options.noise_seed {
+        rng = ChaCha8Rng::seed_from_u64(noise_seed);
+        looks = ChaCha8Rng::seed_from_u64(noise_seed ^ 0x6c6f_6f6b_7321);
+    }
     let mut live_tracks: HashMap<usize, (LandmarkId, Option<Descriptor>)> = HashMap::new();
     let mut track_landmark = HashMap::new();
     let mut next_track: LandmarkId = 0;

@@ -1,0 +1,523 @@
+//! Localising in a saved map (issue 6, item 6): `rigslam run --load-map`.
+//!
+//! The relative stage runs as usual in its own world frame. Until the
+//! robot is localised, each tracking frame's landmarks are matched to the
+//! map by descriptor alone (brute force over the map, ratio test) and a
+//! rigid transform relative-world -> map is fitted to the matches by
+//! three-point RANSAC and refined on the inliers. From then on that
+//! transform is held fixed, the position filter of the absolute stage
+//! (eq. 60-71) runs in the map frame — prediction from the rotated
+//! increments, correction from the recognised map landmarks with their
+//! saved covariances — and new tracks are recognised against the map by
+//! descriptor and Mahalanobis distance as in [`super::recognition`].
+//! When the relative stage loses tracking its world frame is no longer
+//! the one the transform was fitted in, so the localiser starts over.
+
+use std::collections::HashMap;
+
+use nalgebra::{DMatrix, Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::map_file::SavedMap;
+use super::position_filter::{LandmarkFix, PositionFilter};
+use super::recognition::{recognise, LandmarkIndex, RecognitionConfig, RecognitionQuery};
+use crate::features::matching::hamming;
+use crate::features::orb::Descriptor;
+use crate::relative::types::{LandmarkId, RelativeOutput, TrackingState};
+
+/// Settings of [`MapLocaliser`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct LocaliseConfig {
+    /// Gates for recognising new tracks once localised.
+    pub recognition: RecognitionConfig,
+    /// Relocalisation: largest descriptor distance of a match, bits.
+    pub match_max_hamming: u32,
+    /// Relocalisation: the best match must be this much closer than the
+    /// second best (ratio of distances).
+    pub match_ratio: f64,
+    /// Relocalisation: a match is an inlier of a transform within this
+    /// distance, m.
+    pub inlier_m: f64,
+    /// Relocalisation: at least this many inliers to accept a transform.
+    pub min_inliers: usize,
+    pub ransac_iterations: usize,
+    /// Increment noise of the filter's prediction, m per sqrt(m).
+    pub translation_sigma_per_sqrt_m: f64,
+    /// At most this many landmarks (the most precise) per correction.
+    pub max_correction_landmarks: usize,
+    /// A landmark whose innovation exceeds this chi-square (3 dof) is left
+    /// out of the correction and its association dropped.
+    pub gate_chi2: f64,
+    /// The relative-world -> map transform is refitted this often (frames)
+    /// to the landmarks recognised over the last `refit_pairs`: one
+    /// frame's fit leaves the rotation off by about a degree, which
+    /// every offset to a landmark then carries.
+    pub refit_every_frames: usize,
+    pub refit_pairs: usize,
+    pub seed: u64,
+}
+
+impl Default for LocaliseConfig {
+    fn default() -> Self {
+        Self {
+            recognition: RecognitionConfig::default(),
+            match_max_hamming: 50,
+            match_ratio: 0.8,
+            inlier_m: 0.3,
+            min_inliers: 8,
+            ransac_iterations: 200,
+            translation_sigma_per_sqrt_m: 0.02,
+            max_correction_landmarks: 30,
+            gate_chi2: 16.27,
+            refit_every_frames: 10,
+            refit_pairs: 600,
+            seed: 0,
+        }
+    }
+}
+
+/// What the localiser did so far.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct LocaliseStats {
+    pub frames: usize,
+    pub localised_frames: usize,
+    /// Relocalisation attempts (frames matched by descriptor alone).
+    pub attempts: usize,
+    /// Times a transform to the map was accepted.
+    pub relocalisations: usize,
+    /// Times the relative stage lost tracking and localisation restarted.
+    pub resets: usize,
+    pub recognised: usize,
+    pub corrections: usize,
+    /// Landmarks left out of a correction by the innovation gate.
+    pub gated_out: usize,
+    /// Refits of the relative-world -> map transform.
+    pub refits: usize,
+}
+
+/// The pose of one frame in the map frame, once localised.
+#[allow(non_snake_case)]
+#[derive(Clone, Debug, PartialEq)]
+pub struct LocalisedPose {
+    pub t_ns: i64,
+    pub T_map_body: Isometry3<f64>,
+    pub position_covariance_m2: Matrix3<f64>,
+    /// Map landmarks used by this frame's correction.
+    pub landmarks_used: usize,
+}
+
+/// A transform relative-world -> map and the inliers it was fitted to.
+#[allow(non_snake_case)]
+#[derive(Clone, Debug)]
+struct Fit {
+    T_map_world: Isometry3<f64>,
+    /// (track id, map index) of the inliers.
+    inliers: Vec<(LandmarkId, u32)>,
+    rms_m: f64,
+}
+
+#[allow(non_snake_case)]
+struct Localised {
+    T_map_world: Isometry3<f64>,
+    filter: PositionFilter,
+    /// (landmark in the relative world, in the map) of recent corrections.
+    pairs: std::collections::VecDeque<(Vector3<f64>, Vector3<f64>)>,
+    frames_since_refit: usize,
+}
+
+/// Localises the relative stage's output in a saved map.
+pub struct MapLocaliser {
+    config: LocaliseConfig,
+    positions_m: Vec<Vector3<f64>>,
+    covariances_m2: Vec<Matrix3<f64>>,
+    descriptors: Vec<Option<Descriptor>>,
+    index: LandmarkIndex,
+    state: Option<Localised>,
+    /// Track id -> map index, for the tracks recognised as map landmarks.
+    associations: HashMap<LandmarkId, u32>,
+    stats: LocaliseStats,
+    rng: ChaCha8Rng,
+    candidates: Vec<u32>,
+}
+
+/// Grid cell of the map's landmark index, m.
+const INDEX_CELL_M: f64 = 1.0;
+
+impl MapLocaliser {
+    pub fn new(map: &SavedMap, config: LocaliseConfig) -> Self {
+        let positions_m: Vec<Vector3<f64>> = map.landmarks.iter().map(|l| l.position_m).collect();
+        let index =
+            LandmarkIndex::build(positions_m.iter().map(|p| Some(*p)).collect(), INDEX_CELL_M);
+        Self {
+            rng: ChaCha8Rng::seed_from_u64(config.seed),
+            config,
+            covariances_m2: map.landmarks.iter().map(|l| l.covariance_m2).collect(),
+            descriptors: map.landmarks.iter().map(|l| l.descriptor).collect(),
+            positions_m,
+            index,
+            state: None,
+            associations: HashMap::new(),
+            stats: LocaliseStats::default(),
+            candidates: Vec::new(),
+        }
+    }
+
+    pub fn stats(&self) -> &LocaliseStats {
+        &self.stats
+    }
+
+    /// The relative-world -> map transform in use, once localised.
+    #[allow(non_snake_case)]
+    pub fn T_map_world(&self) -> Option<Isometry3<f64>> {
+        self.state.as_ref().map(|s| s.T_map_world)
+    }
+
+    /// Processes one frame; the pose in the map once localised.
+    pub fn push(&mut self, output: &RelativeOutput) -> Option<LocalisedPose> {
+        self.stats.frames += 1;
+        if output.state != TrackingState::Tracking || !pose_is_finite(output) {
+            if self.state.take().is_some() {
+                self.stats.resets += 1;
+            }
+            self.associations.clear();
+            return None;
+        }
+        let used;
+        match self.state.as_mut() {
+            Some(state) => {
+                let delta = state.T_map_world.rotation * output.delta_translation_world_m;
+                if delta.iter().all(|v| v.is_finite()) {
+                    let q = Matrix3::identity()
+                        * self.config.translation_sigma_per_sqrt_m.powi(2)
+                        * delta.norm();
+                    state.filter.predict(&delta, &q);
+                }
+                self.recognise_new(output);
+                used = self.correct(output);
+                self.refit();
+            }
+            None => {
+                self.stats.attempts += 1;
+                let fit = self.relocalise(output)?;
+                let position = (fit.T_map_world
+                    * nalgebra::Point3::from(output.T_world_body.translation.vector))
+                .coords;
+                let variance = fit.rms_m.powi(2).max(1e-4) / fit.inliers.len() as f64 * 10.0;
+                self.associations = fit.inliers.iter().copied().collect();
+                self.state = Some(Localised {
+                    T_map_world: fit.T_map_world,
+                    filter: PositionFilter::new(position, Matrix3::identity() * variance),
+                    pairs: Default::default(),
+                    frames_since_refit: 0,
+                });
+                self.stats.relocalisations += 1;
+                used = self.correct(output);
+            }
+        }
+        let state = self.state.as_ref()?;
+        self.stats.localised_frames += 1;
+        let rotation = state.T_map_world.rotation * output.T_world_body.rotation;
+        Some(LocalisedPose {
+            t_ns: output.t_ns,
+            T_map_body: Isometry3::from_parts(
+                Translation3::from(state.filter.position_world_m()),
+                rotation,
+            ),
+            position_covariance_m2: state.filter.covariance_m2(),
+            landmarks_used: used,
+        })
+    }
+
+    /// Descriptor matches of the frame's landmarks to the whole map, then
+    /// RANSAC over three-point rigid fits.
+    fn relocalise(&mut self, output: &RelativeOutput) -> Option<Fit> {
+        let matches: Vec<(LandmarkId, Vector3<f64>, u32)> = output
+            .landmarks
+            .iter()
+            .filter_map(|l| {
+                let d = l.descriptor?;
+                let map = self.best_match(&d)?;
+                let q = output.T_world_body * nalgebra::Point3::from(l.position_body_m);
+                q.coords
+                    .iter()
+                    .all(|v| v.is_finite())
+                    .then_some((l.id, q.coords, map))
+            })
+            .collect();
+        if matches.len() < self.config.min_inliers.max(3) {
+            return None;
+        }
+        let positions = &self.positions_m;
+        let inlier_m = self.config.inlier_m;
+        let inliers_of = |t: &Isometry3<f64>| -> Vec<usize> {
+            matches
+                .iter()
+                .enumerate()
+                .filter(|(_, (_, q, m))| {
+                    let moved = t * nalgebra::Point3::from(*q);
+                    (moved.coords - positions[*m as usize]).norm() <= inlier_m
+                })
+                .map(|(k, _)| k)
+                .collect()
+        };
+        let mut best: Vec<usize> = Vec::new();
+        for _ in 0..self.config.ransac_iterations {
+            let a = self.rng.gen_range(0..matches.len());
+            let b = self.rng.gen_range(0..matches.len());
+            let c = self.rng.gen_range(0..matches.len());
+            if a == b || b == c || a == c {
+                continue;
+            }
+            let world = [matches[a].1, matches[b].1, matches[c].1];
+            let map = [a, b, c].map(|k| self.positions_m[matches[k].2 as usize]);
+            // A degenerate (nearly collinear) sample fixes no rotation.
+            if (world[1] - world[0]).cross(&(world[2] - world[0])).norm() < 1e-3 {
+                continue;
+            }
+            let Some(t) = rigid_fit(&world, &map) else {
+                continue;
+            };
+            let inliers = inliers_of(&t);
+            if inliers.len() > best.len() {
+                best = inliers;
+            }
+        }
+        if best.len() < self.config.min_inliers {
+            return None;
+        }
+        let world: Vec<Vector3<f64>> = best.iter().map(|&k| matches[k].1).collect();
+        let map: Vec<Vector3<f64>> = best
+            .iter()
+            .map(|&k| self.positions_m[matches[k].2 as usize])
+            .collect();
+        let t = rigid_fit(&world, &map)?;
+        let refined = inliers_of(&t);
+        if refined.len() < self.config.min_inliers {
+            return None;
+        }
+        let rms_m = (refined
+            .iter()
+            .map(|&k| {
+                ((t * nalgebra::Point3::from(matches[k].1)).coords
+                    - self.positions_m[matches[k].2 as usize])
+                    .norm_squared()
+            })
+            .sum::<f64>()
+            / refined.len() as f64)
+            .sqrt();
+        // One map landmark per track and one track per map landmark.
+        let mut taken = std::collections::HashSet::new();
+        let inliers = refined
+            .iter()
+            .filter(|&&k| taken.insert(matches[k].2))
+            .map(|&k| (matches[k].0, matches[k].2))
+            .collect();
+        Some(Fit {
+            T_map_world: t,
+            inliers,
+            rms_m,
+        })
+    }
+
+    /// The map landmark nearest in descriptor space, if it is near enough
+    /// and clearly nearer than the second.
+    fn best_match(&self, d: &Descriptor) -> Option<u32> {
+        let mut best = (u32::MAX, 0u32);
+        let mut second = u32::MAX;
+        for (k, m) in self.descriptors.iter().enumerate() {
+            let Some(m) = m else { continue };
+            let h = hamming(d, m);
+            if h < best.0 {
+                second = best.0;
+                best = (h, k as u32);
+            } else if h < second {
+                second = h;
+            }
+        }
+        let distinct =
+            second == u32::MAX || f64::from(best.0) < self.config.match_ratio * f64::from(second);
+        (best.0 <= self.config.match_max_hamming && distinct).then_some(best.1)
+    }
+
+    fn recognise_new(&mut self, output: &RelativeOutput) {
+        let Some(state) = self.state.as_ref() else {
+            return;
+        };
+        let rotation = *(state.T_map_world.rotation * output.T_world_body.rotation)
+            .to_rotation_matrix()
+            .matrix();
+        let position = state.filter.position_world_m();
+        let position_covariance = state.filter.covariance_m2();
+        let mut taken: Vec<u32> = output
+            .landmarks
+            .iter()
+            .filter_map(|l| self.associations.get(&l.id).copied())
+            .collect();
+        let mut candidates = std::mem::take(&mut self.candidates);
+        for l in &output.landmarks {
+            let Some(descriptor) = l.descriptor else {
+                continue;
+            };
+            if self.associations.contains_key(&l.id) {
+                continue;
+            }
+            let query = RecognitionQuery {
+                predicted_world_m: position + rotation * l.position_body_m,
+                covariance_m2: rotation * l.covariance_body_m2 * rotation.transpose()
+                    + position_covariance,
+                descriptor,
+            };
+            if let Some(found) = recognise(
+                &self.index,
+                &self.descriptors,
+                &query,
+                |id| taken.contains(&id),
+                &self.config.recognition,
+                &mut candidates,
+            ) {
+                self.associations.insert(l.id, found.map_id);
+                taken.push(found.map_id);
+                self.stats.recognised += 1;
+            }
+        }
+        self.candidates = candidates;
+        // Tracks that ended are forgotten.
+        if self.associations.len() > 4 * output.landmarks.len().max(64) {
+            let live: std::collections::HashSet<LandmarkId> =
+                output.landmarks.iter().map(|l| l.id).collect();
+            self.associations.retain(|id, _| live.contains(id));
+        }
+    }
+
+    /// Refits the relative-world -> map transform to the recent pairs.
+    fn refit(&mut self) {
+        let Some(state) = self.state.as_mut() else {
+            return;
+        };
+        state.frames_since_refit += 1;
+        if state.frames_since_refit < self.config.refit_every_frames
+            || state.pairs.len() < 3 * self.config.min_inliers
+        {
+            return;
+        }
+        state.frames_since_refit = 0;
+        let (world, map): (Vec<Vector3<f64>>, Vec<Vector3<f64>>) =
+            state.pairs.iter().copied().unzip();
+        if let Some(t) = rigid_fit(&world, &map) {
+            state.T_map_world = t;
+            self.stats.refits += 1;
+        }
+    }
+
+    /// The correction with the recognised landmarks in view: their saved
+    /// covariances (block diagonal; the saved map keeps no cross terms).
+    fn correct(&mut self, output: &RelativeOutput) -> usize {
+        let Some(state) = self.state.as_mut() else {
+            return 0;
+        };
+        let rotation = *(state.T_map_world.rotation * output.T_world_body.rotation)
+            .to_rotation_matrix()
+            .matrix();
+        let p = state.filter.covariance_m2();
+        let x = state.filter.position_world_m();
+        let mut fixes: Vec<(f64, LandmarkFix)> = Vec::new();
+        let mut rejected = Vec::new();
+        for l in &output.landmarks {
+            let Some(&map) = self.associations.get(&l.id) else {
+                continue;
+            };
+            let landmark = self.positions_m[map as usize];
+            let offset = rotation * l.position_body_m;
+            let offset_covariance = rotation * l.covariance_body_m2 * rotation.transpose();
+            let s = p + offset_covariance + self.covariances_m2[map as usize];
+            let r = landmark - offset - x;
+            let chi2 = s.cholesky().map(|c| r.dot(&c.solve(&r)));
+            match chi2 {
+                Some(chi2) if chi2 <= self.config.gate_chi2 => fixes.push((
+                    offset_covariance.trace(),
+                    LandmarkFix {
+                        landmark: map,
+                        landmark_world_m: landmark,
+                        offset_world_m: offset,
+                        offset_covariance_m2: offset_covariance,
+                    },
+                )),
+                _ => rejected.push(l.id),
+            }
+        }
+        self.stats.gated_out += rejected.len();
+        for id in rejected {
+            self.associations.remove(&id);
+        }
+        fixes.sort_by(|a, b| a.0.total_cmp(&b.0));
+        fixes.truncate(self.config.max_correction_landmarks);
+        if fixes.is_empty() {
+            return 0;
+        }
+        let fixes: Vec<LandmarkFix> = fixes.into_iter().map(|f| f.1).collect();
+        let world_rotation = state.T_map_world.rotation.inverse();
+        let body_world = output.T_world_body.translation.vector;
+        for f in &fixes {
+            let world = body_world + world_rotation * f.offset_world_m;
+            state.pairs.push_back((world, f.landmark_world_m));
+        }
+        while state.pairs.len() > self.config.refit_pairs {
+            state.pairs.pop_front();
+        }
+        let mut covariance = DMatrix::zeros(3 * fixes.len(), 3 * fixes.len());
+        for (k, f) in fixes.iter().enumerate() {
+            covariance
+                .fixed_view_mut::<3, 3>(3 * k, 3 * k)
+                .copy_from(&self.covariances_m2[f.landmark as usize]);
+        }
+        match state.filter.correct(&fixes, &covariance, None) {
+            Ok(report) => {
+                self.stats.corrections += 1;
+                report.landmarks
+            }
+            Err(e) => {
+                tracing::warn!("localisation correction skipped: {e}");
+                0
+            }
+        }
+    }
+}
+
+fn pose_is_finite(output: &RelativeOutput) -> bool {
+    output
+        .T_world_body
+        .translation
+        .vector
+        .iter()
+        .chain(output.T_world_body.rotation.coords.iter())
+        .all(|v| v.is_finite())
+}
+
+/// The rigid transform `T` minimising `Σ |T a_k - b_k|²` (Kabsch, by SVD
+/// of the centred cross-covariance, reflection excluded).
+pub fn rigid_fit(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> Option<Isometry3<f64>> {
+    if a.len() != b.len() || a.len() < 3 {
+        return None;
+    }
+    let n = a.len() as f64;
+    let ca = a.iter().sum::<Vector3<f64>>() / n;
+    let cb = b.iter().sum::<Vector3<f64>>() / n;
+    let mut h = Matrix3::zeros();
+    for (p, q) in a.iter().zip(b) {
+        h += (q - cb) * (p - ca).transpose();
+    }
+    let svd = h.svd(true, true);
+    let (u, v_t) = (svd.u?, svd.v_t?);
+    let d = (u * v_t).determinant().signum();
+    let r = u * Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, d)) * v_t;
+    let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
+    let t = cb - rotation * ca;
+    t.iter()
+        .all(|v| v.is_finite())
+        .then(|| Isometry3::from_parts(Translation3::from(t), rotation))
+}
+
+#[cfg(test)]
+#[path = "localise_tests.rs"]
+mod tests;

@@ -1,0 +1,201 @@
+use super::*;
+use crate::edge_map::absolute::{AbsoluteConfig, AbsoluteStage};
+use crate::edge_map::simulate_relative::{simulate_room_run, RoomRun, RoomRunOptions};
+
+fn room(noise_seed: Option<u64>, laps: f64) -> RoomRunOptions {
+    RoomRunOptions {
+        laps,
+        fresh_track_ids: true,
+        descriptor_bit_flips: Some(20),
+        noise_seed,
+        seed: 7,
+        ..Default::default()
+    }
+}
+
+/// A map made by the absolute stage from one drive, saved to a file and
+/// read back, with the transform map -> truth (the map's frame is fixed by
+/// its first landmark as first measured, so it is off the truth by that
+/// measurement's error) fitted to all its landmarks.
+fn saved_map(run: &RoomRun) -> (SavedMap, Isometry3<f64>) {
+    let mut stage = AbsoluteStage::new(AbsoluteConfig {
+        recognition: Some(RecognitionConfig::default()),
+        solve_mode: crate::edge_map::absolute::SolveMode::Inline,
+        ..Default::default()
+    });
+    for output in &run.outputs {
+        stage.push(output);
+    }
+    let map = stage.finish_map().expect("a map after a whole drive");
+    let (estimated, truth): (Vec<_>, Vec<_>) = map
+        .landmarks
+        .iter()
+        .map(|l| {
+            let track = stage.landmark_track(l.id).expect("a map id has a track");
+            (l.position_m, run.landmarks_m[run.track_landmark[&track]])
+        })
+        .unzip();
+    let map_to_truth = rigid_fit(&estimated, &truth).expect("fit");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("room.map");
+    map.write(&path).expect("write");
+    (SavedMap::read(&path).expect("read back"), map_to_truth)
+}
+
+/// The drive with its relative-world frame moved by `offset`, as a second
+/// session's relative stage would start in a frame of its own.
+fn moved(run: &RoomRun, offset: &Isometry3<f64>) -> Vec<RelativeOutput> {
+    run.outputs
+        .iter()
+        .map(|o| RelativeOutput {
+            T_world_body: offset * o.T_world_body,
+            delta_translation_world_m: offset.rotation * o.delta_translation_world_m,
+            ..o.clone()
+        })
+        .collect()
+}
+
+fn offset() -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::new(3.0, -2.0, 0.5),
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 40f64.to_radians()),
+    )
+}
+
+#[test]
+fn rigid_fit_recovers_a_known_transform() {
+    let t = Isometry3::from_parts(
+        Translation3::new(0.3, -1.0, 2.0),
+        UnitQuaternion::from_euler_angles(0.2, -0.4, 1.1),
+    );
+    let a: Vec<Vector3<f64>> = [
+        [0.0, 0.0, 0.0],
+        [1.0, 0.2, 0.0],
+        [0.1, 2.0, 0.3],
+        [0.5, 0.5, 1.5],
+        [-1.0, 0.3, 0.7],
+    ]
+    .iter()
+    .map(|p| Vector3::new(p[0], p[1], p[2]))
+    .collect();
+    let b: Vec<Vector3<f64>> = a
+        .iter()
+        .map(|p| (t * nalgebra::Point3::from(*p)).coords)
+        .collect();
+    let fit = rigid_fit(&a, &b).expect("fit");
+    assert!((fit.translation.vector - t.translation.vector).norm() < 1e-12);
+    assert!(fit.rotation.angle_to(&t.rotation) < 1e-12);
+    assert!(rigid_fit(&a[..2], &b[..2]).is_none());
+    assert!(rigid_fit(&a, &b[..4]).is_none());
+}
+
+#[test]
+fn a_second_drive_localises_in_the_first_drives_map() {
+    let first = simulate_room_run(&room(None, 2.0));
+    let (map, map_to_truth) = saved_map(&first);
+    assert!(
+        map.landmarks.len() > 150,
+        "{} landmarks",
+        map.landmarks.len()
+    );
+    let second = simulate_room_run(&room(Some(99), 1.0));
+    let offset = offset();
+    let outputs = moved(&second, &offset);
+    let mut localiser = MapLocaliser::new(&map, LocaliseConfig::default());
+    let mut first_localised = None;
+    let mut squared = Vec::new();
+    let mut relative_squared = Vec::new();
+    for (k, (output, truth)) in outputs.iter().zip(&second.truth_position_m).enumerate() {
+        let Some(pose) = localiser.push(output) else {
+            continue;
+        };
+        first_localised.get_or_insert(k);
+        // In the map's frame; the second drive's relative pose drifts
+        // from its own start.
+        let in_truth = map_to_truth * nalgebra::Point3::from(pose.T_map_body.translation.vector);
+        squared.push((in_truth.coords - truth).norm_squared());
+        let relative = offset.inverse() * output.T_world_body;
+        let start = second.outputs[0].T_world_body.translation.vector;
+        let relative_error =
+            (relative.translation.vector - start) - (truth - second.truth_position_m[0]);
+        relative_squared.push(relative_error.norm_squared());
+    }
+    let rms = |v: &[f64]| (v.iter().sum::<f64>() / v.len().max(1) as f64).sqrt();
+    let (localised, relative) = (rms(&squared), rms(&relative_squared));
+    let stats = localiser.stats();
+    eprintln!("localised RMS {localised:.3} m vs relative {relative:.3} m, {stats:?}");
+    assert!(first_localised.is_some_and(|k| k < 5), "{stats:?}");
+    assert_eq!(
+        stats.localised_frames,
+        outputs.len() - first_localised.unwrap_or(0)
+    );
+    assert_eq!(stats.relocalisations, 1, "{stats:?}");
+    // The transform found undoes the second session's frame offset.
+    let t = localiser.T_map_world().expect("localised");
+    let undone = map_to_truth * t * offset;
+    // Only its rotation matters (the filter places the robot); refitted
+    // over many frames it is better than one frame's fit.
+    assert!(undone.rotation.angle() < 0.3f64.to_radians(), "{undone:?}");
+    assert!(stats.refits >= 5, "{stats:?}");
+    assert!(stats.corrections + 5 > outputs.len(), "{stats:?}");
+    assert!(
+        localised < 0.06,
+        "localised RMS {localised:.3} m, {stats:?}"
+    );
+    assert!(
+        localised < 0.5 * relative,
+        "localised RMS {localised:.3} m vs relative {relative:.3} m"
+    );
+}
+
+#[test]
+fn a_drive_in_another_room_never_localises() {
+    let (map, _) = saved_map(&simulate_room_run(&room(None, 1.0)));
+    let elsewhere = simulate_room_run(&RoomRunOptions {
+        seed: 8,
+        ..room(Some(3), 1.0)
+    });
+    let mut localiser = MapLocaliser::new(&map, LocaliseConfig::default());
+    let localised = elsewhere
+        .outputs
+        .iter()
+        .filter(|o| localiser.push(o).is_some())
+        .count();
+    assert_eq!(localised, 0, "{:?}", localiser.stats());
+    assert_eq!(localiser.stats().attempts, elsewhere.outputs.len());
+}
+
+#[test]
+fn lost_tracking_restarts_the_localisation() {
+    let first = simulate_room_run(&room(None, 1.0));
+    let (map, _) = saved_map(&first);
+    let second = simulate_room_run(&room(Some(5), 1.0));
+    let outputs = moved(&second, &offset());
+    let mut localiser = MapLocaliser::new(&map, LocaliseConfig::default());
+    for output in &outputs[..20] {
+        localiser.push(output);
+    }
+    assert!(localiser.T_map_world().is_some());
+    let lost = RelativeOutput {
+        state: TrackingState::Lost,
+        ..outputs[20].clone()
+    };
+    assert!(localiser.push(&lost).is_none());
+    assert!(localiser.T_map_world().is_none());
+    assert_eq!(localiser.stats().resets, 1);
+    // A frame with a non-finite pose is treated the same way.
+    let broken = RelativeOutput {
+        T_world_body: Isometry3::from_parts(
+            Translation3::new(f64::NAN, 0.0, 0.0),
+            outputs[21].T_world_body.rotation,
+        ),
+        ..outputs[21].clone()
+    };
+    assert!(localiser.push(&broken).is_none());
+    let back = outputs[22..]
+        .iter()
+        .position(|o| localiser.push(o).is_some())
+        .expect("localised again");
+    assert!(back < 5, "took {back} frames");
+    assert_eq!(localiser.stats().relocalisations, 2);
+}
