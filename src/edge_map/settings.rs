@@ -3,6 +3,7 @@
 //! every key with a default, turned into an [`AbsoluteConfig`].
 
 use super::absolute::{AbsoluteConfig, LandmarkCovariance};
+use super::localise::LocaliseConfig;
 use super::policy::EdgePolicy;
 use super::recognition::RecognitionConfig;
 
@@ -140,6 +141,23 @@ impl AbsoluteSettings {
                 ..RecognitionConfig::default()
             }),
             ..AbsoluteConfig::default()
+        })
+    }
+
+    /// The localiser's settings (`--load-map`): the recognition gates,
+    /// increment noise and correction size of this table, checked as for
+    /// the absolute stage.
+    pub fn to_localise_config(&self) -> Result<LocaliseConfig, SettingError> {
+        let stage = self.to_config()?;
+        Ok(LocaliseConfig {
+            recognition: RecognitionConfig {
+                max_hamming: self.recognition_max_hamming,
+                gate_chi2: self.recognition_gate_chi2,
+                ..RecognitionConfig::default()
+            },
+            translation_sigma_per_sqrt_m: stage.translation_sigma_per_sqrt_m,
+            max_correction_landmarks: stage.max_correction_landmarks,
+            ..LocaliseConfig::default()
         })
     }
 }

@@ -8,6 +8,8 @@ use std::path::Path;
 use crate::dataset::{
     groundtruth_trajectory, open_dataset, Dataset, DatasetError, SensorStream, StreamOptions,
 };
+use crate::edge_map::localise::MapLocaliser;
+use crate::edge_map::map_file::{MapFileError, SavedMap};
 use crate::edge_map::AbsoluteStage;
 use crate::eval::report::Evaluation;
 use crate::eval::{evaluate, Alignment, EvalOptions};
@@ -39,6 +41,13 @@ pub struct DatasetRun {
     /// the relative stage's outputs; the corrected trajectory becomes
     /// the run's trajectory and the relative one is kept beside it.
     pub absolute: bool,
+    /// With `absolute`: write the final map (landmarks, covariances,
+    /// descriptors) here at the end of the run.
+    pub save_map: Option<std::path::PathBuf>,
+    /// Localise in this saved map instead of building one: the run's
+    /// trajectory is the localised one, in the map's frame, from the
+    /// first frame the map was recognised.
+    pub load_map: Option<std::sync::Arc<SavedMap>>,
 }
 
 impl Default for DatasetRun {
@@ -53,6 +62,8 @@ impl Default for DatasetRun {
             groundtruth: None,
             align: None,
             absolute: false,
+            save_map: None,
+            load_map: None,
         }
     }
 }
@@ -81,6 +92,14 @@ pub enum RunError {
     NoFrames(String),
     #[error(transparent)]
     Config(#[from] crate::relative::config::ConfigError),
+    #[error("saving the map: {0}")]
+    SaveMap(#[from] MapFileError),
+    #[error("--save-map needs the absolute stage (--absolute)")]
+    SaveMapWithoutAbsolute,
+    #[error("the map is saved at the end of the run: no map to save (the absolute stage never had two landmarks in view while tracking)")]
+    NoMapToSave,
+    #[error("--load-map and --absolute: pick one (localise in a saved map, or build a new one)")]
+    LoadMapAndAbsolute,
 }
 
 /// Runs `run` on the dataset at `path`; `on_frame` sees every output and
@@ -92,6 +111,12 @@ pub fn run_dataset(
 ) -> Result<DatasetRunResult, RunError> {
     if !(run.start_s.is_finite() && run.start_s >= 0.0) {
         return Err(RunError::BadStart(run.start_s));
+    }
+    if run.save_map.is_some() && !run.absolute {
+        return Err(RunError::SaveMapWithoutAbsolute);
+    }
+    if run.load_map.is_some() && run.absolute {
+        return Err(RunError::LoadMapAndAbsolute);
     }
     let dataset = open_dataset(path)?;
     let rig = rig_of(&dataset);
@@ -109,21 +134,44 @@ pub fn run_dataset(
         },
     )?;
     let listed = stream.frames_listed();
+    let setting_error = |e: crate::edge_map::settings::SettingError| {
+        RunError::Config(crate::relative::config::ConfigError::OutOfRange {
+            key: e.key,
+            value: e.value,
+            allowed: e.allowed,
+        })
+    };
     let mut absolute = run
         .absolute
         .then(|| run.config.absolute.to_config())
         .transpose()
-        .map_err(|e| {
-            RunError::Config(crate::relative::config::ConfigError::OutOfRange {
-                key: e.key,
-                value: e.value,
-                allowed: e.allowed,
-            })
-        })?
+        .map_err(setting_error)?
         .map(AbsoluteStage::new);
+    let mut localiser = match &run.load_map {
+        Some(map) => Some(MapLocaliser::new(
+            map,
+            run.config
+                .absolute
+                .to_localise_config()
+                .map_err(setting_error)?,
+        )),
+        None => None,
+    };
     let mut corrected = Vec::new();
     let mut absolute_ms = Vec::new();
     let mut outcome = run_stream(&mut stream, estimator.as_mut(), run.options, |o| {
+        if let Some(localiser) = localiser.as_mut() {
+            let start = std::time::Instant::now();
+            let pose = localiser.push(o);
+            absolute_ms.push(start.elapsed().as_secs_f64() * 1e3);
+            if let Some(pose) = pose {
+                corrected.push(StampedPose::new(
+                    pose.t_ns,
+                    pose.T_map_body.translation.vector,
+                    pose.T_map_body.rotation,
+                ));
+            }
+        }
         if let Some(stage) = absolute.as_mut() {
             let start = std::time::Instant::now();
             let pose = stage.push(o);
@@ -141,10 +189,26 @@ pub fn run_dataset(
     let mut trajectory_relative = None;
     if let Some(stage) = absolute.as_mut() {
         stage.wait_for_solve();
+        if let Some(path) = &run.save_map {
+            let map = stage.finish_map().ok_or(RunError::NoMapToSave)?;
+            map.write(path)?;
+            tracing::info!(
+                "saved {} landmarks to {}",
+                map.landmarks.len(),
+                path.display()
+            );
+        }
+    }
+    if absolute.is_some() || localiser.is_some() {
         for (frame, ms) in outcome.frame_ms.iter_mut().zip(&absolute_ms) {
             *frame += ms;
         }
-        outcome.stage_ms.insert("absolute", absolute_ms);
+        let stage = if localiser.is_some() {
+            "localise"
+        } else {
+            "absolute"
+        };
+        outcome.stage_ms.insert(stage, absolute_ms);
         trajectory_relative = Some(std::mem::replace(
             &mut outcome.trajectory,
             Trajectory::new(corrected),
@@ -221,6 +285,7 @@ pub fn run_dataset(
         eval: evaluation.as_ref().map(|e| e.report.clone()),
         eval_relative: evaluation_relative.as_ref().map(|e| e.report.clone()),
         absolute: absolute.as_ref().map(|s| s.stats().clone()),
+        localise: localiser.as_ref().map(|l| l.stats().clone()),
     };
     Ok(DatasetRunResult {
         report,
@@ -286,6 +351,12 @@ pub fn summary_line(r: &RunReport) -> String {
         None => line += "never initialised, ",
     }
     line += &format!("lost {}x, {} poses", r.lost_count, r.poses_written);
+    if let Some(l) = &r.localise {
+        line += &format!(
+            "; localised in the map {} of {} frames ({} relocalisations)",
+            l.localised_frames, l.frames, l.relocalisations
+        );
+    }
     if let Some(e) = &r.eval_relative {
         line += &format!("; relative stage alone ATE {:.3} m", e.ate_rmse_m);
     }

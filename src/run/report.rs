@@ -85,6 +85,8 @@ pub struct RunReport {
     pub eval_relative: Option<EvalReport>,
     /// The absolute stage's counters and times, when it ran.
     pub absolute: Option<AbsoluteStats>,
+    /// Localisation in a saved map (`--load-map`), when it ran.
+    pub localise: Option<crate::edge_map::localise::LocaliseStats>,
 }
 
 /// The process's resident memory now and at its peak, MiB, from

@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use rigslam::dataset::{read_trajectory_any, write_tum};
+use rigslam::edge_map::map_file::SavedMap;
 use rigslam::eval::plot::write_plot;
 use rigslam::eval::Alignment;
 use rigslam::relative::{EstimatorKind, RelativeConfig, SensorMode};
@@ -36,9 +37,19 @@ pub struct RunArgs {
     /// position filter) on the relative stage's output.
     #[arg(long)]
     absolute: bool,
-    /// With --absolute: write the relative stage's own trajectory here.
-    #[arg(long, requires = "absolute")]
+    /// With --absolute or --load-map: write the relative stage's own
+    /// trajectory here.
+    #[arg(long)]
     trajectory_relative: Option<PathBuf>,
+    /// With --absolute: save the final map here (text: one landmark per
+    /// line, position, covariance and descriptor) to localise in later.
+    #[arg(long, requires = "absolute")]
+    save_map: Option<PathBuf>,
+    /// Localise in a map saved by --save-map instead of building one. The
+    /// trajectory is then in the map's frame, from the first frame the map
+    /// was recognised (relocalisation by descriptor matching + RANSAC).
+    #[arg(long, conflicts_with = "absolute")]
+    load_map: Option<PathBuf>,
     /// Estimator settings (TOML; see `rigslam run --print-config`).
     #[arg(long)]
     config: Option<PathBuf>,
@@ -86,6 +97,15 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         Some(path) => RelativeConfig::from_toml_file(path)?,
         None => RelativeConfig::default(),
     };
+    if args.trajectory_relative.is_some() && !args.absolute && args.load_map.is_none() {
+        anyhow::bail!("--trajectory-relative needs --absolute or --load-map (otherwise --trajectory is the relative trajectory)");
+    }
+    let load_map = match &args.load_map {
+        Some(path) => Some(std::sync::Arc::new(
+            SavedMap::read(path).with_context(|| format!("loading the map {}", path.display()))?,
+        )),
+        None => None,
+    };
     let groundtruth = match &args.groundtruth {
         Some(path) => Some(
             read_trajectory_any(path)
@@ -118,6 +138,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         groundtruth,
         align: args.align,
         absolute: args.absolute,
+        save_map: args.save_map.clone(),
+        load_map,
     };
     let result = run_dataset(&dataset, &run, |output, listed| {
         bar.set_length(listed as u64);
