@@ -110,6 +110,11 @@ pub struct TargetPose {
     /// Information (inverse covariance) of `p_target_cam` with the
     /// orientation marginalised out, 1/m^2, for the fit's pixel noise.
     pub position_information: Matrix3<f64>,
+    /// Regression of the orientation error on the position error
+    /// (`Sigma_theta_p Sigma_pp^-1` of the PnP covariance, rad/m): the
+    /// expected orientation error (right perturbation of `R_target_cam`)
+    /// when the camera centre is off by `e_p`, is `K e_p`.
+    pub orientation_given_position: Matrix3<f64>,
 }
 
 /// Marginal information of the camera centre from the PnP Jacobian:
@@ -122,7 +127,7 @@ fn position_information(
     t_cam_target: &Vector3<f64>,
     points: &[Vector3<f64>],
     sigma_px: f64,
-) -> Option<Matrix3<f64>> {
+) -> Option<(Matrix3<f64>, Matrix3<f64>)> {
     let mut info = nalgebra::Matrix6::<f64>::zeros();
     for p in points {
         let p_cam = r_cam_target * p + t_cam_target;
@@ -136,7 +141,13 @@ fn position_information(
     }
     let covariance = info.try_inverse()?;
     let position = covariance.fixed_view::<3, 3>(0, 0).into_owned();
-    Some(position.try_inverse()? / (sigma_px * sigma_px))
+    let position_inverse = position.try_inverse()?;
+    let orientation_given_position =
+        covariance.fixed_view::<3, 3>(3, 0).into_owned() * position_inverse;
+    Some((
+        position_inverse / (sigma_px * sigma_px),
+        orientation_given_position,
+    ))
 }
 
 /// Fewest corners for a frame's PnP to be trusted.
@@ -187,7 +198,7 @@ pub fn target_poses(camera: &PinholeRadtan, detections: &[TargetDetection]) -> V
         if rms_px > MAX_POSE_RMS_PX || pose.inlier_count < points.len() * 9 / 10 {
             continue;
         }
-        let Some(info) = position_information(
+        let Some((info, orientation_given_position)) = position_information(
             camera,
             &r_cam_target,
             &t_cam_target,
@@ -203,6 +214,7 @@ pub fn target_poses(camera: &PinholeRadtan, detections: &[TargetDetection]) -> V
             rms_px,
             corners: points.len(),
             position_information: info,
+            orientation_given_position,
         });
     }
     out
@@ -212,6 +224,95 @@ pub fn target_poses(camera: &PinholeRadtan, detections: &[TargetDetection]) -> V
 mod tests {
     use super::*;
     use std::io::Write;
+
+    /// `orientation_given_position` against finite differences: with the
+    /// camera centre held `dp` away from the truth, the orientation that
+    /// best fits the (exact) corners, found by Gauss-Newton on a numerical
+    /// Jacobian, is off by `K dp`.
+    #[test]
+    fn orientation_given_position_matches_refitting_the_orientation() {
+        use rigslam::imu::so3;
+        let camera = PinholeRadtan {
+            width: 752,
+            height: 480,
+            fx: 458.654,
+            fy: 457.296,
+            cx: 367.215,
+            cy: 248.375,
+            distortion: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05, 0.0],
+        };
+        let points: Vec<Vector3<f64>> = (0..12)
+            .flat_map(|i| (0..12).map(move |j| Vector3::new(i as f64 * 0.05, j as f64 * 0.05, 0.0)))
+            .collect();
+        // Camera about 0.9 m from the grid's centre, looking at it obliquely.
+        let r_target_cam = so3::exp(&Vector3::new(2.9, 0.25, -0.1));
+        let p_target_cam =
+            Vector3::new(0.35, 0.2, 0.0) - r_target_cam * Vector3::new(0.02, -0.03, 0.9);
+        let project = |r_tc: &Matrix3<f64>, p: &Vector3<f64>| -> Vec<f64> {
+            points
+                .iter()
+                .flat_map(|x| {
+                    let q = camera
+                        .project(&(r_tc.transpose() * (x - p)))
+                        .expect("in front");
+                    [q.x, q.y]
+                })
+                .collect()
+        };
+        let observed = project(&r_target_cam, &p_target_cam);
+        let r_cam_target = r_target_cam.transpose();
+        let (_, k) = position_information(
+            &camera,
+            &r_cam_target,
+            &-(r_cam_target * p_target_cam),
+            &points,
+            0.5,
+        )
+        .expect("well-posed");
+        for dp in [
+            Vector3::new(1e-3, 0.0, 0.0),
+            Vector3::new(0.0, -1e-3, 0.0),
+            Vector3::new(0.0, 0.0, 1e-3),
+        ] {
+            let p = p_target_cam + dp;
+            let mut theta = Vector3::zeros();
+            for _ in 0..10 {
+                let residual = |t: &Vector3<f64>| -> Vec<f64> {
+                    project(&(r_target_cam * so3::exp(t)), &p)
+                        .iter()
+                        .zip(&observed)
+                        .map(|(a, b)| a - b)
+                        .collect()
+                };
+                let r0 = residual(&theta);
+                let h = 1e-7;
+                let columns: Vec<Vec<f64>> = (0..3)
+                    .map(|c| {
+                        let mut t = theta;
+                        t[c] += h;
+                        residual(&t)
+                            .iter()
+                            .zip(&r0)
+                            .map(|(a, b)| (a - b) / h)
+                            .collect()
+                    })
+                    .collect();
+                let mut jtj = Matrix3::zeros();
+                let mut jtr = Vector3::zeros();
+                for i in 0..r0.len() {
+                    let row = Vector3::new(columns[0][i], columns[1][i], columns[2][i]);
+                    jtj += row * row.transpose();
+                    jtr += row * r0[i];
+                }
+                theta -= jtj.try_inverse().expect("full rank") * jtr;
+            }
+            let predicted = k * dp;
+            assert!(
+                (theta - predicted).norm() < 0.02 * theta.norm() + 1e-7,
+                "dp {dp:?}: refit {theta:?} vs K dp {predicted:?}"
+            );
+        }
+    }
 
     #[test]
     fn reads_rows_and_names_the_bad_line() {

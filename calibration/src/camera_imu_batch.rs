@@ -6,19 +6,33 @@
 //!
 //! - position: `p_imu(t_k + d) + R_world_imu(k) p_imu_cam - s p_world_cam(k)`
 //!   for every posed frame (the lever arm `p_imu_cam` is the camera centre in
-//!   the IMU frame);
-//! - acceleration: `p_imu''(t_j) - R_world_imu(t_j) (f_j - b_a) - g_world`
-//!   for every accelerometer sample;
+//!   the IMU frame), whitened by the PnP position information;
+//! - acceleration: `p_imu''(t_j) - R_world_imu(t_j) (f_j - b_a(t_j)) - g_world`
+//!   for every accelerometer sample, the bias `b_a` linear between a few
+//!   nodes with the accelerometer's random walk as the prior between them;
 //! - angular rate: `w_imu - b_g - R_imu_cam w_cam` over every frame interval.
 //!
 //! For a fixed time offset `d` and rotation `R_imu_cam` the spline, the lever
-//! arm, the accelerometer bias and gravity enter linearly and are solved
-//! exactly (banded normal equations with a Schur complement on the nine
-//! global unknowns); the offset and rotation are then found by Nelder-Mead
-//! over that projected cost (variable projection, Golub and Pereyra 1973).
-//! Gravity is left free and the target's metric scale `s` is estimated, so
+//! arm, the bias nodes and gravity enter linearly and are solved exactly
+//! (banded normal equations with a Schur complement on the global
+//! unknowns); the offset and rotation are then found by Nelder-Mead over
+//! that projected cost (variable projection, Golub and Pereyra 1973).
+//! Gravity's magnitude is held at the local value when one is given (its
+//! direction is free), and the target's metric scale `s` is estimated, so
 //! a wrong tag size shows as `s != 1`.
 //! The residuals are weighted by their own RMS from a first solve.
+//!
+//! A PnP pose's orientation and position errors are strongly correlated
+//! (a small sideways shift of the camera looks much like a small turn:
+//! about 0.2 degrees per 4 mm on the EuRoC recording). Taking the PnP
+//! orientation as given puts that error into the accelerometer's gravity
+//! and the gyro comparison. So after the first solve each frame's
+//! orientation is replaced by its Gaussian expectation given the camera
+//! centre the solution puts there (`TargetPose::orientation_given_position`,
+//! from the PnP covariance), and the offset and rotation are solved again;
+//! this approximates fitting the corner reprojections jointly with the
+//! IMU, as Kalibr does, and on the EuRoC recording cuts the gyro residual
+//! from 0.061 to 0.023 rad/s.
 
 use nalgebra::{Matrix3, Matrix4, SMatrix, SVector, Vector3};
 use rigslam::imu::so3;
@@ -37,6 +51,13 @@ const SPLINE_MARGIN_S: f64 = 0.3;
 /// Weight of the smoothness prior on the control points' second
 /// differences (keeps gaps without data well-posed), 1/m.
 const SMOOTHNESS_WEIGHT: f64 = 1e-3;
+/// Rounds of conditioning the orientations on the solved positions; the
+/// mean correction settles after the first (0.226 then 0.214, 0.215 deg
+/// RMS on the EuRoC recording).
+const CONDITIONING_ITERATIONS: usize = 2;
+/// Weight (1/(m/s^2)^2) of the linearised gravity-magnitude constraint:
+/// holds it to about 1e-4 m/s^2 against the data.
+const GRAVITY_MAGNITUDE_WEIGHT: f64 = 1e8;
 
 /// What the batch starts from (the gyro-correlation estimate).
 #[derive(Debug, Clone)]
@@ -49,6 +70,12 @@ pub struct BatchInput<'a> {
     pub R_imu_cam: Matrix3<f64>,
     pub gyro_bias_rad_s: Vector3<f64>,
     pub timeshift_cam_imu_s: f64,
+    /// Local gravity magnitude, m/s^2, held fixed (Kalibr does the same);
+    /// None estimates it with the rest.
+    pub gravity_m_s2: Option<f64>,
+    /// Accelerometer bias random walk, m/s^3/sqrt(Hz) (Kalibr imu.yaml
+    /// `accelerometer_random_walk`): the prior between bias nodes.
+    pub accel_random_walk: f64,
 }
 
 /// The refined calibration and how well it fits.
@@ -65,7 +92,10 @@ pub struct BatchResult {
     /// are multiplied by it. 1 for a correctly sized target; 1.1 means the
     /// target is 10% larger than its description says.
     pub target_scale: f64,
+    /// Mean accelerometer bias over the recording, m/s^2.
     pub accel_bias_m_s2: Vector3<f64>,
+    /// The bias at its nodes, evenly spread over the recording.
+    pub accel_bias_nodes_m_s2: Vec<Vector3<f64>>,
     pub gyro_bias_rad_s: Vector3<f64>,
     pub accel_rms_m_s2: f64,
     pub position_rms_m: f64,
@@ -119,11 +149,18 @@ struct Prepared {
     r_world_cam: Vec<Matrix3<f64>>,
     p_world_cam: Vec<Vector3<f64>>,
     position_information: Vec<Matrix3<f64>>,
+    orientation_given_position: Vec<Matrix3<f64>>,
     /// Consecutive frame pairs close enough to interpolate between.
     intervals: Vec<usize>,
     imu_t_s: Vec<f64>,
     gyro: Vec<Vector3<f64>>,
     accel: Vec<Vector3<f64>>,
+    /// Local gravity magnitude held fixed, m/s^2 (None: free).
+    gravity_m_s2: Option<f64>,
+    /// Direction of gravity the magnitude constraint is linearised about.
+    gravity_direction: Option<Vector3<f64>>,
+    /// Accelerometer bias random walk, m/s^3/sqrt(Hz).
+    accel_random_walk: f64,
 }
 
 impl Prepared {
@@ -152,6 +189,7 @@ struct LinearSolution {
     cost: f64,
     p_imu_cam: Vector3<f64>,
     accel_bias: Vector3<f64>,
+    accel_bias_nodes: Vec<Vector3<f64>>,
     gravity: Vector3<f64>,
     target_scale: f64,
     gyro_bias: Vector3<f64>,
@@ -161,11 +199,19 @@ struct LinearSolution {
     gyro_rms: f64,
     accel_count: usize,
     position_count: usize,
+    /// Per posed frame: index and position residual (state minus scaled PnP), m.
+    frame_residuals: Vec<(usize, Vector3<f64>)>,
 }
 
-/// Unknowns besides the spline: lever arm (3), accelerometer bias (3),
-/// gravity (3) and the metric scale of the target (1).
-const GLOBALS: usize = 10;
+/// Nodes of the accelerometer bias, linear between them and spread evenly
+/// over the spline (1: a constant bias).
+const ACCEL_BIAS_NODES: usize = 4;
+/// Unknowns besides the spline: lever arm (3), gravity (3), the metric
+/// scale of the target (1) and the accelerometer bias nodes (3 each).
+const GLOBALS: usize = 7 + 3 * ACCEL_BIAS_NODES;
+const GRAVITY: usize = 3;
+const SCALE: usize = 6;
+const BIAS: usize = 7;
 
 /// Normal equations: banded spline block, dense coupling to the globals,
 /// dense global block.
@@ -228,6 +274,11 @@ fn prepare(input: &BatchInput) -> Prepared {
         r_world_cam: input.poses.iter().map(|p| p.R_target_cam).collect(),
         p_world_cam: input.poses.iter().map(|p| p.p_target_cam).collect(),
         position_information: input.poses.iter().map(|p| p.position_information).collect(),
+        orientation_given_position: input
+            .poses
+            .iter()
+            .map(|p| p.orientation_given_position)
+            .collect(),
         frame_t_s,
         intervals,
         imu_t_s: input
@@ -237,6 +288,9 @@ fn prepare(input: &BatchInput) -> Prepared {
             .collect(),
         gyro: input.imu.iter().map(|s| s.gyro_rad_s.into()).collect(),
         accel: input.imu.iter().map(|s| s.accel_m_s2.into()).collect(),
+        gravity_m_s2: input.gravity_m_s2,
+        gravity_direction: None,
+        accel_random_walk: input.accel_random_walk,
     }
 }
 
@@ -296,6 +350,17 @@ fn solve_linear(
         rhs_s: vec![0.0; n],
         rhs_g: SVector::zeros(),
     };
+    // Linear interpolation weights of the bias nodes at `t`.
+    let bias_span = (last - t0) / (ACCEL_BIAS_NODES.max(2) - 1) as f64;
+    let bias_weights = |t: f64| -> Vec<(usize, f64)> {
+        if ACCEL_BIAS_NODES == 1 {
+            return vec![(0, 1.0)];
+        }
+        let x = ((t - t0) / bias_span).clamp(0.0, (ACCEL_BIAS_NODES - 1) as f64);
+        let i = (x.floor() as usize).min(ACCEL_BIAS_NODES - 2);
+        let u = x - i as f64;
+        vec![(i, 1.0 - u), (i + 1, u)]
+    };
     let segment = |t: f64| {
         let x = (t - t0) / knot;
         let i = (x.floor() as usize).min(n_ctrl - 4);
@@ -304,6 +369,7 @@ fn solve_linear(
     type Row = ([(usize, f64); 4], SMatrix<f64, 3, GLOBALS>, Vector3<f64>);
     let mut accel_rows: Vec<Row> = Vec::new();
     let mut position_rows: Vec<(Row, Matrix3<f64>)> = Vec::new();
+    let mut position_frames: Vec<usize> = Vec::new();
     let mut framed = vec![false; prep.frame_t_s.len()];
     let inv_h2 = 1.0 / (knot * knot);
     for &(k, _, _) in &rate_pairs {
@@ -339,8 +405,11 @@ fn solve_linear(
                 (i + 3, dd[3] * inv_h2),
             ];
             let mut g = SMatrix::<f64, 3, GLOBALS>::zeros();
-            g.fixed_view_mut::<3, 3>(0, 3).copy_from(&r_world_imu);
-            g.fixed_view_mut::<3, 3>(0, 6)
+            for (node, w) in bias_weights(prep.imu_t_s[j]) {
+                g.fixed_view_mut::<3, 3>(0, BIAS + 3 * node)
+                    .copy_from(&(r_world_imu * w));
+            }
+            g.fixed_view_mut::<3, 3>(0, GRAVITY)
                 .copy_from(&-Matrix3::identity());
             accel_rows.push((spline, g, r_world_imu * prep.accel[j]));
         }
@@ -355,8 +424,9 @@ fn solve_linear(
             let mut g = SMatrix::<f64, 3, GLOBALS>::zeros();
             g.fixed_view_mut::<3, 3>(0, 0)
                 .copy_from(&(prep.r_world_cam[f] * r_cam_imu));
-            g.set_column(9, &-prep.p_world_cam[f]);
+            g.set_column(SCALE, &-prep.p_world_cam[f]);
             position_rows.push(((spline, g, Vector3::zeros()), prep.position_information[f]));
+            position_frames.push(f);
         }
     }
     let accel_info = Matrix3::identity() * weights.accel.powi(2);
@@ -375,6 +445,34 @@ fn solve_linear(
             &Vector3::zeros(),
             &smooth_info,
         );
+    }
+    // Random-walk prior on the accelerometer bias between nodes:
+    // b_n+1 - b_n ~ N(0, sigma_rw^2 dt).
+    if ACCEL_BIAS_NODES > 1 {
+        let rw = prep.accel_random_walk.max(1e-9);
+        let info = 1.0 / (rw * rw * bias_span);
+        for node in 0..ACCEL_BIAS_NODES - 1 {
+            for axis in 0..3 {
+                let (a, b) = (BIAS + 3 * node + axis, BIAS + 3 * (node + 1) + axis);
+                normal.c[(a, a)] += info;
+                normal.c[(b, b)] += info;
+                normal.c[(a, b)] -= info;
+                normal.c[(b, a)] -= info;
+            }
+        }
+    }
+    // Known gravity magnitude: `dir . g = |g|` along the current estimate
+    // of its direction (linearised; the direction is updated between
+    // solves).
+    if let (Some(dir), Some(magnitude)) = (prep.gravity_direction, prep.gravity_m_s2) {
+        let w = GRAVITY_MAGNITUDE_WEIGHT;
+        let target = magnitude;
+        for a in 0..3 {
+            for b in 0..3 {
+                normal.c[(GRAVITY + a, GRAVITY + b)] += w * dir[a] * dir[b];
+            }
+            normal.rhs_g[GRAVITY + a] += w * dir[a] * target;
+        }
     }
     // Schur complement on the globals.
     let factor = normal.a.cholesky().ok_or(BatchError::Singular)?;
@@ -435,9 +533,15 @@ fn solve_linear(
     Ok(LinearSolution {
         cost,
         p_imu_cam: globals.fixed_rows::<3>(0).into_owned(),
-        accel_bias: globals.fixed_rows::<3>(3).into_owned(),
-        gravity: globals.fixed_rows::<3>(6).into_owned(),
-        target_scale: globals[9],
+        accel_bias: (0..ACCEL_BIAS_NODES)
+            .map(|n| globals.fixed_rows::<3>(BIAS + 3 * n).into_owned())
+            .sum::<Vector3<f64>>()
+            / ACCEL_BIAS_NODES as f64,
+        accel_bias_nodes: (0..ACCEL_BIAS_NODES)
+            .map(|n| globals.fixed_rows::<3>(BIAS + 3 * n).into_owned())
+            .collect(),
+        gravity: globals.fixed_rows::<3>(GRAVITY).into_owned(),
+        target_scale: globals[SCALE],
         gyro_bias,
         accel_rms: (accel_sq / accel_rows.len() as f64).sqrt(),
         position_rms: (position_sq / position_rows.len() as f64).sqrt(),
@@ -445,6 +549,11 @@ fn solve_linear(
         gyro_rms: (gyro_sq / rate_pairs.len() as f64).sqrt(),
         accel_count: accel_rows.len(),
         position_count: position_rows.len(),
+        frame_residuals: position_frames
+            .iter()
+            .zip(&position_rows)
+            .map(|(&f, ((s, g, t), _))| (f, residual(s, g, t)))
+            .collect(),
     })
 }
 
@@ -501,9 +610,32 @@ fn nelder_mead<const N: usize>(
     simplex[0].0
 }
 
+/// Replaces each frame's PnP orientation by its expectation given the
+/// camera centre the batch solution puts there: with `e_p = p_pnp - p` the
+/// PnP position error (target units), the orientation error expected with
+/// it is `K e_p` (`TargetPose::orientation_given_position`), so
+/// `R = R_pnp Exp(-K e_p)`.
+fn condition_orientations(
+    prep: &mut Prepared,
+    pnp_r_world_cam: &[Matrix3<f64>],
+    solution: &LinearSolution,
+) {
+    let scale = if solution.target_scale.abs() > 1e-6 {
+        solution.target_scale
+    } else {
+        1.0
+    };
+    for &(f, residual) in &solution.frame_residuals {
+        // residual = p_imu + R p_imu_cam - s p_pnp = s (p - p_pnp).
+        let e_p = -residual / scale;
+        let correction = prep.orientation_given_position[f] * e_p;
+        prep.r_world_cam[f] = pnp_r_world_cam[f] * so3::exp(&-correction);
+    }
+}
+
 /// Refines offset, rotation, lever arm, biases and gravity (module doc).
 pub fn refine_camera_imu(input: &BatchInput) -> Result<BatchResult, BatchError> {
-    let prep = prepare(input);
+    let mut prep = prepare(input);
     let r0 = input.R_imu_cam;
     // Parameters: offset in ms, rotation perturbation (R0 Exp(phi)) in mrad.
     let unpack = |x: &SVector<f64, 4>| {
@@ -519,16 +651,30 @@ pub fn refine_camera_imu(input: &BatchInput) -> Result<BatchResult, BatchError> 
         gyro: 1.0 / 0.02,
     };
     let first = solve_linear(&prep, input.timeshift_cam_imu_s, &r0, &nominal)?;
+    prep.gravity_direction = first.gravity.try_normalize(1e-9);
     let weights = Weights {
         position: 1.0 / first.position_whitened_rms.max(1e-3),
         accel: 1.0 / first.accel_rms.max(1e-3),
         gyro: 1.0 / first.gyro_rms.max(1e-4),
     };
-    let mut objective = |x: &SVector<f64, 4>| {
-        let (shift, r) = unpack(x);
-        solve_linear(&prep, shift, &r, &weights).map_or(f64::INFINITY, |s| s.cost)
+    let minimise = |prep: &Prepared, from: SVector<f64, 4>, step: f64| {
+        let mut objective = |x: &SVector<f64, 4>| {
+            let (shift, r) = unpack(x);
+            solve_linear(prep, shift, &r, &weights).map_or(f64::INFINITY, |s| s.cost)
+        };
+        nelder_mead(&mut objective, from, step, 200)
     };
-    let best = nelder_mead(&mut objective, start, 1.0, 200);
+    let mut best = minimise(&prep, start, 1.0);
+    // Orientations conditioned on the positions the IMU supports
+    // (module doc), then the offset and rotation again.
+    let pnp_r_world_cam = prep.r_world_cam.clone();
+    for _ in 0..CONDITIONING_ITERATIONS {
+        let (shift, r) = unpack(&best);
+        let solution = solve_linear(&prep, shift, &r, &weights)?;
+        condition_orientations(&mut prep, &pnp_r_world_cam, &solution);
+        prep.gravity_direction = solution.gravity.try_normalize(1e-9);
+        best = minimise(&prep, best, 0.3);
+    }
     let (shift, r_imu_cam) = unpack(&best);
     let solution = solve_linear(&prep, shift, &r_imu_cam, &weights)?;
     let cost_curve = (-20..=20)
@@ -546,6 +692,7 @@ pub fn refine_camera_imu(input: &BatchInput) -> Result<BatchResult, BatchError> 
         gravity_m_s2: solution.gravity,
         target_scale: solution.target_scale,
         accel_bias_m_s2: solution.accel_bias,
+        accel_bias_nodes_m_s2: solution.accel_bias_nodes.clone(),
         gyro_bias_rad_s: solution.gyro_bias,
         accel_rms_m_s2: solution.accel_rms,
         position_rms_m: solution.position_rms,
@@ -578,30 +725,80 @@ mod tests {
         (so3::exp(&phi), p)
     }
 
-    #[test]
-    fn recovers_extrinsics_offset_bias_and_gravity_from_exact_data() {
-        let r_imu_cam = Rotation3::from_euler_angles(0.02, -0.01, 1.55).into_inner();
-        let p_imu_cam = Vector3::new(-0.02, -0.065, 0.01);
-        let gravity = Vector3::new(0.3, -9.7, 1.4);
-        let accel_bias = Vector3::new(0.05, -0.1, 0.08);
-        let gyro_bias = Vector3::new(0.002, 0.02, -0.07);
-        let shift_s = 0.004;
-        // Camera poses at 20 Hz (camera clock = IMU clock - shift).
+    struct Truth {
+        r_imu_cam: Matrix3<f64>,
+        p_imu_cam: Vector3<f64>,
+        gravity: Vector3<f64>,
+        accel_bias: Vector3<f64>,
+        gyro_bias: Vector3<f64>,
+        shift_s: f64,
+    }
+
+    fn truth() -> Truth {
+        Truth {
+            r_imu_cam: Rotation3::from_euler_angles(0.02, -0.01, 1.55).into_inner(),
+            p_imu_cam: Vector3::new(-0.02, -0.065, 0.01),
+            gravity: Vector3::new(0.3, -9.7, 1.4),
+            accel_bias: Vector3::new(0.05, -0.1, 0.08),
+            gyro_bias: Vector3::new(0.002, 0.02, -0.07),
+            shift_s: 0.004,
+        }
+    }
+
+    /// PnP errors as in real poses: the camera centre off by `e_p` (a few
+    /// mm, changing within a second) and the orientation off by the turn
+    /// that goes with it, `K e_p` with `K` "1 mm sideways = 1 mrad about
+    /// the other image axis".
+    fn pnp_error(t: f64, r_target_cam: &Matrix3<f64>) -> (Vector3<f64>, Matrix3<f64>) {
+        let e_cam = Vector3::new(
+            0.004 * (11.0 * t).sin(),
+            0.004 * (7.3 * t + 0.5).cos(),
+            0.002 * (5.1 * t).sin(),
+        );
+        let k_cam = Matrix3::new(0.0, 1.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        (r_target_cam * e_cam, k_cam * r_target_cam.transpose())
+    }
+
+    /// Camera poses at 20 Hz (camera clock = IMU clock - shift) and IMU at
+    /// 200 Hz from central differences of the analytic motion. With
+    /// `pnp_errors` the poses carry [`pnp_error`]; `declare_k` says whether
+    /// their `orientation_given_position` tells the batch about it.
+    fn recording(
+        truth: &Truth,
+        pnp_errors: bool,
+        declare_k: bool,
+    ) -> (Vec<TargetPose>, Vec<ImuSample>) {
         let poses: Vec<TargetPose> = (0..400)
             .map(|k| {
                 let t = k as f64 * 0.05;
-                let (r, p) = imu_pose(t + shift_s);
+                let (r, p) = imu_pose(t + truth.shift_s);
+                let r_target_cam = r * truth.r_imu_cam;
+                let p_target_cam = p + r * truth.p_imu_cam;
+                let (e_p, k_matrix) = if pnp_errors {
+                    pnp_error(t, &r_target_cam)
+                } else {
+                    (Vector3::zeros(), Matrix3::zeros())
+                };
                 TargetPose {
                     t_ns: (t * 1e9).round() as i64,
-                    R_target_cam: r * r_imu_cam,
-                    p_target_cam: p + r * p_imu_cam,
+                    R_target_cam: r_target_cam * so3::exp(&(k_matrix * e_p)),
+                    p_target_cam: p_target_cam + e_p,
                     rms_px: 0.1,
                     corners: 100,
-                    position_information: Matrix3::identity() * 1e6,
+                    position_information: Matrix3::identity()
+                        * if pnp_errors {
+                            1.0 / 0.003f64.powi(2)
+                        } else {
+                            1e6
+                        },
+                    orientation_given_position: if declare_k {
+                        k_matrix
+                    } else {
+                        Matrix3::zeros()
+                    },
                 }
             })
             .collect();
-        // IMU at 200 Hz from central differences of the analytic motion.
         let h = 1e-4;
         let imu: Vec<ImuSample> = (0..4000)
             .map(|j| {
@@ -611,24 +808,49 @@ mod tests {
                 let (r_prev, p_prev) = imu_pose(t - h);
                 let w = so3::log(&(r_prev.transpose() * r_next)) / (2.0 * h);
                 let a = (p_next - 2.0 * p + p_prev) / (h * h);
-                let f = r.transpose() * (a - gravity) + accel_bias;
+                let f = r.transpose() * (a - truth.gravity) + truth.accel_bias;
                 ImuSample {
                     t_ns: (t * 1e9).round() as i64,
-                    gyro_rad_s: (w + gyro_bias).into(),
+                    gyro_rad_s: (w + truth.gyro_bias).into(),
                     accel_m_s2: f.into(),
                 }
             })
             .collect();
-        let start = r_imu_cam * so3::exp(&Vector3::new(0.004, -0.003, 0.005));
-        let result = refine_camera_imu(&BatchInput {
-            poses: &poses,
-            imu: &imu,
+        (poses, imu)
+    }
+
+    fn refine(
+        truth: &Truth,
+        poses: &[TargetPose],
+        imu: &[ImuSample],
+        gravity_m_s2: Option<f64>,
+    ) -> BatchResult {
+        refine_camera_imu(&BatchInput {
+            poses,
+            imu,
             t_origin_ns: 0,
-            R_imu_cam: start,
+            R_imu_cam: truth.r_imu_cam * so3::exp(&Vector3::new(0.004, -0.003, 0.005)),
             gyro_bias_rad_s: Vector3::zeros(),
             timeshift_cam_imu_s: 0.0055,
+            gravity_m_s2,
+            accel_random_walk: 3e-3,
         })
-        .expect("well-posed");
+        .expect("well-posed")
+    }
+
+    #[test]
+    fn recovers_extrinsics_offset_bias_and_gravity_from_exact_data() {
+        let truth = truth();
+        let Truth {
+            r_imu_cam,
+            p_imu_cam,
+            gravity,
+            accel_bias,
+            gyro_bias,
+            shift_s,
+        } = truth;
+        let (poses, imu) = recording(&truth, false, false);
+        let result = refine(&truth, &poses, &imu, None);
         let angle = so3::log(&(result.R_imu_cam.transpose() * r_imu_cam)).norm();
         assert!(angle < 1e-4, "rotation error {angle} rad");
         assert!(
@@ -656,6 +878,35 @@ mod tests {
             "gyro bias {}",
             result.gyro_bias_rad_s
         );
+    }
+
+    #[test]
+    fn conditioning_on_the_positions_removes_the_turn_that_goes_with_a_pnp_shift() {
+        let truth = truth();
+        let g = Some(truth.gravity.norm());
+        let angle = |r: &BatchResult| so3::log(&(r.R_imu_cam.transpose() * truth.r_imu_cam)).norm();
+        let (poses, imu) = recording(&truth, true, true);
+        let declared = refine(&truth, &poses, &imu, g);
+        let (poses, imu) = recording(&truth, true, false);
+        let undeclared = refine(&truth, &poses, &imu, g);
+        let lever = |r: &BatchResult| (r.p_imu_cam_m - truth.p_imu_cam).norm();
+        // Measured: 0.60 mrad and 1.5 mm with K, 2.8 mrad and 38 mm without.
+        assert!(angle(&declared) < 1e-3, "rotation {} rad", angle(&declared));
+        assert!(lever(&declared) < 3e-3, "lever arm {} m", lever(&declared));
+        assert!(
+            angle(&undeclared) > 3.0 * angle(&declared),
+            "without K {} rad, with {} rad",
+            angle(&undeclared),
+            angle(&declared)
+        );
+    }
+
+    #[test]
+    fn holds_a_given_gravity_magnitude() {
+        let truth = truth();
+        let (poses, imu) = recording(&truth, false, false);
+        let result = refine(&truth, &poses, &imu, Some(truth.gravity.norm() + 0.05));
+        assert!((result.gravity_m_s2.norm() - truth.gravity.norm() - 0.05).abs() < 1e-3);
     }
 
     #[test]

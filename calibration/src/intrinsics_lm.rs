@@ -15,8 +15,62 @@ use crate::zhang::{intrinsics_from_homographies, pose_from_homography};
 pub enum IntrinsicsError {
     #[error("only {found} usable views; need at least {needed}: collect more images with the board tilted in different directions")]
     TooFewViews { found: usize, needed: usize },
+    #[error("aspect ratio {0}: fx / fy must be a positive finite number (1 for square pixels)")]
+    BadAspectRatio(f64),
     #[error("the views do not constrain the camera (boards nearly parallel to the sensor?): recollect with the board tilted by 20-45 degrees in several directions")]
     Degenerate,
+}
+
+/// Which intrinsics [`calibrate_intrinsics_with`] holds, and whether it
+/// leaves outlier views out. The default frees all nine and rejects
+/// outliers, as [`calibrate_intrinsics`] does.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct IntrinsicsOptions {
+    /// Hold `fx / fy` at this ratio (OpenCV's `CALIB_FIX_ASPECT_RATIO`;
+    /// its sample writes `aspectRatio: 1` for fx = fy).
+    pub fix_aspect_ratio: Option<f64>,
+    /// Hold k3 at zero (OpenCV's `CALIB_FIX_K3`; Kalibr's 4-coefficient radtan).
+    pub fix_k3: bool,
+    /// Leave views whose RMS is far above the median out of the final fit.
+    pub reject_outlier_views: bool,
+}
+
+impl Default for IntrinsicsOptions {
+    fn default() -> Self {
+        Self {
+            fix_aspect_ratio: None,
+            fix_k3: false,
+            reject_outlier_views: true,
+        }
+    }
+}
+
+impl IntrinsicsOptions {
+    /// Folds the held intrinsics out of a 2x9 intrinsic Jacobian: with
+    /// `fy = fx / a` the fx column becomes `d/dfx + d/dfy / a` and the fy
+    /// column zero; a fixed k3 has a zero column. Zero columns keep their
+    /// parameter where [`Self::enforce`] puts it.
+    fn fold_jacobian(&self, j: &mut SMatrix<f64, 2, 9>) {
+        if let Some(a) = self.fix_aspect_ratio {
+            let fy_column = j.column(1).into_owned();
+            let mut fx_column = j.column_mut(0);
+            fx_column += fy_column / a;
+            j.column_mut(1).fill(0.0);
+        }
+        if self.fix_k3 {
+            j.column_mut(8).fill(0.0);
+        }
+    }
+
+    /// Puts the held intrinsics at their values.
+    fn enforce(&self, camera: &mut PinholeRadtan) {
+        if let Some(a) = self.fix_aspect_ratio {
+            camera.fy = camera.fx / a;
+        }
+        if self.fix_k3 {
+            camera.distortion[4] = 0.0;
+        }
+    }
 }
 
 /// Fewest views accepted.
@@ -99,6 +153,7 @@ fn refine(
     views: &[Vec<Vector2<f64>>],
     active: &[bool],
     max_iterations: usize,
+    options: &IntrinsicsOptions,
 ) -> usize {
     let n_params = 9 + 6 * views.len();
     let mut lambda = 1e-3;
@@ -118,6 +173,8 @@ fn refine(
                     continue;
                 };
                 let residual = px - obs;
+                let mut d_px_d_intr = d_px_d_intr;
+                options.fold_jacobian(&mut d_px_d_intr);
                 let mut j = SMatrix::<f64, 2, 15>::zeros();
                 j.fixed_view_mut::<2, 9>(0, 0).copy_from(&d_px_d_intr);
                 // d(Exp(dphi) R p + t)/d dphi = -[R p]x.
@@ -155,7 +212,8 @@ fn refine(
                 .zip(delta.iter())
                 .map(|(x, d)| x + d)
                 .collect();
-            let trial_camera = with_intrinsics(camera, &intr);
+            let mut trial_camera = with_intrinsics(camera, &intr);
+            options.enforce(&mut trial_camera);
             let trial_poses: Vec<(Matrix3<f64>, Vector3<f64>)> = poses
                 .iter()
                 .enumerate()
@@ -229,6 +287,23 @@ pub fn calibrate_intrinsics(
     board: &[Vector3<f64>],
     views: &[Vec<Vector2<f64>>],
 ) -> Result<IntrinsicsCalibration, IntrinsicsError> {
+    calibrate_intrinsics_with(width, height, board, views, &IntrinsicsOptions::default())
+}
+
+/// [`calibrate_intrinsics`] with some intrinsics held or outlier rejection
+/// off (see [`IntrinsicsOptions`]).
+pub fn calibrate_intrinsics_with(
+    width: u32,
+    height: u32,
+    board: &[Vector3<f64>],
+    views: &[Vec<Vector2<f64>>],
+    options: &IntrinsicsOptions,
+) -> Result<IntrinsicsCalibration, IntrinsicsError> {
+    if let Some(a) = options.fix_aspect_ratio {
+        if !(a > 0.0 && a.is_finite()) {
+            return Err(IntrinsicsError::BadAspectRatio(a));
+        }
+    }
     if views.len() < MIN_VIEWS {
         return Err(IntrinsicsError::TooFewViews {
             found: views.len(),
@@ -247,18 +322,25 @@ pub fn calibrate_intrinsics(
     }
     let mut camera = PinholeRadtan::new(width, height, zhang_pinhole, [0.0; 5])
         .map_err(|_| IntrinsicsError::Degenerate)?;
+    if let Some(a) = options.fix_aspect_ratio {
+        // The start closest to Zhang's with fx / fy = a: the same area fx fy.
+        camera.fx = (camera.fx * camera.fy * a).sqrt();
+        options.enforce(&mut camera);
+    }
     let mut poses: Vec<(Matrix3<f64>, Vector3<f64>)> = homographies
         .iter()
         .map(|h| pose_from_homography(h, zhang_pinhole))
         .collect();
     let mut active = vec![true; views.len()];
-    let mut iterations = refine(&mut camera, &mut poses, board, views, &active, 100);
+    let mut iterations = refine(&mut camera, &mut poses, board, views, &active, 100, options);
     let mut rms: Vec<f64> = (0..views.len())
         .map(|k| view_fit(&camera, &poses[k], board, &views[k]).rms_px)
         .collect();
     let threshold = (OUTLIER_MEDIAN_FACTOR * median(&mut rms.clone())).max(OUTLIER_FLOOR_PX);
-    for (k, r) in rms.iter_mut().enumerate() {
-        active[k] = *r <= threshold;
+    if options.reject_outlier_views {
+        for (k, r) in rms.iter_mut().enumerate() {
+            active[k] = *r <= threshold;
+        }
     }
     let views_used = active.iter().filter(|&&a| a).count();
     if views_used < MIN_VIEWS {
@@ -268,7 +350,7 @@ pub fn calibrate_intrinsics(
         });
     }
     if views_used < views.len() {
-        iterations += refine(&mut camera, &mut poses, board, views, &active, 100);
+        iterations += refine(&mut camera, &mut poses, board, views, &active, 100, options);
     }
     // Outlier views keep their pose re-fitted to the final intrinsics so
     // their reported error is meaningful.
@@ -342,6 +424,10 @@ mod tests {
             [-0.27, 0.05, 0.0015, -0.0003, 0.02],
         )
         .expect("valid");
+        synthetic_views_of(truth, noise_px)
+    }
+
+    fn synthetic_views_of(truth: PinholeRadtan, noise_px: f64) -> Synthetic {
         let board: Vec<Vector3<f64>> = (0..54)
             .map(|i| Vector3::new((i % 9) as f64 * 0.025, (i / 9) as f64 * 0.025, 0.0))
             .collect();
@@ -418,6 +504,90 @@ mod tests {
         assert!(result.views[4].outlier);
         assert_eq!(result.views_used, 9);
         assert!(result.rms_px < 0.15, "rms {}", result.rms_px);
+    }
+
+    fn assert_recovers(c: &PinholeRadtan, truth: &PinholeRadtan) {
+        let estimate = [c.fx, c.fy, c.cx, c.cy].into_iter().chain(c.distortion);
+        let expected = [truth.fx, truth.fy, truth.cx, truth.cy]
+            .into_iter()
+            .chain(truth.distortion);
+        for (e, t) in estimate.zip(expected) {
+            assert!((e - t).abs() < 1e-6 * t.abs().max(1.0), "{c:?}");
+        }
+    }
+
+    #[test]
+    fn held_aspect_ratio_and_k3_recover_a_camera_that_has_them() {
+        // fx / fy = 1.004 and k3 = 0 in the truth; held, the other seven
+        // intrinsics are recovered exactly and the held ones stay put.
+        let truth = PinholeRadtan::new(
+            640,
+            480,
+            [536.0, 536.0 / 1.004, 342.0, 236.0],
+            [-0.27, 0.05, 0.0015, -0.0003, 0.0],
+        )
+        .expect("valid");
+        let (truth, board, views) = synthetic_views_of(truth, 0.0);
+        let options = IntrinsicsOptions {
+            fix_aspect_ratio: Some(1.004),
+            fix_k3: true,
+            ..IntrinsicsOptions::default()
+        };
+        let result =
+            calibrate_intrinsics_with(640, 480, &board, &views, &options).expect("solvable");
+        assert_recovers(&result.camera, &truth);
+        assert!((result.camera.fx / result.camera.fy - 1.004).abs() < 1e-12);
+        assert_eq!(result.camera.distortion[4], 0.0);
+        assert!(result.views[4].outlier);
+    }
+
+    #[test]
+    fn a_held_aspect_ratio_is_kept_when_the_truth_differs() {
+        // Truth fx / fy = 536 / 534; held at 1 the fit must keep fx = fy
+        // (between the two) and pay for it in residuals.
+        let (_, board, views) = synthetic_views(0.0);
+        let options = IntrinsicsOptions {
+            fix_aspect_ratio: Some(1.0),
+            ..IntrinsicsOptions::default()
+        };
+        let result =
+            calibrate_intrinsics_with(640, 480, &board, &views, &options).expect("solvable");
+        assert_eq!(result.camera.fx, result.camera.fy);
+        assert!(
+            result.camera.fx > 534.0 && result.camera.fx < 536.0,
+            "{:?}",
+            result.camera
+        );
+        assert!(result.rms_px > 1e-3, "rms {}", result.rms_px);
+    }
+
+    #[test]
+    fn without_rejection_the_corrupted_view_stays_in() {
+        let (_, board, views) = synthetic_views(0.0);
+        let options = IntrinsicsOptions {
+            reject_outlier_views: false,
+            ..IntrinsicsOptions::default()
+        };
+        let result =
+            calibrate_intrinsics_with(640, 480, &board, &views, &options).expect("solvable");
+        assert_eq!(result.views_used, views.len());
+        assert!(result.views.iter().all(|v| !v.outlier));
+        assert!(result.rms_px > 0.1, "rms {}", result.rms_px);
+    }
+
+    #[test]
+    fn a_non_positive_aspect_ratio_is_an_error() {
+        let (_, board, views) = synthetic_views(0.0);
+        for a in [0.0, -1.0, f64::NAN] {
+            let options = IntrinsicsOptions {
+                fix_aspect_ratio: Some(a),
+                ..IntrinsicsOptions::default()
+            };
+            assert!(matches!(
+                calibrate_intrinsics_with(640, 480, &board, &views, &options),
+                Err(IntrinsicsError::BadAspectRatio(_))
+            ));
+        }
     }
 
     #[test]

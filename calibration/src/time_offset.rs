@@ -205,6 +205,7 @@ mod tests {
                     rms_px: 0.0,
                     corners: 0,
                     position_information: Matrix3::identity(),
+                    orientation_given_position: Matrix3::zeros(),
                 });
             }
             r *= so3::exp(&(w_cam(t + 0.5 * dt) * dt));

@@ -7,7 +7,7 @@ use anyhow::{bail, Context};
 use nalgebra::Vector3;
 use rigslam_calibration::camera_report::{coverage_fraction, verdict, write_camera_report};
 use rigslam_calibration::chessboard::{detect_chessboard, ChessboardConfig, GreyImage};
-use rigslam_calibration::intrinsics_lm::{calibrate_intrinsics, MIN_VIEWS};
+use rigslam_calibration::intrinsics_lm::{calibrate_intrinsics_with, IntrinsicsOptions, MIN_VIEWS};
 
 #[derive(clap::Args)]
 pub struct CameraArgs {
@@ -23,6 +23,14 @@ pub struct CameraArgs {
     /// Folder for camera.yaml, report.md and the plots.
     #[arg(long, default_value = "camera_calibration")]
     out: PathBuf,
+    /// Hold fx / fy at this ratio (1 when given without a value): OpenCV's
+    /// CALIB_FIX_ASPECT_RATIO, for square pixels or to compare with a
+    /// calibration made that way.
+    #[arg(long, value_name = "FX_OVER_FY", num_args = 0..=1, default_missing_value = "1")]
+    fix_aspect_ratio: Option<f64>,
+    /// Hold k3 at zero (OpenCV's CALIB_FIX_K3; Kalibr's four-coefficient radtan).
+    #[arg(long)]
+    fix_k3: bool,
     /// Print one JSON object on stdout.
     #[arg(long)]
     json: bool,
@@ -116,7 +124,12 @@ pub fn run(args: CameraArgs) -> anyhow::Result<()> {
                 .map(move |c| Vector3::new(c as f64 * args.square, r as f64 * args.square, 0.0))
         })
         .collect();
-    let cal = calibrate_intrinsics(width, height, &board, &views)?;
+    let options = IntrinsicsOptions {
+        fix_aspect_ratio: args.fix_aspect_ratio,
+        fix_k3: args.fix_k3,
+        ..IntrinsicsOptions::default()
+    };
+    let cal = calibrate_intrinsics_with(width, height, &board, &views, &options)?;
     let coverage = coverage_fraction(&cal, &views);
     let mut text = verdict(&cal, coverage);
     // The square size only scales the board distances; flag implausible ones.
@@ -154,6 +167,8 @@ pub fn run(args: CameraArgs) -> anyhow::Result<()> {
             "images": files.len(),
             "per_view": per_view,
             "boards_not_found": missing,
+            "fix_aspect_ratio": args.fix_aspect_ratio,
+            "fix_k3": args.fix_k3,
             "verdict": text,
         });
         println!("{json}");

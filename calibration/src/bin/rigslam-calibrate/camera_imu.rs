@@ -28,6 +28,14 @@ pub struct CameraImuArgs {
     /// Largest time offset searched, s.
     #[arg(long, default_value_t = 0.2)]
     max_timeshift_s: f64,
+    /// Local gravity magnitude, m/s^2, held fixed in the batch (Kalibr
+    /// does the same); without it the batch estimates it.
+    #[arg(long)]
+    gravity: Option<f64>,
+    /// Accelerometer bias random walk, m/s^3/sqrt(Hz) (imu.yaml
+    /// `accelerometer_random_walk`; default: EuRoC's ADIS16448 value).
+    #[arg(long, default_value_t = 3e-3)]
+    accel_random_walk: f64,
     /// Folder for camchain-imucam.yaml, report.md and the plots.
     #[arg(long, default_value = "camera_imu_calibration")]
     out: PathBuf,
@@ -41,6 +49,17 @@ pub fn run(args: CameraImuArgs) -> anyhow::Result<()> {
         .intrinsics
         .clone()
         .unwrap_or_else(|| args.detections.join("sequence.yaml"));
+    if let Some(g) = args.gravity {
+        if !(5.0..=15.0).contains(&g) {
+            bail!("--gravity {g}: give the local gravity magnitude in m/s^2 (about 9.78-9.83 on Earth)");
+        }
+    }
+    if !(args.accel_random_walk.is_finite() && args.accel_random_walk > 0.0) {
+        bail!(
+            "--accel-random-walk {}: give the accelerometer bias random walk in m/s^3/sqrt(Hz), a positive number (imu.yaml accelerometer_random_walk)",
+            args.accel_random_walk
+        );
+    }
     let imu = read_euroc_imu_csv(&args.imu)?;
     if imu.samples.len() < 100 {
         bail!(
@@ -115,6 +134,8 @@ pub fn run(args: CameraImuArgs) -> anyhow::Result<()> {
             R_imu_cam: offset.hand_eye.R_imu_cam,
             gyro_bias_rad_s: offset.hand_eye.gyro_bias_rad_s,
             timeshift_cam_imu_s: offset.timeshift_cam_imu_s,
+            gravity_m_s2: args.gravity,
+            accel_random_walk: args.accel_random_walk,
         })
         .with_context(|| format!("{cam}: batch refinement"))?;
         let t_cam_imu: Matrix4<f64> = batch.T_cam_imu();
