@@ -126,6 +126,11 @@ pub struct AbsoluteConfig {
     /// Prediction noise: `Q = sigma^2 * |Δ| * I` (a random walk per metre
     /// travelled), sigma in m per sqrt(m).
     pub translation_sigma_per_sqrt_m: f64,
+    /// Every landmark covariance the relative stage hands over is
+    /// multiplied by this: its window covariances leave out what it does
+    /// not model (tracking drift, calibration), and on real EuRoC frames
+    /// the corrections' NIS says they are too small (bench/README.md).
+    pub landmark_covariance_scale: f64,
     /// At most this many visible landmarks (the most precise) correct a
     /// frame.
     pub max_correction_landmarks: usize,
@@ -149,6 +154,7 @@ impl Default for AbsoluteConfig {
             covariance: LandmarkCovariance::Exact,
             translation_sigma_per_sqrt_m: 0.02,
             max_correction_landmarks: 30,
+            landmark_covariance_scale: 1.0,
             solver_threads: 1,
             recognition: Some(RecognitionConfig::default()),
         }
@@ -201,6 +207,18 @@ pub struct AbsoluteStats {
     /// Landmarks (non-finite, or covariance not positive definite),
     /// increments and poses (non-finite) that were left out.
     pub rejected_inputs: usize,
+    /// Landmarks in view and in the map left out of a correction because
+    /// the map's covariance blocks were computed before they came into
+    /// view (recognised since the last solve): they join after the next.
+    pub uncached_landmarks: usize,
+    /// Mean normalised innovation squared per degree of freedom of the
+    /// corrections: about 1 when the covariances the filter is given are
+    /// right, far above when they are overconfident.
+    pub mean_nis_per_dof: f64,
+    #[serde(skip)]
+    nis_sum: f64,
+    #[serde(skip)]
+    nis_dof: usize,
 }
 
 /// The absolute stage.
@@ -226,6 +244,9 @@ pub struct AbsoluteStage {
     in_flight: bool,
     deferred: bool,
     manual_request: Option<MapSolveRequest>,
+    /// Map ids in view in the last tracking frame, the most precise
+    /// first: the covariance blocks the next solve computes.
+    in_view: Vec<u32>,
 }
 
 struct Background {
@@ -287,6 +308,7 @@ impl AbsoluteStage {
             background,
             in_flight: false,
             deferred: false,
+            in_view: Vec::new(),
             manual_request: None,
         }
     }
@@ -378,7 +400,7 @@ impl AbsoluteStage {
         let start = Instant::now();
         self.poll_background();
         let cleaned;
-        let output = match sanitize(output) {
+        let mut output = match sanitize(output) {
             Some((clean, rejected)) => {
                 self.stats.rejected_inputs += rejected;
                 cleaned = clean;
@@ -386,6 +408,15 @@ impl AbsoluteStage {
             }
             None => output,
         };
+        let scaled;
+        if self.config.landmark_covariance_scale != 1.0 {
+            let mut copy = output.clone();
+            for l in &mut copy.landmarks {
+                l.covariance_body_m2 *= self.config.landmark_covariance_scale;
+            }
+            scaled = copy;
+            output = &scaled;
+        }
         let rotation = *output.T_world_body.rotation.to_rotation_matrix().matrix();
         let tracking = output.state == TrackingState::Tracking;
         let mut report = None;
@@ -416,6 +447,7 @@ impl AbsoluteStage {
         }
         if tracking && self.filter.is_some() {
             self.fuse(output, &rotation);
+            self.note_in_view(output);
         }
         self.frames_since_solve += 1;
         if self.frames_since_solve >= self.config.solve_every_frames && self.edges.edge_count() > 0
@@ -534,6 +566,10 @@ impl AbsoluteStage {
                 .as_ref()
                 .map(|m| m.positions_m.clone())
                 .unwrap_or_default(),
+            covariance_of: match self.config.covariance {
+                LandmarkCovariance::Exact => self.in_view.clone(),
+                LandmarkCovariance::SubMatrix { .. } => Vec::new(),
+            },
         };
         self.next_version += 1;
         match self.config.solve_mode {
@@ -553,6 +589,24 @@ impl AbsoluteStage {
                 }
             }
             SolveMode::Manual => self.manual_request = Some(request),
+        }
+    }
+
+    fn note_in_view(&mut self, output: &RelativeOutput) {
+        let mut ranked: Vec<(f64, u32)> = output
+            .landmarks
+            .iter()
+            .filter_map(|l| Some((l.covariance_body_m2.trace(), *self.map_ids.get(&l.id)?)))
+            .collect();
+        ranked.sort_by(|a, b| a.0.total_cmp(&b.0));
+        self.in_view.clear();
+        for (_, id) in ranked {
+            if !self.in_view.contains(&id) {
+                self.in_view.push(id);
+            }
+            if self.in_view.len() >= IN_VIEW_FACTOR * self.config.max_correction_landmarks {
+                break;
+            }
         }
     }
 
@@ -696,6 +750,17 @@ impl AbsoluteStage {
         visible.sort_by(|a, b| a.0.total_cmp(&b.0));
         let mut seen = std::collections::HashSet::with_capacity(visible.len());
         visible.retain(|v| seen.insert(v.1));
+        // Exact covariance comes from the blocks the solve computed for
+        // the landmarks then in view.
+        let cached = match (self.config.covariance, &map.covariance) {
+            (LandmarkCovariance::Exact, Some(blocks)) => Some(blocks),
+            _ => None,
+        };
+        if let Some(blocks) = cached {
+            let before = visible.len();
+            visible.retain(|v| blocks.slot.contains_key(&v.1));
+            self.stats.uncached_landmarks += before - visible.len();
+        }
         visible.truncate(self.config.max_correction_landmarks);
         if visible.is_empty() {
             return None;
@@ -715,19 +780,26 @@ impl AbsoluteStage {
             .collect();
         let ids: Vec<u32> = visible.iter().map(|v| v.1).collect();
         let filter = self.filter.as_mut()?;
-        let (covariance, cross) = match (self.config.covariance, &map.factor) {
-            (LandmarkCovariance::Exact, Some(_)) => {
+        let (covariance, cross) = match (self.config.covariance, &map.factor, cached) {
+            (LandmarkCovariance::Exact, Some(_), Some(blocks)) => {
+                let c = blocks.select(&ids)?;
+                (c, Some(cross_covariance(map, &ids, filter)))
+            }
+            (LandmarkCovariance::Exact, Some(_), None) => {
                 let (c, x) = exact_blocks(map, &ids, filter);
                 (c, Some(x))
             }
-            (LandmarkCovariance::Exact, None) => (submatrix_blocks(map, &ids, 2), None),
-            (LandmarkCovariance::SubMatrix { hops }, _) => {
+            (LandmarkCovariance::Exact, None, _) => (submatrix_blocks(map, &ids, 2), None),
+            (LandmarkCovariance::SubMatrix { hops }, _, _) => {
                 (submatrix_blocks(map, &ids, hops), None)
             }
         };
         match filter.correct(&fixes, &covariance, cross.as_ref()) {
             Ok(report) => {
                 self.stats.corrections += 1;
+                self.stats.nis_sum += report.nis;
+                self.stats.nis_dof += 3 * report.landmarks;
+                self.stats.mean_nis_per_dof = self.stats.nis_sum / self.stats.nis_dof.max(1) as f64;
                 Some(report)
             }
             Err(e) => {
@@ -761,6 +833,36 @@ fn positive_part(block: &Matrix3<f64>) -> Option<Matrix3<f64>> {
 /// Smallest eigenvalue kept in an edge's information, relative to its
 /// largest: keeps fused edges positive definite (see [`positive_part`]).
 const POSITIVE_PART_FLOOR: f64 = 1e-6;
+
+/// The solve computes covariance blocks for this many times the landmarks
+/// a correction uses, so that tracks lost in the frames after it leave
+/// others to use.
+const IN_VIEW_FACTOR: usize = 2;
+
+/// `Σ_k G_k Σ_L(k, V)` (3 x 3m): the cross-covariance of the position
+/// error with the map errors of `ids`, from a three-column solve with the
+/// factor (`A^-1 G^T`), without the `Σ_L(V, V)` columns.
+fn cross_covariance(map: &SolvedMap, ids: &[u32], filter: &PositionFilter) -> DMatrix<f64> {
+    let factor = map.factor.as_ref().expect("called with a factor");
+    let dim = map.laplacian.dim();
+    let mut rhs = vec![0.0; dim * 3];
+    for (&id, g) in filter.map_sensitivity() {
+        if let Some(u) = map.unknown_of(id) {
+            for c in 0..3 {
+                for r in 0..3 {
+                    rhs[c * dim + 3 * u + r] = g[(c, r)];
+                }
+            }
+        }
+    }
+    if dim > 0 {
+        factor.solve_in_place(&mut rhs, 3);
+    }
+    let unknowns: Vec<Option<usize>> = ids.iter().map(|&id| map.unknown_of(id)).collect();
+    DMatrix::from_fn(3, 3 * ids.len(), |r, c| {
+        unknowns[c / 3].map_or(0.0, |u| rhs[r * dim + 3 * u + c % 3])
+    })
+}
 
 /// Grid cell of the recognition index, m.
 const INDEX_CELL_M: f64 = 1.0;

@@ -32,6 +32,33 @@ pub struct MapSolveRequest {
     /// The previous solution by map id (relative to the reference), for
     /// the conjugate-gradient warm start.
     pub previous_m: Vec<Option<Vector3<f64>>>,
+    /// Map ids whose joint covariance `Σ_L(V, V)` (eq. 59) the worker
+    /// computes from the factor right after the solve, so that the frames
+    /// that use the map read it instead of solving for it: the landmarks in
+    /// view when the solve was asked for.
+    pub covariance_of: Vec<u32>,
+}
+
+/// The joint covariance of some landmarks of a solved map.
+#[derive(Clone, Debug, Default)]
+pub struct CovarianceBlocks {
+    /// Row/column block of each map id in `matrix`.
+    pub slot: std::collections::HashMap<u32, usize>,
+    /// `Σ_L(V, V)`, 3 rows and columns per landmark (zero for the
+    /// reference).
+    pub matrix: nalgebra::DMatrix<f64>,
+}
+
+impl CovarianceBlocks {
+    /// The joint covariance of `ids` (all must have a slot).
+    pub fn select(&self, ids: &[u32]) -> Option<nalgebra::DMatrix<f64>> {
+        let slots: Option<Vec<usize>> = ids.iter().map(|id| self.slot.get(id).copied()).collect();
+        let slots = slots?;
+        let m = ids.len();
+        Some(nalgebra::DMatrix::from_fn(3 * m, 3 * m, |r, c| {
+            self.matrix[(3 * slots[r / 3] + r % 3, 3 * slots[c / 3] + c % 3)]
+        }))
+    }
 }
 
 /// A solved map: landmark positions relative to the reference, and what
@@ -55,6 +82,8 @@ pub struct SolvedMap {
     pub cold_cg_iterations: Option<usize>,
     /// How the symbolic factorisation was obtained (Cholesky solves).
     pub symbolic_path: Option<SymbolicPath>,
+    /// `Σ_L(V, V)` of the request's `covariance_of` (Cholesky solves).
+    pub covariance: Option<CovarianceBlocks>,
 }
 
 impl SolvedMap {
@@ -113,6 +142,7 @@ impl MapSolveWorker {
             version,
             problem: full,
             previous_m,
+            covariance_of,
         } = request;
         let (problem, kept) = if full.components().len() > 1 {
             full.reference_component()
@@ -171,8 +201,16 @@ impl MapSolveWorker {
                 None => Vector3::zeros(),
             });
         }
+        let covariance = factor.as_ref().map(|factor| {
+            let t = Instant::now();
+            let blocks =
+                covariance_blocks(factor, laplacian.dim(), &problem, &local_id, &covariance_of);
+            report.covariance_ms = ms_since(t);
+            blocks
+        });
         report.total_ms = ms_since(start);
         Ok(SolvedMap {
+            covariance,
             version,
             positions_m,
             problem,
@@ -184,6 +222,48 @@ impl MapSolveWorker {
             symbolic_path,
         })
     }
+}
+
+/// `Σ_L(V, V)` of the map ids `ids` (those in the solved component; the
+/// others get no slot): one multi-column solve with the factor.
+fn covariance_blocks(
+    factor: &CholeskyFactor,
+    dim: usize,
+    problem: &MapProblem,
+    local_id: &[Option<u32>],
+    ids: &[u32],
+) -> CovarianceBlocks {
+    let mut slot = std::collections::HashMap::with_capacity(ids.len());
+    let mut unknowns = Vec::with_capacity(ids.len());
+    for &id in ids {
+        let Some(Some(local)) = local_id.get(id as usize).copied() else {
+            continue;
+        };
+        if slot.contains_key(&id) {
+            continue;
+        }
+        slot.insert(id, unknowns.len());
+        unknowns.push(problem.unknown_of(local));
+    }
+    let m = unknowns.len();
+    let mut rhs = vec![0.0; dim * 3 * m];
+    for (k, u) in unknowns.iter().enumerate() {
+        if let Some(u) = u {
+            for c in 0..3 {
+                rhs[(3 * k + c) * dim + 3 * u + c] = 1.0;
+            }
+        }
+    }
+    if dim > 0 && m > 0 {
+        factor.solve_in_place(&mut rhs, 3 * m);
+    }
+    let matrix = nalgebra::DMatrix::from_fn(3 * m, 3 * m, |r, c| {
+        match (unknowns[r / 3], unknowns[c / 3]) {
+            (Some(u), Some(_)) => rhs[c * dim + 3 * u + r % 3],
+            _ => 0.0,
+        }
+    });
+    CovarianceBlocks { slot, matrix }
 }
 
 /// The CG starting point: the previous solution where there is one; a
@@ -267,6 +347,7 @@ mod tests {
                 version: version as u64,
                 problem,
                 previous_m: previous.clone(),
+                covariance_of: Vec::new(),
             };
             let reference = cholesky.solve(request.clone()).unwrap();
             let solved = cg.solve(request).unwrap();
@@ -288,6 +369,56 @@ mod tests {
             warm_total < cold_total,
             "warm {warm_total} vs cold {cold_total} iterations"
         );
+    }
+
+    /// The covariance blocks a solve computes for the landmarks in view
+    /// equal the dense inverse of A at those rows and columns (zero for the
+    /// reference), and landmarks outside the solved map get no slot.
+    #[test]
+    fn requested_covariance_blocks_equal_the_dense_inverse() {
+        let city = simulate_city(&CityOptions {
+            landmarks: 120,
+            ..CityOptions::default()
+        });
+        let mut problem = city.problem.clone();
+        problem.landmark_count += 1; // one landmark no edge reaches
+        let ids = vec![37, 0, 5, 119, 120, 64];
+        let mut worker = MapSolveWorker::new(SolverChoice::Cholesky, 1);
+        let solved = worker
+            .solve(MapSolveRequest {
+                version: 1,
+                problem,
+                previous_m: Vec::new(),
+                covariance_of: ids.clone(),
+            })
+            .expect("solve");
+        let blocks = solved.covariance.as_ref().expect("Cholesky gives blocks");
+        assert!(!blocks.slot.contains_key(&120));
+        let inverse = solved
+            .laplacian
+            .to_dense()
+            .try_inverse()
+            .expect("A is invertible");
+        let kept: Vec<u32> = ids.iter().copied().filter(|&id| id != 120).collect();
+        let joint = blocks.select(&kept).expect("all slotted");
+        for (a, &ia) in kept.iter().enumerate() {
+            for (b, &ib) in kept.iter().enumerate() {
+                for r in 0..3 {
+                    for c in 0..3 {
+                        let expected = match (solved.unknown_of(ia), solved.unknown_of(ib)) {
+                            (Some(u), Some(v)) => inverse[(3 * u + r, 3 * v + c)],
+                            _ => 0.0,
+                        };
+                        let got = joint[(3 * a + r, 3 * b + c)];
+                        assert!(
+                            (got - expected).abs() <= 1e-9 * (1.0 + expected.abs()),
+                            "({ia},{ib}) [{r},{c}]: {got} vs {expected}"
+                        );
+                    }
+                }
+            }
+        }
+        assert!(blocks.select(&[120]).is_none());
     }
 }
 
@@ -324,6 +455,7 @@ fn print_warm_start_table() {
                 version: k as u64,
                 problem: tests::prefix(&city.problem, n),
                 previous_m: previous.clone(),
+                covariance_of: Vec::new(),
             };
             let reference = cholesky.solve(request.clone()).unwrap();
             let t = Instant::now();

@@ -2,7 +2,7 @@
 //! table of `rigslam run --config FILE` (and of the daemon's `[slam]`),
 //! every key with a default, turned into an [`AbsoluteConfig`].
 
-use super::absolute::{AbsoluteConfig, LandmarkCovariance};
+use super::absolute::{AbsoluteConfig, LandmarkCovariance, SolveMode};
 use super::localise::LocaliseConfig;
 use super::policy::EdgePolicy;
 use super::recognition::RecognitionConfig;
@@ -15,6 +15,11 @@ pub struct AbsoluteSettings {
     pub policy: String,
     /// Map solve every this many frames (the paper: 5).
     pub solve_every_frames: usize,
+    /// Where the map is solved: `background` (its own thread, off the
+    /// frame path; the frames use the newest solved map) or `inline` (on
+    /// the frame path: slower frames, but a replay gives the same result
+    /// every time).
+    pub solve: String,
     /// Covariance of the visible landmarks in the correction: `exact`
     /// (blocks of A^-1 from the factor, consistent, cost grows with the
     /// map) or `submatrix` (the paper's approximation, cheap, overconfident).
@@ -25,6 +30,10 @@ pub struct AbsoluteSettings {
     pub max_correction_landmarks: usize,
     /// Prediction noise, m per sqrt(m) travelled.
     pub translation_sigma_per_sqrt_m: f64,
+    /// Multiplies the relative stage's landmark covariances (>= 1 when its
+    /// covariances are too small; see the corrections' mean NIS in the
+    /// report).
+    pub landmark_covariance_scale: f64,
     /// Recognise landmarks that come back under a new track id.
     pub recognition: bool,
     /// Largest descriptor distance of a recognised landmark, bits of 256.
@@ -40,10 +49,12 @@ impl Default for AbsoluteSettings {
         Self {
             policy: config.policy.to_string(),
             solve_every_frames: config.solve_every_frames,
+            solve: "background".into(),
             covariance: "exact".into(),
             submatrix_hops: 2,
             max_correction_landmarks: config.max_correction_landmarks,
             translation_sigma_per_sqrt_m: config.translation_sigma_per_sqrt_m,
+            landmark_covariance_scale: config.landmark_covariance_scale,
             recognition: config.recognition.is_some(),
             recognition_max_hamming: recognition.max_hamming,
             recognition_gate_chi2: recognition.gate_chi2,
@@ -114,6 +125,25 @@ impl AbsoluteSettings {
                 "a positive number",
             ));
         }
+        let scale = self.landmark_covariance_scale;
+        if !(scale.is_finite() && (0.01..=1000.0).contains(&scale)) {
+            return Err(bad(
+                "absolute.landmark_covariance_scale",
+                scale.to_string(),
+                "0.01 to 1000",
+            ));
+        }
+        let solve_mode = match self.solve.as_str() {
+            "background" => SolveMode::Background,
+            "inline" => SolveMode::Inline,
+            _ => {
+                return Err(bad(
+                    "absolute.solve",
+                    self.solve.clone(),
+                    "background or inline",
+                ))
+            }
+        };
         if self.recognition_max_hamming > 128 {
             return Err(bad(
                 "absolute.recognition_max_hamming",
@@ -135,6 +165,8 @@ impl AbsoluteSettings {
             covariance,
             max_correction_landmarks: self.max_correction_landmarks,
             translation_sigma_per_sqrt_m: sigma,
+            landmark_covariance_scale: scale,
+            solve_mode,
             recognition: self.recognition.then_some(RecognitionConfig {
                 max_hamming: self.recognition_max_hamming,
                 gate_chi2: gate,

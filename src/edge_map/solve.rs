@@ -67,6 +67,8 @@ pub struct SolveReport {
     /// Symbolic (when done) + numeric factorisation.
     pub factor_ms: f64,
     pub solve_ms: f64,
+    /// Covariance blocks asked for with the solve (map worker only).
+    pub covariance_ms: f64,
     pub total_ms: f64,
     pub symbolic_reused: bool,
     pub method: &'static str,
