@@ -256,3 +256,82 @@ fn absolute_writes_both_trajectories_and_scores_both() {
         assert!(ate < 0.01, "{key}: ATE {ate} m");
     }
 }
+
+#[test]
+fn a_saved_map_is_localised_in_again() {
+    let Some(root) = shared("euroc/V1_01_micro") else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let map = dir.path().join("v101.map");
+    succeeds(
+        rigslam_run()
+            .args(["--absolute", "--mode", "stereo-inertial", "--dataset"])
+            .arg(&root)
+            .arg("--save-map")
+            .arg(&map),
+    );
+    let text = std::fs::read_to_string(&map).expect("map written");
+    let header = text.lines().next().expect("header");
+    let count: usize = header
+        .strip_prefix("# rigslam map v1 landmarks ")
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("header {header}"));
+    assert!(count > 50, "{count} landmarks");
+    let rows = text.lines().filter(|l| !l.starts_with('#')).count();
+    assert_eq!(rows, count);
+    let localised = dir.path().join("loc.tum");
+    let out = succeeds(
+        rigslam_run()
+            .args(["--json", "--mode", "stereo-inertial", "--dataset"])
+            .arg(&root)
+            .arg("--load-map")
+            .arg(&map)
+            .arg("--trajectory")
+            .arg(&localised),
+    );
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    let stats = &report["localise"];
+    assert_eq!(stats["relocalisations"], 1, "{stats}");
+    // At rest the relative stage holds its pose without handing over
+    // landmarks; the first frame that has them (when it starts tracking
+    // them again) must be enough to localise.
+    let frames = stats["localised_frames"].as_u64().expect("frames");
+    assert!(frames >= 3, "{stats}");
+    assert_eq!(stats["corrections"].as_u64(), Some(frames), "{stats}");
+    assert_eq!(read_poses(&localised).len() as u64, frames);
+    // The same still scene: the map's frame is the first run's world
+    // frame, so the localised poses stay where that run put the robot.
+    let ate = report["eval"]["ate_rmse_m"].as_f64().expect("ate");
+    assert!(ate < 0.01, "ATE {ate} m");
+}
+
+#[test]
+fn map_options_that_cannot_work_say_why() {
+    let Some(root) = shared("euroc/V1_01_micro") else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let err = fails(
+        rigslam_run()
+            .arg("--dataset")
+            .arg(&root)
+            .arg("--save-map")
+            .arg(dir.path().join("m.map")),
+    );
+    assert!(err.contains("--absolute"), "{err}");
+    let bad = dir.path().join("bad.map");
+    std::fs::write(
+        &bad,
+        "# rigslam map v1 landmarks 1\n0 1 2 3 nan 0 0 1 0 1 -\n",
+    )
+    .expect("write");
+    let err = fails(
+        rigslam_run()
+            .arg("--dataset")
+            .arg(&root)
+            .arg("--load-map")
+            .arg(&bad),
+    );
+    assert!(err.contains("bad.map:2"), "{err}");
+}

@@ -322,7 +322,11 @@ fn print_nees_table() {
             isotropic_landmarks: isotropic,
             ..RoomRunOptions::default()
         };
-        for weighting in [EdgeWeighting::FrameMarginal, EdgeWeighting::Paper] {
+        for weighting in [
+            EdgeWeighting::PaperScaled,
+            EdgeWeighting::FrameMarginal,
+            EdgeWeighting::Paper,
+        ] {
             for covariance in [
                 LandmarkCovariance::Exact,
                 LandmarkCovariance::SubMatrix { hops: 0 },
