@@ -198,6 +198,16 @@ pub(crate) fn create_node(config: &IpcConfig) -> Result<Node<Ipc>, IpcError> {
         })
 }
 
+/// Removes what processes that died without cleaning up (a daemon killed
+/// with SIGKILL, a crashed subscriber) left on the configured instance:
+/// their node entries, their ports on the services, their shared memory.
+/// Returns (nodes cleaned, nodes that could not be).
+pub fn cleanup_dead_nodes(config: &IpcConfig) -> Result<(u64, u64), IpcError> {
+    let node = create_node(config)?;
+    let state = node.try_cleanup_dead_nodes();
+    Ok((state.cleanups, state.failed_cleanups))
+}
+
 /// iceoryx2 wants an absolute directory path ending in a separator.
 fn root_path(path: &Path) -> Result<iceoryx2::prelude::Path, IpcError> {
     let bad = |reason: String| IpcError::RootPath {
