@@ -62,6 +62,9 @@ pub enum CameraSource {
     V4l2,
     Aravis,
     Replay,
+    /// A moving test pattern on the host clock (no hardware): bring-up
+    /// of the IMU side, and the fault tests. Nothing to track in it.
+    Pattern,
 }
 
 /// `[imu]`: where IMU samples come from.
@@ -347,11 +350,15 @@ pub fn check(config: &DaemonConfig, file: &Path) -> Result<RigModel, Vec<Problem
             "camera.device",
             "missing: source = \"v4l2\" needs the device (/dev/videoN or a udev symlink)".into(),
         ),
-        CameraSource::V4l2 | CameraSource::Aravis if mode.uses_stereo() => bad(
+        CameraSource::V4l2 | CameraSource::Aravis | CameraSource::Pattern if mode.uses_stereo() => bad(
             "slam.mode",
             format!(
                 "{mode} needs a stereo pair; a live {} camera delivers one image per frame here (use mono or mono-inertial)",
-                if config.camera.source == CameraSource::V4l2 { "v4l2" } else { "aravis" }
+                match config.camera.source {
+                    CameraSource::V4l2 => "v4l2",
+                    CameraSource::Aravis => "aravis",
+                    _ => "pattern",
+                }
             ),
         ),
         _ => {}

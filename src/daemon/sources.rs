@@ -322,6 +322,11 @@ fn open_camera(camera: &CameraConfig) -> Result<Box<dyn FrameSource>, CameraErro
             device: camera.device.clone().unwrap_or_default(),
             message: "this build has no Aravis support (built without the `aravis` feature)".into(),
         }),
+        CameraSource::Pattern => Ok(Box::new(crate::sensors::camera::fake::PatternCamera::new(
+            camera.width.unwrap_or(752),
+            camera.height.unwrap_or(480),
+            camera.rate_hz.unwrap_or(20.0),
+        ))),
         CameraSource::Replay => Err(CameraError::Driver {
             device: "replay".into(),
             message: "a replay is not a live camera".into(),
