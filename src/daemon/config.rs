@@ -345,11 +345,13 @@ pub fn check(config: &DaemonConfig, file: &Path) -> Result<RigModel, Vec<Problem
         })
     };
     let mode = config.slam.mode;
-    match config.camera.source {
-        CameraSource::V4l2 if config.camera.device.is_none() => bad(
+    if config.camera.source == CameraSource::V4l2 && config.camera.device.is_none() {
+        bad(
             "camera.device",
             "missing: source = \"v4l2\" needs the device (/dev/videoN or a udev symlink)".into(),
-        ),
+        );
+    }
+    match config.camera.source {
         CameraSource::V4l2 | CameraSource::Aravis | CameraSource::Pattern if mode.uses_stereo() => bad(
             "slam.mode",
             format!(
