@@ -356,3 +356,48 @@ fn sigkill_and_restart_cleans_the_dead_process_shared_memory() {
         second.log()
     );
 }
+
+#[test]
+fn systemd_hears_ready_status_and_watchdog_pings() {
+    let Some(dataset) = euroc() else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let socket_path = dir.path().join("notify");
+    let socket = std::os::unix::net::UnixDatagram::bind(&socket_path).expect("bind");
+    socket
+        .set_read_timeout(Some(Duration::from_millis(200)))
+        .expect("timeout");
+    let ipc = private_ipc("notify", &dir.path().join("iox"));
+    let mut command = replay_command(&dataset, &ipc);
+    command
+        .env("NOTIFY_SOCKET", &socket_path)
+        .env("WATCHDOG_USEC", "2000000");
+    let mut daemon = Daemon::start(command);
+    let mut messages = Vec::new();
+    let mut buf = [0u8; 4096];
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while daemon.child.try_wait().expect("try_wait").is_none() && Instant::now() < deadline {
+        if let Ok(n) = socket.recv(&mut buf) {
+            messages.push(String::from_utf8_lossy(&buf[..n]).into_owned());
+        }
+    }
+    assert!(
+        daemon.wait_exit(Duration::from_secs(5)).success(),
+        "{}",
+        daemon.log()
+    );
+    let ready = messages
+        .iter()
+        .position(|m| m.contains("READY=1"))
+        .unwrap_or_else(|| panic!("no READY=1 in {messages:?}"));
+    assert!(
+        messages[ready].contains("STATUS=camera"),
+        "{}",
+        messages[ready]
+    );
+    let pings = messages.iter().filter(|m| *m == "WATCHDOG=1").count();
+    // 4.7 s of replay, pinged at least every WATCHDOG_USEC / 4.
+    assert!(pings >= 8, "{pings} watchdog pings in {messages:?}");
+    assert!(messages.iter().any(|m| m == "STOPPING=1"), "{messages:?}");
+}
