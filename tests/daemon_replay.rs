@@ -1,7 +1,8 @@
 //! The daemon's pipeline on the bundled EuRoC sequence, in-process: a
-//! replay as fast as possible gives the same poses bit for bit twice, and
+//! replay as fast as possible gives the same poses bit for bit twice;
 //! frames stopping for 2 s while the IMU goes on give IMU-only poses for a
-//! bounded time, then "lost", then tracking again.
+//! bounded time, then "lost", then tracking again; stamps jumping back are
+//! refused and stamps jumping forward are flagged and tracked through.
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
@@ -15,6 +16,7 @@ use rigslam::daemon::{check, Doorbell, FrameItem, Pipeline, PoseSink};
 use rigslam::dataset::{open_dataset, SensorEvent, SensorStream, StreamOptions};
 use rigslam::publish::{PoseMessage, TRACKING_STATE_LOST, TRACKING_STATE_TRACKING};
 use rigslam::relative::{RelativeOutput, SensorMode};
+use rigslam::sensors::ImuSample;
 use rigslam::shared_data;
 
 #[derive(Clone, Default)]
@@ -40,6 +42,109 @@ fn bits(m: &PoseMessage) -> Vec<u64> {
     v.extend(m.orientation_world_body_xyzw.iter().map(|x| x.to_bits()));
     v.extend(m.velocity_world_m_s.iter().map(|x| x.to_bits()));
     v
+}
+
+fn stage_settings() -> StageSettings {
+    StageSettings {
+        mode: SensorMode::StereoInertial,
+        estimator: rigslam::relative::EstimatorKind::Window,
+        relative: Default::default(),
+        imu_wait: Duration::from_millis(50),
+        imu_stall_ns: 100_000_000,
+        max_pending_imu: 4096,
+    }
+}
+
+/// The SLAM stage on its thread, fed by the test instead of a source.
+struct StageUnderTest {
+    frames: Arc<BoundedQueue<FrameItem>>,
+    imu: Arc<BoundedQueue<ImuSample>>,
+    doorbell: Arc<Doorbell>,
+    health: Arc<Health>,
+    sink: Collect,
+    thread: std::thread::JoinHandle<Result<(), rigslam::relative::OdometryError>>,
+}
+
+impl StageUnderTest {
+    fn start(dataset: &rigslam::dataset::Dataset) -> StageUnderTest {
+        let rig = rigslam::run::dataset_run::rig_of(dataset);
+        let frames = Arc::new(BoundedQueue::new("frames", 2, WhenFull::Wait));
+        let imu = Arc::new(BoundedQueue::new("imu", 64, WhenFull::Wait));
+        let doorbell = Arc::new(Doorbell::default());
+        let health = Arc::new(Health::new());
+        let inputs = StageInputs {
+            frames: frames.clone(),
+            imu: imu.clone(),
+            doorbell: doorbell.clone(),
+            health: health.clone(),
+            reload: Arc::new(Mutex::new(None)),
+        };
+        let sink = Collect::default();
+        let thread = {
+            let sink = sink.clone();
+            std::thread::spawn(move || run_stage(stage_settings(), rig, inputs, Box::new(sink)))
+        };
+        StageUnderTest {
+            frames,
+            imu,
+            doorbell,
+            health,
+            sink,
+            thread,
+        }
+    }
+
+    /// Hands `events` over in order, as a source would, closes the queues
+    /// and waits for the stage to drain them and end.
+    fn feed_and_finish(self, events: impl IntoIterator<Item = SensorEvent>) -> Arc<Health> {
+        for e in events {
+            match e {
+                SensorEvent::Imu(s) => {
+                    self.imu.push(s);
+                }
+                SensorEvent::Frame { t_ns, left, right } => {
+                    self.frames.push(FrameItem {
+                        t_ns,
+                        left,
+                        right,
+                        arrival_ns: rigslam::sensors::yei::device::host_monotonic_ns(),
+                    });
+                }
+            }
+            self.doorbell.ring();
+        }
+        self.frames.close();
+        self.imu.close();
+        self.doorbell.ring();
+        self.thread
+            .join()
+            .expect("stage thread")
+            .expect("stage ends without an error");
+        self.health
+    }
+}
+
+/// Every event of one pass over the sequence, stereo with the IMU.
+fn sensor_events(dataset: &rigslam::dataset::Dataset) -> Vec<SensorEvent> {
+    SensorStream::new(
+        dataset,
+        StreamOptions {
+            stereo: true,
+            imu: true,
+            start_ns: None,
+            max_frames: None,
+        },
+    )
+    .expect("stream")
+    .map(|e| e.expect("event"))
+    .collect()
+}
+
+fn t_of(e: &SensorEvent) -> i64 {
+    match e {
+        SensorEvent::Imu(s) => s.t_ns,
+        SensorEvent::Frame { t_ns, .. } => *t_ns,
+    }
 }
 
 fn replay_once(dataset: &std::path::Path) -> Vec<PoseMessage> {
@@ -88,57 +193,16 @@ fn camera_gap_gives_bounded_imu_only_poses_then_lost_then_recovery() {
         return;
     };
     let dataset = open_dataset(&root).expect("open");
-    let rig = rigslam::run::dataset_run::rig_of(&dataset);
-    let mode = SensorMode::StereoInertial;
-    let settings = StageSettings {
-        mode,
-        estimator: rigslam::relative::EstimatorKind::Window,
-        relative: Default::default(),
-        imu_wait: Duration::from_millis(50),
-        imu_stall_ns: 100_000_000,
-        max_pending_imu: 4096,
-    };
-    let imu_only_max_s = settings.relative.imu_only_max_s;
-    let frames = Arc::new(BoundedQueue::new("frames", 2, WhenFull::Wait));
-    let imu = Arc::new(BoundedQueue::new("imu", 64, WhenFull::Wait));
-    let doorbell = Arc::new(Doorbell::default());
-    let health = Arc::new(Health::new());
-    let inputs = StageInputs {
-        frames: frames.clone(),
-        imu: imu.clone(),
-        doorbell: doorbell.clone(),
-        health: health.clone(),
-        reload: Arc::new(Mutex::new(None)),
-    };
-    let sink = Collect::default();
-    let stage = {
-        let sink = sink.clone();
-        std::thread::spawn(move || run_stage(settings, rig, inputs, Box::new(sink)))
-    };
+    let imu_only_max_s = stage_settings().relative.imu_only_max_s;
+    let stage = StageUnderTest::start(&dataset);
+    let sink = stage.sink.clone();
     // Two passes of the sequence back to back (the second shifted in
     // time), with the frames of 2 s in the middle of the first missing.
     let mut events: VecDeque<SensorEvent> = VecDeque::new();
-    let mut span = 0;
+    let one_pass = sensor_events(&dataset);
+    let span = t_of(one_pass.last().expect("events")) - t_of(&one_pass[0]) + 5_000_000;
     for pass in 0..2 {
-        let stream = SensorStream::new(
-            &dataset,
-            StreamOptions {
-                stereo: true,
-                imu: true,
-                start_ns: None,
-                max_frames: None,
-            },
-        )
-        .expect("stream");
-        let all: Vec<SensorEvent> = stream.map(|e| e.expect("event")).collect();
-        let t = |e: &SensorEvent| match e {
-            SensorEvent::Imu(s) => s.t_ns,
-            SensorEvent::Frame { t_ns, .. } => *t_ns,
-        };
-        if pass == 0 {
-            span = t(all.last().expect("events")) - t(&all[0]) + 5_000_000;
-        }
-        for mut e in all {
+        for mut e in one_pass.iter().cloned() {
             let shift = pass * span;
             match &mut e {
                 SensorEvent::Imu(s) => s.t_ns += shift,
@@ -157,32 +221,11 @@ fn camera_gap_gives_bounded_imu_only_poses_then_lost_then_recovery() {
     let gap = (first_frame + 1_500_000_000, first_frame + 3_500_000_000);
     // The second pass starts with 2 s of IMU only (the stream's lead-in),
     // also a gap; the assertions below look at the first one.
-    let feeder = std::thread::spawn(move || {
-        for e in events {
-            match e {
-                SensorEvent::Imu(s) => {
-                    imu.push(s);
-                }
-                SensorEvent::Frame { t_ns, left, right } => {
-                    if t_ns >= gap.0 && t_ns < gap.1 {
-                        continue;
-                    }
-                    frames.push(FrameItem {
-                        t_ns,
-                        left,
-                        right,
-                        arrival_ns: rigslam::sensors::yei::device::host_monotonic_ns(),
-                    });
-                }
-            }
-            doorbell.ring();
-        }
-        frames.close();
-        imu.close();
-        doorbell.ring();
+    events.retain(|e| match e {
+        SensorEvent::Frame { t_ns, .. } => *t_ns < gap.0 || *t_ns >= gap.1,
+        SensorEvent::Imu(_) => true,
     });
-    feeder.join().expect("feeder");
-    stage.join().expect("stage thread").expect("stage");
+    stage.feed_and_finish(events);
 
     let poses = sink.poses.lock().expect("lock").clone();
     let fast = sink.fast.lock().expect("lock").clone();
@@ -238,5 +281,114 @@ fn camera_gap_gives_bounded_imu_only_poses_then_lost_then_recovery() {
     assert!(
         recovered.is_some(),
         "no tracking pose after the frames came back"
+    );
+}
+
+#[test]
+fn timestamps_jumping_are_refused_backwards_flagged_and_survived() {
+    let Some(root) = shared_data::path_or_skip("euroc/V1_01_micro") else {
+        return;
+    };
+    let dataset = open_dataset(&root).expect("open");
+    let stage = StageUnderTest::start(&dataset);
+    let sink = stage.sink.clone();
+    let all = sensor_events(&dataset);
+    let frame_stamps: Vec<i64> = all
+        .iter()
+        .filter_map(|e| match e {
+            SensorEvent::Frame { t_ns, .. } => Some(*t_ns),
+            _ => None,
+        })
+        .collect();
+    // After frame 40: a frame and an IMU sample from 1 s back (a clock
+    // stepped back, or a driver resending), then every stamp from frame
+    // 50 on 3 s later (a clock stepped forward: both streams jump).
+    let back_after = frame_stamps[40];
+    let forward_from = frame_stamps[50];
+    let jump_ns = 3_000_000_000;
+    let mut events = Vec::new();
+    let mut stale_frame = None;
+    let mut stale_imu = None;
+    for e in all {
+        let t = t_of(&e);
+        // EuRoC's IMU and camera share stamps: the frame itself is meant.
+        let is_frame = matches!(e, SensorEvent::Frame { .. });
+        match &e {
+            SensorEvent::Frame { t_ns, .. } if *t_ns == frame_stamps[20] => {
+                stale_frame = Some(e.clone())
+            }
+            SensorEvent::Imu(s) if stale_imu.is_none() && s.t_ns > frame_stamps[20] => {
+                stale_imu = Some(e.clone())
+            }
+            _ => {}
+        }
+        let mut e = e;
+        if t >= forward_from {
+            match &mut e {
+                SensorEvent::Imu(s) => s.t_ns += jump_ns,
+                SensorEvent::Frame { t_ns, .. } => *t_ns += jump_ns,
+            }
+        }
+        events.push(e);
+        if is_frame && t == back_after {
+            events.push(stale_imu.clone().expect("an IMU sample after frame 20"));
+            events.push(stale_frame.clone().expect("frame 20"));
+        }
+    }
+    let health = stage.feed_and_finish(events);
+
+    use std::sync::atomic::Ordering::Relaxed;
+    assert_eq!(health.frames_rejected.load(Relaxed), 1, "the stale frame");
+    assert_eq!(health.imu_rejected.load(Relaxed), 1, "the stale IMU sample");
+    // Back: one frame, one sample; forward: once on each stream.
+    assert_eq!(health.timestamp_jumps.load(Relaxed), 4);
+    let rules = rigslam::daemon::health::HealthRules {
+        camera_stall_ns: 1_000_000_000,
+        imu_stall_ns: 1_000_000_000,
+        stuck_ns: 60_000_000_000,
+        uses_imu: true,
+    };
+    let status = health.status(
+        &rules,
+        &mut rigslam::daemon::health::RateBase::default(),
+        &[],
+        (0, 0),
+    );
+    assert_ne!(
+        status.sensor_health & rigslam::publish::HEALTH_TIMESTAMP_JUMP,
+        0,
+        "the status says the stamps jumped"
+    );
+
+    let poses = sink.poses.lock().expect("lock").clone();
+    let fast = sink.fast.lock().expect("lock").clone();
+    assert_eq!(
+        poses.len(),
+        frame_stamps.len(),
+        "one pose per accepted frame"
+    );
+    for stream in [&poses, &fast] {
+        for w in stream.windows(2) {
+            assert!(w[1].t_ns > w[0].t_ns, "published stamps go back: {w:?}");
+        }
+        for m in stream.iter() {
+            if m.tracking_state == TRACKING_STATE_TRACKING {
+                assert!(m.position_world_m.iter().all(|x| x.is_finite()), "{m:?}");
+            }
+        }
+    }
+    let before = poses
+        .iter()
+        .filter(|m| m.t_ns < forward_from)
+        .last()
+        .expect("poses before the jump");
+    assert_eq!(before.tracking_state, TRACKING_STATE_TRACKING);
+    let after: Vec<&PoseMessage> = poses.iter().filter(|m| m.t_ns >= forward_from).collect();
+    assert!(
+        after
+            .iter()
+            .any(|m| m.tracking_state == TRACKING_STATE_TRACKING),
+        "no tracking after the stamps jumped forward: {:?}",
+        after.iter().map(|m| m.tracking_state).collect::<Vec<_>>()
     );
 }
