@@ -1,6 +1,7 @@
 //! `rigslamd` as a process: --check-config's messages, SIGTERM in the
 //! middle of a recording, SIGHUP reloading the calibration, SIGKILL and a
-//! restart over the dead process's shared memory.
+//! restart over the dead process's shared memory, systemd's notify
+//! protocol, subscribers crashing while it publishes.
 //!
 //! Every test uses its own iceoryx2 root path and service prefix.
 
@@ -400,4 +401,86 @@ fn systemd_hears_ready_status_and_watchdog_pings() {
     // 4.7 s of replay, pinged at least every WATCHDOG_USEC / 4.
     assert!(pings >= 8, "{pings} watchdog pings in {messages:?}");
     assert!(messages.iter().any(|m| m == "STOPPING=1"), "{messages:?}");
+}
+
+#[test]
+fn subscribers_that_crash_do_not_disturb_the_publisher() {
+    let Some(dataset) = euroc() else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let ipc = private_ipc("crash", &dir.path().join("iox"));
+    let report = dir.path().join("report.json");
+    // A subscriber of this test, there from before the first sample to the
+    // end, on its own thread (iceoryx2 ports stay on the thread that made
+    // them): every fast pose, no gap, whatever the others do.
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+    let watcher = {
+        let ipc = ipc.clone();
+        std::thread::spawn(move || {
+            let mut fast = PoseSubscriber::pose_fast(&ipc).expect("subscribe");
+            ready_tx.send(()).expect("test waits");
+            let mut got = Vec::new();
+            // The first pose within 30 s; then quiet for 3 s: the daemon
+            // has finished.
+            let mut quiet = Duration::from_secs(30);
+            while fast.wait(quiet).expect("wait") {
+                fast.take_all(&mut got).expect("take");
+                quiet = Duration::from_secs(3);
+            }
+            (got.len() as u64, fast.missed())
+        })
+    };
+    ready_rx.recv().expect("watcher subscribed");
+    let mut command = replay_command(&dataset, &ipc);
+    command.arg("--report").arg(&report);
+    let mut daemon = Daemon::start(command);
+    daemon.wait_for("publishing", Duration::from_secs(20));
+    // More crashes than iceoryx2's default of 8 subscribers per service:
+    // the dead ones' ports must not use up the places.
+    let crashes = 10;
+    for i in 0..crashes {
+        let mut echo = Command::new(env!("CARGO_BIN_EXE_rigslam"))
+            .arg("echo")
+            .arg("--service")
+            .arg(format!("{}/pose_fast", ipc.service_prefix))
+            .arg("--root-path")
+            .arg(ipc.root_path.as_ref().expect("root path"))
+            .arg("--timeout-s")
+            .arg("20")
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start rigslam echo");
+        // One printed pose: it is subscribed and holding samples.
+        let mut line = String::new();
+        BufReader::new(echo.stdout.take().expect("piped"))
+            .read_line(&mut line)
+            .expect("read echo");
+        assert!(
+            !line.is_empty(),
+            "subscriber {i} printed nothing:\n{}",
+            daemon.log()
+        );
+        echo.kill().expect("SIGKILL the subscriber");
+        echo.wait().expect("reap");
+    }
+    assert!(
+        daemon.child.try_wait().expect("try_wait").is_none(),
+        "the daemon ended while its subscribers crashed:\n{}",
+        daemon.log()
+    );
+    let status = daemon.wait_exit(Duration::from_secs(30));
+    assert!(status.success(), "{}", daemon.log());
+    let (received, missed) = watcher.join().expect("watcher");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");
+    assert_eq!(report["pose_drops"], 0, "{report}");
+    assert_eq!(missed, 0, "the steady subscriber missed fast poses");
+    assert_eq!(
+        Some(received),
+        report["poses_fast"].as_u64(),
+        "{report}\n{}",
+        daemon.log()
+    );
 }
