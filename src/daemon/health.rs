@@ -42,8 +42,82 @@ pub struct Health {
     pub source_finished: AtomicBool,
     /// Frame arrival to pose published, us, since the last status.
     latency_window_us: Mutex<Vec<f64>>,
-    /// Every latency of the run, us (the exit report).
-    latency_all_us: Mutex<Vec<f64>>,
+    /// Every latency of the run (the exit report), in fixed memory.
+    latency_run: Mutex<LatencyHistogram>,
+}
+
+/// A latency distribution in fixed memory, so that a daemon running for
+/// days does not grow with it: buckets 1 % wide from 1 us to 100 s
+/// (about 1 850 of them), the largest value kept exactly. Percentiles come out
+/// as the upper edge of their bucket, at most 1 % above the true value.
+#[derive(Debug, Clone)]
+pub struct LatencyHistogram {
+    counts: Vec<u64>,
+    total: u64,
+    max_us: f64,
+}
+
+impl Default for LatencyHistogram {
+    fn default() -> Self {
+        Self {
+            counts: vec![0; Self::BUCKETS],
+            total: 0,
+            max_us: 0.0,
+        }
+    }
+}
+
+impl LatencyHistogram {
+    const GROWTH: f64 = 1.01;
+    /// ln(100 s / 1 us) / ln(1.01), rounded up, plus the bucket below 1 us.
+    const BUCKETS: usize = 1853 + 1;
+
+    fn bucket(us: f64) -> usize {
+        if us.is_nan() || us <= 1.0 {
+            return 0;
+        }
+        let k = (us.ln() / Self::GROWTH.ln()).ceil() as usize;
+        k.min(Self::BUCKETS - 1)
+    }
+
+    /// The upper edge of bucket `k`, us.
+    fn edge_us(k: usize) -> f64 {
+        Self::GROWTH.powi(k as i32)
+    }
+
+    /// Adds one value (NaN and negative values count as 0).
+    pub fn record(&mut self, us: f64) {
+        self.counts[Self::bucket(us)] += 1;
+        self.total += 1;
+        if us > self.max_us {
+            self.max_us = us;
+        }
+    }
+
+    pub fn count(&self) -> u64 {
+        self.total
+    }
+
+    pub fn max_us(&self) -> f64 {
+        self.max_us
+    }
+
+    /// The nearest-rank `q` quantile (`q` in (0, 1]), never above the
+    /// maximum; `None` without values.
+    pub fn quantile_us(&self, q: f64) -> Option<f64> {
+        if self.total == 0 {
+            return None;
+        }
+        let rank = ((q * self.total as f64).ceil() as u64).clamp(1, self.total);
+        let mut seen = 0;
+        for (k, &n) in self.counts.iter().enumerate() {
+            seen += n;
+            if seen >= rank {
+                return Some(Self::edge_us(k).min(self.max_us));
+            }
+        }
+        Some(self.max_us)
+    }
 }
 
 /// The counts at the previous status, for rates.
@@ -74,14 +148,19 @@ impl Health {
     }
 
     pub fn record_latency_us(&self, us: f64) {
-        for list in [&self.latency_window_us, &self.latency_all_us] {
-            list.lock().unwrap_or_else(|e| e.into_inner()).push(us);
-        }
+        self.latency_window_us
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push(us);
+        self.latency_run
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .record(us);
     }
 
-    /// Every latency so far, us.
-    pub fn all_latencies_us(&self) -> Vec<f64> {
-        self.latency_all_us
+    /// The latencies of the whole run so far.
+    pub fn run_latencies(&self) -> LatencyHistogram {
+        self.latency_run
             .lock()
             .unwrap_or_else(|e| e.into_inner())
             .clone()
@@ -197,5 +276,49 @@ pub fn health_words(health: u32) -> String {
         "no sensor data".into()
     } else {
         words.join(", ")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::LatencyHistogram;
+
+    #[test]
+    fn histogram_quantiles_are_within_one_percent_above() {
+        let mut h = LatencyHistogram::default();
+        assert_eq!(h.quantile_us(0.5), None);
+        // 1..=1000 us: p50 = 500, p99 = 990 by nearest rank.
+        for us in 1..=1000 {
+            h.record(us as f64);
+        }
+        let p50 = h.quantile_us(0.5).expect("values");
+        let p99 = h.quantile_us(0.99).expect("values");
+        assert!((500.0..=505.0).contains(&p50), "p50 {p50}");
+        assert!((990.0..=999.9).contains(&p99), "p99 {p99}");
+        assert_eq!(h.quantile_us(1.0), Some(1000.0));
+        assert_eq!(h.count(), 1000);
+    }
+
+    #[test]
+    fn histogram_takes_any_number() {
+        let mut h = LatencyHistogram::default();
+        for us in [f64::NAN, -5.0, 0.0, 0.5, 1e12, f64::INFINITY] {
+            h.record(us);
+        }
+        assert_eq!(h.count(), 6);
+        assert_eq!(h.quantile_us(0.5), Some(1.0));
+        assert_eq!(h.max_us(), f64::INFINITY);
+        // The last bucket holds everything past 100 s.
+        assert!(h.quantile_us(1.0).expect("values") >= 1e8 * 0.99);
+    }
+
+    #[test]
+    fn histogram_memory_does_not_grow() {
+        let mut h = LatencyHistogram::default();
+        let before = h.counts.capacity();
+        for i in 0..100_000 {
+            h.record(i as f64 * 7.3);
+        }
+        assert_eq!(h.counts.capacity(), before);
     }
 }

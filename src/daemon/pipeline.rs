@@ -92,7 +92,8 @@ pub struct PipelineReport {
     pub timestamp_jumps: u64,
     pub recording_drops: u64,
     pub recordings: Vec<PathBuf>,
-    /// Frame arrival to pose published, every frame of the run.
+    /// Frame arrival to pose published, every frame of the run (within
+    /// 1 %, see [`super::health::LatencyHistogram`]).
     pub latency_p50_us: f64,
     pub latency_p99_us: f64,
     pub latency_max_us: f64,
@@ -297,8 +298,7 @@ impl Pipeline {
         };
         stage?;
         let h = &self.health;
-        let latencies = h.all_latencies_us();
-        let stats = crate::run::TimingStats::of(&latencies);
+        let latencies = h.run_latencies();
         Ok(PipelineReport {
             frames: h.frames_in.load(Ordering::Relaxed),
             imu_samples: h.imu_in.load(Ordering::Relaxed),
@@ -310,9 +310,9 @@ impl Pipeline {
             timestamp_jumps: h.timestamp_jumps.load(Ordering::Relaxed),
             recording_drops,
             recordings,
-            latency_p50_us: stats.map_or(0.0, |s| s.p50_ms),
-            latency_p99_us: stats.map_or(0.0, |s| s.p99_ms),
-            latency_max_us: stats.map_or(0.0, |s| s.max_ms),
+            latency_p50_us: latencies.quantile_us(0.5).unwrap_or(0.0),
+            latency_p99_us: latencies.quantile_us(0.99).unwrap_or(0.0),
+            latency_max_us: latencies.max_us(),
         })
     }
 }
