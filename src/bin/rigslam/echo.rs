@@ -152,14 +152,21 @@ pub fn run(args: EchoArgs) -> anyhow::Result<()> {
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
+        let latency = if (0.0..PLAUSIBLE_LATENCY_US).contains(&report.latency_p50_us) {
+            format!(
+                "p50 {} p99 {}",
+                latency_text(report.latency_p50_us),
+                latency_text(report.latency_p99_us)
+            )
+        } else {
+            latency_text(report.latency_p50_us)
+        };
         println!(
-            "{}: {} received, {} missed, {:.1} Hz, latency p50 {} p99 {}, transport p50 {:.1} us p99 {:.1} us",
+            "{}: {} received, {} missed, {:.1} Hz, latency {latency}, transport p50 {:.1} us p99 {:.1} us",
             report.service,
             report.received,
             report.missed,
             report.rate_hz,
-            latency_text(report.latency_p50_us),
-            latency_text(report.latency_p99_us),
             report.transport_latency_p50_us,
             report.transport_latency_p99_us
         );
