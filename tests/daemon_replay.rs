@@ -2,7 +2,8 @@
 //! replay as fast as possible gives the same poses bit for bit twice;
 //! frames stopping for 2 s while the IMU goes on give IMU-only poses for a
 //! bounded time, then "lost", then tracking again; stamps jumping back are
-//! refused and stamps jumping forward are flagged and tracked through.
+//! refused and stamps jumping forward are flagged and tracked through; a
+//! run recorded to MCAP replays to the same poses bit for bit.
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
@@ -148,7 +149,13 @@ fn t_of(e: &SensorEvent) -> i64 {
 }
 
 fn replay_once(dataset: &std::path::Path) -> Vec<PoseMessage> {
-    let mut config = DaemonConfig::replay(dataset, SensorMode::StereoInertial);
+    let config = DaemonConfig::replay(dataset, SensorMode::StereoInertial);
+    run_replay(config).0
+}
+
+/// Runs a replay config as fast as possible to its end; every pose and
+/// the report.
+fn run_replay(mut config: DaemonConfig) -> (Vec<PoseMessage>, rigslam::daemon::PipelineReport) {
     config.replay.as_mut().expect("replay config").pace = ReplayPace::AsFastAsPossible;
     // A tiny frame queue: the replay has to wait for the stage all the
     // time, which is where a race would show.
@@ -166,7 +173,7 @@ fn replay_once(dataset: &std::path::Path) -> Vec<PoseMessage> {
     assert_eq!(report.frame_drops + report.imu_drops, 0, "{report:?}");
     let poses = sink.poses.lock().expect("lock").clone();
     assert_eq!(poses.len() as u64, report.frames, "{report:?}");
-    poses
+    (poses, report)
 }
 
 #[test]
@@ -390,5 +397,80 @@ fn timestamps_jumping_are_refused_backwards_flagged_and_survived() {
             .any(|m| m.tracking_state == TRACKING_STATE_TRACKING),
         "no tracking after the stamps jumped forward: {:?}",
         after.iter().map(|m| m.tracking_state).collect::<Vec<_>>()
+    );
+}
+
+#[test]
+fn a_recording_replays_to_the_poses_of_the_run_that_made_it() {
+    let Some(root) = shared_data::path_or_skip("euroc/V1_01_micro") else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    // The run that records: the EuRoC folder through the pipeline.
+    let mut config = DaemonConfig::replay(&root, SensorMode::StereoInertial);
+    config.recording.enabled = true;
+    config.recording.dir = dir.path().join("rec");
+    let (live, report) = run_replay(config);
+    assert_eq!(report.recording_drops, 0, "{report:?}");
+    assert_eq!(report.recordings.len(), 1, "{report:?}");
+    let mcap = report.recordings[0].clone();
+    let recorded = rigslam::recording::read_pose_channel(&mcap, "/rigslam/pose").expect("poses");
+    assert_eq!(recorded.len(), live.len());
+
+    // The recording through the same pipeline, twice, with the rig's
+    // calibration files (a recording holds none).
+    let replay_config = || {
+        let mut config = DaemonConfig::replay(&mcap, SensorMode::StereoInertial);
+        let cal = |f: &str| root.join(format!("mav0/{f}/sensor.yaml"));
+        config.calibration = Some(rigslam::daemon::config::CalibrationConfig {
+            cameras: vec![cal("cam0"), cal("cam1")],
+            imu: Some(cal("imu0")),
+        });
+        config
+    };
+    let (a, _) = run_replay(replay_config());
+    let (b, _) = run_replay(replay_config());
+    assert_eq!(a.len(), live.len(), "one pose per recorded frame");
+    let tracking = a
+        .iter()
+        .filter(|m| m.tracking_state == TRACKING_STATE_TRACKING)
+        .count();
+    assert!(
+        tracking > 50,
+        "only {tracking} of {} frames tracked",
+        a.len()
+    );
+    for (i, ((x, y), z)) in a.iter().zip(&b).zip(&live).enumerate() {
+        assert_eq!(bits(x), bits(y), "replay pose {i} differs between replays");
+        assert_eq!(
+            bits(x),
+            bits(z),
+            "replay pose {i} differs from the live run's"
+        );
+        assert_eq!(x.position_world_m, recorded[i].position_world_m, "pose {i}");
+    }
+
+    // Without the calibration, --check-config's words.
+    let mut bare = DaemonConfig::replay(&mcap, SensorMode::StereoInertial);
+    bare.calibration = None;
+    let problems = check(&bare, std::path::Path::new("rig.toml")).expect_err("no calibration");
+    let text: Vec<String> = problems.iter().map(|p| p.to_string()).collect();
+    assert!(
+        text.iter()
+            .any(|t| t.contains("calibration") && t.contains("MCAP")),
+        "{text:?}"
+    );
+    // A recording cut off mid-write (no summary) is refused by name.
+    let cut = dir.path().join("cut.mcap");
+    let bytes = std::fs::read(&mcap).expect("read");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).expect("write");
+    let mut config = replay_config();
+    config.replay.as_mut().expect("replay").dataset = cut;
+    let problems = check(&config, std::path::Path::new("rig.toml")).expect_err("cut file");
+    assert!(
+        problems
+            .iter()
+            .any(|p| p.key == "replay.dataset" && p.to_string().contains("cut.mcap")),
+        "{problems:?}"
     );
 }

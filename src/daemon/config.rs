@@ -114,7 +114,9 @@ pub struct CalibrationConfig {
 #[derive(Debug, Clone, PartialEq, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ReplayConfig {
-    /// A EuRoC ASL folder (the one holding `mav0/`, or `mav0` itself).
+    /// A EuRoC ASL folder (the one holding `mav0/`, or `mav0` itself), or
+    /// an MCAP recording rigslamd made (`*.mcap`; it holds no calibration,
+    /// so `[calibration]` must name the rig's files).
     pub dataset: PathBuf,
     #[serde(default)]
     pub pace: ReplayPace,
@@ -480,8 +482,20 @@ pub fn check(config: &DaemonConfig, file: &Path) -> Result<RigModel, Vec<Problem
     if config.replay.as_ref().is_some_and(|r| r.loops == 0) {
         bad("replay.loops", "0: must be at least 1".into());
     }
+    let replays_mcap = config.replays()
+        && config
+            .replay
+            .as_ref()
+            .is_some_and(|r| crate::recording::is_mcap(&r.dataset));
     let rig = match (&config.calibration, &config.replay) {
         (Some(c), _) => rig_from_files(c, mode, &mut bad),
+        (None, Some(_)) if replays_mcap => {
+            bad(
+                "calibration",
+                "missing: an MCAP recording holds no calibration; name the rig's files in [calibration] cameras = [...], imu = ...".into(),
+            );
+            None
+        }
         (None, Some(replay)) if config.replays() => {
             match crate::dataset::open_dataset(&replay.dataset) {
                 Ok(dataset) => Some(crate::run::dataset_run::rig_of(&dataset)),
@@ -504,6 +518,8 @@ pub fn check(config: &DaemonConfig, file: &Path) -> Result<RigModel, Vec<Problem
             "replay",
             "missing: a replay source needs [replay] dataset = \"...\"".into(),
         );
+    } else if let (Some(replay), true) = (&config.replay, replays_mcap) {
+        check_recording(&replay.dataset, mode, &mut bad);
     } else if let (Some(replay), true, Some(_)) =
         (&config.replay, config.replays(), &config.calibration)
     {
@@ -519,6 +535,33 @@ pub fn check(config: &DaemonConfig, file: &Path) -> Result<RigModel, Vec<Problem
     match (rig, problems.is_empty()) {
         (Some(rig), true) => Ok(rig),
         _ => Err(problems),
+    }
+}
+
+/// An MCAP recording to replay: complete (closed, with its summary) and
+/// holding the streams `mode` needs.
+fn check_recording(path: &Path, mode: SensorMode, bad: &mut impl FnMut(&str, String)) {
+    let counts = match crate::recording::channel_counts(path) {
+        Ok(c) => c,
+        Err(e) => return bad("replay.dataset", e.to_string()),
+    };
+    let mut needed = vec!["/cam0"];
+    if mode.uses_stereo() {
+        needed.push("/cam1");
+    }
+    if mode.uses_imu() {
+        needed.push("/imu0");
+    }
+    for topic in needed {
+        if counts.get(topic).copied().unwrap_or(0) == 0 {
+            bad(
+                "replay.dataset",
+                format!(
+                    "{}: no {topic} messages, which mode {mode} needs",
+                    path.display()
+                ),
+            );
+        }
     }
 }
 

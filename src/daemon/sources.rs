@@ -3,6 +3,7 @@
 //! when full (counted; logged once per second at most). A replay waits
 //! for room instead, so that it loses nothing.
 
+use std::ops::ControlFlow;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -10,6 +11,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use crate::dataset::{open_dataset, SensorEvent, SensorStream, StreamOptions};
+use crate::recording::{for_each_sensor_event, is_mcap, SensorTopics};
 use crate::relative::SensorMode;
 use crate::sensors::camera::{CameraError, FrameSource};
 use crate::sensors::yei::device::{host_monotonic_ns, YeiConfig, YeiDevice};
@@ -108,9 +110,9 @@ fn spawn(name: &str, f: impl FnOnce() + Send + 'static) -> std::io::Result<JoinH
     std::thread::Builder::new().name(name.into()).spawn(f)
 }
 
-/// Replays a EuRoC folder: both sensors from one merged stream, so the
-/// order the SLAM stage sees is the recorded one. Closes the queues at the
-/// end (the daemon then exits).
+/// Replays a EuRoC folder or an MCAP recording: both sensors from one
+/// merged stream, so the order the SLAM stage sees is the recorded one.
+/// Closes the queues at the end (the daemon then exits).
 pub fn spawn_replay(
     replay: ReplayConfig,
     mode: SensorMode,
@@ -125,59 +127,126 @@ pub fn spawn_replay(
     })
 }
 
+/// Hands replayed events over at their pace, shifted by a loop's offset.
+struct Player<'a> {
+    links: &'a SourceLinks,
+    pace: ReplayPace,
+    start: Instant,
+    first_ns: Option<i64>,
+    log: DropLog,
+    /// Offset of the loop being played, ns.
+    offset_ns: i64,
+    /// Earliest and latest recorded stamp of the loop.
+    recorded: (i64, i64),
+}
+
+impl Player<'_> {
+    /// Hands `event` to the queues; `Break` when the daemon is stopping.
+    fn play(&mut self, event: SensorEvent) -> ControlFlow<()> {
+        if self.links.stopping() {
+            return ControlFlow::Break(());
+        }
+        let recorded_ns = match &event {
+            SensorEvent::Imu(s) => s.t_ns,
+            SensorEvent::Frame { t_ns, .. } => *t_ns,
+        };
+        self.recorded = (
+            self.recorded.0.min(recorded_ns),
+            self.recorded.1.max(recorded_ns),
+        );
+        let t_ns = recorded_ns + self.offset_ns;
+        let first = *self.first_ns.get_or_insert(t_ns);
+        if self.pace == ReplayPace::Recorded {
+            let due = Duration::from_nanos((t_ns - first).max(0) as u64);
+            if let Some(wait) = due.checked_sub(self.start.elapsed()) {
+                std::thread::sleep(wait);
+            }
+        }
+        match event {
+            SensorEvent::Imu(mut s) => {
+                s.t_ns = t_ns;
+                self.links.offer_imu(s, &mut self.log);
+            }
+            SensorEvent::Frame { left, right, .. } => self.links.offer_frame(
+                FrameItem {
+                    t_ns,
+                    left,
+                    right,
+                    arrival_ns: 0,
+                },
+                &mut self.log,
+            ),
+        }
+        ControlFlow::Continue(())
+    }
+}
+
 fn replay_loop(replay: &ReplayConfig, mode: SensorMode, links: &SourceLinks) -> anyhow::Result<()> {
-    let dataset = open_dataset(Path::new(&replay.dataset))?;
-    let start = Instant::now();
-    let mut first_ns: Option<i64> = None;
-    let mut log = DropLog::new();
+    let path = Path::new(&replay.dataset);
+    let dataset = if is_mcap(path) {
+        None
+    } else {
+        Some(open_dataset(path)?)
+    };
+    let mut player = Player {
+        links,
+        pace: replay.pace,
+        start: Instant::now(),
+        first_ns: None,
+        log: DropLog::new(),
+        offset_ns: 0,
+        recorded: (i64::MAX, i64::MIN),
+    };
     // Each loop's stamps continue 50 ms after the previous loop's last.
     let mut span_ns: Option<i64> = None;
     for k in 0..i64::from(replay.loops.max(1)) {
-        let offset_ns = span_ns.map_or(0, |s| s * k);
-        let stream = SensorStream::new(
-            &dataset,
-            StreamOptions {
-                stereo: mode.uses_stereo(),
-                imu: mode.uses_imu(),
-                start_ns: None,
-                max_frames: replay.max_frames,
-            },
-        )?;
-        let mut recorded = (i64::MAX, i64::MIN);
-        for event in stream {
-            if links.stopping() {
-                return Ok(());
-            }
-            let event = event?;
-            let recorded_ns = match &event {
-                SensorEvent::Imu(s) => s.t_ns,
-                SensorEvent::Frame { t_ns, .. } => *t_ns,
-            };
-            recorded = (recorded.0.min(recorded_ns), recorded.1.max(recorded_ns));
-            let t_ns = recorded_ns + offset_ns;
-            let first = *first_ns.get_or_insert(t_ns);
-            if replay.pace == ReplayPace::Recorded {
-                let due = Duration::from_nanos((t_ns - first).max(0) as u64);
-                if let Some(wait) = due.checked_sub(start.elapsed()) {
-                    std::thread::sleep(wait);
-                }
-            }
-            match event {
-                SensorEvent::Imu(mut s) => {
-                    s.t_ns = t_ns;
-                    links.offer_imu(s, &mut log);
-                }
-                SensorEvent::Frame { left, right, .. } => links.offer_frame(
-                    FrameItem {
-                        t_ns,
-                        left,
-                        right,
-                        arrival_ns: 0,
+        player.offset_ns = span_ns.map_or(0, |s| s * k);
+        player.recorded = (i64::MAX, i64::MIN);
+        let stopped = match &dataset {
+            Some(dataset) => {
+                let stream = SensorStream::new(
+                    dataset,
+                    StreamOptions {
+                        stereo: mode.uses_stereo(),
+                        imu: mode.uses_imu(),
+                        start_ns: None,
+                        max_frames: replay.max_frames,
                     },
-                    &mut log,
-                ),
+                )?;
+                let mut stopped = false;
+                for event in stream {
+                    if player.play(event?).is_break() {
+                        stopped = true;
+                        break;
+                    }
+                }
+                stopped
             }
+            None => {
+                let mut stopped = false;
+                let mut frames = 0;
+                let topics = SensorTopics {
+                    stereo: mode.uses_stereo(),
+                    imu: mode.uses_imu(),
+                };
+                for_each_sensor_event(path, topics, |event| {
+                    if let SensorEvent::Frame { .. } = event {
+                        if replay.max_frames.is_some_and(|m| frames >= m) {
+                            return ControlFlow::Break(());
+                        }
+                        frames += 1;
+                    }
+                    let flow = player.play(event);
+                    stopped = flow.is_break();
+                    flow
+                })?;
+                stopped
+            }
+        };
+        if stopped {
+            return Ok(());
         }
+        let recorded = player.recorded;
         if span_ns.is_none() && recorded.1 >= recorded.0 {
             span_ns = Some(recorded.1 - recorded.0 + 50_000_000);
         }

@@ -15,6 +15,9 @@ use std::path::{Path, PathBuf};
 use rigslam_drivers::ImuSample;
 use thiserror::Error;
 
+mod sensor_replay;
+pub use sensor_replay::{for_each_sensor_event, is_mcap, SensorTopics};
+
 /// Schema name of IMU messages.
 pub const IMU_SCHEMA_NAME: &str = "rigslam.ImuSample";
 
@@ -48,6 +51,13 @@ pub enum RecordingError {
     },
     #[error("{path} has no channel {topic}")]
     NoChannel { path: PathBuf, topic: String },
+    #[error("{path}: message {sequence} on {topic}: {reason}")]
+    BadImage {
+        path: PathBuf,
+        topic: String,
+        sequence: u32,
+        reason: String,
+    },
 }
 
 #[derive(serde::Serialize, serde::Deserialize)]
@@ -166,7 +176,7 @@ impl From<&RecordedPose> for PoseJson {
     }
 }
 
-#[derive(serde::Serialize)]
+#[derive(serde::Serialize, serde::Deserialize)]
 struct ImageJson {
     timestamp: FoxgloveTime,
     frame_id: String,
