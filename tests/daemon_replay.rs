@@ -3,7 +3,8 @@
 //! frames stopping for 2 s while the IMU goes on give IMU-only poses for a
 //! bounded time, then "lost", then tracking again; stamps jumping back are
 //! refused and stamps jumping forward are flagged and tracked through; a
-//! run recorded to MCAP replays to the same poses bit for bit.
+//! run recorded to MCAP replays to the same poses bit for bit; a hung
+//! stage is reported stuck (what stops the systemd watchdog pings).
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
@@ -473,4 +474,65 @@ fn a_recording_replays_to_the_poses_of_the_run_that_made_it() {
             .any(|p| p.key == "replay.dataset" && p.to_string().contains("cut.mcap")),
         "{problems:?}"
     );
+}
+
+/// Blocks the stage in its first `pose()` until released: a hung stage.
+#[derive(Clone)]
+struct Hang {
+    release: Arc<(Mutex<bool>, std::sync::Condvar)>,
+}
+
+impl PoseSink for Hang {
+    fn pose(&mut self, _: &PoseMessage, _: &RelativeOutput) -> bool {
+        let (lock, released) = &*self.release;
+        let mut done = lock.lock().expect("lock");
+        while !*done {
+            done = released.wait(done).expect("wait");
+        }
+        true
+    }
+    fn pose_fast(&mut self, _: &PoseMessage) -> bool {
+        true
+    }
+}
+
+#[test]
+fn a_hung_stage_is_reported_stuck_until_it_moves_again() {
+    let Some(root) = shared_data::path_or_skip("euroc/V1_01_micro") else {
+        return;
+    };
+    let mut config = DaemonConfig::replay(&root, SensorMode::StereoInertial);
+    config.pipeline.stuck_after_s = 0.5;
+    let rig = check(&config, std::path::Path::new("(test)")).expect("valid config");
+    let hang = Hang {
+        release: Arc::new((Mutex::new(false), std::sync::Condvar::new())),
+    };
+    let mut pipeline = Pipeline::start(&config, rig, Box::new(hang.clone())).expect("start");
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !pipeline.stuck() {
+        assert!(Instant::now() < deadline, "the hung stage was not noticed");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let status = pipeline.status();
+    assert_ne!(
+        status.sensor_health & rigslam::publish::HEALTH_STAGE_STUCK,
+        0,
+        "status says stuck"
+    );
+    assert!(!rigslam::daemon::health::is_healthy(&status, true));
+    // Meanwhile the replay keeps offering frames: a full queue drops
+    // nothing in a replay (it waits), so none are lost either.
+    {
+        let (lock, released) = &*hang.release;
+        *lock.lock().expect("lock") = true;
+        released.notify_all();
+    }
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while pipeline.stuck() {
+        assert!(Instant::now() < deadline, "still stuck after the release");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let report = pipeline.stop().expect("stop");
+    assert_eq!(report.frame_drops, 0, "{report:?}");
+    assert_eq!(report.poses, report.frames, "{report:?}");
 }

@@ -199,3 +199,66 @@ fn record_loop(
     closed.push(file.recorder.finish()?);
     Ok(closed)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sensors::Frame;
+
+    fn frame(t_ns: i64) -> FrameItem {
+        // 512x512 noise: ~350 KB of base64 JSON per image, as a camera's.
+        let pixels: Vec<u8> = (0..512u32 * 512)
+            .map(|i| (i.wrapping_mul(2_654_435_761) >> 24) as u8)
+            .collect();
+        let image = rigslam_drivers::Image::mono8(512, 512, pixels).expect("image");
+        let f = |camera_index| Frame {
+            t_ns,
+            seq: 0,
+            camera_index,
+            image: image.clone(),
+        };
+        FrameItem {
+            t_ns,
+            left: f(0),
+            right: Some(f(1)),
+            arrival_ns: 0,
+        }
+    }
+
+    #[test]
+    fn files_rotate_stay_within_the_budget_and_close_complete() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let config = RecordingConfig {
+            enabled: true,
+            dir: dir.path().to_path_buf(),
+            budget_mib: 3,
+            rotate_mib: 1,
+        };
+        let (tx, handle) = spawn_recorder(config).expect("recorder");
+        for i in 0..12 {
+            tx.frame(&frame(i * 50_000_000));
+            tx.imu(&ImuSample {
+                t_ns: i * 50_000_000,
+                gyro_rad_s: [0.0; 3],
+                accel_m_s2: [0.0, 0.0, 9.81],
+            });
+        }
+        assert_eq!(tx.dropped(), 0);
+        drop(tx);
+        let written = handle.join().expect("recorder thread").expect("recording");
+        // 12 frames of ~0.7 MB in 1 MiB files.
+        assert!(written.len() >= 6, "{written:?}");
+        let left = list_recordings(dir.path());
+        let total: u64 = left.iter().map(|(_, s)| s).sum();
+        // The budget counts a whole file ahead for the one being written;
+        // a file ends at the first message past rotate_mib.
+        assert!(total <= (3 + 1) << 20, "{total} bytes in {left:?}");
+        assert!(left.len() < written.len(), "nothing was deleted: {left:?}");
+        // The newest survive, each complete (its summary written).
+        let newest: Vec<&PathBuf> = written.iter().rev().take(left.len()).collect();
+        for (path, _) in &left {
+            assert!(newest.contains(&path), "{path:?} is not among the newest");
+            crate::recording::channel_counts(path).expect("a complete file");
+        }
+    }
+}
