@@ -239,8 +239,7 @@ fn camera_gap_gives_bounded_imu_only_poses_then_lost_then_recovery() {
     let fast = sink.fast.lock().expect("lock").clone();
     let last_before = poses
         .iter()
-        .filter(|m| m.t_ns < gap.0)
-        .last()
+        .rfind(|m| m.t_ns < gap.0)
         .expect("poses before the gap");
     assert_eq!(last_before.tracking_state, TRACKING_STATE_TRACKING);
     let bound_ns = (imu_only_max_s * 1e9) as i64;
@@ -387,8 +386,7 @@ fn timestamps_jumping_are_refused_backwards_flagged_and_survived() {
     }
     let before = poses
         .iter()
-        .filter(|m| m.t_ns < forward_from)
-        .last()
+        .rfind(|m| m.t_ns < forward_from)
         .expect("poses before the jump");
     assert_eq!(before.tracking_state, TRACKING_STATE_TRACKING);
     let after: Vec<&PoseMessage> = poses.iter().filter(|m| m.t_ns >= forward_from).collect();

@@ -16,7 +16,7 @@ use crate::sensors::ImuSample;
 use super::config::{CameraSource, DaemonConfig, ImuSource};
 use super::health::{Health, HealthRules, RateBase};
 use super::queue::{BoundedQueue, WhenFull};
-use super::recorder::{spawn_recorder, RecordSender};
+use super::recorder::{spawn_recorder, RecordSender, RecorderThread};
 use super::slam_stage::{run_stage, FrameItem, PoseSink, StageInputs, StageSettings};
 use super::sources::{spawn_camera, spawn_replay, spawn_yei, SourceLinks};
 use super::Doorbell;
@@ -109,7 +109,7 @@ pub struct Pipeline {
     reload: Arc<Mutex<Option<RigModel>>>,
     sources: Vec<JoinHandle<()>>,
     stage: Option<JoinHandle<Result<(), OdometryError>>>,
-    recorder: Option<JoinHandle<Result<Vec<PathBuf>, RecordingError>>>,
+    recorder: Option<RecorderThread>,
     record: Option<RecordSender>,
     rules: HealthRules,
     base: RateBase,
@@ -264,7 +264,7 @@ impl Pipeline {
 
     /// The SLAM stage has ended (a replay played out, or a setup error).
     pub fn finished(&self) -> bool {
-        self.stage.as_ref().is_none_or(|s| s.is_finished())
+        self.stage.as_ref().map_or(true, |s| s.is_finished())
     }
 
     /// Rebuilds the relative stage with a new rig at its next loop.

@@ -60,17 +60,14 @@ impl RecordSender {
     }
 }
 
+/// The recorder's thread; it returns the files it closed.
+pub type RecorderThread = JoinHandle<Result<Vec<PathBuf>, RecordingError>>;
+
 /// Starts the recorder thread. It ends, closing its file, when every
 /// [`RecordSender`] is dropped.
 pub fn spawn_recorder(
     config: RecordingConfig,
-) -> Result<
-    (
-        RecordSender,
-        JoinHandle<Result<Vec<PathBuf>, RecordingError>>,
-    ),
-    RecordingError,
-> {
+) -> Result<(RecordSender, RecorderThread), RecordingError> {
     std::fs::create_dir_all(&config.dir).map_err(|source| RecordingError::Create {
         path: config.dir.clone(),
         source,

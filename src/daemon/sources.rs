@@ -53,7 +53,7 @@ impl DropLog {
         self.since += 1;
         if self
             .last
-            .is_none_or(|t| t.elapsed() >= Duration::from_secs(1))
+            .map_or(true, |t| t.elapsed() >= Duration::from_secs(1))
         {
             tracing::warn!(
                 "{queue} queue full: dropped {} oldest item(s) ({total} since start); the SLAM stage is behind",
