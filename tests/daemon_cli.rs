@@ -484,3 +484,45 @@ fn subscribers_that_crash_do_not_disturb_the_publisher() {
         daemon.log()
     );
 }
+
+#[test]
+fn a_recording_replays_with_the_shorthand() {
+    let Some(dataset) = euroc() else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let ipc = private_ipc("mcap", &dir.path().join("iox"));
+    let rec = dir.path().join("rec");
+    let mut record = replay_command(&dataset, &ipc);
+    record
+        .arg("--as-fast-as-possible")
+        .arg("--record")
+        .arg(&rec);
+    let mut first = Daemon::start(record);
+    assert!(
+        first.wait_exit(Duration::from_secs(60)).success(),
+        "{}",
+        first.log()
+    );
+    let files = rigslam::daemon::recorder::list_recordings(&rec);
+    assert_eq!(files.len(), 1, "{files:?}");
+
+    // `--replay FILE.mcap`: mode and calibration from the recording.
+    let report = dir.path().join("report.json");
+    let mut replay = replay_command(&files[0].0, &ipc);
+    replay
+        .arg("--as-fast-as-possible")
+        .arg("--report")
+        .arg(&report);
+    let mut second = Daemon::start(replay);
+    assert!(
+        second.wait_exit(Duration::from_secs(60)).success(),
+        "{}",
+        second.log()
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");
+    assert_eq!(report["frames"], 95, "{report}");
+    assert_eq!(report["poses"], 95, "{report}");
+    assert_eq!(report["imu_samples"], 942, "{report}");
+}

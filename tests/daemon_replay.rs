@@ -417,7 +417,7 @@ fn a_recording_replays_to_the_poses_of_the_run_that_made_it() {
     assert_eq!(recorded.len(), live.len());
 
     // The recording through the same pipeline, twice, with the rig's
-    // calibration files (a recording holds none).
+    // calibration files named in the config.
     let replay_config = || {
         let mut config = DaemonConfig::replay(&mcap, SensorMode::StereoInertial);
         let cal = |f: &str| root.join(format!("mav0/{f}/sensor.yaml"));
@@ -449,14 +449,32 @@ fn a_recording_replays_to_the_poses_of_the_run_that_made_it() {
         assert_eq!(x.position_world_m, recorded[i].position_world_m, "pose {i}");
     }
 
-    // Without the calibration, --check-config's words.
-    let mut bare = DaemonConfig::replay(&mcap, SensorMode::StereoInertial);
-    bare.calibration = None;
-    let problems = check(&bare, std::path::Path::new("rig.toml")).expect_err("no calibration");
+    // Without [calibration]: the rig recorded in the file's attachments,
+    // the same to the bit.
+    let (c, _) = run_replay(DaemonConfig::replay(&mcap, SensorMode::StereoInertial));
+    for (i, (x, y)) in a.iter().zip(&c).enumerate() {
+        assert_eq!(bits(x), bits(y), "pose {i} differs with the recorded rig");
+    }
+    let attached = rigslam::recording::rig_of_recording(&mcap)
+        .expect("read")
+        .expect("a calibration");
+    assert_eq!(attached.cameras.len(), 2);
+    assert!(attached.imu.is_some());
+
+    // A recording without a calibration: --check-config's words.
+    let bare_mcap = dir.path().join("bare.mcap");
+    let mut bare = rigslam::recording::McapRecorder::create(&bare_mcap).expect("create");
+    bare.add_image_channel("/cam0").expect("channel");
+    bare.finish().expect("close");
+    let problems = check(
+        &DaemonConfig::replay(&bare_mcap, SensorMode::StereoInertial),
+        std::path::Path::new("rig.toml"),
+    )
+    .expect_err("no calibration");
     let text: Vec<String> = problems.iter().map(|p| p.to_string()).collect();
     assert!(
         text.iter()
-            .any(|t| t.contains("calibration") && t.contains("MCAP")),
+            .any(|t| t.contains("calibration") && t.contains("bare.mcap")),
         "{text:?}"
     );
     // A recording cut off mid-write (no summary) is refused by name.

@@ -115,8 +115,8 @@ pub struct CalibrationConfig {
 #[serde(deny_unknown_fields)]
 pub struct ReplayConfig {
     /// A EuRoC ASL folder (the one holding `mav0/`, or `mav0` itself), or
-    /// an MCAP recording rigslamd made (`*.mcap`; it holds no calibration,
-    /// so `[calibration]` must name the rig's files).
+    /// an MCAP recording rigslamd made (`*.mcap`; the rig's calibration
+    /// comes from its attachments unless `[calibration]` names files).
     pub dataset: PathBuf,
     #[serde(default)]
     pub pace: ReplayPace,
@@ -328,6 +328,57 @@ impl DaemonConfig {
         fix(&mut self.recording.dir);
     }
 
+    /// The bytes of the rig's calibration files as a recording carries
+    /// them (see [`crate::recording::calibration_attachment_name`]): the
+    /// files `[calibration]` names, else a EuRoC replay's own
+    /// `sensor.yaml` files, else a replayed recording's attachments;
+    /// `None` when there are no such files (a KITTI replay).
+    pub fn calibration_files(&self) -> Result<Option<Vec<(String, Vec<u8>)>>, String> {
+        let mode = self.slam.mode;
+        let cameras = if mode.uses_stereo() { 2 } else { 1 };
+        let read = |path: &Path| {
+            std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))
+        };
+        let name = crate::recording::calibration_attachment_name;
+        if let Some(c) = &self.calibration {
+            let mut out = Vec::new();
+            for (i, path) in c.cameras.iter().take(cameras).enumerate() {
+                out.push((name(&format!("cam{i}.yaml")), read(path)?));
+            }
+            if let (Some(path), true) = (&c.imu, mode.uses_imu()) {
+                out.push((name("imu0.yaml"), read(path)?));
+            }
+            return Ok(Some(out));
+        }
+        let Some(replay) = self.replay.as_ref().filter(|_| self.replays()) else {
+            return Ok(None);
+        };
+        if crate::recording::is_mcap(&replay.dataset) {
+            let attachments =
+                crate::recording::read_attachments(&replay.dataset).map_err(|e| e.to_string())?;
+            let prefix = name("");
+            let out: Vec<_> = attachments
+                .into_iter()
+                .filter(|(n, _)| n.starts_with(&prefix))
+                .collect();
+            return Ok((!out.is_empty()).then_some(out));
+        }
+        match crate::dataset::open_dataset(&replay.dataset).map_err(|e| e.to_string())? {
+            crate::dataset::Dataset::Euroc(d) => {
+                let mut out = Vec::new();
+                for (i, camera) in d.cameras.iter().take(cameras).enumerate() {
+                    let yaml = camera.csv_path.with_file_name("sensor.yaml");
+                    out.push((name(&format!("cam{i}.yaml")), read(&yaml)?));
+                }
+                if mode.uses_imu() {
+                    out.push((name("imu0.yaml"), read(&d.root.join("imu0/sensor.yaml"))?));
+                }
+                Ok(Some(out))
+            }
+            crate::dataset::Dataset::Kitti(_) => Ok(None),
+        }
+    }
+
     /// Whether either sensor replays a recording.
     pub fn replays(&self) -> bool {
         self.camera.source == CameraSource::Replay || self.imu.source == ImuSource::Replay
@@ -489,12 +540,24 @@ pub fn check(config: &DaemonConfig, file: &Path) -> Result<RigModel, Vec<Problem
             .is_some_and(|r| crate::recording::is_mcap(&r.dataset));
     let rig = match (&config.calibration, &config.replay) {
         (Some(c), _) => rig_from_files(c, mode, &mut bad),
-        (None, Some(_)) if replays_mcap => {
-            bad(
-                "calibration",
-                "missing: an MCAP recording holds no calibration; name the rig's files in [calibration] cameras = [...], imu = ...".into(),
-            );
-            None
+        (None, Some(replay)) if replays_mcap => {
+            match crate::recording::rig_of_recording(&replay.dataset) {
+                Ok(Some(rig)) => Some(rig),
+                Ok(None) => {
+                    bad(
+                        "calibration",
+                        format!(
+                            "missing: {} carries no calibration; name the rig's files in [calibration] cameras = [...], imu = ...",
+                            replay.dataset.display()
+                        ),
+                    );
+                    None
+                }
+                Err(e) => {
+                    bad("replay.dataset", e.to_string());
+                    None
+                }
+            }
         }
         (None, Some(replay)) if config.replays() => {
             match crate::dataset::open_dataset(&replay.dataset) {

@@ -137,7 +137,17 @@ impl Pipeline {
         let reload = Arc::new(Mutex::new(None));
 
         let (record, recorder) = if config.recording.enabled {
-            let (tx, handle) = spawn_recorder(config.recording.clone())?;
+            let attachments = match config.calibration_files() {
+                Ok(Some(files)) => files,
+                Ok(None) => crate::recording::calibration_attachments(&rig, config.slam.mode),
+                Err(e) => {
+                    tracing::warn!(
+                        "recording the calibration as the rig model has it (not its files): {e}"
+                    );
+                    crate::recording::calibration_attachments(&rig, config.slam.mode)
+                }
+            };
+            let (tx, handle) = spawn_recorder(config.recording.clone(), attachments)?;
             (Some(tx), Some(handle))
         } else {
             (None, None)

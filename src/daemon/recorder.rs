@@ -65,8 +65,12 @@ pub type RecorderThread = JoinHandle<Result<Vec<PathBuf>, RecordingError>>;
 
 /// Starts the recorder thread. It ends, closing its file, when every
 /// [`RecordSender`] is dropped.
+///
+/// `attachments` (name, bytes) go into every file, so that each one
+/// replays on its own (the rig's calibration).
 pub fn spawn_recorder(
     config: RecordingConfig,
+    attachments: Vec<(String, Vec<u8>)>,
 ) -> Result<(RecordSender, RecorderThread), RecordingError> {
     std::fs::create_dir_all(&config.dir).map_err(|source| RecordingError::Create {
         path: config.dir.clone(),
@@ -75,7 +79,7 @@ pub fn spawn_recorder(
     let (tx, rx) = mpsc::sync_channel(CHANNEL_BOUND);
     let handle = std::thread::Builder::new()
         .name("recorder".into())
-        .spawn(move || record_loop(&config, rx))
+        .spawn(move || record_loop(&config, &attachments, rx))
         .map_err(|source| RecordingError::Create {
             path: PathBuf::from("(recorder thread)"),
             source,
@@ -97,7 +101,7 @@ struct OpenFile {
     pose: ChannelId,
 }
 
-fn open_file(dir: &Path) -> Result<OpenFile, RecordingError> {
+fn open_file(dir: &Path, attachments: &[(String, Vec<u8>)]) -> Result<OpenFile, RecordingError> {
     // Wall-clock-free name: the next free number, so files sort by age.
     let next = list_recordings(dir)
         .iter()
@@ -110,6 +114,9 @@ fn open_file(dir: &Path) -> Result<OpenFile, RecordingError> {
     let cam0 = recorder.add_image_channel("/cam0")?;
     let cam1 = recorder.add_image_channel("/cam1")?;
     let pose = recorder.add_pose_channel("/rigslam/pose")?;
+    for (name, data) in attachments {
+        recorder.attach(name, "application/x-yaml", data)?;
+    }
     tracing::info!("recording to {}", path.display());
     Ok(OpenFile {
         recorder,
@@ -166,12 +173,13 @@ fn enforce_budget(dir: &Path, budget: u64, reserve: u64) {
 
 fn record_loop(
     config: &RecordingConfig,
+    attachments: &[(String, Vec<u8>)],
     rx: Receiver<Record>,
 ) -> Result<Vec<PathBuf>, RecordingError> {
     let rotate = config.rotate_mib.max(1) << 20;
     let budget = config.budget_mib << 20;
     enforce_budget(&config.dir, budget, rotate);
-    let mut file = open_file(&config.dir)?;
+    let mut file = open_file(&config.dir, attachments)?;
     let mut closed = Vec::new();
     for record in rx {
         match record {
@@ -187,7 +195,7 @@ fn record_loop(
             Record::Pose(p, receipt) => file.recorder.write_pose(file.pose, &p, receipt)?,
         }
         if file.recorder.message_bytes() >= rotate {
-            let next = open_file(&config.dir)?;
+            let next = open_file(&config.dir, attachments)?;
             let done = std::mem::replace(&mut file, next);
             closed.push(done.recorder.finish()?);
             enforce_budget(&config.dir, budget, rotate);
@@ -231,7 +239,7 @@ mod tests {
             budget_mib: 3,
             rotate_mib: 1,
         };
-        let (tx, handle) = spawn_recorder(config).expect("recorder");
+        let (tx, handle) = spawn_recorder(config, vec![]).expect("recorder");
         for i in 0..12 {
             tx.frame(&frame(i * 50_000_000));
             tx.imu(&ImuSample {

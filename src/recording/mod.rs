@@ -16,7 +16,10 @@ use rigslam_drivers::ImuSample;
 use thiserror::Error;
 
 mod sensor_replay;
-pub use sensor_replay::{for_each_sensor_event, is_mcap, SensorTopics};
+pub use sensor_replay::{
+    calibration_attachment_name, calibration_attachments, for_each_sensor_event, is_mcap,
+    rig_of_recording, SensorTopics,
+};
 
 /// Schema name of IMU messages.
 pub const IMU_SCHEMA_NAME: &str = "rigslam.ImuSample";
@@ -51,6 +54,12 @@ pub enum RecordingError {
     },
     #[error("{path} has no channel {topic}")]
     NoChannel { path: PathBuf, topic: String },
+    #[error("{path}: attachment {name}: {reason}")]
+    BadAttachment {
+        path: PathBuf,
+        name: String,
+        reason: String,
+    },
     #[error("{path}: message {sequence} on {topic}: {reason}")]
     BadImage {
         path: PathBuf,
@@ -386,6 +395,26 @@ impl McapRecorder {
         self.write_json(channel, t_ns, receipt_t_ns, &message)
     }
 
+    /// Adds a file (e.g. a calibration) to the recording as an MCAP
+    /// attachment named `name`.
+    pub fn attach(
+        &mut self,
+        name: &str,
+        media_type: &str,
+        data: &[u8],
+    ) -> Result<(), RecordingError> {
+        let attachment = mcap::Attachment {
+            log_time: 0,
+            create_time: 0,
+            name: name.to_string(),
+            media_type: media_type.to_string(),
+            data: std::borrow::Cow::Borrowed(data),
+        };
+        self.writer.attach(&attachment).map_err(self.mcap_err())?;
+        self.approx_bytes += data.len() as u64;
+        Ok(())
+    }
+
     /// Message bytes written so far (the file adds its index and summary).
     pub fn message_bytes(&self) -> u64 {
         self.approx_bytes
@@ -467,6 +496,29 @@ pub fn read_pose_channel(path: &Path, topic: &str) -> Result<Vec<RecordedPose>, 
             m.velocity_world_m_s.z,
         ],
     })
+}
+
+/// The attachments of a complete recording (from its summary), by name.
+pub fn read_attachments(path: &Path) -> Result<BTreeMap<String, Vec<u8>>, RecordingError> {
+    let bytes = std::fs::read(path).map_err(|source| RecordingError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let mcap_err = |source| RecordingError::Mcap {
+        path: path.to_path_buf(),
+        source,
+    };
+    let summary = mcap::Summary::read(&bytes)
+        .map_err(mcap_err)?
+        .ok_or_else(|| RecordingError::NoSummary {
+            path: path.to_path_buf(),
+        })?;
+    let mut out = BTreeMap::new();
+    for index in &summary.attachment_indexes {
+        let a = mcap::read::attachment(&bytes, index).map_err(mcap_err)?;
+        out.insert(a.name, a.data.into_owned());
+    }
+    Ok(out)
 }
 
 /// The topics of a recording and their message counts (from its summary,

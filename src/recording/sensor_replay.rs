@@ -9,7 +9,9 @@ use std::path::Path;
 use rigslam_drivers::{Frame, Image, ImuSample};
 
 use super::{ImageJson, ImuMessage, RecordingError};
-use crate::dataset::SensorEvent;
+use crate::dataset::euroc::sensor_yaml::{camera_yaml, imu_yaml};
+use crate::dataset::{parse_camera_yaml, parse_imu_yaml, SensorEvent};
+use crate::relative::{RigModel, SensorMode};
 
 /// Which streams to read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -25,6 +27,93 @@ pub struct SensorTopics {
 pub fn is_mcap(path: &Path) -> bool {
     path.extension()
         .is_some_and(|x| x.eq_ignore_ascii_case("mcap"))
+}
+
+/// The name under which a recording carries a sensor's calibration file
+/// (`cam0.yaml` -> `calibration/cam0.yaml`). The recorder attaches the
+/// rig's files to every file it writes, one EuRoC-layout `sensor.yaml` per
+/// camera the mode uses and the IMU's when the mode uses it, so that a
+/// recording replays without the files it was made with. The daemon
+/// attaches the original files' bytes (the replay then reads the same
+/// numbers); [`calibration_attachments`] is the fallback.
+pub fn calibration_attachment_name(file: &str) -> String {
+    format!("{CALIBRATION_PREFIX}{file}")
+}
+
+/// The rig's calibration written out again, for a rig whose files are
+/// not at hand (a KITTI replay). Not bit-exact: orientations go through a
+/// quaternion and back, so a replay of such a recording is close to the
+/// original run but not equal to the bit.
+pub fn calibration_attachments(rig: &RigModel, mode: SensorMode) -> Vec<(String, Vec<u8>)> {
+    let cameras = if mode.uses_stereo() { 2 } else { 1 };
+    let mut out: Vec<(String, Vec<u8>)> = rig
+        .cameras
+        .iter()
+        .take(cameras)
+        .enumerate()
+        .map(|(i, c)| {
+            let name = format!("cam{i}");
+            (
+                format!("{CALIBRATION_PREFIX}{name}.yaml"),
+                camera_yaml(&name, c).into_bytes(),
+            )
+        })
+        .collect();
+    if let (Some(imu), true) = (&rig.imu, mode.uses_imu()) {
+        out.push((
+            format!("{CALIBRATION_PREFIX}imu0.yaml"),
+            imu_yaml(imu).into_bytes(),
+        ));
+    }
+    out
+}
+
+const CALIBRATION_PREFIX: &str = "calibration/";
+
+/// The rig a recording was made with, from its calibration attachments;
+/// `None` when it has none (a recording made without them).
+pub fn rig_of_recording(path: &Path) -> Result<Option<RigModel>, RecordingError> {
+    let attachments = super::read_attachments(path)?;
+    let text = |name: &str| -> Result<Option<(String, std::path::PathBuf)>, RecordingError> {
+        let key = format!("{CALIBRATION_PREFIX}{name}");
+        attachments
+            .get(&key)
+            .map(|bytes| {
+                let text = String::from_utf8(bytes.clone()).map_err(|_| {
+                    RecordingError::BadAttachment {
+                        path: path.to_path_buf(),
+                        name: key.clone(),
+                        reason: "not UTF-8 text".into(),
+                    }
+                })?;
+                // Errors name the attachment as if it were a file in the recording.
+                Ok((text, path.join(&key)))
+            })
+            .transpose()
+    };
+    let bad = |name: &str, e: crate::dataset::DatasetError| RecordingError::BadAttachment {
+        path: path.to_path_buf(),
+        name: format!("{CALIBRATION_PREFIX}{name}"),
+        reason: e.to_string(),
+    };
+    let mut cameras = Vec::new();
+    for i in 0.. {
+        let name = format!("cam{i}.yaml");
+        match text(&name)? {
+            Some((t, origin)) => {
+                cameras.push(parse_camera_yaml(&t, &origin).map_err(|e| bad(&name, e))?)
+            }
+            None => break,
+        }
+    }
+    if cameras.is_empty() {
+        return Ok(None);
+    }
+    let imu = match text("imu0.yaml")? {
+        Some((t, origin)) => Some(parse_imu_yaml(&t, &origin).map_err(|e| bad("imu0.yaml", e))?),
+        None => None,
+    };
+    Ok(Some(RigModel { cameras, imu }))
 }
 
 /// Calls `f` with every IMU sample and frame of the recording at `path`,

@@ -35,8 +35,8 @@ struct Args {
     /// every problem (file: key: why), exit 0 when all is well, 1 otherwise.
     #[arg(long)]
     check_config: bool,
-    /// Shorthand without a config file: replay this EuRoC folder (an MCAP
-    /// recording needs --config, for its calibration).
+    /// Shorthand without a config file: replay this EuRoC folder or MCAP
+    /// recording (with the calibration recorded in it).
     #[arg(long)]
     replay: Option<PathBuf>,
     /// With --replay: the SLAM mode (the richest the dataset allows by default).
@@ -81,15 +81,18 @@ fn load(args: &Args) -> anyhow::Result<(DaemonConfig, PathBuf)> {
     let (mut config, file) = match (&args.config, &args.replay) {
         (Some(path), _) => (DaemonConfig::load(path)?, path.clone()),
         (None, Some(dataset)) => {
-            if rigslam::recording::is_mcap(dataset) {
-                anyhow::bail!(
-                    "{} is an MCAP recording, which holds no calibration: replay it with --config, \
-                     a [replay] dataset = \"...mcap\" and the rig's [calibration] files",
-                    dataset.display()
-                );
-            }
             let mode = match args.mode {
                 Some(m) => m,
+                None if rigslam::recording::is_mcap(dataset) => {
+                    // The modes the recorded calibration serves, richest first.
+                    match rigslam::recording::rig_of_recording(dataset)? {
+                        Some(rig) => rigslam::run::dataset_run::default_mode(&rig),
+                        None => anyhow::bail!(
+                            "{} carries no calibration: replay it with --config and the rig's [calibration] files",
+                            dataset.display()
+                        ),
+                    }
+                }
                 None => {
                     let d = rigslam::dataset::open_dataset(dataset)?;
                     rigslam::run::dataset_run::default_mode(&rigslam::run::dataset_run::rig_of(&d))
