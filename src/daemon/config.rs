@@ -333,7 +333,7 @@ impl DaemonConfig {
     /// files `[calibration]` names, else a EuRoC replay's own
     /// `sensor.yaml` files, else a replayed recording's attachments;
     /// `None` when there are no such files (a KITTI replay).
-    pub fn calibration_files(&self) -> Result<Option<Vec<(String, Vec<u8>)>>, String> {
+    pub fn calibration_files(&self) -> Result<Option<crate::recording::Attachments>, String> {
         let mode = self.slam.mode;
         let cameras = if mode.uses_stereo() { 2 } else { 1 };
         let read = |path: &Path| {

@@ -70,7 +70,7 @@ pub type RecorderThread = JoinHandle<Result<Vec<PathBuf>, RecordingError>>;
 /// replays on its own (the rig's calibration).
 pub fn spawn_recorder(
     config: RecordingConfig,
-    attachments: Vec<(String, Vec<u8>)>,
+    attachments: crate::recording::Attachments,
 ) -> Result<(RecordSender, RecorderThread), RecordingError> {
     std::fs::create_dir_all(&config.dir).map_err(|source| RecordingError::Create {
         path: config.dir.clone(),

@@ -16,6 +16,8 @@ use rigslam_drivers::ImuSample;
 use thiserror::Error;
 
 mod sensor_replay;
+/// Files carried in a recording: (attachment name, bytes).
+pub type Attachments = Vec<(String, Vec<u8>)>;
 pub use sensor_replay::{
     calibration_attachment_name, calibration_attachments, for_each_sensor_event, is_mcap,
     rig_of_recording, SensorTopics,

@@ -44,9 +44,9 @@ pub fn calibration_attachment_name(file: &str) -> String {
 /// not at hand (a KITTI replay). Not bit-exact: orientations go through a
 /// quaternion and back, so a replay of such a recording is close to the
 /// original run but not equal to the bit.
-pub fn calibration_attachments(rig: &RigModel, mode: SensorMode) -> Vec<(String, Vec<u8>)> {
+pub fn calibration_attachments(rig: &RigModel, mode: SensorMode) -> super::Attachments {
     let cameras = if mode.uses_stereo() { 2 } else { 1 };
-    let mut out: Vec<(String, Vec<u8>)> = rig
+    let mut out: super::Attachments = rig
         .cameras
         .iter()
         .take(cameras)
