@@ -11,6 +11,7 @@
 pub use rigslam_drivers as sensors;
 
 pub mod camera;
+pub mod daemon;
 pub mod dataset;
 pub mod edge_map;
 pub mod eval;

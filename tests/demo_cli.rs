@@ -1,6 +1,7 @@
 //! The README's first command, end to end: `rigslam demo` must render a
-//! sequence, run the relative stage on it in two modes as `rigslam run`
-//! does, score it, and report it as JSON.
+//! sequence, play it through rigslamd with `rigslam echo` subscribed, run
+//! the relative stage on it in two modes as `rigslam run` does, score it
+//! all, and report it as JSON.
 
 use std::process::Command;
 
@@ -37,6 +38,21 @@ fn demo_runs_the_whole_chain_and_reports_measured_numbers() {
         assert!(ate.is_finite() && ate < 0.2, "{mode}: ATE {ate} m");
         assert!(run["mean_ms_per_frame"].as_f64().expect("ms") > 0.0);
     }
+    // The live part: rigslamd replayed the sequence at its pace and a
+    // `rigslam echo` subscriber got every pose, as good as the offline run.
+    let live = &report["live"];
+    assert_eq!(live["frames"], 121, "{live}");
+    assert_eq!(live["poses_received"], 121, "{live}");
+    assert_eq!(live["poses_missed"], 0, "{live}");
+    let live_ate = live["eval"]["ate_rmse_m"].as_f64().expect("live ATE");
+    let offline_ate = runs[0]["eval"]["ate_rmse_m"].as_f64().expect("ATE");
+    assert!(live_ate < 0.2, "live ATE {live_ate} m");
+    assert!(
+        (live_ate - offline_ate).abs() < 0.05,
+        "live ATE {live_ate} m against {offline_ate} m offline"
+    );
+    assert!(live["frame_to_pose_p50_ms"].as_f64().expect("latency") > 0.0);
+    assert!(out.path().join("live_stereo-inertial.tum").is_file());
     assert!(out.path().join("synthetic_stereo-inertial.tum").is_file());
     assert!(out.path().join("synthetic_stereo-inertial.png").is_file());
     assert!(out.path().join("sequence/mav0/cam1/data.csv").is_file());

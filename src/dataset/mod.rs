@@ -14,8 +14,8 @@ pub mod tum;
 pub use detect::{open_dataset, read_trajectory_any, Dataset};
 pub use error::DatasetError;
 pub use euroc::{
-    read_camera_yaml, read_euroc_imu_csv, read_imu_yaml, write_euroc_imu_csv, EurocCamera,
-    EurocDataset, EurocImu, EurocWriter, ImageEntry, ImuCsv,
+    parse_camera_yaml, parse_imu_yaml, read_camera_yaml, read_euroc_imu_csv, read_imu_yaml,
+    write_euroc_imu_csv, EurocCamera, EurocDataset, EurocImu, EurocWriter, ImageEntry, ImuCsv,
 };
 pub use groundtruth::{
     groundtruth_trajectory, read_euroc_groundtruth, read_euroc_trajectory, write_euroc_groundtruth,

@@ -22,6 +22,7 @@ mod subscriber;
 pub use message::*;
 pub use publisher::{PosePublisher, PublisherNode, StreamPublisher};
 pub use service::{
-    Ipc, IpcConfig, IpcError, Message, Stream, DEFAULT_SERVICE_PREFIX, MAX_SUBSCRIBER_BUFFER,
+    cleanup_dead_nodes, Ipc, IpcConfig, IpcError, Message, Stream, DEFAULT_SERVICE_PREFIX,
+    MAX_SUBSCRIBER_BUFFER,
 };
 pub use subscriber::{PoseSubscriber, StatusSubscriber, Subscription, DEFAULT_SUBSCRIBER_BUFFER};

@@ -10,13 +10,14 @@ use std::fmt::Debug;
 use std::path::{Path, PathBuf};
 
 use iceoryx2::config::Config;
-use iceoryx2::node::{Node, NodeBuilder};
+use iceoryx2::node::{Node, NodeBuilder, NodeState};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::{
-    ipc_threadsafe, SemanticString, ServiceName, SignalHandlingMode, ZeroCopySend,
+    ipc_threadsafe, CallbackProgression, SemanticString, ServiceName, SignalHandlingMode,
+    ZeroCopySend,
 };
 
 use super::message::{PoseMessage, StatusMessage, POSE_LAYOUT_VERSION, STATUS_LAYOUT_VERSION};
@@ -183,12 +184,7 @@ impl_message!(StatusMessage, STATUS_LAYOUT_VERSION);
 /// the daemon owns SIGINT/SIGTERM (iceoryx2 would otherwise install its
 /// own handlers).
 pub(crate) fn create_node(config: &IpcConfig) -> Result<Node<Ipc>, IpcError> {
-    // iceoryx2's defaults, not a system-wide iceoryx2.toml: the daemon's own
-    // config decides the root path, and both sides must agree on it.
-    let mut iox_config = Config::default();
-    if let Some(root) = &config.root_path {
-        iox_config.global.set_root_path(&root_path(root)?);
-    }
+    let iox_config = iceoryx2_config(config)?;
     NodeBuilder::new()
         .config(&iox_config)
         .signal_handling_mode(SignalHandlingMode::Disabled)
@@ -196,6 +192,49 @@ pub(crate) fn create_node(config: &IpcConfig) -> Result<Node<Ipc>, IpcError> {
         .map_err(|e| IpcError::Node {
             reason: format!("{e:?}"),
         })
+}
+
+/// Removes what processes that died without cleaning up (a daemon killed
+/// with SIGKILL, a crashed subscriber) left on the configured instance:
+/// their node entries, their ports on the services, their shared memory.
+/// Returns (nodes cleaned, nodes that could not be).
+///
+/// Done on the node list, before this process creates a node of its own
+/// (which would clean up silently), so the caller can say what it found.
+pub fn cleanup_dead_nodes(config: &IpcConfig) -> Result<(u64, u64), IpcError> {
+    let iox_config = iceoryx2_config(config)?;
+    let mut dead = Vec::new();
+    Node::<Ipc>::list(&iox_config, |state| {
+        match state {
+            NodeState::Dead(view) => dead.push(view),
+            other => tracing::debug!("iceoryx2 node: {other:?}"),
+        }
+        CallbackProgression::Continue
+    })
+    .map_err(|e| IpcError::Node {
+        reason: format!("listing the nodes: {e:?}"),
+    })?;
+    let (mut cleaned, mut failed) = (0, 0);
+    for view in dead {
+        match view.try_remove_stale_resources() {
+            Ok(()) => cleaned += 1,
+            Err(e) => {
+                tracing::warn!("iceoryx2: cannot remove a dead node's resources: {e:?}");
+                failed += 1;
+            }
+        }
+    }
+    Ok((cleaned, failed))
+}
+
+/// iceoryx2's defaults, not a system-wide iceoryx2.toml: the daemon's own
+/// config decides the root path, and both sides must agree on it.
+fn iceoryx2_config(config: &IpcConfig) -> Result<Config, IpcError> {
+    let mut iox_config = Config::default();
+    if let Some(root) = &config.root_path {
+        iox_config.global.set_root_path(&root_path(root)?);
+    }
+    Ok(iox_config)
 }
 
 /// iceoryx2 wants an absolute directory path ending in a separator.

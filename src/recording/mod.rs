@@ -15,6 +15,14 @@ use std::path::{Path, PathBuf};
 use rigslam_drivers::ImuSample;
 use thiserror::Error;
 
+mod sensor_replay;
+/// Files carried in a recording: (attachment name, bytes).
+pub type Attachments = Vec<(String, Vec<u8>)>;
+pub use sensor_replay::{
+    calibration_attachment_name, calibration_attachments, for_each_sensor_event, is_mcap,
+    rig_of_recording, SensorTopics,
+};
+
 /// Schema name of IMU messages.
 pub const IMU_SCHEMA_NAME: &str = "rigslam.ImuSample";
 
@@ -37,7 +45,9 @@ pub enum RecordingError {
         path: PathBuf,
         source: mcap::McapError,
     },
-    #[error("{path}: message {sequence} on {topic} is not an IMU sample: {source}")]
+    #[error("{path} has no summary: the file was not closed (cut off mid-write?)")]
+    NoSummary { path: PathBuf },
+    #[error("{path}: message {sequence} on {topic} does not have the channel's layout: {source}")]
     BadMessage {
         path: PathBuf,
         topic: String,
@@ -46,6 +56,19 @@ pub enum RecordingError {
     },
     #[error("{path} has no channel {topic}")]
     NoChannel { path: PathBuf, topic: String },
+    #[error("{path}: attachment {name}: {reason}")]
+    BadAttachment {
+        path: PathBuf,
+        name: String,
+        reason: String,
+    },
+    #[error("{path}: message {sequence} on {topic}: {reason}")]
+    BadImage {
+        path: PathBuf,
+        topic: String,
+        sequence: u32,
+        reason: String,
+    },
 }
 
 #[derive(serde::Serialize, serde::Deserialize)]
@@ -53,6 +76,149 @@ struct ImuMessage {
     t_ns: i64,
     gyro_rad_s: [f64; 3],
     accel_m_s2: [f64; 3],
+}
+
+/// Schema name of pose messages.
+pub const POSE_SCHEMA_NAME: &str = "foxglove.PoseInFrame";
+/// Schema name of image messages.
+pub const IMAGE_SCHEMA_NAME: &str = "foxglove.RawImage";
+
+const TIME_SCHEMA: &str =
+    r#"{"type":"object","properties":{"sec":{"type":"integer"},"nsec":{"type":"integer"}}}"#;
+const VEC3_SCHEMA: &str = r#"{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}}"#;
+
+/// `foxglove.PoseInFrame` (timestamp, frame_id, pose) with the daemon's
+/// fields beside it: the exact stamp, tracking state and velocity.
+static POSE_JSON_SCHEMA: std::sync::LazyLock<String> = std::sync::LazyLock::new(|| {
+    format!(
+        r#"{{"type":"object","properties":{{"timestamp":{TIME_SCHEMA},"frame_id":{{"type":"string"}},"pose":{{"type":"object","properties":{{"position":{VEC3_SCHEMA},"orientation":{{"type":"object","properties":{{"x":{{"type":"number"}},"y":{{"type":"number"}},"z":{{"type":"number"}},"w":{{"type":"number"}}}}}}}}}},"t_ns":{{"type":"integer"}},"tracking_state":{{"type":"integer"}},"velocity_world_m_s":{VEC3_SCHEMA}}}}}"#
+    )
+});
+
+/// `foxglove.RawImage` with base64 `data`, as Foxglove reads it from JSON.
+static IMAGE_JSON_SCHEMA: std::sync::LazyLock<String> = std::sync::LazyLock::new(|| {
+    format!(
+        r#"{{"type":"object","properties":{{"timestamp":{TIME_SCHEMA},"frame_id":{{"type":"string"}},"width":{{"type":"integer"}},"height":{{"type":"integer"}},"encoding":{{"type":"string"}},"step":{{"type":"integer"}},"data":{{"type":"string","contentEncoding":"base64"}}}}}}"#
+    )
+});
+
+/// A pose as the recording keeps it (the published `rigslam/pose`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RecordedPose {
+    pub t_ns: i64,
+    /// The wire code of the tracking state.
+    pub tracking_state: u32,
+    pub position_world_m: [f64; 3],
+    pub orientation_world_body_xyzw: [f64; 4],
+    pub velocity_world_m_s: [f64; 3],
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct FoxgloveTime {
+    sec: i64,
+    nsec: i64,
+}
+
+impl FoxgloveTime {
+    fn of(t_ns: i64) -> Self {
+        Self {
+            sec: t_ns.div_euclid(1_000_000_000),
+            nsec: t_ns.rem_euclid(1_000_000_000),
+        }
+    }
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct Xyz {
+    x: f64,
+    y: f64,
+    z: f64,
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct Xyzw {
+    x: f64,
+    y: f64,
+    z: f64,
+    w: f64,
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct PoseBody {
+    position: Xyz,
+    orientation: Xyzw,
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct PoseJson {
+    timestamp: FoxgloveTime,
+    frame_id: String,
+    pose: PoseBody,
+    t_ns: i64,
+    tracking_state: u32,
+    velocity_world_m_s: Xyz,
+}
+
+impl From<&RecordedPose> for PoseJson {
+    fn from(p: &RecordedPose) -> Self {
+        let [x, y, z] = p.position_world_m;
+        let [qx, qy, qz, qw] = p.orientation_world_body_xyzw;
+        let [vx, vy, vz] = p.velocity_world_m_s;
+        Self {
+            timestamp: FoxgloveTime::of(p.t_ns),
+            frame_id: "world".into(),
+            pose: PoseBody {
+                position: Xyz { x, y, z },
+                orientation: Xyzw {
+                    x: qx,
+                    y: qy,
+                    z: qz,
+                    w: qw,
+                },
+            },
+            t_ns: p.t_ns,
+            tracking_state: p.tracking_state,
+            velocity_world_m_s: Xyz {
+                x: vx,
+                y: vy,
+                z: vz,
+            },
+        }
+    }
+}
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct ImageJson {
+    timestamp: FoxgloveTime,
+    frame_id: String,
+    width: u32,
+    height: u32,
+    encoding: String,
+    step: u32,
+    data: String,
+}
+
+/// Standard base64 (RFC 4648, with padding), as `foxglove.RawImage`
+/// carries bytes in JSON.
+fn base64_encode(bytes: &[u8]) -> String {
+    const ALPHABET: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut out = String::with_capacity(bytes.len().div_ceil(3) * 4);
+    for chunk in bytes.chunks(3) {
+        let b = [
+            chunk[0],
+            *chunk.get(1).unwrap_or(&0),
+            *chunk.get(2).unwrap_or(&0),
+        ];
+        let n = (u32::from(b[0]) << 16) | (u32::from(b[1]) << 8) | u32::from(b[2]);
+        for i in 0..4 {
+            if i <= chunk.len() {
+                out.push(ALPHABET[(n >> (18 - 6 * i) & 63) as usize] as char);
+            } else {
+                out.push('=');
+            }
+        }
+    }
+    out
 }
 
 /// A channel registered in a [`McapRecorder`].
@@ -67,6 +233,7 @@ pub struct McapRecorder {
     writer: mcap::Writer<BufWriter<File>>,
     sequences: BTreeMap<u16, u32>,
     buf: Vec<u8>,
+    approx_bytes: u64,
 }
 
 impl McapRecorder {
@@ -89,6 +256,7 @@ impl McapRecorder {
             writer,
             sequences: BTreeMap::new(),
             buf: Vec::new(),
+            approx_bytes: 0,
         })
     }
 
@@ -122,27 +290,136 @@ impl McapRecorder {
         sample: &ImuSample,
         receipt_t_ns: i64,
     ) -> Result<(), RecordingError> {
-        self.buf.clear();
-        serde_json::to_writer(
-            &mut self.buf,
-            &ImuMessage {
-                t_ns: sample.t_ns,
-                gyro_rad_s: sample.gyro_rad_s,
-                accel_m_s2: sample.accel_m_s2,
-            },
+        let message = ImuMessage {
+            t_ns: sample.t_ns,
+            gyro_rad_s: sample.gyro_rad_s,
+            accel_m_s2: sample.accel_m_s2,
+        };
+        self.write_json(channel, sample.t_ns, receipt_t_ns, &message)
+    }
+
+    /// Registers a channel of JSON messages described by `json_schema`.
+    pub fn add_json_channel(
+        &mut self,
+        topic: &str,
+        schema_name: &str,
+        json_schema: &str,
+        metadata: &BTreeMap<String, String>,
+    ) -> Result<ChannelId, RecordingError> {
+        let schema = self
+            .writer
+            .add_schema(schema_name, "jsonschema", json_schema.as_bytes())
+            .map_err(self.mcap_err())?;
+        let id = self
+            .writer
+            .add_channel(schema, topic, "json", metadata)
+            .map_err(self.mcap_err())?;
+        Ok(ChannelId { id })
+    }
+
+    /// Registers a pose stream (Foxglove's `foxglove.PoseInFrame` JSON
+    /// layout, plus the daemon's own fields).
+    pub fn add_pose_channel(&mut self, topic: &str) -> Result<ChannelId, RecordingError> {
+        self.add_json_channel(topic, POSE_SCHEMA_NAME, &POSE_JSON_SCHEMA, &BTreeMap::new())
+    }
+
+    /// Registers an image stream (Foxglove's `foxglove.RawImage`).
+    pub fn add_image_channel(&mut self, topic: &str) -> Result<ChannelId, RecordingError> {
+        self.add_json_channel(
+            topic,
+            IMAGE_SCHEMA_NAME,
+            &IMAGE_JSON_SCHEMA,
+            &BTreeMap::new(),
         )
-        .expect("serialising plain numbers into a Vec cannot fail");
+    }
+
+    fn write_json(
+        &mut self,
+        channel: ChannelId,
+        log_time_ns: i64,
+        publish_time_ns: i64,
+        message: &impl serde::Serialize,
+    ) -> Result<(), RecordingError> {
+        self.buf.clear();
+        serde_json::to_writer(&mut self.buf, message)
+            .expect("serialising numbers and strings into a Vec cannot fail");
         let sequence = self.sequences.entry(channel.id).or_insert(0);
         *sequence += 1;
         let header = mcap::records::MessageHeader {
             channel_id: channel.id,
             sequence: *sequence,
-            log_time: sample.t_ns.max(0) as u64,
-            publish_time: receipt_t_ns.max(0) as u64,
+            log_time: log_time_ns.max(0) as u64,
+            publish_time: publish_time_ns.max(0) as u64,
         };
         self.writer
             .write_to_known_channel(&header, &self.buf)
-            .map_err(self.mcap_err())
+            .map_err(self.mcap_err())?;
+        // Message record: opcode, length, header fields, then the data.
+        self.approx_bytes += 1 + 8 + 2 + 4 + 8 + 8 + self.buf.len() as u64;
+        Ok(())
+    }
+
+    /// Appends one pose.
+    pub fn write_pose(
+        &mut self,
+        channel: ChannelId,
+        pose: &RecordedPose,
+        receipt_t_ns: i64,
+    ) -> Result<(), RecordingError> {
+        self.write_json(channel, pose.t_ns, receipt_t_ns, &PoseJson::from(pose))
+    }
+
+    /// Appends one 8-bit grey image (other formats are converted to grey).
+    pub fn write_image(
+        &mut self,
+        channel: ChannelId,
+        t_ns: i64,
+        image: &rigslam_drivers::Image,
+        frame_id: &str,
+        receipt_t_ns: i64,
+    ) -> Result<(), RecordingError> {
+        let (w, h) = (image.width(), image.height());
+        let mut grey = Vec::with_capacity(w as usize * h as usize);
+        for y in 0..h {
+            for x in 0..w {
+                grey.push(image.grey8_at(x, y).unwrap_or(0));
+            }
+        }
+        let message = ImageJson {
+            timestamp: FoxgloveTime::of(t_ns),
+            frame_id: frame_id.to_string(),
+            width: w,
+            height: h,
+            encoding: "mono8".into(),
+            step: w,
+            data: base64_encode(&grey),
+        };
+        self.write_json(channel, t_ns, receipt_t_ns, &message)
+    }
+
+    /// Adds a file (e.g. a calibration) to the recording as an MCAP
+    /// attachment named `name`.
+    pub fn attach(
+        &mut self,
+        name: &str,
+        media_type: &str,
+        data: &[u8],
+    ) -> Result<(), RecordingError> {
+        let attachment = mcap::Attachment {
+            log_time: 0,
+            create_time: 0,
+            name: name.to_string(),
+            media_type: media_type.to_string(),
+            data: std::borrow::Cow::Borrowed(data),
+        };
+        self.writer.attach(&attachment).map_err(self.mcap_err())?;
+        self.approx_bytes += data.len() as u64;
+        Ok(())
+    }
+
+    /// Message bytes written so far (the file adds its index and summary).
+    pub fn message_bytes(&self) -> u64 {
+        self.approx_bytes
     }
 
     /// Writes the summary and closes the file.
@@ -154,11 +431,23 @@ impl McapRecorder {
 
 /// Reads back every IMU sample of `topic`, in file order.
 pub fn read_imu_channel(path: &Path, topic: &str) -> Result<Vec<ImuSample>, RecordingError> {
+    read_channel(path, topic, |m: ImuMessage| ImuSample {
+        t_ns: m.t_ns,
+        gyro_rad_s: m.gyro_rad_s,
+        accel_m_s2: m.accel_m_s2,
+    })
+}
+
+fn read_channel<M: serde::de::DeserializeOwned, T>(
+    path: &Path,
+    topic: &str,
+    convert: impl Fn(M) -> T,
+) -> Result<Vec<T>, RecordingError> {
     let bytes = std::fs::read(path).map_err(|source| RecordingError::Read {
         path: path.to_path_buf(),
         source,
     })?;
-    let mut samples = Vec::new();
+    let mut out = Vec::new();
     let mut seen = false;
     let stream = mcap::MessageStream::new(&bytes).map_err(|source| RecordingError::Mcap {
         path: path.to_path_buf(),
@@ -173,18 +462,14 @@ pub fn read_imu_channel(path: &Path, topic: &str) -> Result<Vec<ImuSample>, Reco
             continue;
         }
         seen = true;
-        let m: ImuMessage =
+        let m: M =
             serde_json::from_slice(&message.data).map_err(|source| RecordingError::BadMessage {
                 path: path.to_path_buf(),
                 topic: topic.to_string(),
                 sequence: message.sequence,
                 source,
             })?;
-        samples.push(ImuSample {
-            t_ns: m.t_ns,
-            gyro_rad_s: m.gyro_rad_s,
-            accel_m_s2: m.accel_m_s2,
-        });
+        out.push(convert(m));
     }
     if !seen {
         return Err(RecordingError::NoChannel {
@@ -192,7 +477,76 @@ pub fn read_imu_channel(path: &Path, topic: &str) -> Result<Vec<ImuSample>, Reco
             topic: topic.to_string(),
         });
     }
-    Ok(samples)
+    Ok(out)
+}
+
+/// Reads back every pose of `topic`, in file order.
+pub fn read_pose_channel(path: &Path, topic: &str) -> Result<Vec<RecordedPose>, RecordingError> {
+    read_channel(path, topic, |m: PoseJson| RecordedPose {
+        t_ns: m.t_ns,
+        tracking_state: m.tracking_state,
+        position_world_m: [m.pose.position.x, m.pose.position.y, m.pose.position.z],
+        orientation_world_body_xyzw: [
+            m.pose.orientation.x,
+            m.pose.orientation.y,
+            m.pose.orientation.z,
+            m.pose.orientation.w,
+        ],
+        velocity_world_m_s: [
+            m.velocity_world_m_s.x,
+            m.velocity_world_m_s.y,
+            m.velocity_world_m_s.z,
+        ],
+    })
+}
+
+/// The attachments of a complete recording (from its summary), by name.
+pub fn read_attachments(path: &Path) -> Result<BTreeMap<String, Vec<u8>>, RecordingError> {
+    let bytes = std::fs::read(path).map_err(|source| RecordingError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let mcap_err = |source| RecordingError::Mcap {
+        path: path.to_path_buf(),
+        source,
+    };
+    let summary = mcap::Summary::read(&bytes)
+        .map_err(mcap_err)?
+        .ok_or_else(|| RecordingError::NoSummary {
+            path: path.to_path_buf(),
+        })?;
+    let mut out = BTreeMap::new();
+    for index in &summary.attachment_indexes {
+        let a = mcap::read::attachment(&bytes, index).map_err(mcap_err)?;
+        out.insert(a.name, a.data.into_owned());
+    }
+    Ok(out)
+}
+
+/// The topics of a recording and their message counts (from its summary,
+/// so only a completely written file answers).
+pub fn channel_counts(path: &Path) -> Result<BTreeMap<String, u64>, RecordingError> {
+    let bytes = std::fs::read(path).map_err(|source| RecordingError::Read {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let summary = mcap::Summary::read(&bytes)
+        .map_err(|source| RecordingError::Mcap {
+            path: path.to_path_buf(),
+            source,
+        })?
+        .ok_or_else(|| RecordingError::NoSummary {
+            path: path.to_path_buf(),
+        })?;
+    let stats = summary.stats.ok_or_else(|| RecordingError::NoSummary {
+        path: path.to_path_buf(),
+    })?;
+    let mut counts = BTreeMap::new();
+    for (id, channel) in &summary.channels {
+        let n = stats.channel_message_counts.get(id).copied().unwrap_or(0);
+        counts.insert(channel.topic.clone(), n);
+    }
+    Ok(counts)
 }
 
 #[cfg(test)]

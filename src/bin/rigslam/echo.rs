@@ -5,11 +5,15 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::Context;
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use rigslam::dataset::write_tum;
 use rigslam::publish::{
     IpcConfig, Message, PoseMessage, StatusMessage, Stream, Subscription, DEFAULT_SERVICE_PREFIX,
     MAX_SUBSCRIBER_BUFFER,
 };
+use rigslam::relative::TrackingState;
 use rigslam::sensors::yei::device::host_monotonic_ns;
+use rigslam::trajectory::{StampedPose, Trajectory};
 
 #[derive(clap::Args)]
 pub struct EchoArgs {
@@ -35,6 +39,18 @@ pub struct EchoArgs {
     /// (now - the publisher's send time), missed (sequence gaps), service.
     #[arg(long)]
     json: bool,
+    /// Print one line per this many samples (the rest are still measured).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+    every: u64,
+    /// Pose streams: also write every received pose that is tracking to
+    /// this file as a TUM trajectory (`t[s] tx ty tz qx qy qz qw`), for
+    /// `rigslam eval`.
+    #[arg(long)]
+    tum: Option<PathBuf>,
+    /// Also write the `--json` object to this file (the per-sample lines
+    /// still go to stdout).
+    #[arg(long)]
+    report: Option<PathBuf>,
 }
 
 #[derive(serde::Serialize)]
@@ -82,11 +98,30 @@ pub fn run(args: EchoArgs) -> anyhow::Result<()> {
         service_prefix: prefix.to_string(),
         root_path: args.root_path.clone(),
     };
+    if args.tum.is_some() && service.ends_with("status") {
+        anyhow::bail!("--tum needs a pose stream, not {service}");
+    }
+    let mut tracked = Vec::new();
     let (measured, missed) = if service.ends_with("status") {
-        echo::<StatusMessage>(&args, &config, &service, print_status)?
+        echo::<StatusMessage>(&args, &config, &service, &mut |m, latency_us, print| {
+            if print {
+                print_status(m, latency_us);
+            }
+        })?
     } else {
-        echo::<PoseMessage>(&args, &config, &service, print_pose)?
+        echo::<PoseMessage>(&args, &config, &service, &mut |m, latency_us, print| {
+            if print {
+                print_pose(m, latency_us);
+            }
+            if args.tum.is_some() && m.state() == Some(TrackingState::Tracking) {
+                tracked.push(stamped_pose(m));
+            }
+        })?
     };
+    if let Some(path) = &args.tum {
+        write_tum(path, &Trajectory::new(tracked))
+            .with_context(|| format!("writing --tum {}", path.display()))?;
+    }
     let received = measured.receive_t_ns.len() as u64;
     if received == 0 {
         anyhow::bail!(
@@ -110,17 +145,28 @@ pub fn run(args: EchoArgs) -> anyhow::Result<()> {
         transport_latency_p50_us: percentile(&measured.transport_latency_us, 0.50),
         transport_latency_p99_us: percentile(&measured.transport_latency_us, 0.99),
     };
+    if let Some(path) = &args.report {
+        std::fs::write(path, serde_json::to_string(&report)? + "\n")
+            .with_context(|| format!("writing --report {}", path.display()))?;
+    }
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
+        let latency = if (0.0..PLAUSIBLE_LATENCY_US).contains(&report.latency_p50_us) {
+            format!(
+                "p50 {} p99 {}",
+                latency_text(report.latency_p50_us),
+                latency_text(report.latency_p99_us)
+            )
+        } else {
+            latency_text(report.latency_p50_us)
+        };
         println!(
-            "{}: {} received, {} missed, {:.1} Hz, latency p50 {:.1} us p99 {:.1} us, transport p50 {:.1} us p99 {:.1} us",
+            "{}: {} received, {} missed, {:.1} Hz, latency {latency}, transport p50 {:.1} us p99 {:.1} us",
             report.service,
             report.received,
             report.missed,
             report.rate_hz,
-            report.latency_p50_us,
-            report.latency_p99_us,
             report.transport_latency_p50_us,
             report.transport_latency_p99_us
         );
@@ -134,7 +180,7 @@ fn echo<T: Message>(
     args: &EchoArgs,
     config: &IpcConfig,
     service: &str,
-    print: fn(&T, f64),
+    on_sample: &mut dyn FnMut(&T, f64, bool),
 ) -> anyhow::Result<(Measurements, u64)> {
     // A large buffer: echo wants every sample, and a gap is reported.
     let mut subscriber = Subscription::<T>::open_service(config, service, MAX_SUBSCRIBER_BUFFER)
@@ -156,15 +202,26 @@ fn echo<T: Message>(
             measured
                 .transport_latency_us
                 .push((now_ns - message.published_t_ns()) as f64 / 1e3);
-            if !args.json {
-                print(message, latency_us);
-            }
+            let n = measured.receive_t_ns.len() as u64;
+            let print = !args.json && (n - 1) % args.every == 0;
+            on_sample(message, latency_us, print);
             if args.count > 0 && measured.receive_t_ns.len() as u64 >= args.count {
                 break 'outer;
             }
         }
     }
     Ok((measured, subscriber.missed()))
+}
+
+/// `T_world_body` of a message.
+fn stamped_pose(m: &PoseMessage) -> StampedPose {
+    let [px, py, pz] = m.position_world_m;
+    let [qx, qy, qz, qw] = m.orientation_world_body_xyzw;
+    StampedPose::new(
+        m.t_ns,
+        Vector3::new(px, py, pz),
+        UnitQuaternion::from_quaternion(Quaternion::new(qw, qx, qy, qz)),
+    )
 }
 
 fn print_pose(m: &PoseMessage, latency_us: f64) {
@@ -176,11 +233,26 @@ fn print_pose(m: &PoseMessage, latency_us: f64) {
     let [qx, qy, qz, qw] = m.orientation_world_body_xyzw;
     let [vx, vy, vz] = m.velocity_world_m_s;
     println!(
-        "#{} t={:.6} s {state} p=[{px:.4} {py:.4} {pz:.4}] m q_xyzw=[{qx:.4} {qy:.4} {qz:.4} {qw:.4}] v=[{vx:.3} {vy:.3} {vz:.3}] m/s latency={latency_us:.1} us",
+        "#{} t={:.6} s {state} p=[{px:.4} {py:.4} {pz:.4}] m q_xyzw=[{qx:.4} {qy:.4} {qz:.4} {qw:.4}] v=[{vx:.3} {vy:.3} {vz:.3}] m/s latency={}",
         m.sequence,
         m.t_ns as f64 * 1e-9,
+        latency_text(latency_us),
     );
 }
+
+/// A sensor-to-here latency for people: stamps that are not on this
+/// host's monotonic clock (a replay keeps the recording's time) give
+/// numbers of days or negative ones, which say nothing.
+fn latency_text(latency_us: f64) -> String {
+    if (0.0..PLAUSIBLE_LATENCY_US).contains(&latency_us) {
+        format!("{latency_us:.1} us")
+    } else {
+        "n/a (stamps not on this host's clock)".into()
+    }
+}
+
+/// Beyond this a "latency" is a clock mismatch, us (1 min).
+const PLAUSIBLE_LATENCY_US: f64 = 60e6;
 
 fn print_status(m: &StatusMessage, _latency_us: f64) {
     let queues: Vec<String> = m
@@ -236,6 +308,14 @@ mod tests {
         assert_eq!(percentile(&values, 0.5), 50.0);
         assert_eq!(percentile(&values, 0.99), 99.0);
         assert_eq!(percentile(&[7.0], 0.99), 7.0);
+    }
+
+    #[test]
+    fn replay_stamps_give_no_latency_number() {
+        assert_eq!(latency_text(12.34), "12.3 us");
+        assert!(latency_text(26457717438.2).starts_with("n/a"));
+        assert!(latency_text(-5.0).starts_with("n/a"));
+        assert!(latency_text(f64::NAN).starts_with("n/a"));
     }
 
     #[test]

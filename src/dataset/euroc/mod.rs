@@ -10,7 +10,7 @@ pub mod writer;
 
 pub use imu_csv::{read_euroc_imu_csv, write_euroc_imu_csv, ImuCsv};
 pub use reader::{EurocCamera, EurocDataset, EurocImu, ImageEntry};
-pub use sensor_yaml::{read_camera_yaml, read_imu_yaml};
+pub use sensor_yaml::{parse_camera_yaml, parse_imu_yaml, read_camera_yaml, read_imu_yaml};
 pub use writer::EurocWriter;
 
 /// Folder of the ground truth inside `mav0/`.

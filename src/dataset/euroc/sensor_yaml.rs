@@ -20,7 +20,13 @@ const ROTATION_TOLERANCE: f64 = 1e-6;
 
 /// Reads a camera `sensor.yaml`.
 pub fn read_camera_yaml(path: &Path) -> Result<CameraCalibration, DatasetError> {
-    let doc = load(path)?;
+    parse_camera_yaml(&read_text(path)?, path)
+}
+
+/// Parses the text of a camera `sensor.yaml`; `path` names it in errors
+/// (a file, or where the text came from, e.g. a recording's attachment).
+pub fn parse_camera_yaml(text: &str, path: &Path) -> Result<CameraCalibration, DatasetError> {
+    let doc = parse_doc(text, path)?;
     let f = Fields { path, doc: &doc };
     let camera_model = f.string("camera_model")?;
     if camera_model != "pinhole" {
@@ -59,7 +65,12 @@ pub fn read_camera_yaml(path: &Path) -> Result<CameraCalibration, DatasetError> 
 
 /// Reads an IMU `sensor.yaml` with Kalibr's noise names.
 pub fn read_imu_yaml(path: &Path) -> Result<ImuCalibration, DatasetError> {
-    let doc = load(path)?;
+    parse_imu_yaml(&read_text(path)?, path)
+}
+
+/// Parses the text of an IMU `sensor.yaml`; `path` names it in errors.
+pub fn parse_imu_yaml(text: &str, path: &Path) -> Result<ImuCalibration, DatasetError> {
+    let doc = parse_doc(text, path)?;
     let f = Fields { path, doc: &doc };
     Ok(ImuCalibration {
         T_body_imu: f.transform("T_BS")?,
@@ -190,8 +201,7 @@ fn camera_error_field(e: &CameraError) -> &'static str {
 }
 
 /// Parses a YAML file after dropping `%` directive lines.
-fn load(path: &Path) -> Result<Value, DatasetError> {
-    let text = read_text(path)?;
+fn parse_doc(text: &str, path: &Path) -> Result<Value, DatasetError> {
     let body: String = text
         .lines()
         .map(|l| if l.starts_with('%') { "" } else { l })

@@ -1,0 +1,681 @@
+//! `rigslamd`'s configuration file (`/etc/rigslam/rig.toml`): where the
+//! frames and IMU samples come from, the rig's calibration, the SLAM mode
+//! and settings, publishing, recording and the pipeline's bounds.
+//!
+//! Every table refuses unknown keys, so a typo is an error instead of a
+//! silently kept default. [`DaemonConfig::load`] parses; [`check`] then
+//! validates the values and opens every calibration file the config
+//! names, collecting every problem (file, key, why) instead of stopping
+//! at the first: `rigslamd --check-config` prints them all.
+
+use std::path::{Path, PathBuf};
+
+use crate::publish::IpcConfig;
+use crate::relative::{EstimatorKind, RelativeConfig, RigModel, SensorMode};
+
+/// The whole file.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DaemonConfig {
+    pub camera: CameraConfig,
+    pub imu: ImuConfig,
+    /// Needed for live sensors; a EuRoC replay reads the dataset's own
+    /// `sensor.yaml` files when this table is absent.
+    #[serde(default)]
+    pub calibration: Option<CalibrationConfig>,
+    /// Needed when the camera or the IMU is `replay`.
+    #[serde(default)]
+    pub replay: Option<ReplayConfig>,
+    #[serde(default)]
+    pub slam: SlamConfig,
+    #[serde(default)]
+    pub publish: IpcConfig,
+    #[serde(default)]
+    pub recording: RecordingConfig,
+    #[serde(default)]
+    pub pipeline: PipelineConfig,
+}
+
+/// `[camera]`: where frames come from.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraConfig {
+    pub source: CameraSource,
+    /// v4l2: `/dev/videoN`, `N` or a udev symlink (`/dev/rigslam-camera`);
+    /// aravis: the camera id ("Vendor-Model-Serial") or IP, absent for
+    /// the first camera found. Unused for replay.
+    #[serde(default)]
+    pub device: Option<String>,
+    /// Requested frame rate, Hz (the device's setting when absent).
+    #[serde(default)]
+    pub rate_hz: Option<f64>,
+    /// Requested size, px (the device's setting when absent).
+    #[serde(default)]
+    pub width: Option<u32>,
+    #[serde(default)]
+    pub height: Option<u32>,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CameraSource {
+    V4l2,
+    Aravis,
+    Replay,
+    /// A moving test pattern on the host clock (no hardware): bring-up
+    /// of the IMU side, and the fault tests. Nothing to track in it.
+    Pattern,
+}
+
+/// `[imu]`: where IMU samples come from.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImuConfig {
+    pub source: ImuSource,
+    /// yei: the serial device (`/dev/rigslam-imu` from the udev rule).
+    #[serde(default)]
+    pub port: Option<String>,
+    #[serde(default = "default_baud")]
+    pub baud: u32,
+    /// Streaming rate asked of the YEI, Hz.
+    #[serde(default = "default_imu_rate_hz")]
+    pub rate_hz: f64,
+}
+
+fn default_baud() -> u32 {
+    115_200
+}
+
+fn default_imu_rate_hz() -> f64 {
+    200.0
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ImuSource {
+    Yei,
+    Replay,
+}
+
+/// `[calibration]`: Kalibr/EuRoC `sensor.yaml` files (`T_BS` maps the
+/// sensor into the body = IMU frame; intrinsics and distortion; noise
+/// densities and random walks in continuous time).
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationConfig {
+    /// cam0 (left) first, then cam1 (right) for the stereo modes.
+    pub cameras: Vec<PathBuf>,
+    /// The IMU's `sensor.yaml` (inertial modes).
+    #[serde(default)]
+    pub imu: Option<PathBuf>,
+}
+
+/// `[replay]`: a recorded sequence fed through the live pipeline.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReplayConfig {
+    /// A EuRoC ASL folder (the one holding `mav0/`, or `mav0` itself), or
+    /// an MCAP recording rigslamd made (`*.mcap`; the rig's calibration
+    /// comes from its attachments unless `[calibration]` names files).
+    pub dataset: PathBuf,
+    #[serde(default)]
+    pub pace: ReplayPace,
+    /// Stop after this many frames (all when absent).
+    #[serde(default)]
+    pub max_frames: Option<usize>,
+    /// Play the sequence this many times back to back (a long-run soak
+    /// from a short recording); the stamps of each loop continue after
+    /// the previous one.
+    #[serde(default = "one")]
+    pub loops: u32,
+}
+
+fn one() -> u32 {
+    1
+}
+
+/// How fast a replay goes.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ReplayPace {
+    /// Samples handed over when their stamps are due, as live.
+    #[default]
+    Recorded,
+    /// As fast as the SLAM stage takes them (the replay then waits for
+    /// the stage instead of dropping: nothing is lost, poses repeat bit
+    /// for bit).
+    AsFastAsPossible,
+}
+
+/// `[slam]`: the relative stage.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SlamConfig {
+    /// `mono`, `mono-inertial`, `stereo`, `stereo-inertial`.
+    pub mode: SensorMode,
+    /// `window` (the paper's method) or `ekf` (the baseline).
+    pub estimator: EstimatorKind,
+    /// `[slam.relative]`: the same keys as `rigslam run --config`.
+    pub relative: RelativeConfig,
+}
+
+impl Default for SlamConfig {
+    fn default() -> Self {
+        Self {
+            mode: SensorMode::StereoInertial,
+            estimator: EstimatorKind::Window,
+            relative: RelativeConfig::default(),
+        }
+    }
+}
+
+/// `[recording]`: raw sensor streams and poses to MCAP.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RecordingConfig {
+    pub enabled: bool,
+    /// Where the `rigslam-<t>.mcap` files go.
+    pub dir: PathBuf,
+    /// Total size the recordings may take; the oldest files are deleted
+    /// to stay under it, MiB.
+    pub budget_mib: u64,
+    /// A file is closed and a new one started at this size, MiB.
+    pub rotate_mib: u64,
+}
+
+impl Default for RecordingConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            dir: PathBuf::from("/var/lib/rigslam/recordings"),
+            budget_mib: 4096,
+            rotate_mib: 256,
+        }
+    }
+}
+
+/// `[pipeline]`: queue bounds and the health rules.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PipelineConfig {
+    /// Frames waiting for the SLAM stage; when full the oldest is dropped.
+    pub frame_queue: usize,
+    /// IMU samples waiting for the SLAM stage; when full the oldest is dropped.
+    pub imu_queue: usize,
+    /// A stage that has work and makes no progress for this long is stuck:
+    /// status says so, the log says so, the systemd watchdog is no longer
+    /// pinged (so systemd restarts the daemon), s.
+    pub stuck_after_s: f64,
+    /// Period of `rigslam/status` (and of systemd's STATUS= line), s.
+    pub status_period_s: f64,
+    /// No frame for this long: the camera counts as stalled, s.
+    pub camera_stall_s: f64,
+    /// No IMU sample for this long: the IMU counts as gone, s.
+    pub imu_stall_s: f64,
+}
+
+impl Default for PipelineConfig {
+    fn default() -> Self {
+        Self {
+            frame_queue: 4,
+            imu_queue: 4096,
+            stuck_after_s: 5.0,
+            status_period_s: 1.0,
+            camera_stall_s: 0.5,
+            imu_stall_s: 0.1,
+        }
+    }
+}
+
+/// Why the config cannot be used. `Problems` lists every one found.
+#[derive(Debug, thiserror::Error)]
+pub enum DaemonConfigError {
+    #[error("cannot read {path}: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: {message}")]
+    Parse { path: PathBuf, message: String },
+    #[error("{}", .0.iter().map(|p| p.to_string()).collect::<Vec<_>>().join("\n"))]
+    Problems(Vec<Problem>),
+}
+
+/// One thing wrong: the file, the key (dotted, `camera.device`) and why.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Problem {
+    pub file: PathBuf,
+    pub key: String,
+    pub why: String,
+}
+
+impl std::fmt::Display for Problem {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}: {}: {}", self.file.display(), self.key, self.why)
+    }
+}
+
+impl DaemonConfig {
+    /// Parses the file (syntax, types, unknown keys); relative paths in it
+    /// are taken relative to the file's folder.
+    pub fn load(path: &Path) -> Result<DaemonConfig, DaemonConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| DaemonConfigError::Read {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let mut config = Self::parse(&text).map_err(|message| DaemonConfigError::Parse {
+            path: path.to_path_buf(),
+            message,
+        })?;
+        let base = path.parent().unwrap_or(Path::new("."));
+        config.resolve_paths(base);
+        Ok(config)
+    }
+
+    /// Parses TOML text; the error carries toml's line, column and key.
+    pub fn parse(text: &str) -> Result<DaemonConfig, String> {
+        toml::from_str(text).map_err(|e| e.to_string())
+    }
+
+    /// The config `rigslamd --replay DATASET [--mode M]` stands for.
+    pub fn replay(dataset: &Path, mode: SensorMode) -> DaemonConfig {
+        DaemonConfig {
+            camera: CameraConfig {
+                source: CameraSource::Replay,
+                device: None,
+                rate_hz: None,
+                width: None,
+                height: None,
+            },
+            imu: ImuConfig {
+                source: ImuSource::Replay,
+                port: None,
+                baud: default_baud(),
+                rate_hz: default_imu_rate_hz(),
+            },
+            calibration: None,
+            replay: Some(ReplayConfig {
+                dataset: dataset.to_path_buf(),
+                pace: ReplayPace::Recorded,
+                max_frames: None,
+                loops: 1,
+            }),
+            slam: SlamConfig {
+                mode,
+                ..SlamConfig::default()
+            },
+            publish: IpcConfig::default(),
+            recording: RecordingConfig::default(),
+            pipeline: PipelineConfig::default(),
+        }
+    }
+
+    fn resolve_paths(&mut self, base: &Path) {
+        let fix = |p: &mut PathBuf| {
+            if p.is_relative() {
+                *p = base.join(&*p);
+            }
+        };
+        if let Some(c) = self.calibration.as_mut() {
+            c.cameras.iter_mut().for_each(fix);
+            if let Some(i) = c.imu.as_mut() {
+                fix(i);
+            }
+        }
+        if let Some(r) = self.replay.as_mut() {
+            fix(&mut r.dataset);
+        }
+        fix(&mut self.recording.dir);
+    }
+
+    /// The bytes of the rig's calibration files as a recording carries
+    /// them (see [`crate::recording::calibration_attachment_name`]): the
+    /// files `[calibration]` names, else a EuRoC replay's own
+    /// `sensor.yaml` files, else a replayed recording's attachments;
+    /// `None` when there are no such files (a KITTI replay).
+    pub fn calibration_files(&self) -> Result<Option<crate::recording::Attachments>, String> {
+        let mode = self.slam.mode;
+        let cameras = if mode.uses_stereo() { 2 } else { 1 };
+        let read = |path: &Path| {
+            std::fs::read(path).map_err(|e| format!("cannot read {}: {e}", path.display()))
+        };
+        let name = crate::recording::calibration_attachment_name;
+        if let Some(c) = &self.calibration {
+            let mut out = Vec::new();
+            for (i, path) in c.cameras.iter().take(cameras).enumerate() {
+                out.push((name(&format!("cam{i}.yaml")), read(path)?));
+            }
+            if let (Some(path), true) = (&c.imu, mode.uses_imu()) {
+                out.push((name("imu0.yaml"), read(path)?));
+            }
+            return Ok(Some(out));
+        }
+        let Some(replay) = self.replay.as_ref().filter(|_| self.replays()) else {
+            return Ok(None);
+        };
+        if crate::recording::is_mcap(&replay.dataset) {
+            let attachments =
+                crate::recording::read_attachments(&replay.dataset).map_err(|e| e.to_string())?;
+            let prefix = name("");
+            let out: Vec<_> = attachments
+                .into_iter()
+                .filter(|(n, _)| n.starts_with(&prefix))
+                .collect();
+            return Ok((!out.is_empty()).then_some(out));
+        }
+        match crate::dataset::open_dataset(&replay.dataset).map_err(|e| e.to_string())? {
+            crate::dataset::Dataset::Euroc(d) => {
+                let mut out = Vec::new();
+                for (i, camera) in d.cameras.iter().take(cameras).enumerate() {
+                    let yaml = camera.csv_path.with_file_name("sensor.yaml");
+                    out.push((name(&format!("cam{i}.yaml")), read(&yaml)?));
+                }
+                if mode.uses_imu() {
+                    out.push((name("imu0.yaml"), read(&d.root.join("imu0/sensor.yaml"))?));
+                }
+                Ok(Some(out))
+            }
+            crate::dataset::Dataset::Kitti(_) => Ok(None),
+        }
+    }
+
+    /// Whether either sensor replays a recording.
+    pub fn replays(&self) -> bool {
+        self.camera.source == CameraSource::Replay || self.imu.source == ImuSource::Replay
+    }
+}
+
+/// Validates every value and reads the calibration the config names;
+/// returns the rig on success, every problem found otherwise. `file` is
+/// the config's path, for the messages.
+pub fn check(config: &DaemonConfig, file: &Path) -> Result<RigModel, Vec<Problem>> {
+    let mut problems = Vec::new();
+    let mut bad = |key: &str, why: String| {
+        problems.push(Problem {
+            file: file.to_path_buf(),
+            key: key.to_string(),
+            why,
+        })
+    };
+    let mode = config.slam.mode;
+    if config.camera.source == CameraSource::V4l2 && config.camera.device.is_none() {
+        bad(
+            "camera.device",
+            "missing: source = \"v4l2\" needs the device (/dev/videoN or a udev symlink)".into(),
+        );
+    }
+    match config.camera.source {
+        CameraSource::V4l2 | CameraSource::Aravis | CameraSource::Pattern if mode.uses_stereo() => bad(
+            "slam.mode",
+            format!(
+                "{mode} needs a stereo pair; a live {} camera delivers one image per frame here (use mono or mono-inertial)",
+                match config.camera.source {
+                    CameraSource::V4l2 => "v4l2",
+                    CameraSource::Aravis => "aravis",
+                    _ => "pattern",
+                }
+            ),
+        ),
+        _ => {}
+    }
+    if let Some(rate) = config.camera.rate_hz {
+        if !(rate.is_finite() && rate > 0.0 && rate <= 1000.0) {
+            bad(
+                "camera.rate_hz",
+                format!("{rate} is out of range: 0 to 1000 Hz"),
+            );
+        }
+    }
+    if config.imu.source == ImuSource::Yei {
+        if config.imu.port.is_none() {
+            bad(
+                "imu.port",
+                "missing: source = \"yei\" needs the serial device (e.g. /dev/rigslam-imu)".into(),
+            );
+        }
+        if !(config.imu.rate_hz.is_finite() && (1.0..=1000.0).contains(&config.imu.rate_hz)) {
+            bad(
+                "imu.rate_hz",
+                format!("{} is out of range: 1 to 1000 Hz", config.imu.rate_hz),
+            );
+        }
+    }
+    if config.imu.source == ImuSource::Replay && config.camera.source != CameraSource::Replay
+        || config.camera.source == CameraSource::Replay && config.imu.source != ImuSource::Replay
+    {
+        bad(
+            "imu.source",
+            "camera and IMU must both replay or both be live (a replay has its own clock)".into(),
+        );
+    }
+    if let Err(e) = config.slam.relative.validate() {
+        bad("slam.relative", e.to_string());
+    }
+    let p = &config.pipeline;
+    for (key, value, ok, allowed) in [
+        (
+            "pipeline.frame_queue",
+            p.frame_queue as f64,
+            (1..=256).contains(&p.frame_queue),
+            "1 to 256",
+        ),
+        (
+            "pipeline.imu_queue",
+            p.imu_queue as f64,
+            (16..=1 << 20).contains(&p.imu_queue),
+            "16 to 1048576",
+        ),
+        (
+            "pipeline.stuck_after_s",
+            p.stuck_after_s,
+            p.stuck_after_s.is_finite() && p.stuck_after_s >= 0.5,
+            "at least 0.5 s",
+        ),
+        (
+            "pipeline.status_period_s",
+            p.status_period_s,
+            p.status_period_s.is_finite() && (0.05..=60.0).contains(&p.status_period_s),
+            "0.05 to 60 s",
+        ),
+        (
+            "pipeline.camera_stall_s",
+            p.camera_stall_s,
+            p.camera_stall_s.is_finite() && p.camera_stall_s > 0.0,
+            "a positive number of s",
+        ),
+        (
+            "pipeline.imu_stall_s",
+            p.imu_stall_s,
+            p.imu_stall_s.is_finite() && p.imu_stall_s > 0.0,
+            "a positive number of s",
+        ),
+    ] {
+        if !ok {
+            bad(key, format!("{value} is out of range: {allowed}"));
+        }
+    }
+    let r = &config.recording;
+    if r.enabled {
+        if r.rotate_mib == 0 || r.budget_mib < r.rotate_mib {
+            bad(
+                "recording.rotate_mib",
+                format!(
+                    "{} MiB: must be at least 1 and at most recording.budget_mib ({} MiB)",
+                    r.rotate_mib, r.budget_mib
+                ),
+            );
+        }
+        if r.dir.exists() && !r.dir.is_dir() {
+            bad(
+                "recording.dir",
+                format!("{} is not a folder", r.dir.display()),
+            );
+        }
+    }
+    if let Some(root) = &config.publish.root_path {
+        if !root.is_absolute() {
+            bad(
+                "publish.root_path",
+                format!("{} must be an absolute path", root.display()),
+            );
+        }
+    }
+    if config.publish.service_prefix.is_empty() || config.publish.service_prefix.ends_with('/') {
+        bad(
+            "publish.service_prefix",
+            format!(
+                "{:?}: must be non-empty and not end in '/'",
+                config.publish.service_prefix
+            ),
+        );
+    }
+
+    if config.replay.as_ref().is_some_and(|r| r.loops == 0) {
+        bad("replay.loops", "0: must be at least 1".into());
+    }
+    let replays_mcap = config.replays()
+        && config
+            .replay
+            .as_ref()
+            .is_some_and(|r| crate::recording::is_mcap(&r.dataset));
+    let rig = match (&config.calibration, &config.replay) {
+        (Some(c), _) => rig_from_files(c, mode, &mut bad),
+        (None, Some(replay)) if replays_mcap => {
+            match crate::recording::rig_of_recording(&replay.dataset) {
+                Ok(Some(rig)) => Some(rig),
+                Ok(None) => {
+                    bad(
+                        "calibration",
+                        format!(
+                            "missing: {} carries no calibration; name the rig's files in [calibration] cameras = [...], imu = ...",
+                            replay.dataset.display()
+                        ),
+                    );
+                    None
+                }
+                Err(e) => {
+                    bad("replay.dataset", e.to_string());
+                    None
+                }
+            }
+        }
+        (None, Some(replay)) if config.replays() => {
+            match crate::dataset::open_dataset(&replay.dataset) {
+                Ok(dataset) => Some(crate::run::dataset_run::rig_of(&dataset)),
+                Err(e) => {
+                    bad("replay.dataset", e.to_string());
+                    None
+                }
+            }
+        }
+        _ => {
+            bad(
+                "calibration",
+                "missing: live sensors need [calibration] cameras = [...] (and imu = ... for the inertial modes)".into(),
+            );
+            None
+        }
+    };
+    if config.replays() && config.replay.is_none() {
+        bad(
+            "replay",
+            "missing: a replay source needs [replay] dataset = \"...\"".into(),
+        );
+    } else if let (Some(replay), true) = (&config.replay, replays_mcap) {
+        check_recording(&replay.dataset, mode, &mut bad);
+    } else if let (Some(replay), true, Some(_)) =
+        (&config.replay, config.replays(), &config.calibration)
+    {
+        if let Err(e) = crate::dataset::open_dataset(&replay.dataset) {
+            bad("replay.dataset", e.to_string());
+        }
+    }
+    if let Some(rig) = &rig {
+        if let Err(e) = rig.check(mode) {
+            bad("slam.mode", e.to_string());
+        }
+    }
+    match (rig, problems.is_empty()) {
+        (Some(rig), true) => Ok(rig),
+        _ => Err(problems),
+    }
+}
+
+/// An MCAP recording to replay: complete (closed, with its summary) and
+/// holding the streams `mode` needs.
+fn check_recording(path: &Path, mode: SensorMode, bad: &mut impl FnMut(&str, String)) {
+    let counts = match crate::recording::channel_counts(path) {
+        Ok(c) => c,
+        Err(e) => return bad("replay.dataset", e.to_string()),
+    };
+    let mut needed = vec!["/cam0"];
+    if mode.uses_stereo() {
+        needed.push("/cam1");
+    }
+    if mode.uses_imu() {
+        needed.push("/imu0");
+    }
+    for topic in needed {
+        if counts.get(topic).copied().unwrap_or(0) == 0 {
+            bad(
+                "replay.dataset",
+                format!(
+                    "{}: no {topic} messages, which mode {mode} needs",
+                    path.display()
+                ),
+            );
+        }
+    }
+}
+
+/// The rig from `[calibration]`'s files; every unreadable file becomes a
+/// problem naming the file and the field the reader objected to.
+pub fn rig_from_files(
+    calibration: &CalibrationConfig,
+    mode: SensorMode,
+    bad: &mut impl FnMut(&str, String),
+) -> Option<RigModel> {
+    let mut ok = true;
+    let mut cameras = Vec::new();
+    if calibration.cameras.is_empty() {
+        bad(
+            "calibration.cameras",
+            "empty: list cam0's sensor.yaml (and cam1's for stereo)".into(),
+        );
+        ok = false;
+    }
+    for (i, path) in calibration.cameras.iter().enumerate() {
+        match crate::dataset::read_camera_yaml(path) {
+            Ok(c) => cameras.push(c),
+            Err(e) => {
+                bad(&format!("calibration.cameras[{i}]"), e.to_string());
+                ok = false;
+            }
+        }
+    }
+    let imu = match &calibration.imu {
+        Some(path) => match crate::dataset::read_imu_yaml(path) {
+            Ok(i) => Some(i),
+            Err(e) => {
+                bad("calibration.imu", e.to_string());
+                ok = false;
+                None
+            }
+        },
+        None if mode.uses_imu() => {
+            bad(
+                "calibration.imu",
+                format!("missing: mode {mode} needs the IMU's sensor.yaml"),
+            );
+            ok = false;
+            None
+        }
+        None => None,
+    };
+    ok.then_some(RigModel { cameras, imu })
+}
+
+/// Reads the calibration again (SIGHUP): the rig, or every problem.
+pub fn reload_rig(config: &DaemonConfig, file: &Path) -> Result<RigModel, Vec<Problem>> {
+    check(config, file)
+}

@@ -1,0 +1,324 @@
+//! What the threads tell the supervisor: counters, last-arrival stamps,
+//! the SLAM stage's heartbeat, latencies. Atomics (and one short-held
+//! lock for the latency window), written by the sensor and SLAM threads,
+//! read once per status period into a [`StatusMessage`] and systemd's
+//! STATUS= line.
+
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU32, AtomicU64, Ordering};
+use std::sync::Mutex;
+
+use crate::publish::{
+    QueueFill, StatusMessage, HEALTH_CAMERA_STALLED, HEALTH_CAMERA_STREAMING,
+    HEALTH_IMU_RECONNECTING, HEALTH_IMU_STREAMING, HEALTH_STAGE_STUCK, HEALTH_TIMESTAMP_JUMP,
+};
+use crate::run::TimingStats;
+use crate::sensors::yei::device::host_monotonic_ns;
+
+/// Shared by every thread of the pipeline.
+#[derive(Default)]
+pub struct Health {
+    pub frames_in: AtomicU64,
+    pub imu_in: AtomicU64,
+    pub poses_out: AtomicU64,
+    pub pose_fast_out: AtomicU64,
+    /// Poses the publisher failed to send.
+    pub pose_drops: AtomicU64,
+    /// Frames and samples the SLAM stage refused (stamps going back).
+    pub frames_rejected: AtomicU64,
+    pub imu_rejected: AtomicU64,
+    /// Stamps going back, or forward by more than a second.
+    pub timestamp_jumps: AtomicU64,
+    /// Host time of the last frame / sample handed to the queue, ns (0: none yet).
+    pub last_frame_ns: AtomicI64,
+    pub last_imu_ns: AtomicI64,
+    /// Host time the SLAM stage last went round its loop, ns.
+    pub stage_heartbeat_ns: AtomicI64,
+    /// The IMU driver lost its port and is reopening it.
+    pub imu_reconnecting: AtomicBool,
+    pub imu_reconnects: AtomicU64,
+    /// The last frame's tracking state (the wire code).
+    pub tracking_state: AtomicU32,
+    /// Set by a replay source when the recording has been played out.
+    pub source_finished: AtomicBool,
+    /// Frame arrival to pose published, us, since the last status.
+    latency_window_us: Mutex<Vec<f64>>,
+    /// Every latency of the run (the exit report), in fixed memory.
+    latency_run: Mutex<LatencyHistogram>,
+}
+
+/// A latency distribution in fixed memory, so that a daemon running for
+/// days does not grow with it: buckets 1 % wide from 1 us to 100 s
+/// (about 1 850 of them), the largest value kept exactly. Percentiles come out
+/// as the upper edge of their bucket, at most 1 % above the true value.
+#[derive(Debug, Clone)]
+pub struct LatencyHistogram {
+    counts: Vec<u64>,
+    total: u64,
+    max_us: f64,
+}
+
+impl Default for LatencyHistogram {
+    fn default() -> Self {
+        Self {
+            counts: vec![0; Self::BUCKETS],
+            total: 0,
+            max_us: 0.0,
+        }
+    }
+}
+
+impl LatencyHistogram {
+    const GROWTH: f64 = 1.01;
+    /// ln(100 s / 1 us) / ln(1.01), rounded up, plus the bucket below 1 us.
+    const BUCKETS: usize = 1853 + 1;
+
+    fn bucket(us: f64) -> usize {
+        if us.is_nan() || us <= 1.0 {
+            return 0;
+        }
+        let k = (us.ln() / Self::GROWTH.ln()).ceil() as usize;
+        k.min(Self::BUCKETS - 1)
+    }
+
+    /// The upper edge of bucket `k`, us.
+    fn edge_us(k: usize) -> f64 {
+        Self::GROWTH.powi(k as i32)
+    }
+
+    /// Adds one value (NaN and negative values count as 0).
+    pub fn record(&mut self, us: f64) {
+        self.counts[Self::bucket(us)] += 1;
+        self.total += 1;
+        if us > self.max_us {
+            self.max_us = us;
+        }
+    }
+
+    pub fn count(&self) -> u64 {
+        self.total
+    }
+
+    pub fn max_us(&self) -> f64 {
+        self.max_us
+    }
+
+    /// The nearest-rank `q` quantile (`q` in (0, 1]), never above the
+    /// maximum; `None` without values.
+    pub fn quantile_us(&self, q: f64) -> Option<f64> {
+        if self.total == 0 {
+            return None;
+        }
+        let rank = ((q * self.total as f64).ceil() as u64).clamp(1, self.total);
+        let mut seen = 0;
+        for (k, &n) in self.counts.iter().enumerate() {
+            seen += n;
+            if seen >= rank {
+                return Some(Self::edge_us(k).min(self.max_us));
+            }
+        }
+        Some(self.max_us)
+    }
+}
+
+/// The counts at the previous status, for rates.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct RateBase {
+    t_ns: i64,
+    frames: u64,
+    imu: u64,
+    poses: u64,
+    jumps: u64,
+}
+
+/// Rules for the health bits.
+#[derive(Debug, Clone, Copy)]
+pub struct HealthRules {
+    pub camera_stall_ns: i64,
+    pub imu_stall_ns: i64,
+    pub stuck_ns: i64,
+    pub uses_imu: bool,
+}
+
+impl Health {
+    pub fn new() -> Self {
+        let h = Self::default();
+        h.stage_heartbeat_ns
+            .store(host_monotonic_ns(), Ordering::Relaxed);
+        h
+    }
+
+    pub fn record_latency_us(&self, us: f64) {
+        self.latency_window_us
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push(us);
+        self.latency_run
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .record(us);
+    }
+
+    /// The latencies of the whole run so far.
+    pub fn run_latencies(&self) -> LatencyHistogram {
+        self.latency_run
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+
+    /// Whether the SLAM stage has gone `stuck_ns` without a heartbeat.
+    pub fn stage_stuck(&self, now_ns: i64, stuck_ns: i64) -> bool {
+        now_ns - self.stage_heartbeat_ns.load(Ordering::Relaxed) > stuck_ns
+    }
+
+    /// The status now; `base` is updated for the next period's rates.
+    pub fn status(
+        &self,
+        rules: &HealthRules,
+        base: &mut RateBase,
+        queues: &[QueueFill],
+        drops: (u64, u64),
+    ) -> StatusMessage {
+        let now = host_monotonic_ns();
+        let frames = self.frames_in.load(Ordering::Relaxed);
+        let imu = self.imu_in.load(Ordering::Relaxed);
+        let poses = self.poses_out.load(Ordering::Relaxed);
+        let jumps = self.timestamp_jumps.load(Ordering::Relaxed);
+        let dt_s = if base.t_ns > 0 {
+            (now - base.t_ns) as f64 * 1e-9
+        } else {
+            0.0
+        };
+        let rate = |n: u64, b: u64| {
+            if dt_s > 0.0 {
+                n.saturating_sub(b) as f64 / dt_s
+            } else {
+                0.0
+            }
+        };
+        let mut m = StatusMessage {
+            t_ns: now,
+            camera_rate_hz: rate(frames, base.frames),
+            imu_rate_hz: rate(imu, base.imu),
+            pose_rate_hz: rate(poses, base.poses),
+            camera_drops: drops.0 + self.frames_rejected.load(Ordering::Relaxed),
+            imu_drops: drops.1 + self.imu_rejected.load(Ordering::Relaxed),
+            pose_drops: self.pose_drops.load(Ordering::Relaxed),
+            ..StatusMessage::default()
+        };
+        let window: Vec<f64> = std::mem::take(
+            &mut *self
+                .latency_window_us
+                .lock()
+                .unwrap_or_else(|e| e.into_inner()),
+        );
+        // TimingStats only ranks the numbers; they are us here.
+        if let Some(s) = TimingStats::of(&window) {
+            m.latency_p50_us = s.p50_ms;
+            m.latency_p99_us = s.p99_ms;
+        }
+        let fresh = |t: i64, within: i64| t > 0 && now - t <= within;
+        let last_frame = self.last_frame_ns.load(Ordering::Relaxed);
+        if fresh(last_frame, rules.camera_stall_ns) {
+            m.sensor_health |= HEALTH_CAMERA_STREAMING;
+        } else if last_frame > 0 && !self.source_finished.load(Ordering::Relaxed) {
+            m.sensor_health |= HEALTH_CAMERA_STALLED;
+        }
+        if fresh(self.last_imu_ns.load(Ordering::Relaxed), rules.imu_stall_ns) {
+            m.sensor_health |= HEALTH_IMU_STREAMING;
+        }
+        if self.imu_reconnecting.load(Ordering::Relaxed) {
+            m.sensor_health |= HEALTH_IMU_RECONNECTING;
+        }
+        if jumps > base.jumps {
+            m.sensor_health |= HEALTH_TIMESTAMP_JUMP;
+        }
+        if self.stage_stuck(now, rules.stuck_ns) {
+            m.sensor_health |= HEALTH_STAGE_STUCK;
+        }
+        m.set_queues(queues);
+        *base = RateBase {
+            t_ns: now,
+            frames,
+            imu,
+            poses,
+            jumps,
+        };
+        m
+    }
+}
+
+/// Whether a status says the daemon is fully working: sensors streaming
+/// (the IMU only when the mode uses it), nothing stuck.
+pub fn is_healthy(status: &StatusMessage, uses_imu: bool) -> bool {
+    let h = status.sensor_health;
+    h & HEALTH_CAMERA_STREAMING != 0
+        && (!uses_imu || h & HEALTH_IMU_STREAMING != 0)
+        && h & (HEALTH_STAGE_STUCK | HEALTH_IMU_RECONNECTING | HEALTH_CAMERA_STALLED) == 0
+}
+
+/// The health bits as words, for logs and systemd's STATUS= line.
+pub fn health_words(health: u32) -> String {
+    let names = [
+        (HEALTH_CAMERA_STREAMING, "camera ok"),
+        (HEALTH_IMU_STREAMING, "imu ok"),
+        (HEALTH_IMU_RECONNECTING, "imu reconnecting"),
+        (HEALTH_CAMERA_STALLED, "camera stalled"),
+        (HEALTH_TIMESTAMP_JUMP, "timestamp jump"),
+        (HEALTH_STAGE_STUCK, "slam stage stuck"),
+    ];
+    let words: Vec<&str> = names
+        .iter()
+        .filter(|(bit, _)| health & bit != 0)
+        .map(|(_, n)| *n)
+        .collect();
+    if words.is_empty() {
+        "no sensor data".into()
+    } else {
+        words.join(", ")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::LatencyHistogram;
+
+    #[test]
+    fn histogram_quantiles_are_within_one_percent_above() {
+        let mut h = LatencyHistogram::default();
+        assert_eq!(h.quantile_us(0.5), None);
+        // 1..=1000 us: p50 = 500, p99 = 990 by nearest rank.
+        for us in 1..=1000 {
+            h.record(us as f64);
+        }
+        let p50 = h.quantile_us(0.5).expect("values");
+        let p99 = h.quantile_us(0.99).expect("values");
+        assert!((500.0..=505.0).contains(&p50), "p50 {p50}");
+        assert!((990.0..=999.9).contains(&p99), "p99 {p99}");
+        assert_eq!(h.quantile_us(1.0), Some(1000.0));
+        assert_eq!(h.count(), 1000);
+    }
+
+    #[test]
+    fn histogram_takes_any_number() {
+        let mut h = LatencyHistogram::default();
+        for us in [f64::NAN, -5.0, 0.0, 0.5, 1e12, f64::INFINITY] {
+            h.record(us);
+        }
+        assert_eq!(h.count(), 6);
+        assert_eq!(h.quantile_us(0.5), Some(1.0));
+        assert_eq!(h.max_us(), f64::INFINITY);
+        // The last bucket holds everything past 100 s.
+        assert!(h.quantile_us(1.0).expect("values") >= 1e8 * 0.99);
+    }
+
+    #[test]
+    fn histogram_memory_does_not_grow() {
+        let mut h = LatencyHistogram::default();
+        let before = h.counts.capacity();
+        for i in 0..100_000 {
+            h.record(i as f64 * 7.3);
+        }
+        assert_eq!(h.counts.capacity(), before);
+    }
+}

@@ -1,0 +1,328 @@
+//! Starts the threads of the daemon, reports their health, and stops them
+//! in order: sources first, then the SLAM stage once it has drained its
+//! queues, then the recorder, which closes its file.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use crate::publish::{PoseMessage, QueueFill, StatusMessage, StreamPublisher};
+use crate::recording::{RecordedPose, RecordingError};
+use crate::relative::{OdometryError, RelativeOutput, RigModel};
+use crate::sensors::ImuSample;
+
+use super::config::{CameraSource, DaemonConfig, ImuSource};
+use super::health::{Health, HealthRules, RateBase};
+use super::queue::{BoundedQueue, WhenFull};
+use super::recorder::{spawn_recorder, RecordSender, RecorderThread};
+use super::slam_stage::{run_stage, FrameItem, PoseSink, StageInputs, StageSettings};
+use super::sources::{spawn_camera, spawn_replay, spawn_yei, SourceLinks};
+use super::Doorbell;
+
+/// Why the pipeline could not start or stopped badly.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    #[error("cannot start the {0} thread: {1}")]
+    Thread(&'static str, std::io::Error),
+    #[error(transparent)]
+    Recording(#[from] RecordingError),
+    #[error("the SLAM stage failed: {0}")]
+    Stage(#[from] OdometryError),
+    #[error("the {0} thread panicked")]
+    Panicked(&'static str),
+}
+
+/// The iceoryx2 publishers of `pose` and `pose_fast`.
+pub struct IpcSink {
+    pub pose: StreamPublisher<PoseMessage>,
+    pub pose_fast: StreamPublisher<PoseMessage>,
+}
+
+impl PoseSink for IpcSink {
+    fn pose(&mut self, message: &PoseMessage, _output: &RelativeOutput) -> bool {
+        match self.pose.publish(message) {
+            Ok(_) => true,
+            Err(e) => {
+                tracing::warn!("{e}");
+                false
+            }
+        }
+    }
+
+    fn pose_fast(&mut self, message: &PoseMessage) -> bool {
+        self.pose_fast.publish(message).is_ok()
+    }
+}
+
+/// Records every published pose, then hands it on.
+struct RecordingSink {
+    inner: Box<dyn PoseSink>,
+    record: RecordSender,
+}
+
+impl PoseSink for RecordingSink {
+    fn pose(&mut self, m: &PoseMessage, output: &RelativeOutput) -> bool {
+        self.record.pose(RecordedPose {
+            t_ns: m.t_ns,
+            tracking_state: m.tracking_state,
+            position_world_m: m.position_world_m,
+            orientation_world_body_xyzw: m.orientation_world_body_xyzw,
+            velocity_world_m_s: m.velocity_world_m_s,
+        });
+        self.inner.pose(m, output)
+    }
+
+    fn pose_fast(&mut self, m: &PoseMessage) -> bool {
+        self.inner.pose_fast(m)
+    }
+}
+
+/// What a finished pipeline did.
+#[derive(Debug, Clone, Default, serde::Serialize)]
+pub struct PipelineReport {
+    pub frames: u64,
+    pub imu_samples: u64,
+    pub poses: u64,
+    pub poses_fast: u64,
+    pub frame_drops: u64,
+    pub imu_drops: u64,
+    pub pose_drops: u64,
+    pub timestamp_jumps: u64,
+    pub recording_drops: u64,
+    pub recordings: Vec<PathBuf>,
+    /// Frame arrival to pose published, every frame of the run (within
+    /// 1 %, see [`super::health::LatencyHistogram`]).
+    pub latency_p50_us: f64,
+    pub latency_p99_us: f64,
+    pub latency_max_us: f64,
+}
+
+/// The running daemon pipeline.
+pub struct Pipeline {
+    health: Arc<Health>,
+    stop: Arc<AtomicBool>,
+    frames: Arc<BoundedQueue<FrameItem>>,
+    imu: Arc<BoundedQueue<ImuSample>>,
+    doorbell: Arc<Doorbell>,
+    reload: Arc<Mutex<Option<RigModel>>>,
+    sources: Vec<JoinHandle<()>>,
+    stage: Option<JoinHandle<Result<(), OdometryError>>>,
+    recorder: Option<RecorderThread>,
+    record: Option<RecordSender>,
+    rules: HealthRules,
+    base: RateBase,
+}
+
+impl Pipeline {
+    /// Starts the recorder (when enabled), the SLAM stage and the sources.
+    pub fn start(
+        config: &DaemonConfig,
+        rig: RigModel,
+        sink: Box<dyn PoseSink>,
+    ) -> Result<Pipeline, PipelineError> {
+        let replay = config.replays();
+        let when_full = if replay {
+            WhenFull::Wait
+        } else {
+            WhenFull::DropOldest
+        };
+        let p = &config.pipeline;
+        let frames = Arc::new(BoundedQueue::new("frames", p.frame_queue, when_full));
+        let imu = Arc::new(BoundedQueue::new("imu", p.imu_queue, when_full));
+        let doorbell = Arc::new(Doorbell::default());
+        let health = Arc::new(Health::new());
+        let stop = Arc::new(AtomicBool::new(false));
+        let reload = Arc::new(Mutex::new(None));
+
+        let (record, recorder) = if config.recording.enabled {
+            let attachments = match config.calibration_files() {
+                Ok(Some(files)) => files,
+                Ok(None) => crate::recording::calibration_attachments(&rig, config.slam.mode),
+                Err(e) => {
+                    tracing::warn!(
+                        "recording the calibration as the rig model has it (not its files): {e}"
+                    );
+                    crate::recording::calibration_attachments(&rig, config.slam.mode)
+                }
+            };
+            let (tx, handle) = spawn_recorder(config.recording.clone(), attachments)?;
+            (Some(tx), Some(handle))
+        } else {
+            (None, None)
+        };
+        let sink: Box<dyn PoseSink> = match &record {
+            Some(r) => Box::new(RecordingSink {
+                inner: sink,
+                record: r.clone(),
+            }),
+            None => sink,
+        };
+        let mode = config.slam.mode;
+        let settings = StageSettings {
+            mode,
+            estimator: config.slam.estimator,
+            relative: config.slam.relative.clone(),
+            imu_wait: if replay {
+                // The replay hands the sample past a frame over before
+                // the frame: never wait on a finished replay's IMU.
+                Duration::from_millis(50)
+            } else {
+                Duration::from_millis(30)
+            },
+            imu_stall_ns: (p.imu_stall_s * 1e9) as i64,
+            max_pending_imu: p.imu_queue,
+        };
+        let inputs = StageInputs {
+            frames: frames.clone(),
+            imu: imu.clone(),
+            doorbell: doorbell.clone(),
+            health: health.clone(),
+            reload: reload.clone(),
+        };
+        // The estimator is built on the stage's thread (it is not Send);
+        // a setup error comes back through the join.
+        let stage = std::thread::Builder::new()
+            .name("slam".into())
+            .spawn(move || run_stage(settings, rig, inputs, sink))
+            .map_err(|e| PipelineError::Thread("slam", e))?;
+
+        let links = SourceLinks {
+            frames: frames.clone(),
+            imu: imu.clone(),
+            doorbell: doorbell.clone(),
+            health: health.clone(),
+            stop: stop.clone(),
+            record: record.clone(),
+        };
+        let mut sources = Vec::new();
+        if replay {
+            let r = config
+                .replay
+                .clone()
+                .expect("check() refuses a replay source without [replay]");
+            sources.push(
+                spawn_replay(r, mode, links).map_err(|e| PipelineError::Thread("replay", e))?,
+            );
+        } else {
+            if config.camera.source != CameraSource::Replay {
+                sources.push(
+                    spawn_camera(config.camera.clone(), links.clone())
+                        .map_err(|e| PipelineError::Thread("camera", e))?,
+                );
+            }
+            if mode.uses_imu() && config.imu.source == ImuSource::Yei {
+                sources.push(
+                    spawn_yei(config.imu.clone(), links)
+                        .map_err(|e| PipelineError::Thread("imu", e))?,
+                );
+            } else {
+                imu.close();
+            }
+        }
+        Ok(Pipeline {
+            health,
+            stop,
+            frames,
+            imu,
+            doorbell,
+            reload,
+            sources,
+            stage: Some(stage),
+            recorder,
+            record,
+            rules: HealthRules {
+                camera_stall_ns: (p.camera_stall_s * 1e9) as i64,
+                imu_stall_ns: (p.imu_stall_s * 1e9) as i64,
+                stuck_ns: (p.stuck_after_s * 1e9) as i64,
+                uses_imu: mode.uses_imu(),
+            },
+            base: RateBase::default(),
+        })
+    }
+
+    pub fn health(&self) -> &Arc<Health> {
+        &self.health
+    }
+
+    /// The status now (rates since the previous call).
+    pub fn status(&mut self) -> StatusMessage {
+        let queues = [
+            QueueFill::new(
+                "frames",
+                self.frames.len() as u32,
+                self.frames.capacity() as u32,
+            ),
+            QueueFill::new("imu", self.imu.len() as u32, self.imu.capacity() as u32),
+        ];
+        self.health.status(
+            &self.rules,
+            &mut self.base,
+            &queues,
+            (self.frames.dropped(), self.imu.dropped()),
+        )
+    }
+
+    /// Whether the SLAM stage has stopped making progress.
+    pub fn stuck(&self) -> bool {
+        self.health.stage_stuck(
+            crate::sensors::yei::device::host_monotonic_ns(),
+            self.rules.stuck_ns,
+        )
+    }
+
+    /// The SLAM stage has ended (a replay played out, or a setup error).
+    pub fn finished(&self) -> bool {
+        self.stage.as_ref().map_or(true, |s| s.is_finished())
+    }
+
+    /// Rebuilds the relative stage with a new rig at its next loop.
+    pub fn reload(&self, rig: RigModel) {
+        *self.reload.lock().unwrap_or_else(|e| e.into_inner()) = Some(rig);
+        self.doorbell.ring();
+    }
+
+    /// Stops the sources, lets the stage drain, closes the recording.
+    pub fn stop(mut self) -> Result<PipelineReport, PipelineError> {
+        self.stop.store(true, Ordering::Relaxed);
+        for s in self.sources.drain(..) {
+            s.join().map_err(|_| PipelineError::Panicked("source"))?;
+        }
+        self.frames.close();
+        self.imu.close();
+        self.doorbell.ring();
+        let stage = self
+            .stage
+            .take()
+            .expect("stop consumes the pipeline, so the stage is joined once")
+            .join()
+            .map_err(|_| PipelineError::Panicked("slam"))?;
+        let recording_drops = self.record.as_ref().map_or(0, |r| r.dropped());
+        self.record = None;
+        let recordings = match self.recorder.take() {
+            Some(r) => r
+                .join()
+                .map_err(|_| PipelineError::Panicked("recorder"))??,
+            None => vec![],
+        };
+        stage?;
+        let h = &self.health;
+        let latencies = h.run_latencies();
+        Ok(PipelineReport {
+            frames: h.frames_in.load(Ordering::Relaxed),
+            imu_samples: h.imu_in.load(Ordering::Relaxed),
+            poses: h.poses_out.load(Ordering::Relaxed),
+            poses_fast: h.pose_fast_out.load(Ordering::Relaxed),
+            frame_drops: self.frames.dropped() + h.frames_rejected.load(Ordering::Relaxed),
+            imu_drops: self.imu.dropped() + h.imu_rejected.load(Ordering::Relaxed),
+            pose_drops: h.pose_drops.load(Ordering::Relaxed),
+            timestamp_jumps: h.timestamp_jumps.load(Ordering::Relaxed),
+            recording_drops,
+            recordings,
+            latency_p50_us: latencies.quantile_us(0.5).unwrap_or(0.0),
+            latency_p99_us: latencies.quantile_us(0.99).unwrap_or(0.0),
+            latency_max_us: latencies.max_us(),
+        })
+    }
+}

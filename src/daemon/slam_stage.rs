@@ -1,0 +1,306 @@
+//! The SLAM stage's thread: takes frames and IMU samples off their queues,
+//! hands them to the relative stage in time order, and publishes one pose
+//! per frame (`rigslam/pose`) and one per IMU sample (`rigslam/pose_fast`).
+//!
+//! Order rule (what makes a replay give the same poses bit for bit): the
+//! IMU samples received are held in `pending`; before a frame, the stage
+//! pushes the pending samples up to the frame's stamp and the first one
+//! after it, never more, however far ahead the IMU queue is. In the
+//! inertial modes it waits (bounded) for that one sample past the frame,
+//! unless the IMU has gone quiet.
+
+use std::collections::VecDeque;
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use crate::publish::{tracking_state_code, PoseMessage};
+use crate::relative::{
+    build_estimator, EstimatorKind, FrameInput, OdometryError, RelativeConfig, RelativeEstimator,
+    RelativeOutput, RigModel, SensorMode, TrackingState,
+};
+use crate::sensors::yei::device::host_monotonic_ns;
+use crate::sensors::{Frame, ImuSample};
+
+use super::fast_pose::FastPropagator;
+use super::health::Health;
+use super::queue::BoundedQueue;
+
+/// One exposure on its way to the SLAM stage.
+#[derive(Debug, Clone)]
+pub struct FrameItem {
+    pub t_ns: i64,
+    pub left: Frame,
+    pub right: Option<Frame>,
+    /// Host `CLOCK_MONOTONIC` when the source handed it over, ns.
+    pub arrival_ns: i64,
+}
+
+/// Where the stage's poses go: the iceoryx2 publishers in the daemon, a
+/// list in tests. Returns false when the pose could not be sent.
+pub trait PoseSink: Send {
+    fn pose(&mut self, message: &PoseMessage, output: &RelativeOutput) -> bool;
+    fn pose_fast(&mut self, message: &PoseMessage) -> bool;
+}
+
+/// Forward stamp steps larger than this count as a jump, ns.
+const JUMP_FORWARD_NS: i64 = 1_000_000_000;
+
+/// The stage's fixed settings.
+#[derive(Debug, Clone)]
+pub struct StageSettings {
+    pub mode: SensorMode,
+    pub estimator: EstimatorKind,
+    pub relative: RelativeConfig,
+    /// How long to wait for the IMU sample past a frame, at most.
+    pub imu_wait: Duration,
+    /// With no IMU sample for this long the stage stops waiting for one, ns.
+    pub imu_stall_ns: i64,
+    /// Most IMU samples held for frames that have not come (camera
+    /// stalled); beyond it the oldest go to the estimator unpaired.
+    pub max_pending_imu: usize,
+}
+
+/// Inputs of the stage, shared with the sources and the supervisor.
+pub struct StageInputs {
+    pub frames: Arc<BoundedQueue<FrameItem>>,
+    pub imu: Arc<BoundedQueue<ImuSample>>,
+    pub doorbell: Arc<super::Doorbell>,
+    pub health: Arc<Health>,
+    /// A new rig to rebuild the estimator with (SIGHUP).
+    pub reload: Arc<Mutex<Option<RigModel>>>,
+}
+
+/// Runs the stage until both queues are closed and drained.
+pub fn run_stage(
+    settings: StageSettings,
+    rig: RigModel,
+    inputs: StageInputs,
+    mut sink: Box<dyn PoseSink>,
+) -> Result<(), OdometryError> {
+    let mut stage = Stage::new(settings, &rig, inputs)?;
+    stage.run(sink.as_mut())
+}
+
+struct Stage {
+    settings: StageSettings,
+    estimator: Box<dyn RelativeEstimator>,
+    inputs: StageInputs,
+    pending: VecDeque<ImuSample>,
+    fast: FastPropagator,
+    last_imu_t_ns: Option<i64>,
+    last_frame_t_ns: Option<i64>,
+}
+
+impl Stage {
+    fn new(
+        settings: StageSettings,
+        rig: &RigModel,
+        inputs: StageInputs,
+    ) -> Result<Self, OdometryError> {
+        let estimator =
+            build_estimator(settings.estimator, settings.mode, rig, &settings.relative)?;
+        let fast = FastPropagator::new(settings.relative.imu_only_max_s);
+        Ok(Self {
+            settings,
+            estimator,
+            inputs,
+            pending: VecDeque::new(),
+            fast,
+            last_imu_t_ns: None,
+            last_frame_t_ns: None,
+        })
+    }
+
+    fn heartbeat(&self) {
+        self.inputs
+            .health
+            .stage_heartbeat_ns
+            .store(host_monotonic_ns(), Ordering::Relaxed);
+    }
+
+    fn run(&mut self, sink: &mut dyn PoseSink) -> Result<(), OdometryError> {
+        loop {
+            self.heartbeat();
+            self.apply_reload()?;
+            let seen = self.inputs.doorbell.rung();
+            let took_imu = self.drain_imu(sink);
+            if let Some(frame) = self.inputs.frames.try_pop() {
+                self.wait_for_imu_past(frame.t_ns, sink);
+                self.process_frame(frame, sink);
+                continue;
+            }
+            if took_imu {
+                continue;
+            }
+            if self.inputs.frames.is_closed() && self.inputs.imu.is_closed() {
+                // Closed and drained (a frame or sample pushed before the
+                // close was taken above).
+                if self.inputs.frames.is_empty() && self.inputs.imu.is_empty() {
+                    return Ok(());
+                }
+                continue;
+            }
+            self.inputs.doorbell.wait(seen, Duration::from_millis(50));
+        }
+    }
+
+    fn apply_reload(&mut self) -> Result<(), OdometryError> {
+        let rig = self
+            .inputs
+            .reload
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .take();
+        if let Some(rig) = rig {
+            match build_estimator(
+                self.settings.estimator,
+                self.settings.mode,
+                &rig,
+                &self.settings.relative,
+            ) {
+                Ok(e) => {
+                    self.estimator = e;
+                    tracing::info!("calibration reloaded; the relative stage starts again");
+                }
+                Err(e) => tracing::error!("reloaded calibration refused, keeping the old one: {e}"),
+            }
+        }
+        Ok(())
+    }
+
+    /// Moves every queued IMU sample into `pending`, publishing its
+    /// `pose_fast`; true when there was one.
+    fn drain_imu(&mut self, sink: &mut dyn PoseSink) -> bool {
+        let mut any = false;
+        while let Some(sample) = self.inputs.imu.try_pop() {
+            any = true;
+            self.accept_imu(sample, sink);
+        }
+        any
+    }
+
+    fn accept_imu(&mut self, sample: ImuSample, sink: &mut dyn PoseSink) {
+        let health = &self.inputs.health;
+        if let Some(last) = self.last_imu_t_ns {
+            if sample.t_ns <= last {
+                health.imu_rejected.fetch_add(1, Ordering::Relaxed);
+                health.timestamp_jumps.fetch_add(1, Ordering::Relaxed);
+                tracing::warn!(
+                    "IMU sample at {} ns does not come after {} ns: dropped",
+                    sample.t_ns,
+                    last
+                );
+                return;
+            }
+            if sample.t_ns - last > JUMP_FORWARD_NS {
+                health.timestamp_jumps.fetch_add(1, Ordering::Relaxed);
+                tracing::warn!(
+                    "IMU stamps jumped forward {} ms",
+                    (sample.t_ns - last) / 1_000_000
+                );
+            }
+        }
+        if !sample.is_finite() {
+            health.imu_rejected.fetch_add(1, Ordering::Relaxed);
+            return;
+        }
+        self.last_imu_t_ns = Some(sample.t_ns);
+        if self.settings.mode.uses_imu() {
+            let message = self.fast.on_imu(&sample);
+            if sink.pose_fast(&message) {
+                health.pose_fast_out.fetch_add(1, Ordering::Relaxed);
+            }
+            self.pending.push_back(sample);
+            while self.pending.len() > self.settings.max_pending_imu {
+                if let Some(old) = self.pending.pop_front() {
+                    self.estimator.push_imu(&old);
+                }
+            }
+        }
+    }
+
+    /// Waits until a sample past `t_ns` is pending, the IMU is quiet, or
+    /// the wait bound passes.
+    fn wait_for_imu_past(&mut self, t_ns: i64, sink: &mut dyn PoseSink) {
+        if !self.settings.mode.uses_imu() {
+            return;
+        }
+        let deadline = std::time::Instant::now() + self.settings.imu_wait;
+        loop {
+            self.drain_imu(sink);
+            if self.pending.back().is_some_and(|s| s.t_ns > t_ns) {
+                return;
+            }
+            let last_imu = self.inputs.health.last_imu_ns.load(Ordering::Relaxed);
+            let quiet = host_monotonic_ns() - last_imu > self.settings.imu_stall_ns;
+            if quiet || self.inputs.imu.is_closed() || std::time::Instant::now() >= deadline {
+                return;
+            }
+            let seen = self.inputs.doorbell.rung();
+            if self.inputs.imu.is_empty() {
+                self.inputs.doorbell.wait(seen, Duration::from_millis(2));
+            }
+        }
+    }
+
+    fn process_frame(&mut self, frame: FrameItem, sink: &mut dyn PoseSink) {
+        let health = &self.inputs.health;
+        if let Some(last) = self.last_frame_t_ns {
+            if frame.t_ns <= last {
+                health.frames_rejected.fetch_add(1, Ordering::Relaxed);
+                health.timestamp_jumps.fetch_add(1, Ordering::Relaxed);
+                tracing::warn!(
+                    "frame at {} ns does not come after {} ns: dropped",
+                    frame.t_ns,
+                    last
+                );
+                return;
+            }
+            if frame.t_ns - last > JUMP_FORWARD_NS {
+                health.timestamp_jumps.fetch_add(1, Ordering::Relaxed);
+                tracing::warn!(
+                    "frame stamps jumped forward {} ms",
+                    (frame.t_ns - last) / 1_000_000
+                );
+            }
+        }
+        self.last_frame_t_ns = Some(frame.t_ns);
+        // The samples up to the frame and the first one past it.
+        while let Some(s) = self.pending.front() {
+            let past = s.t_ns > frame.t_ns;
+            let s = *s;
+            self.pending.pop_front();
+            self.estimator.push_imu(&s);
+            if past {
+                break;
+            }
+        }
+        let input = FrameInput {
+            t_ns: frame.t_ns,
+            left: &frame.left.image,
+            right: frame.right.as_ref().map(|r| &r.image),
+        };
+        let output = self.estimator.push_frame(&input);
+        self.fast.on_frame(&output);
+        health
+            .tracking_state
+            .store(tracking_state_code(output.state), Ordering::Relaxed);
+        let message = if output.state == TrackingState::Tracking {
+            PoseMessage::from_relative(&output, None)
+        } else {
+            // No usable pose yet: say so, with the estimator's numbers
+            // as they are (flags tell the reader not to use them).
+            let mut m = PoseMessage::from_relative(&output, None);
+            m.flags = 0;
+            m
+        };
+        if sink.pose(&message, &output) {
+            health.poses_out.fetch_add(1, Ordering::Relaxed);
+            let latency_us = (host_monotonic_ns() - frame.arrival_ns) as f64 * 1e-3;
+            health.record_latency_us(latency_us);
+        } else {
+            health.pose_drops.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}

@@ -1,0 +1,528 @@
+//! `rigslamd` as a process: --check-config's messages, SIGTERM in the
+//! middle of a recording, SIGHUP reloading the calibration, SIGKILL and a
+//! restart over the dead process's shared memory, systemd's notify
+//! protocol, subscribers crashing while it publishes.
+//!
+//! Every test uses its own iceoryx2 root path and service prefix.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use rigslam::publish::{IpcConfig, PoseSubscriber};
+use rigslam::shared_data;
+
+fn rigslamd() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_rigslamd"));
+    c.env("RUST_LOG", "info").env_remove("NOTIFY_SOCKET");
+    c
+}
+
+fn euroc() -> Option<PathBuf> {
+    shared_data::path_or_skip("euroc/V1_01_micro")
+}
+
+/// A running daemon whose stderr is collected.
+struct Daemon {
+    child: Child,
+    log: Arc<Mutex<String>>,
+}
+
+impl Daemon {
+    fn start(mut command: Command) -> Daemon {
+        let mut child = command
+            .stderr(Stdio::piped())
+            .stdout(Stdio::null())
+            .spawn()
+            .expect("start rigslamd");
+        let log = Arc::new(Mutex::new(String::new()));
+        let stderr = child.stderr.take().expect("piped stderr");
+        {
+            let log = log.clone();
+            std::thread::spawn(move || {
+                for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                    let mut l = log.lock().expect("log lock");
+                    l.push_str(&line);
+                    l.push('\n');
+                }
+            });
+        }
+        Daemon { child, log }
+    }
+
+    fn log(&self) -> String {
+        self.log.lock().expect("log lock").clone()
+    }
+
+    /// Waits until the log contains `text`.
+    fn wait_for(&self, text: &str, within: Duration) {
+        let deadline = Instant::now() + within;
+        while !self.log().contains(text) {
+            assert!(
+                Instant::now() < deadline,
+                "no {text:?} in the log within {within:?}:\n{}",
+                self.log()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    fn signal(&self, signal: i32) {
+        // SAFETY: kill with our own child's pid.
+        let rc = unsafe { libc::kill(self.child.id() as i32, signal) };
+        assert_eq!(rc, 0, "kill({signal})");
+    }
+
+    fn wait_exit(&mut self, within: Duration) -> std::process::ExitStatus {
+        let deadline = Instant::now() + within;
+        loop {
+            if let Some(status) = self.child.try_wait().expect("try_wait") {
+                // Let the reader thread take the last lines.
+                std::thread::sleep(Duration::from_millis(50));
+                return status;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "rigslamd did not exit:\n{}",
+                self.log()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+impl Drop for Daemon {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn private_ipc(test: &str, root: &Path) -> IpcConfig {
+    IpcConfig {
+        service_prefix: format!("rigslamd_test_{}_{test}", std::process::id()),
+        root_path: Some(root.to_path_buf()),
+    }
+}
+
+fn replay_command(dataset: &Path, ipc: &IpcConfig) -> Command {
+    let mut c = rigslamd();
+    c.arg("--replay")
+        .arg(dataset)
+        .arg("--service-prefix")
+        .arg(&ipc.service_prefix)
+        .arg("--root-path")
+        .arg(ipc.root_path.as_ref().expect("root path"));
+    c
+}
+
+fn check_config(text: &str, dir: &Path) -> (bool, String) {
+    let path = dir.join("rig.toml");
+    std::fs::write(&path, text).expect("write config");
+    let out = rigslamd()
+        .arg("--config")
+        .arg(&path)
+        .arg("--check-config")
+        .output()
+        .expect("run rigslamd");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stderr).into_owned() + &String::from_utf8_lossy(&out.stdout),
+    )
+}
+
+#[test]
+fn check_config_names_file_key_and_why() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let file = dir.path().join("rig.toml");
+    let file = file.display().to_string();
+
+    let (ok, out) = check_config(
+        "[camera]\nsourse = \"v4l2\"\n[imu]\nsource = \"yei\"\n",
+        dir.path(),
+    );
+    assert!(!ok);
+    assert!(out.contains(&file) && out.contains("sourse"), "{out}");
+
+    let (ok, out) = check_config(
+        "[camera]\nsource = \"v4l2\"\n[imu]\nsource = \"yei\"\nrate_hz = 5000\n\
+         [calibration]\ncameras = [\"missing.yaml\"]\n[slam]\nmode = \"stereo-inertial\"\n\
+         [pipeline]\nframe_queue = 0\n",
+        dir.path(),
+    );
+    assert!(!ok);
+    for key in [
+        "camera.device",
+        "imu.port",
+        "imu.rate_hz",
+        "slam.mode",
+        "pipeline.frame_queue",
+        "calibration.cameras[0]",
+        "calibration.imu",
+    ] {
+        assert!(
+            out.contains(&format!("{file}: {key}: ")),
+            "no {key} in:\n{out}"
+        );
+    }
+    assert!(out.contains("missing.yaml"), "{out}");
+
+    // A calibration file that lacks a field: the file and the field.
+    let Some(euroc) = euroc() else {
+        return;
+    };
+    let cam = std::fs::read_to_string(euroc.join("mav0/cam0/sensor.yaml")).expect("cam0");
+    let broken: String = cam
+        .lines()
+        .filter(|l| !l.starts_with("intrinsics"))
+        .collect::<Vec<_>>()
+        .join("\n");
+    std::fs::write(dir.path().join("cam0.yaml"), broken).expect("write");
+    std::fs::copy(
+        euroc.join("mav0/imu0/sensor.yaml"),
+        dir.path().join("imu0.yaml"),
+    )
+    .expect("copy");
+    let (ok, out) = check_config(
+        "[camera]\nsource = \"v4l2\"\ndevice = \"/dev/video0\"\n[imu]\nsource = \"yei\"\nport = \"/dev/ttyACM0\"\n\
+         [calibration]\ncameras = [\"cam0.yaml\"]\nimu = \"imu0.yaml\"\n[slam]\nmode = \"mono-inertial\"\n",
+        dir.path(),
+    );
+    assert!(!ok);
+    assert!(
+        out.contains("calibration.cameras[0]")
+            && out.contains("cam0.yaml")
+            && out.contains("intrinsics"),
+        "{out}"
+    );
+    // The same with the field back is valid.
+    std::fs::write(dir.path().join("cam0.yaml"), cam).expect("write");
+    let (ok, out) = check_config(
+        "[camera]\nsource = \"v4l2\"\ndevice = \"/dev/video0\"\n[imu]\nsource = \"yei\"\nport = \"/dev/ttyACM0\"\n\
+         [calibration]\ncameras = [\"cam0.yaml\"]\nimu = \"imu0.yaml\"\n[slam]\nmode = \"mono-inertial\"\n",
+        dir.path(),
+    );
+    assert!(ok, "{out}");
+}
+
+#[test]
+fn bundled_replay_config_is_valid() {
+    if euroc().is_none() {
+        return;
+    }
+    let out = rigslamd()
+        .arg("--config")
+        .arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("systemd/replay-euroc.toml"))
+        .arg("--check-config")
+        .output()
+        .expect("run");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+#[test]
+fn sigterm_mid_recording_leaves_a_complete_recording() {
+    let Some(dataset) = euroc() else {
+        return;
+    };
+    let root = tempfile::tempdir().expect("tempdir");
+    let rec = tempfile::tempdir().expect("tempdir");
+    let ipc = private_ipc("sigterm", root.path());
+    let mut command = replay_command(&dataset, &ipc);
+    command.arg("--record").arg(rec.path());
+    let mut daemon = Daemon::start(command);
+    // At recorded pace the 4.7 s sequence is still running after 2 s.
+    daemon.wait_for("recording to", Duration::from_secs(20));
+    std::thread::sleep(Duration::from_secs(2));
+    daemon.signal(libc::SIGTERM);
+    let status = daemon.wait_exit(Duration::from_secs(20));
+    assert!(status.success(), "{status:?}\n{}", daemon.log());
+    assert!(daemon.log().contains("stop requested"), "{}", daemon.log());
+    let files = rigslam::daemon::recorder::list_recordings(rec.path());
+    assert_eq!(files.len(), 1, "{files:?}");
+    // The summary is only there when the file was closed properly.
+    let counts = rigslam::recording::channel_counts(&files[0].0).expect("complete MCAP");
+    let poses = counts.get("/rigslam/pose").copied().unwrap_or(0);
+    let frames = counts.get("/cam0").copied().unwrap_or(0);
+    assert!(poses > 5 && poses < 95, "{counts:?}");
+    assert!(frames >= poses, "{counts:?}");
+    assert!(
+        counts.get("/imu0").copied().unwrap_or(0) > 200,
+        "{counts:?}"
+    );
+    let read = rigslam::recording::read_pose_channel(&files[0].0, "/rigslam/pose").expect("read");
+    assert_eq!(read.len() as u64, poses);
+}
+
+#[test]
+fn sighup_reloads_the_calibration_and_refuses_a_broken_one() {
+    let Some(dataset) = euroc() else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    for (from, to) in [
+        ("cam0", "cam0.yaml"),
+        ("cam1", "cam1.yaml"),
+        ("imu0", "imu0.yaml"),
+    ] {
+        std::fs::copy(
+            dataset.join(format!("mav0/{from}/sensor.yaml")),
+            dir.path().join(to),
+        )
+        .expect("copy calibration");
+    }
+    let ipc = private_ipc("sighup", &dir.path().join("iox"));
+    let config = dir.path().join("rig.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "[camera]\nsource = \"replay\"\n[imu]\nsource = \"replay\"\n\
+             [replay]\ndataset = {:?}\n\
+             [calibration]\ncameras = [\"cam0.yaml\", \"cam1.yaml\"]\nimu = \"imu0.yaml\"\n\
+             [publish]\nservice_prefix = {:?}\nroot_path = {:?}\n",
+            dataset.display().to_string(),
+            ipc.service_prefix,
+            dir.path().join("iox").display().to_string()
+        ),
+    )
+    .expect("write config");
+    let report = dir.path().join("report.json");
+    let mut command = rigslamd();
+    command
+        .arg("--config")
+        .arg(&config)
+        .arg("--report")
+        .arg(&report);
+    let mut daemon = Daemon::start(command);
+    daemon.wait_for("publishing", Duration::from_secs(20));
+    std::thread::sleep(Duration::from_millis(800));
+    daemon.signal(libc::SIGHUP);
+    daemon.wait_for("reloading the calibration", Duration::from_secs(5));
+    daemon.wait_for("calibration reloaded", Duration::from_secs(5));
+    // Break the IMU file: the reload is refused, the daemon goes on.
+    std::fs::write(dir.path().join("imu0.yaml"), "rate_hz: -3\n").expect("write");
+    daemon.signal(libc::SIGHUP);
+    daemon.wait_for("reload refused", Duration::from_secs(5));
+    assert!(daemon.log().contains("imu0.yaml"), "{}", daemon.log());
+    let status = daemon.wait_exit(Duration::from_secs(30));
+    assert!(status.success(), "{}", daemon.log());
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");
+    assert_eq!(report["frames"], 95, "{report}");
+    assert_eq!(report["poses"], report["frames"], "{report}");
+}
+
+#[test]
+fn sigkill_and_restart_cleans_the_dead_process_shared_memory() {
+    let Some(dataset) = euroc() else {
+        return;
+    };
+    let root = tempfile::tempdir().expect("tempdir");
+    let ipc = private_ipc("sigkill", root.path());
+    // No subscriber of this test's own meanwhile: a node of this process
+    // would notice the dead one and clean it up before the restart can.
+    let mut first = Daemon::start(replay_command(&dataset, &ipc));
+    first.wait_for("ready:", Duration::from_secs(20));
+    first.signal(libc::SIGKILL);
+    let status = first.wait_exit(Duration::from_secs(10));
+    assert!(!status.success());
+
+    let mut second = Daemon::start(replay_command(&dataset, &ipc));
+    second.wait_for("publishing", Duration::from_secs(20));
+    assert!(
+        second
+            .log()
+            .contains("removed the stale resources of 1 dead process"),
+        "{}",
+        second.log()
+    );
+    let mut poses = PoseSubscriber::pose(&ipc).expect("subscribe again");
+    assert!(
+        poses
+            .wait_newest(Duration::from_secs(20))
+            .expect("wait")
+            .is_some(),
+        "no pose from the restarted daemon:\n{}",
+        second.log()
+    );
+    second.signal(libc::SIGTERM);
+    assert!(
+        second.wait_exit(Duration::from_secs(20)).success(),
+        "{}",
+        second.log()
+    );
+}
+
+#[test]
+fn systemd_hears_ready_status_and_watchdog_pings() {
+    let Some(dataset) = euroc() else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let socket_path = dir.path().join("notify");
+    let socket = std::os::unix::net::UnixDatagram::bind(&socket_path).expect("bind");
+    socket
+        .set_read_timeout(Some(Duration::from_millis(200)))
+        .expect("timeout");
+    let ipc = private_ipc("notify", &dir.path().join("iox"));
+    let mut command = replay_command(&dataset, &ipc);
+    command
+        .env("NOTIFY_SOCKET", &socket_path)
+        .env("WATCHDOG_USEC", "2000000");
+    let mut daemon = Daemon::start(command);
+    let mut messages = Vec::new();
+    let mut buf = [0u8; 4096];
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while daemon.child.try_wait().expect("try_wait").is_none() && Instant::now() < deadline {
+        if let Ok(n) = socket.recv(&mut buf) {
+            messages.push(String::from_utf8_lossy(&buf[..n]).into_owned());
+        }
+    }
+    assert!(
+        daemon.wait_exit(Duration::from_secs(5)).success(),
+        "{}",
+        daemon.log()
+    );
+    let ready = messages
+        .iter()
+        .position(|m| m.contains("READY=1"))
+        .unwrap_or_else(|| panic!("no READY=1 in {messages:?}"));
+    assert!(
+        messages[ready].contains("STATUS=camera"),
+        "{}",
+        messages[ready]
+    );
+    let pings = messages.iter().filter(|m| *m == "WATCHDOG=1").count();
+    // 4.7 s of replay, pinged at least every WATCHDOG_USEC / 4.
+    assert!(pings >= 8, "{pings} watchdog pings in {messages:?}");
+    assert!(messages.iter().any(|m| m == "STOPPING=1"), "{messages:?}");
+}
+
+#[test]
+fn subscribers_that_crash_do_not_disturb_the_publisher() {
+    let Some(dataset) = euroc() else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let ipc = private_ipc("crash", &dir.path().join("iox"));
+    let report = dir.path().join("report.json");
+    // A subscriber of this test, there from before the first sample to the
+    // end, on its own thread (iceoryx2 ports stay on the thread that made
+    // them): every fast pose, no gap, whatever the others do.
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel();
+    let watcher = {
+        let ipc = ipc.clone();
+        std::thread::spawn(move || {
+            let mut fast = PoseSubscriber::pose_fast(&ipc).expect("subscribe");
+            ready_tx.send(()).expect("test waits");
+            let mut got = Vec::new();
+            // The first pose within 30 s; then quiet for 3 s: the daemon
+            // has finished.
+            let mut quiet = Duration::from_secs(30);
+            while fast.wait(quiet).expect("wait") {
+                fast.take_all(&mut got).expect("take");
+                quiet = Duration::from_secs(3);
+            }
+            (got.len() as u64, fast.missed())
+        })
+    };
+    ready_rx.recv().expect("watcher subscribed");
+    let mut command = replay_command(&dataset, &ipc);
+    command.arg("--report").arg(&report);
+    let mut daemon = Daemon::start(command);
+    daemon.wait_for("publishing", Duration::from_secs(20));
+    // More crashes than iceoryx2's default of 8 subscribers per service:
+    // the dead ones' ports must not use up the places.
+    let crashes = 10;
+    for i in 0..crashes {
+        let mut echo = Command::new(env!("CARGO_BIN_EXE_rigslam"))
+            .arg("echo")
+            .arg("--service")
+            .arg(format!("{}/pose_fast", ipc.service_prefix))
+            .arg("--root-path")
+            .arg(ipc.root_path.as_ref().expect("root path"))
+            .arg("--timeout-s")
+            .arg("20")
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start rigslam echo");
+        // One printed pose: it is subscribed and holding samples.
+        let mut line = String::new();
+        BufReader::new(echo.stdout.take().expect("piped"))
+            .read_line(&mut line)
+            .expect("read echo");
+        assert!(
+            !line.is_empty(),
+            "subscriber {i} printed nothing:\n{}",
+            daemon.log()
+        );
+        echo.kill().expect("SIGKILL the subscriber");
+        echo.wait().expect("reap");
+    }
+    assert!(
+        daemon.child.try_wait().expect("try_wait").is_none(),
+        "the daemon ended while its subscribers crashed:\n{}",
+        daemon.log()
+    );
+    let status = daemon.wait_exit(Duration::from_secs(30));
+    assert!(status.success(), "{}", daemon.log());
+    let (received, missed) = watcher.join().expect("watcher");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");
+    assert_eq!(report["pose_drops"], 0, "{report}");
+    assert_eq!(missed, 0, "the steady subscriber missed fast poses");
+    assert_eq!(
+        Some(received),
+        report["poses_fast"].as_u64(),
+        "{report}\n{}",
+        daemon.log()
+    );
+}
+
+#[test]
+fn a_recording_replays_with_the_shorthand() {
+    let Some(dataset) = euroc() else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let ipc = private_ipc("mcap", &dir.path().join("iox"));
+    let rec = dir.path().join("rec");
+    let mut record = replay_command(&dataset, &ipc);
+    record
+        .arg("--as-fast-as-possible")
+        .arg("--record")
+        .arg(&rec);
+    let mut first = Daemon::start(record);
+    assert!(
+        first.wait_exit(Duration::from_secs(60)).success(),
+        "{}",
+        first.log()
+    );
+    let files = rigslam::daemon::recorder::list_recordings(&rec);
+    assert_eq!(files.len(), 1, "{files:?}");
+
+    // `--replay FILE.mcap`: mode and calibration from the recording.
+    let report = dir.path().join("report.json");
+    let mut replay = replay_command(&files[0].0, &ipc);
+    replay
+        .arg("--as-fast-as-possible")
+        .arg("--report")
+        .arg(&report);
+    let mut second = Daemon::start(replay);
+    assert!(
+        second.wait_exit(Duration::from_secs(60)).success(),
+        "{}",
+        second.log()
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");
+    assert_eq!(report["frames"], 95, "{report}");
+    assert_eq!(report["poses"], 95, "{report}");
+    assert_eq!(report["imu_samples"], 942, "{report}");
+}

@@ -1,0 +1,554 @@
+//! The daemon's pipeline on the bundled EuRoC sequence, in-process: a
+//! replay as fast as possible gives the same poses bit for bit twice;
+//! frames stopping for 2 s while the IMU goes on give IMU-only poses for a
+//! bounded time, then "lost", then tracking again; stamps jumping back are
+//! refused and stamps jumping forward are flagged and tracked through; a
+//! run recorded to MCAP replays to the same poses bit for bit; a hung
+//! stage is reported stuck (what stops the systemd watchdog pings).
+
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use rigslam::daemon::config::{DaemonConfig, ReplayPace};
+use rigslam::daemon::health::Health;
+use rigslam::daemon::queue::{BoundedQueue, WhenFull};
+use rigslam::daemon::slam_stage::{run_stage, StageInputs, StageSettings};
+use rigslam::daemon::{check, Doorbell, FrameItem, Pipeline, PoseSink};
+use rigslam::dataset::{open_dataset, SensorEvent, SensorStream, StreamOptions};
+use rigslam::publish::{PoseMessage, TRACKING_STATE_LOST, TRACKING_STATE_TRACKING};
+use rigslam::relative::{RelativeOutput, SensorMode};
+use rigslam::sensors::ImuSample;
+use rigslam::shared_data;
+
+#[derive(Clone, Default)]
+struct Collect {
+    poses: Arc<Mutex<Vec<PoseMessage>>>,
+    fast: Arc<Mutex<Vec<PoseMessage>>>,
+}
+
+impl PoseSink for Collect {
+    fn pose(&mut self, m: &PoseMessage, _: &RelativeOutput) -> bool {
+        self.poses.lock().expect("lock").push(*m);
+        true
+    }
+    fn pose_fast(&mut self, m: &PoseMessage) -> bool {
+        self.fast.lock().expect("lock").push(*m);
+        true
+    }
+}
+
+fn bits(m: &PoseMessage) -> Vec<u64> {
+    let mut v = vec![m.t_ns as u64, m.tracking_state as u64, m.flags as u64];
+    v.extend(m.position_world_m.iter().map(|x| x.to_bits()));
+    v.extend(m.orientation_world_body_xyzw.iter().map(|x| x.to_bits()));
+    v.extend(m.velocity_world_m_s.iter().map(|x| x.to_bits()));
+    v
+}
+
+fn stage_settings() -> StageSettings {
+    StageSettings {
+        mode: SensorMode::StereoInertial,
+        estimator: rigslam::relative::EstimatorKind::Window,
+        relative: Default::default(),
+        imu_wait: Duration::from_millis(50),
+        imu_stall_ns: 100_000_000,
+        max_pending_imu: 4096,
+    }
+}
+
+/// The SLAM stage on its thread, fed by the test instead of a source.
+struct StageUnderTest {
+    frames: Arc<BoundedQueue<FrameItem>>,
+    imu: Arc<BoundedQueue<ImuSample>>,
+    doorbell: Arc<Doorbell>,
+    health: Arc<Health>,
+    sink: Collect,
+    thread: std::thread::JoinHandle<Result<(), rigslam::relative::OdometryError>>,
+}
+
+impl StageUnderTest {
+    fn start(dataset: &rigslam::dataset::Dataset) -> StageUnderTest {
+        let rig = rigslam::run::dataset_run::rig_of(dataset);
+        let frames = Arc::new(BoundedQueue::new("frames", 2, WhenFull::Wait));
+        let imu = Arc::new(BoundedQueue::new("imu", 64, WhenFull::Wait));
+        let doorbell = Arc::new(Doorbell::default());
+        let health = Arc::new(Health::new());
+        let inputs = StageInputs {
+            frames: frames.clone(),
+            imu: imu.clone(),
+            doorbell: doorbell.clone(),
+            health: health.clone(),
+            reload: Arc::new(Mutex::new(None)),
+        };
+        let sink = Collect::default();
+        let thread = {
+            let sink = sink.clone();
+            std::thread::spawn(move || run_stage(stage_settings(), rig, inputs, Box::new(sink)))
+        };
+        StageUnderTest {
+            frames,
+            imu,
+            doorbell,
+            health,
+            sink,
+            thread,
+        }
+    }
+
+    /// Hands `events` over in order, as a source would, closes the queues
+    /// and waits for the stage to drain them and end.
+    fn feed_and_finish(self, events: impl IntoIterator<Item = SensorEvent>) -> Arc<Health> {
+        for e in events {
+            match e {
+                SensorEvent::Imu(s) => {
+                    self.imu.push(s);
+                }
+                SensorEvent::Frame { t_ns, left, right } => {
+                    self.frames.push(FrameItem {
+                        t_ns,
+                        left,
+                        right,
+                        arrival_ns: rigslam::sensors::yei::device::host_monotonic_ns(),
+                    });
+                }
+            }
+            self.doorbell.ring();
+        }
+        self.frames.close();
+        self.imu.close();
+        self.doorbell.ring();
+        self.thread
+            .join()
+            .expect("stage thread")
+            .expect("stage ends without an error");
+        self.health
+    }
+}
+
+/// Every event of one pass over the sequence, stereo with the IMU.
+fn sensor_events(dataset: &rigslam::dataset::Dataset) -> Vec<SensorEvent> {
+    SensorStream::new(
+        dataset,
+        StreamOptions {
+            stereo: true,
+            imu: true,
+            start_ns: None,
+            max_frames: None,
+        },
+    )
+    .expect("stream")
+    .map(|e| e.expect("event"))
+    .collect()
+}
+
+fn t_of(e: &SensorEvent) -> i64 {
+    match e {
+        SensorEvent::Imu(s) => s.t_ns,
+        SensorEvent::Frame { t_ns, .. } => *t_ns,
+    }
+}
+
+fn replay_once(dataset: &std::path::Path) -> Vec<PoseMessage> {
+    let config = DaemonConfig::replay(dataset, SensorMode::StereoInertial);
+    run_replay(config).0
+}
+
+/// Runs a replay config as fast as possible to its end; every pose and
+/// the report.
+fn run_replay(mut config: DaemonConfig) -> (Vec<PoseMessage>, rigslam::daemon::PipelineReport) {
+    config.replay.as_mut().expect("replay config").pace = ReplayPace::AsFastAsPossible;
+    // A tiny frame queue: the replay has to wait for the stage all the
+    // time, which is where a race would show.
+    config.pipeline.frame_queue = 1;
+    config.pipeline.imu_queue = 16;
+    let rig = check(&config, std::path::Path::new("(test)")).expect("valid config");
+    let sink = Collect::default();
+    let pipeline = Pipeline::start(&config, rig, Box::new(sink.clone())).expect("start");
+    let deadline = Instant::now() + Duration::from_secs(120);
+    while !pipeline.finished() {
+        assert!(Instant::now() < deadline, "replay did not finish in 120 s");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let report = pipeline.stop().expect("stop");
+    assert_eq!(report.frame_drops + report.imu_drops, 0, "{report:?}");
+    let poses = sink.poses.lock().expect("lock").clone();
+    assert_eq!(poses.len() as u64, report.frames, "{report:?}");
+    (poses, report)
+}
+
+#[test]
+fn replay_as_fast_as_possible_repeats_bit_for_bit() {
+    let Some(dataset) = shared_data::path_or_skip("euroc/V1_01_micro") else {
+        return;
+    };
+    let a = replay_once(&dataset);
+    let b = replay_once(&dataset);
+    assert_eq!(a.len(), 95);
+    let tracking = a
+        .iter()
+        .filter(|m| m.tracking_state == TRACKING_STATE_TRACKING)
+        .count();
+    assert!(tracking > 50, "only {tracking} of 95 frames tracked");
+    for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+        assert_eq!(bits(x), bits(y), "pose {i} differs: {x:?} vs {y:?}");
+    }
+}
+
+#[test]
+fn camera_gap_gives_bounded_imu_only_poses_then_lost_then_recovery() {
+    let Some(root) = shared_data::path_or_skip("euroc/V1_01_micro") else {
+        return;
+    };
+    let dataset = open_dataset(&root).expect("open");
+    let imu_only_max_s = stage_settings().relative.imu_only_max_s;
+    let stage = StageUnderTest::start(&dataset);
+    let sink = stage.sink.clone();
+    // Two passes of the sequence back to back (the second shifted in
+    // time), with the frames of 2 s in the middle of the first missing.
+    let mut events: VecDeque<SensorEvent> = VecDeque::new();
+    let one_pass = sensor_events(&dataset);
+    let span = t_of(one_pass.last().expect("events")) - t_of(&one_pass[0]) + 5_000_000;
+    for pass in 0..2 {
+        for mut e in one_pass.iter().cloned() {
+            let shift = pass * span;
+            match &mut e {
+                SensorEvent::Imu(s) => s.t_ns += shift,
+                SensorEvent::Frame { t_ns, .. } => *t_ns += shift,
+            }
+            events.push_back(e);
+        }
+    }
+    let first_frame = events
+        .iter()
+        .find_map(|e| match e {
+            SensorEvent::Frame { t_ns, .. } => Some(*t_ns),
+            _ => None,
+        })
+        .expect("a frame");
+    let gap = (first_frame + 1_500_000_000, first_frame + 3_500_000_000);
+    // The second pass starts with 2 s of IMU only (the stream's lead-in),
+    // also a gap; the assertions below look at the first one.
+    events.retain(|e| match e {
+        SensorEvent::Frame { t_ns, .. } => *t_ns < gap.0 || *t_ns >= gap.1,
+        SensorEvent::Imu(_) => true,
+    });
+    stage.feed_and_finish(events);
+
+    let poses = sink.poses.lock().expect("lock").clone();
+    let fast = sink.fast.lock().expect("lock").clone();
+    let last_before = poses
+        .iter()
+        .rfind(|m| m.t_ns < gap.0)
+        .expect("poses before the gap");
+    assert_eq!(last_before.tracking_state, TRACKING_STATE_TRACKING);
+    let bound_ns = (imu_only_max_s * 1e9) as i64;
+    let in_gap: Vec<&PoseMessage> = fast
+        .iter()
+        .filter(|m| m.t_ns > last_before.t_ns && m.t_ns < gap.1)
+        .collect();
+    assert!(in_gap.len() > 300, "{} IMU poses in the gap", in_gap.len());
+    // A fast pose is carried from the newest frame the stage has
+    // finished; fed as fast as possible, the IMU runs ahead of the frames
+    // by up to the frame queue (2 frames) and the frame in work, so the
+    // state may turn "lost" up to that much earlier than the bound.
+    let lead_ns = 200_000_000;
+    for m in &in_gap {
+        let since = m.t_ns - last_before.t_ns;
+        let expected = if since <= bound_ns - lead_ns {
+            TRACKING_STATE_TRACKING
+        } else if since > bound_ns {
+            TRACKING_STATE_LOST
+        } else {
+            m.tracking_state
+        };
+        assert_eq!(
+            m.tracking_state,
+            expected,
+            "{} ms after the last frame",
+            since / 1_000_000
+        );
+        // Bounded: the vehicle stands still, the IMU-only pose may not
+        // run away while it is trusted.
+        if m.tracking_state == TRACKING_STATE_TRACKING {
+            let d: f64 = (0..3)
+                .map(|i| (m.position_world_m[i] - last_before.position_world_m[i]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            assert!(
+                d < 0.5,
+                "IMU-only pose moved {d} m in {} ms",
+                since / 1_000_000
+            );
+        }
+    }
+    let recovered = poses
+        .iter()
+        .find(|m| m.t_ns >= gap.1 && m.tracking_state == TRACKING_STATE_TRACKING);
+    assert!(
+        recovered.is_some(),
+        "no tracking pose after the frames came back"
+    );
+}
+
+#[test]
+fn timestamps_jumping_are_refused_backwards_flagged_and_survived() {
+    let Some(root) = shared_data::path_or_skip("euroc/V1_01_micro") else {
+        return;
+    };
+    let dataset = open_dataset(&root).expect("open");
+    let stage = StageUnderTest::start(&dataset);
+    let sink = stage.sink.clone();
+    let all = sensor_events(&dataset);
+    let frame_stamps: Vec<i64> = all
+        .iter()
+        .filter_map(|e| match e {
+            SensorEvent::Frame { t_ns, .. } => Some(*t_ns),
+            _ => None,
+        })
+        .collect();
+    // After frame 40: a frame and an IMU sample from 1 s back (a clock
+    // stepped back, or a driver resending), then every stamp from frame
+    // 50 on 3 s later (a clock stepped forward: both streams jump).
+    let back_after = frame_stamps[40];
+    let forward_from = frame_stamps[50];
+    let jump_ns = 3_000_000_000;
+    let mut events = Vec::new();
+    let mut stale_frame = None;
+    let mut stale_imu = None;
+    for e in all {
+        let t = t_of(&e);
+        // EuRoC's IMU and camera share stamps: the frame itself is meant.
+        let is_frame = matches!(e, SensorEvent::Frame { .. });
+        match &e {
+            SensorEvent::Frame { t_ns, .. } if *t_ns == frame_stamps[20] => {
+                stale_frame = Some(e.clone())
+            }
+            SensorEvent::Imu(s) if stale_imu.is_none() && s.t_ns > frame_stamps[20] => {
+                stale_imu = Some(e.clone())
+            }
+            _ => {}
+        }
+        let mut e = e;
+        if t >= forward_from {
+            match &mut e {
+                SensorEvent::Imu(s) => s.t_ns += jump_ns,
+                SensorEvent::Frame { t_ns, .. } => *t_ns += jump_ns,
+            }
+        }
+        events.push(e);
+        if is_frame && t == back_after {
+            events.push(stale_imu.clone().expect("an IMU sample after frame 20"));
+            events.push(stale_frame.clone().expect("frame 20"));
+        }
+    }
+    let health = stage.feed_and_finish(events);
+
+    use std::sync::atomic::Ordering::Relaxed;
+    assert_eq!(health.frames_rejected.load(Relaxed), 1, "the stale frame");
+    assert_eq!(health.imu_rejected.load(Relaxed), 1, "the stale IMU sample");
+    // Back: one frame, one sample; forward: once on each stream.
+    assert_eq!(health.timestamp_jumps.load(Relaxed), 4);
+    let rules = rigslam::daemon::health::HealthRules {
+        camera_stall_ns: 1_000_000_000,
+        imu_stall_ns: 1_000_000_000,
+        stuck_ns: 60_000_000_000,
+        uses_imu: true,
+    };
+    let status = health.status(
+        &rules,
+        &mut rigslam::daemon::health::RateBase::default(),
+        &[],
+        (0, 0),
+    );
+    assert_ne!(
+        status.sensor_health & rigslam::publish::HEALTH_TIMESTAMP_JUMP,
+        0,
+        "the status says the stamps jumped"
+    );
+
+    let poses = sink.poses.lock().expect("lock").clone();
+    let fast = sink.fast.lock().expect("lock").clone();
+    assert_eq!(
+        poses.len(),
+        frame_stamps.len(),
+        "one pose per accepted frame"
+    );
+    for stream in [&poses, &fast] {
+        for w in stream.windows(2) {
+            assert!(w[1].t_ns > w[0].t_ns, "published stamps go back: {w:?}");
+        }
+        for m in stream.iter() {
+            if m.tracking_state == TRACKING_STATE_TRACKING {
+                assert!(m.position_world_m.iter().all(|x| x.is_finite()), "{m:?}");
+            }
+        }
+    }
+    let before = poses
+        .iter()
+        .rfind(|m| m.t_ns < forward_from)
+        .expect("poses before the jump");
+    assert_eq!(before.tracking_state, TRACKING_STATE_TRACKING);
+    let after: Vec<&PoseMessage> = poses.iter().filter(|m| m.t_ns >= forward_from).collect();
+    assert!(
+        after
+            .iter()
+            .any(|m| m.tracking_state == TRACKING_STATE_TRACKING),
+        "no tracking after the stamps jumped forward: {:?}",
+        after.iter().map(|m| m.tracking_state).collect::<Vec<_>>()
+    );
+}
+
+#[test]
+fn a_recording_replays_to_the_poses_of_the_run_that_made_it() {
+    let Some(root) = shared_data::path_or_skip("euroc/V1_01_micro") else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    // The run that records: the EuRoC folder through the pipeline.
+    let mut config = DaemonConfig::replay(&root, SensorMode::StereoInertial);
+    config.recording.enabled = true;
+    config.recording.dir = dir.path().join("rec");
+    let (live, report) = run_replay(config);
+    assert_eq!(report.recording_drops, 0, "{report:?}");
+    assert_eq!(report.recordings.len(), 1, "{report:?}");
+    let mcap = report.recordings[0].clone();
+    let recorded = rigslam::recording::read_pose_channel(&mcap, "/rigslam/pose").expect("poses");
+    assert_eq!(recorded.len(), live.len());
+
+    // The recording through the same pipeline, twice, with the rig's
+    // calibration files named in the config.
+    let replay_config = || {
+        let mut config = DaemonConfig::replay(&mcap, SensorMode::StereoInertial);
+        let cal = |f: &str| root.join(format!("mav0/{f}/sensor.yaml"));
+        config.calibration = Some(rigslam::daemon::config::CalibrationConfig {
+            cameras: vec![cal("cam0"), cal("cam1")],
+            imu: Some(cal("imu0")),
+        });
+        config
+    };
+    let (a, _) = run_replay(replay_config());
+    let (b, _) = run_replay(replay_config());
+    assert_eq!(a.len(), live.len(), "one pose per recorded frame");
+    let tracking = a
+        .iter()
+        .filter(|m| m.tracking_state == TRACKING_STATE_TRACKING)
+        .count();
+    assert!(
+        tracking > 50,
+        "only {tracking} of {} frames tracked",
+        a.len()
+    );
+    for (i, ((x, y), z)) in a.iter().zip(&b).zip(&live).enumerate() {
+        assert_eq!(bits(x), bits(y), "replay pose {i} differs between replays");
+        assert_eq!(
+            bits(x),
+            bits(z),
+            "replay pose {i} differs from the live run's"
+        );
+        assert_eq!(x.position_world_m, recorded[i].position_world_m, "pose {i}");
+    }
+
+    // Without [calibration]: the rig recorded in the file's attachments,
+    // the same to the bit.
+    let (c, _) = run_replay(DaemonConfig::replay(&mcap, SensorMode::StereoInertial));
+    for (i, (x, y)) in a.iter().zip(&c).enumerate() {
+        assert_eq!(bits(x), bits(y), "pose {i} differs with the recorded rig");
+    }
+    let attached = rigslam::recording::rig_of_recording(&mcap)
+        .expect("read")
+        .expect("a calibration");
+    assert_eq!(attached.cameras.len(), 2);
+    assert!(attached.imu.is_some());
+
+    // A recording without a calibration: --check-config's words.
+    let bare_mcap = dir.path().join("bare.mcap");
+    let mut bare = rigslam::recording::McapRecorder::create(&bare_mcap).expect("create");
+    bare.add_image_channel("/cam0").expect("channel");
+    bare.finish().expect("close");
+    let problems = check(
+        &DaemonConfig::replay(&bare_mcap, SensorMode::StereoInertial),
+        std::path::Path::new("rig.toml"),
+    )
+    .expect_err("no calibration");
+    let text: Vec<String> = problems.iter().map(|p| p.to_string()).collect();
+    assert!(
+        text.iter()
+            .any(|t| t.contains("calibration") && t.contains("bare.mcap")),
+        "{text:?}"
+    );
+    // A recording cut off mid-write (no summary) is refused by name.
+    let cut = dir.path().join("cut.mcap");
+    let bytes = std::fs::read(&mcap).expect("read");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).expect("write");
+    let mut config = replay_config();
+    config.replay.as_mut().expect("replay").dataset = cut;
+    let problems = check(&config, std::path::Path::new("rig.toml")).expect_err("cut file");
+    assert!(
+        problems
+            .iter()
+            .any(|p| p.key == "replay.dataset" && p.to_string().contains("cut.mcap")),
+        "{problems:?}"
+    );
+}
+
+/// Blocks the stage in its first `pose()` until released: a hung stage.
+#[derive(Clone)]
+struct Hang {
+    release: Arc<(Mutex<bool>, std::sync::Condvar)>,
+}
+
+impl PoseSink for Hang {
+    fn pose(&mut self, _: &PoseMessage, _: &RelativeOutput) -> bool {
+        let (lock, released) = &*self.release;
+        let mut done = lock.lock().expect("lock");
+        while !*done {
+            done = released.wait(done).expect("wait");
+        }
+        true
+    }
+    fn pose_fast(&mut self, _: &PoseMessage) -> bool {
+        true
+    }
+}
+
+#[test]
+fn a_hung_stage_is_reported_stuck_until_it_moves_again() {
+    let Some(root) = shared_data::path_or_skip("euroc/V1_01_micro") else {
+        return;
+    };
+    let mut config = DaemonConfig::replay(&root, SensorMode::StereoInertial);
+    config.pipeline.stuck_after_s = 0.5;
+    let rig = check(&config, std::path::Path::new("(test)")).expect("valid config");
+    let hang = Hang {
+        release: Arc::new((Mutex::new(false), std::sync::Condvar::new())),
+    };
+    let mut pipeline = Pipeline::start(&config, rig, Box::new(hang.clone())).expect("start");
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while !pipeline.stuck() {
+        assert!(Instant::now() < deadline, "the hung stage was not noticed");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let status = pipeline.status();
+    assert_ne!(
+        status.sensor_health & rigslam::publish::HEALTH_STAGE_STUCK,
+        0,
+        "status says stuck"
+    );
+    assert!(!rigslam::daemon::health::is_healthy(&status, true));
+    // Meanwhile the replay keeps offering frames: a full queue drops
+    // nothing in a replay (it waits), so none are lost either.
+    {
+        let (lock, released) = &*hang.release;
+        *lock.lock().expect("lock") = true;
+        released.notify_all();
+    }
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while pipeline.stuck() {
+        assert!(Instant::now() < deadline, "still stuck after the release");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let report = pipeline.stop().expect("stop");
+    assert_eq!(report.frame_drops, 0, "{report:?}");
+    assert_eq!(report.poses, report.frames, "{report:?}");
+}
