@@ -33,9 +33,9 @@ pub struct LocaliseConfig {
     pub recognition: RecognitionConfig,
     /// Relocalisation: largest descriptor distance of a match, bits.
     pub match_max_hamming: u32,
-    /// Relocalisation: the best match must be this much closer than the
-    /// second best (ratio of distances).
-    pub match_ratio: f64,
+    /// Relocalisation: this many nearest map landmarks by descriptor are
+    /// candidates for each landmark of the frame.
+    pub candidates_per_landmark: usize,
     /// Relocalisation: a match is an inlier of a transform within this
     /// distance, m.
     pub inlier_m: f64,
@@ -46,6 +46,9 @@ pub struct LocaliseConfig {
     pub translation_sigma_per_sqrt_m: f64,
     /// At most this many landmarks (the most precise) per correction.
     pub max_correction_landmarks: usize,
+    /// Multiplies the relative stage's landmark covariances, as the
+    /// absolute stage's setting of the same name.
+    pub landmark_covariance_scale: f64,
     /// A landmark whose innovation exceeds this chi-square (3 dof) is left
     /// out of the correction and its association dropped.
     pub gate_chi2: f64,
@@ -63,12 +66,13 @@ impl Default for LocaliseConfig {
         Self {
             recognition: RecognitionConfig::default(),
             match_max_hamming: 50,
-            match_ratio: 0.8,
+            candidates_per_landmark: 3,
             inlier_m: 0.3,
             min_inliers: 8,
-            ransac_iterations: 200,
+            ransac_iterations: 1000,
             translation_sigma_per_sqrt_m: 0.02,
             max_correction_landmarks: 30,
+            landmark_covariance_scale: 1.0,
             gate_chi2: 16.27,
             refit_every_frames: 10,
             refit_pairs: 600,
@@ -232,45 +236,75 @@ impl MapLocaliser {
     /// Descriptor matches of the frame's landmarks to the whole map, then
     /// RANSAC over three-point rigid fits.
     fn relocalise(&mut self, output: &RelativeOutput) -> Option<Fit> {
-        let matches: Vec<(LandmarkId, Vector3<f64>, u32)> = output
-            .landmarks
-            .iter()
-            .filter_map(|l| {
-                let d = l.descriptor?;
-                let map = self.best_match(&d)?;
-                let q = output.T_world_body * nalgebra::Point3::from(l.position_body_m);
-                q.coords
-                    .iter()
-                    .all(|v| v.is_finite())
-                    .then_some((l.id, q.coords, map))
-            })
-            .collect();
-        if matches.len() < self.config.min_inliers.max(3) {
+        // Per landmark of the frame: where it is in the relative world and
+        // its nearest map landmarks by descriptor. No ratio test: a map
+        // holds repeated textures and the same corner more than once, so
+        // the right match is often not alone; RANSAC chooses.
+        let mut queries: Vec<(LandmarkId, Vector3<f64>, Vec<u32>)> = Vec::new();
+        let mut ranked: Vec<(u32, u32)> = Vec::with_capacity(self.descriptors.len());
+        for l in &output.landmarks {
+            let Some(d) = l.descriptor else { continue };
+            let q = (output.T_world_body * nalgebra::Point3::from(l.position_body_m)).coords;
+            if !q.iter().all(|v| v.is_finite()) {
+                continue;
+            }
+            ranked.clear();
+            ranked.extend(self.descriptors.iter().enumerate().filter_map(|(k, m)| {
+                let h = hamming(&d, m.as_ref()?);
+                (h <= self.config.match_max_hamming).then_some((h, k as u32))
+            }));
+            let keep = self.config.candidates_per_landmark.min(ranked.len());
+            if keep == 0 {
+                continue;
+            }
+            ranked.select_nth_unstable(keep - 1);
+            ranked.truncate(keep);
+            ranked.sort_unstable();
+            queries.push((l.id, q, ranked.iter().map(|r| r.1).collect()));
+        }
+        if queries.len() < self.config.min_inliers.max(3) {
             return None;
         }
         let positions = &self.positions_m;
         let inlier_m = self.config.inlier_m;
-        let inliers_of = |t: &Isometry3<f64>| -> Vec<usize> {
-            matches
+        // (query, map landmark) of the queries a transform places within
+        // inlier_m of one of their candidates (the nearest).
+        let inliers_of = |t: &Isometry3<f64>| -> Vec<(usize, u32)> {
+            queries
                 .iter()
                 .enumerate()
-                .filter(|(_, (_, q, m))| {
-                    let moved = t * nalgebra::Point3::from(*q);
-                    (moved.coords - positions[*m as usize]).norm() <= inlier_m
+                .filter_map(|(k, (_, q, candidates))| {
+                    let moved = (t * nalgebra::Point3::from(*q)).coords;
+                    candidates
+                        .iter()
+                        .map(|&m| ((moved - positions[m as usize]).norm(), m))
+                        .filter(|(d, _)| *d <= inlier_m)
+                        .min_by(|a, b| a.0.total_cmp(&b.0))
+                        .map(|(_, m)| (k, m))
                 })
-                .map(|(k, _)| k)
                 .collect()
         };
-        let mut best: Vec<usize> = Vec::new();
+        let mut best: Vec<(usize, u32)> = Vec::new();
+        let n = queries.len();
         for _ in 0..self.config.ransac_iterations {
-            let a = self.rng.gen_range(0..matches.len());
-            let b = self.rng.gen_range(0..matches.len());
-            let c = self.rng.gen_range(0..matches.len());
-            if a == b || b == c || a == c {
+            let picks = [0; 3].map(|_| {
+                let k = self.rng.gen_range(0..n);
+                let c = self.rng.gen_range(0..queries[k].2.len());
+                (k, queries[k].2[c])
+            });
+            let [a, b, c] = picks;
+            if a.0 == b.0 || b.0 == c.0 || a.0 == c.0 {
                 continue;
             }
-            let world = [matches[a].1, matches[b].1, matches[c].1];
-            let map = [a, b, c].map(|k| self.positions_m[matches[k].2 as usize]);
+            let world = picks.map(|(k, _)| queries[k].1);
+            let map = picks.map(|(_, m)| self.positions_m[m as usize]);
+            // A rigid motion keeps distances: most wrong samples stop here.
+            let keeps = |i: usize, j: usize| {
+                ((world[i] - world[j]).norm() - (map[i] - map[j]).norm()).abs() <= 2.0 * inlier_m
+            };
+            if !(keeps(0, 1) && keeps(1, 2) && keeps(0, 2)) {
+                continue;
+            }
             // A degenerate (nearly collinear) sample fixes no rotation.
             if (world[1] - world[0]).cross(&(world[2] - world[0])).norm() < 1e-3 {
                 continue;
@@ -286,21 +320,21 @@ impl MapLocaliser {
         if best.len() < self.config.min_inliers {
             return None;
         }
-        let world: Vec<Vector3<f64>> = best.iter().map(|&k| matches[k].1).collect();
-        let map: Vec<Vector3<f64>> = best
-            .iter()
-            .map(|&k| self.positions_m[matches[k].2 as usize])
-            .collect();
-        let t = rigid_fit(&world, &map)?;
+        let fit = |set: &[(usize, u32)]| {
+            let world: Vec<Vector3<f64>> = set.iter().map(|&(k, _)| queries[k].1).collect();
+            let map: Vec<Vector3<f64>> = set.iter().map(|&(_, m)| positions[m as usize]).collect();
+            rigid_fit(&world, &map)
+        };
+        let t = fit(&best)?;
         let refined = inliers_of(&t);
         if refined.len() < self.config.min_inliers {
             return None;
         }
+        let t = fit(&refined)?;
         let rms_m = (refined
             .iter()
-            .map(|&k| {
-                ((t * nalgebra::Point3::from(matches[k].1)).coords
-                    - self.positions_m[matches[k].2 as usize])
+            .map(|&(k, m)| {
+                ((t * nalgebra::Point3::from(queries[k].1)).coords - positions[m as usize])
                     .norm_squared()
             })
             .sum::<f64>()
@@ -310,34 +344,14 @@ impl MapLocaliser {
         let mut taken = std::collections::HashSet::new();
         let inliers = refined
             .iter()
-            .filter(|&&k| taken.insert(matches[k].2))
-            .map(|&k| (matches[k].0, matches[k].2))
+            .filter(|&&(_, m)| taken.insert(m))
+            .map(|&(k, m)| (queries[k].0, m))
             .collect();
         Some(Fit {
             T_map_world: t,
             inliers,
             rms_m,
         })
-    }
-
-    /// The map landmark nearest in descriptor space, if it is near enough
-    /// and clearly nearer than the second.
-    fn best_match(&self, d: &Descriptor) -> Option<u32> {
-        let mut best = (u32::MAX, 0u32);
-        let mut second = u32::MAX;
-        for (k, m) in self.descriptors.iter().enumerate() {
-            let Some(m) = m else { continue };
-            let h = hamming(d, m);
-            if h < best.0 {
-                second = best.0;
-                best = (h, k as u32);
-            } else if h < second {
-                second = h;
-            }
-        }
-        let distinct =
-            second == u32::MAX || f64::from(best.0) < self.config.match_ratio * f64::from(second);
-        (best.0 <= self.config.match_max_hamming && distinct).then_some(best.1)
     }
 
     fn recognise_new(&mut self, output: &RelativeOutput) {
@@ -364,7 +378,9 @@ impl MapLocaliser {
             }
             let query = RecognitionQuery {
                 predicted_world_m: position + rotation * l.position_body_m,
-                covariance_m2: rotation * l.covariance_body_m2 * rotation.transpose()
+                covariance_m2: rotation
+                    * (l.covariance_body_m2 * self.config.landmark_covariance_scale)
+                    * rotation.transpose()
                     + position_covariance,
                 descriptor,
             };
@@ -429,7 +445,9 @@ impl MapLocaliser {
             };
             let landmark = self.positions_m[map as usize];
             let offset = rotation * l.position_body_m;
-            let offset_covariance = rotation * l.covariance_body_m2 * rotation.transpose();
+            let offset_covariance = rotation
+                * (l.covariance_body_m2 * self.config.landmark_covariance_scale)
+                * rotation.transpose();
             let s = p + offset_covariance + self.covariances_m2[map as usize];
             let r = landmark - offset - x;
             let chi2 = s.cholesky().map(|c| r.dot(&c.solve(&r)));

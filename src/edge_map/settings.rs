@@ -189,6 +189,7 @@ impl AbsoluteSettings {
             },
             translation_sigma_per_sqrt_m: stage.translation_sigma_per_sqrt_m,
             max_correction_landmarks: stage.max_correction_landmarks,
+            landmark_covariance_scale: stage.landmark_covariance_scale,
             ..LocaliseConfig::default()
         })
     }
