@@ -45,7 +45,7 @@ use std::time::Instant;
 use nalgebra::{DMatrix, Isometry3, Matrix3, Translation3, Vector3};
 
 use super::covariance::submatrix_covariance;
-use super::edge::{EdgeMap, LandmarkObservation};
+use super::edge::{EdgeChanges, EdgeMap, LandmarkObservation};
 use super::map_worker::{MapSolveRequest, MapSolveWorker, SolvedMap};
 use super::ordering_reuse::SymbolicPath;
 use super::policy::EdgePolicy;
@@ -250,9 +250,19 @@ pub struct AbsoluteStage {
 }
 
 struct Background {
-    requests: Option<Sender<MapSolveRequest>>,
+    requests: Option<Sender<BackgroundRequest>>,
     results: Receiver<Result<SolvedMap, EdgeMapError>>,
     thread: Option<JoinHandle<()>>,
+}
+
+/// What the frame path sends the map thread: only the edges changed since
+/// the last request (the thread keeps its own copy of the edge map), so
+/// that the frame never copies or sorts the whole map.
+struct BackgroundRequest {
+    version: u64,
+    changes: EdgeChanges,
+    previous_m: Vec<Option<Vector3<f64>>>,
+    covariance_of: Vec<u32>,
 }
 
 impl Drop for Background {
@@ -269,12 +279,20 @@ impl AbsoluteStage {
         let inline = config.solve_mode == SolveMode::Inline;
         let mut worker = MapSolveWorker::new(config.solver, config.solver_threads);
         let background = if config.solve_mode == SolveMode::Background {
-            let (request_tx, request_rx) = mpsc::channel::<MapSolveRequest>();
+            let (request_tx, request_rx) = mpsc::channel::<BackgroundRequest>();
             let (result_tx, result_rx) = mpsc::channel();
             let thread = std::thread::Builder::new()
                 .name("rigslam-map-solve".into())
                 .spawn(move || {
+                    let mut mirror = EdgeMap::new();
                     for request in request_rx {
+                        mirror.apply_changes(&request.changes);
+                        let request = MapSolveRequest {
+                            version: request.version,
+                            problem: MapProblem::from_edge_map(&mirror, 0),
+                            previous_m: request.previous_m,
+                            covariance_of: request.covariance_of,
+                        };
                         if result_tx.send(worker.solve(request)).is_err() {
                             break;
                         }
@@ -290,9 +308,13 @@ impl AbsoluteStage {
         } else {
             None
         };
+        let mut edges = EdgeMap::new();
+        if background.is_some() {
+            edges.track_changes();
+        }
         Self {
             config,
-            edges: EdgeMap::new(),
+            edges,
             map_ids: HashMap::new(),
             landmark_ids: Vec::new(),
             map_descriptors: Vec::new(),
@@ -558,37 +580,44 @@ impl AbsoluteStage {
             self.stats.deferred_solves += 1;
             return;
         }
-        let request = MapSolveRequest {
-            version: self.next_version,
-            problem: MapProblem::from_edge_map(&self.edges, 0),
-            previous_m: self
-                .map
-                .as_ref()
-                .map(|m| m.positions_m.clone())
-                .unwrap_or_default(),
-            covariance_of: match self.config.covariance {
-                LandmarkCovariance::Exact => self.in_view.clone(),
-                LandmarkCovariance::SubMatrix { .. } => Vec::new(),
-            },
-        };
+        let version = self.next_version;
         self.next_version += 1;
+        let previous_m = self
+            .map
+            .as_ref()
+            .map(|m| m.positions_m.clone())
+            .unwrap_or_default();
+        let covariance_of = match self.config.covariance {
+            LandmarkCovariance::Exact => self.in_view.clone(),
+            LandmarkCovariance::SubMatrix { .. } => Vec::new(),
+        };
+        if let Some(bg) = &self.background {
+            let sender = bg.requests.as_ref().expect("sender lives until drop");
+            let request = BackgroundRequest {
+                version,
+                changes: self.edges.take_changes(),
+                previous_m,
+                covariance_of,
+            };
+            if sender.send(request).is_ok() {
+                self.in_flight = true;
+            }
+            return;
+        }
+        let request = MapSolveRequest {
+            version,
+            problem: MapProblem::from_edge_map(&self.edges, 0),
+            previous_m,
+            covariance_of,
+        };
         match self.config.solve_mode {
             SolveMode::Inline => {
                 let worker = self.worker.as_mut().expect("inline mode has a worker");
                 let result = worker.solve(request);
                 self.install(result);
             }
-            SolveMode::Background => {
-                let bg = self
-                    .background
-                    .as_ref()
-                    .expect("background mode has a thread");
-                let sender = bg.requests.as_ref().expect("sender lives until drop");
-                if sender.send(request).is_ok() {
-                    self.in_flight = true;
-                }
-            }
-            SolveMode::Manual => self.manual_request = Some(request),
+            // Background mode sent its changes above.
+            SolveMode::Manual | SolveMode::Background => self.manual_request = Some(request),
         }
     }
 

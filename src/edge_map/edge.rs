@@ -82,6 +82,18 @@ pub struct EdgeMap {
     edges: HashMap<(u32, u32), FusedEdge>,
     /// Number of landmarks: one more than the largest id seen.
     landmark_count: u32,
+    /// Keys fused into since the last [`EdgeMap::take_changes`] (with
+    /// repeats), when change tracking is on.
+    touched: Option<Vec<(u32, u32)>>,
+}
+
+/// The edges of an [`EdgeMap`] fused into since the last
+/// [`EdgeMap::take_changes`], with their new values: what a mirror of the
+/// map elsewhere (the map solve thread) needs to catch up.
+#[derive(Clone, Debug, Default)]
+pub struct EdgeChanges {
+    pub landmark_count: u32,
+    pub edges: Vec<((u32, u32), FusedEdge)>,
 }
 
 impl EdgeMap {
@@ -110,6 +122,37 @@ impl EdgeMap {
             ((j, i), -y_world_m)
         };
         self.edges.entry(key).or_default().add(&y, info);
+        if let Some(touched) = &mut self.touched {
+            touched.push(key);
+        }
+    }
+
+    /// Starts recording which edges change, for [`EdgeMap::take_changes`].
+    pub fn track_changes(&mut self) {
+        self.touched.get_or_insert_with(Vec::new);
+    }
+
+    /// The edges changed since the last call (every edge the first time
+    /// after [`EdgeMap::track_changes`] on a map that already had some).
+    pub fn take_changes(&mut self) -> EdgeChanges {
+        let mut keys = self.touched.replace(Vec::new()).unwrap_or_default();
+        keys.sort_unstable();
+        keys.dedup();
+        EdgeChanges {
+            landmark_count: self.landmark_count,
+            edges: keys
+                .into_iter()
+                .filter_map(|k| Some((k, *self.edges.get(&k)?)))
+                .collect(),
+        }
+    }
+
+    /// Applies another map's changes: their edges replace these.
+    pub fn apply_changes(&mut self, changes: &EdgeChanges) {
+        self.landmark_count = self.landmark_count.max(changes.landmark_count);
+        for (key, edge) in &changes.edges {
+            self.edges.insert(*key, *edge);
+        }
     }
 
     /// Turns one frame's observations into edge measurements for the pairs
@@ -172,6 +215,31 @@ mod tests {
     fn random_spd(rng: &mut ChaCha8Rng) -> Matrix3<f64> {
         let m = Matrix3::from_fn(|_, _| rng.gen_range(-1.0..1.0));
         m * m.transpose() + Matrix3::identity() * 0.1
+    }
+
+    /// A mirror fed only the changes between takes ends equal to the map.
+    #[test]
+    fn a_mirror_fed_the_changes_equals_the_map() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut map = EdgeMap::new();
+        map.track_changes();
+        let mut mirror = EdgeMap::new();
+        for _ in 0..6 {
+            for _ in 0..40 {
+                let i = rng.gen_range(0..30u32);
+                let j = rng.gen_range(0..30u32);
+                let y = Vector3::from_fn(|_, _| rng.gen_range(-5.0..5.0));
+                map.add_measurement(i, j, &y, &random_spd(&mut rng));
+            }
+            let changes = map.take_changes();
+            assert!(!changes.edges.is_empty());
+            // Each key once, sorted.
+            assert!(changes.edges.windows(2).all(|w| w[0].0 < w[1].0));
+            mirror.apply_changes(&changes);
+            assert_eq!(mirror.sorted_edges(), map.sorted_edges());
+            assert_eq!(mirror.landmark_count(), map.landmark_count());
+        }
+        assert!(map.take_changes().edges.is_empty());
     }
 
     #[test]
