@@ -219,7 +219,10 @@ fn live_daemon(dataset: &Path, out: &Path, quiet: bool) -> anyhow::Result<LiveRe
             dataset.display()
         );
     }
-    // The subscriber first, so that it sees the first pose.
+    // The subscriber first, so that it sees the first pose: the daemon
+    // starts once echo says it is subscribed.
+    let ready_path = out.join("live_echo.ready");
+    let _ = std::fs::remove_file(&ready_path);
     let mut echo = Command::new(&me)
         .arg("echo")
         .args(["--service", &format!("{prefix}/pose")])
@@ -228,6 +231,8 @@ fn live_daemon(dataset: &Path, out: &Path, quiet: bool) -> anyhow::Result<LiveRe
         .arg(&tum)
         .arg("--report")
         .arg(&echo_path)
+        .arg("--ready-file")
+        .arg(&ready_path)
         .arg("--root-path")
         .arg(&root)
         .stdout(if quiet {
@@ -237,6 +242,18 @@ fn live_daemon(dataset: &Path, out: &Path, quiet: bool) -> anyhow::Result<LiveRe
         })
         .spawn()
         .context("starting rigslam echo")?;
+    let waiting = std::time::Instant::now();
+    while !ready_path.exists() {
+        if let Some(status) = echo.try_wait().context("waiting for rigslam echo")? {
+            bail!("rigslam echo stopped before subscribing ({status})");
+        }
+        if waiting.elapsed() > std::time::Duration::from_secs(30) {
+            let _ = echo.kill();
+            let _ = echo.wait();
+            bail!("rigslam echo did not subscribe within 30 s");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
     let log = std::fs::File::create(&log_path)
         .with_context(|| format!("cannot create {}", log_path.display()))?;
     let daemon = Command::new(&rigslamd)

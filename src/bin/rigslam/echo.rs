@@ -51,6 +51,10 @@ pub struct EchoArgs {
     /// still go to stdout).
     #[arg(long)]
     report: Option<PathBuf>,
+    /// Create this (empty) file once subscribed: a script can start the
+    /// publisher after it and know the first sample will be seen.
+    #[arg(long)]
+    ready_file: Option<PathBuf>,
 }
 
 #[derive(serde::Serialize)]
@@ -185,6 +189,10 @@ fn echo<T: Message>(
     // A large buffer: echo wants every sample, and a gap is reported.
     let mut subscriber = Subscription::<T>::open_service(config, service, MAX_SUBSCRIBER_BUFFER)
         .with_context(|| format!("subscribing to {service}"))?;
+    if let Some(path) = &args.ready_file {
+        std::fs::write(path, b"")
+            .with_context(|| format!("writing the ready file {}", path.display()))?;
+    }
     let timeout = Duration::from_secs_f64(args.timeout_s);
     let mut measured = Measurements::default();
     let mut batch = Vec::new();
