@@ -51,7 +51,7 @@ use super::ordering_reuse::SymbolicPath;
 use super::policy::EdgePolicy;
 use super::position_filter::{LandmarkFix, PositionFilter};
 use super::problem::MapProblem;
-use super::recognition::{recognise, LandmarkIndex, RecognitionConfig, RecognitionQuery};
+use super::recognition::{recognise_tracks, FramePlacement, LandmarkIndex, RecognitionConfig};
 use super::solve::SolverChoice;
 use super::EdgeMapError;
 use crate::features::orb::Descriptor;
@@ -660,42 +660,23 @@ impl AbsoluteStage {
         if self.index.is_empty() {
             return;
         }
-        let mut taken: Vec<u32> = output
-            .landmarks
-            .iter()
-            .filter_map(|l| self.map_ids.get(&l.id).copied())
-            .collect();
-        let position = filter.position_world_m();
-        let position_covariance = filter.covariance_m2();
-        let mut candidates = std::mem::take(&mut self.candidates);
-        for l in &output.landmarks {
-            let Some(descriptor) = l.descriptor else {
-                continue;
-            };
-            if self.map_ids.contains_key(&l.id) {
-                continue;
-            }
-            let query = RecognitionQuery {
-                predicted_world_m: position + rotation * l.position_body_m,
-                covariance_m2: rotation * l.covariance_body_m2 * rotation.transpose()
-                    + position_covariance,
-                descriptor,
-            };
-            let found = recognise(
-                &self.index,
-                &self.map_descriptors,
-                &query,
-                |id| taken.contains(&id),
-                &config,
-                &mut candidates,
-            );
-            if let Some(found) = found {
-                self.map_ids.insert(l.id, found.map_id);
-                taken.push(found.map_id);
-                self.stats.recognised += 1;
-            }
-        }
-        self.candidates = candidates;
+        let placement = FramePlacement {
+            rotation: *rotation,
+            position_m: filter.position_world_m(),
+            position_covariance_m2: filter.covariance_m2(),
+            landmark_covariance_scale: 1.0,
+        };
+        let found = recognise_tracks(
+            &self.index,
+            &self.map_descriptors,
+            &output.landmarks,
+            &placement,
+            |track| self.map_ids.get(&track).copied(),
+            &config,
+            &mut self.candidates,
+        );
+        self.stats.recognised += found.len();
+        self.map_ids.extend(found);
     }
 
     /// Edges of one frame (eq. 41-43) with the configured weighting.
@@ -809,17 +790,15 @@ impl AbsoluteStage {
             .collect();
         let ids: Vec<u32> = visible.iter().map(|v| v.1).collect();
         let filter = self.filter.as_mut()?;
-        let (covariance, cross) = match (self.config.covariance, &map.factor, cached) {
-            (LandmarkCovariance::Exact, Some(_), Some(blocks)) => {
+        // Blocks exist whenever the map has a Cholesky factor; a PCG-solved
+        // map has neither, and falls back to the sub-matrix rule.
+        let (covariance, cross) = match (self.config.covariance, cached) {
+            (LandmarkCovariance::Exact, Some(blocks)) => {
                 let c = blocks.select(&ids)?;
                 (c, Some(cross_covariance(map, &ids, filter)))
             }
-            (LandmarkCovariance::Exact, Some(_), None) => {
-                let (c, x) = exact_blocks(map, &ids, filter);
-                (c, Some(x))
-            }
-            (LandmarkCovariance::Exact, None, _) => (submatrix_blocks(map, &ids, 2), None),
-            (LandmarkCovariance::SubMatrix { hops }, _, _) => {
+            (LandmarkCovariance::Exact, None) => (submatrix_blocks(map, &ids, 2), None),
+            (LandmarkCovariance::SubMatrix { hops }, _) => {
                 (submatrix_blocks(map, &ids, hops), None)
             }
         };
@@ -940,59 +919,6 @@ fn sanitize(output: &RelativeOutput) -> Option<(RelativeOutput, usize)> {
         clean,
         bad_landmarks + usize::from(!delta_ok) + usize::from(!pose_ok),
     ))
-}
-
-/// Exact joint covariance of the map ids `ids` (3m x 3m, zero rows for the
-/// reference) and the cross-covariance `Σ_k G_k Σ_L(k, V)` (3 x 3m), from
-/// one multi-column solve with the factor: 3m unit columns plus the three
-/// columns of `G^T`.
-fn exact_blocks(
-    map: &SolvedMap,
-    ids: &[u32],
-    filter: &PositionFilter,
-) -> (DMatrix<f64>, DMatrix<f64>) {
-    let factor = map.factor.as_ref().expect("called with a factor");
-    let dim = map.laplacian.dim();
-    let m = ids.len();
-    let unknowns: Vec<Option<usize>> = ids.iter().map(|&id| map.unknown_of(id)).collect();
-    let columns = 3 * m + 3;
-    let mut rhs = vec![0.0; dim * columns];
-    for (k, u) in unknowns.iter().enumerate() {
-        if let Some(u) = u {
-            for c in 0..3 {
-                rhs[(3 * k + c) * dim + 3 * u + c] = 1.0;
-            }
-        }
-    }
-    // Columns 3m..3m+3 hold G^T: row block of landmark k is G_k^T.
-    for (&id, g) in filter.map_sensitivity() {
-        if let Some(u) = map.unknown_of(id) {
-            for c in 0..3 {
-                for r in 0..3 {
-                    rhs[(3 * m + c) * dim + 3 * u + r] = g[(c, r)];
-                }
-            }
-        }
-    }
-    if dim > 0 {
-        factor.solve_in_place(&mut rhs, columns);
-    }
-    let value = |column: usize, unknown: Option<usize>, r: usize| {
-        unknown.map_or(0.0, |u| rhs[column * dim + 3 * u + r])
-    };
-    let covariance = DMatrix::from_fn(3 * m, 3 * m, |r, c| {
-        let unknown = unknowns[r / 3];
-        // Σ_L(V, V): column c of A^-1 restricted to the visible rows; a
-        // reference column is zero (its unit column was left empty).
-        if unknowns[c / 3].is_none() {
-            0.0
-        } else {
-            value(c, unknown, r % 3)
-        }
-    });
-    // (A^-1 G^T)[rows of V]^T.
-    let cross = DMatrix::from_fn(3, 3 * m, |r, c| value(3 * m + r, unknowns[c / 3], c % 3));
-    (covariance, cross)
 }
 
 /// The paper's sub-matrix covariance of `ids` (zero for the reference).

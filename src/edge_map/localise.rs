@@ -21,7 +21,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::map_file::SavedMap;
 use super::position_filter::{LandmarkFix, PositionFilter};
-use super::recognition::{recognise, LandmarkIndex, RecognitionConfig, RecognitionQuery};
+use super::recognition::{recognise_tracks, FramePlacement, LandmarkIndex, RecognitionConfig};
 use crate::features::matching::hamming;
 use crate::features::orb::Descriptor;
 use crate::relative::types::{LandmarkId, RelativeOutput, TrackingState};
@@ -361,43 +361,23 @@ impl MapLocaliser {
         let rotation = *(state.T_map_world.rotation * output.T_world_body.rotation)
             .to_rotation_matrix()
             .matrix();
-        let position = state.filter.position_world_m();
-        let position_covariance = state.filter.covariance_m2();
-        let mut taken: Vec<u32> = output
-            .landmarks
-            .iter()
-            .filter_map(|l| self.associations.get(&l.id).copied())
-            .collect();
-        let mut candidates = std::mem::take(&mut self.candidates);
-        for l in &output.landmarks {
-            let Some(descriptor) = l.descriptor else {
-                continue;
-            };
-            if self.associations.contains_key(&l.id) {
-                continue;
-            }
-            let query = RecognitionQuery {
-                predicted_world_m: position + rotation * l.position_body_m,
-                covariance_m2: rotation
-                    * (l.covariance_body_m2 * self.config.landmark_covariance_scale)
-                    * rotation.transpose()
-                    + position_covariance,
-                descriptor,
-            };
-            if let Some(found) = recognise(
-                &self.index,
-                &self.descriptors,
-                &query,
-                |id| taken.contains(&id),
-                &self.config.recognition,
-                &mut candidates,
-            ) {
-                self.associations.insert(l.id, found.map_id);
-                taken.push(found.map_id);
-                self.stats.recognised += 1;
-            }
-        }
-        self.candidates = candidates;
+        let placement = FramePlacement {
+            rotation,
+            position_m: state.filter.position_world_m(),
+            position_covariance_m2: state.filter.covariance_m2(),
+            landmark_covariance_scale: self.config.landmark_covariance_scale,
+        };
+        let found = recognise_tracks(
+            &self.index,
+            &self.descriptors,
+            &output.landmarks,
+            &placement,
+            |track| self.associations.get(&track).copied(),
+            &self.config.recognition,
+            &mut self.candidates,
+        );
+        self.stats.recognised += found.len();
+        self.associations.extend(found);
         // Tracks that ended are forgotten.
         if self.associations.len() > 4 * output.landmarks.len().max(64) {
             let live: std::collections::HashSet<LandmarkId> =

@@ -22,6 +22,7 @@ use nalgebra::{Matrix3, Vector3};
 
 use crate::features::matching::hamming;
 use crate::features::orb::Descriptor;
+use crate::relative::types::{BodyLandmark, LandmarkId};
 
 /// Gates of the recognition.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -217,6 +218,63 @@ pub fn recognise(
         || (f64::from(best.hamming) < config.ratio * f64::from(second)
             && best.hamming + config.margin_bits <= second);
     (best.hamming <= config.max_hamming && distinct).then_some(best)
+}
+
+/// Where the robot stands when a frame's tracks are recognised: its
+/// position and covariance (the position filter's) and the body's
+/// orientation in the map's frame.
+pub struct FramePlacement {
+    pub rotation: Matrix3<f64>,
+    pub position_m: Vector3<f64>,
+    pub position_covariance_m2: Matrix3<f64>,
+    /// Multiplies the tracks' body-frame covariances.
+    pub landmark_covariance_scale: f64,
+}
+
+/// Recognises the frame's tracks that `known` does not already place
+/// (it gives the map id of a track that has one): each is predicted in
+/// the map from `placement` and passed to [`recognise`], one track per map
+/// landmark per frame. Returns the new (track, map id) pairs.
+pub fn recognise_tracks(
+    index: &LandmarkIndex,
+    descriptors: &[Option<Descriptor>],
+    landmarks: &[BodyLandmark],
+    placement: &FramePlacement,
+    known: impl Fn(LandmarkId) -> Option<u32>,
+    config: &RecognitionConfig,
+    candidates: &mut Vec<u32>,
+) -> Vec<(LandmarkId, u32)> {
+    let mut taken: Vec<u32> = landmarks.iter().filter_map(|l| known(l.id)).collect();
+    let mut found = Vec::new();
+    let r = &placement.rotation;
+    for l in landmarks {
+        let Some(descriptor) = l.descriptor else {
+            continue;
+        };
+        if known(l.id).is_some() {
+            continue;
+        }
+        let query = RecognitionQuery {
+            predicted_world_m: placement.position_m + r * l.position_body_m,
+            covariance_m2: r
+                * (l.covariance_body_m2 * placement.landmark_covariance_scale)
+                * r.transpose()
+                + placement.position_covariance_m2,
+            descriptor,
+        };
+        if let Some(hit) = recognise(
+            index,
+            descriptors,
+            &query,
+            |id| taken.contains(&id),
+            config,
+            candidates,
+        ) {
+            taken.push(hit.map_id);
+            found.push((l.id, hit.map_id));
+        }
+    }
+    found
 }
 
 #[cfg(test)]

@@ -88,6 +88,16 @@ pub enum ConfigError {
     },
 }
 
+impl From<crate::edge_map::settings::SettingError> for ConfigError {
+    fn from(e: crate::edge_map::settings::SettingError) -> Self {
+        ConfigError::OutOfRange {
+            key: e.key,
+            value: e.value,
+            allowed: e.allowed,
+        }
+    }
+}
+
 impl RelativeConfig {
     pub fn from_toml_file(path: &Path) -> Result<Self, ConfigError> {
         let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
@@ -176,14 +186,8 @@ impl RelativeConfig {
             self.imu_only_max_s.to_string(),
             "a number >= 0",
         )?;
-        self.absolute
-            .to_config()
-            .map(|_| ())
-            .map_err(|e| ConfigError::OutOfRange {
-                key: e.key,
-                value: e.value,
-                allowed: e.allowed,
-            })
+        self.absolute.to_config()?;
+        Ok(())
     }
 }
 

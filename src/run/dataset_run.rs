@@ -134,18 +134,11 @@ pub fn run_dataset(
         },
     )?;
     let listed = stream.frames_listed();
-    let setting_error = |e: crate::edge_map::settings::SettingError| {
-        RunError::Config(crate::relative::config::ConfigError::OutOfRange {
-            key: e.key,
-            value: e.value,
-            allowed: e.allowed,
-        })
-    };
     let mut absolute = run
         .absolute
         .then(|| run.config.absolute.to_config())
         .transpose()
-        .map_err(setting_error)?
+        .map_err(crate::relative::config::ConfigError::from)?
         .map(AbsoluteStage::new);
     let mut localiser = match &run.load_map {
         Some(map) => Some(MapLocaliser::new(
@@ -153,7 +146,7 @@ pub fn run_dataset(
             run.config
                 .absolute
                 .to_localise_config()
-                .map_err(setting_error)?,
+                .map_err(crate::relative::config::ConfigError::from)?,
         )),
         None => None,
     };
