@@ -42,6 +42,11 @@ pub struct LocaliseConfig {
     /// Relocalisation: at least this many inliers to accept a transform.
     pub min_inliers: usize,
     pub ransac_iterations: usize,
+    /// Relocalisation: when both the map and the relative stage's world
+    /// have gravity along -z (inertial modes), the transform between them
+    /// can only turn about z; a hypothesis tilting z by more than this is
+    /// rejected. None: any rotation (vision-only modes).
+    pub max_tilt_rad: Option<f64>,
     /// Increment noise of the filter's prediction, m per sqrt(m).
     pub translation_sigma_per_sqrt_m: f64,
     /// At most this many landmarks (the most precise) per correction.
@@ -69,6 +74,7 @@ impl Default for LocaliseConfig {
             candidates_per_landmark: 3,
             inlier_m: 0.3,
             min_inliers: 8,
+            max_tilt_rad: None,
             ransac_iterations: 1000,
             translation_sigma_per_sqrt_m: 0.02,
             max_correction_landmarks: 30,
@@ -207,6 +213,14 @@ impl MapLocaliser {
                 let position = (fit.T_map_world
                     * nalgebra::Point3::from(output.T_world_body.translation.vector))
                 .coords;
+                let z = fit.T_map_world.rotation * Vector3::z();
+                tracing::info!(
+                    "relocalised in the map: {} inliers, rms {:.3} m, transform turns {:.1} deg, tilts z by {:.2} deg",
+                    fit.inliers.len(),
+                    fit.rms_m,
+                    fit.T_map_world.rotation.angle().to_degrees(),
+                    z.z.clamp(-1.0, 1.0).acos().to_degrees()
+                );
                 let variance = fit.rms_m.powi(2).max(1e-4) / fit.inliers.len() as f64 * 10.0;
                 self.associations = fit.inliers.iter().copied().collect();
                 self.state = Some(Localised {
@@ -267,6 +281,13 @@ impl MapLocaliser {
         }
         let positions = &self.positions_m;
         let inlier_m = self.config.inlier_m;
+        let max_tilt_rad = self.config.max_tilt_rad;
+        let upright = |t: &Isometry3<f64>| {
+            max_tilt_rad.is_none_or(|max| {
+                let z = t.rotation * Vector3::z();
+                z.z.clamp(-1.0, 1.0).acos() <= max
+            })
+        };
         // (query, map landmark) of the queries a transform places within
         // inlier_m of one of their candidates (the nearest).
         let inliers_of = |t: &Isometry3<f64>| -> Vec<(usize, u32)> {
@@ -312,6 +333,9 @@ impl MapLocaliser {
             let Some(t) = rigid_fit(&world, &map) else {
                 continue;
             };
+            if !upright(&t) {
+                continue;
+            }
             let inliers = inliers_of(&t);
             if inliers.len() > best.len() {
                 best = inliers;
@@ -331,6 +355,9 @@ impl MapLocaliser {
             return None;
         }
         let t = fit(&refined)?;
+        if !upright(&t) {
+            return None;
+        }
         let rms_m = (refined
             .iter()
             .map(|&(k, m)| {
@@ -342,11 +369,14 @@ impl MapLocaliser {
             .sqrt();
         // One map landmark per track and one track per map landmark.
         let mut taken = std::collections::HashSet::new();
-        let inliers = refined
+        let inliers: Vec<(LandmarkId, u32)> = refined
             .iter()
             .filter(|&&(_, m)| taken.insert(m))
             .map(|&(k, m)| (queries[k].0, m))
             .collect();
+        if inliers.len() < self.config.min_inliers {
+            return None;
+        }
         Some(Fit {
             T_map_world: t,
             inliers,
