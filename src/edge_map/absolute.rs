@@ -105,8 +105,16 @@ pub enum SolveMode {
     Inline,
     /// On a background thread the stage owns. A finished solve is picked
     /// up by the next `push`; a trigger while one runs is deferred until it
-    /// returns. Frames never wait for it.
+    /// returns. Frames never wait for it, so which map a frame sees
+    /// depends on timing (a replay faster than real time sees older maps).
     Background,
+    /// On the background thread, installed on a fixed schedule: the solve
+    /// requested at frame n is installed at frame n + K (K =
+    /// `solve_every_frames`), the frame that requests the next one, which
+    /// waits for it if it is not done. A run is repeatable and a replay
+    /// faster than real time sees the maps a live run would; live at
+    /// 20 Hz with K = 5 a frame waits only if a solve takes over 250 ms.
+    Pipelined,
     /// The caller runs it: [`AbsoluteStage::take_solve_request`] hands out
     /// the request, any thread solves it with a [`MapSolveWorker`], and
     /// [`AbsoluteStage::install_solved_map`] installs the result.
@@ -144,10 +152,10 @@ pub struct AbsoluteConfig {
 impl Default for AbsoluteConfig {
     fn default() -> Self {
         Self {
-            policy: EdgePolicy::AllPairs,
+            policy: EdgePolicy::FrameNodes { every: 5 },
             weighting: EdgeWeighting::PaperScaled,
             solve_every_frames: 5,
-            solve_mode: SolveMode::Background,
+            solve_mode: SolveMode::Pipelined,
             solver: SolverChoice::Auto {
                 cg_above_landmarks: 200_000,
             },
@@ -196,9 +204,26 @@ pub struct AbsoluteStats {
     pub pcg_iterations: usize,
     /// Iterations a cold start would have needed (when measured).
     pub pcg_cold_iterations: usize,
-    /// Requests dropped because a solve was still running.
+    /// Background mode: requests put off because a solve was still
+    /// running.
     pub deferred_solves: usize,
+    /// Pipelined mode: time frames spent waiting for the solve they
+    /// install (zero while solves take less than K frames), total and
+    /// longest, ms.
+    pub solve_wait_ms: f64,
+    pub solve_wait_max_ms: f64,
     pub solve_total_ms: f64,
+    /// Parts of `solve_total_ms`: assembly of A, ordering + symbolic
+    /// analysis, numeric factorisation, and the covariance blocks of the
+    /// landmarks in view.
+    pub solve_assemble_ms: f64,
+    pub solve_symbolic_ms: f64,
+    pub solve_factor_ms: f64,
+    pub solve_covariance_ms: f64,
+    /// Entries of the last solve's Cholesky factor.
+    pub last_factor_nnz: usize,
+    /// Unknowns (3 per landmark or frame node) of the last solve.
+    pub last_unknowns: usize,
     pub frame_total_ms: f64,
     pub frame_max_ms: f64,
     pub solve_errors: usize,
@@ -237,6 +262,8 @@ pub struct AbsoluteStage {
     filter: Option<PositionFilter>,
     map: Option<SolvedMap>,
     frames_since_solve: usize,
+    /// Tracking frames offered to the map ([`EdgePolicy::FrameNodes`]).
+    mapped_frames: usize,
     next_version: u64,
     stats: AbsoluteStats,
     worker: Option<MapSolveWorker>,
@@ -278,7 +305,10 @@ impl AbsoluteStage {
     pub fn new(config: AbsoluteConfig) -> Self {
         let inline = config.solve_mode == SolveMode::Inline;
         let mut worker = MapSolveWorker::new(config.solver, config.solver_threads);
-        let background = if config.solve_mode == SolveMode::Background {
+        let background = if matches!(
+            config.solve_mode,
+            SolveMode::Background | SolveMode::Pipelined
+        ) {
             let (request_tx, request_rx) = mpsc::channel::<BackgroundRequest>();
             let (result_tx, result_rx) = mpsc::channel();
             let thread = std::thread::Builder::new()
@@ -324,6 +354,7 @@ impl AbsoluteStage {
             filter: None,
             map: None,
             frames_since_solve: 0,
+            mapped_frames: 0,
             next_version: 1,
             stats: AbsoluteStats::default(),
             worker: inline.then_some(worker),
@@ -386,6 +417,7 @@ impl AbsoluteStage {
             .positions_m
             .iter()
             .enumerate()
+            .filter(|(map_id, _)| self.landmark_ids[*map_id] != FRAME_NODE)
             .filter_map(|(map_id, p)| {
                 let local = (*map.local_id.get(map_id)?)? as usize;
                 let covariance_m2 = information.get(local)?.try_inverse()?;
@@ -402,7 +434,10 @@ impl AbsoluteStage {
 
     /// The track id a map landmark was first seen under.
     pub fn landmark_track(&self, map_id: u32) -> Option<LandmarkId> {
-        self.landmark_ids.get(map_id as usize).copied()
+        self.landmark_ids
+            .get(map_id as usize)
+            .copied()
+            .filter(|&id| id != FRAME_NODE)
     }
 
     /// The last solved map, if any.
@@ -420,7 +455,21 @@ impl AbsoluteStage {
     /// Processes one frame of the relative stage; returns the corrected pose.
     pub fn push(&mut self, output: &RelativeOutput) -> CorrectedPose {
         let start = Instant::now();
-        self.poll_background();
+        match self.config.solve_mode {
+            SolveMode::Background => self.poll_background(),
+            SolveMode::Pipelined
+                if self.frames_since_solve + 1 >= self.config.solve_every_frames =>
+            {
+                if self.in_flight {
+                    let wait = Instant::now();
+                    self.wait_for_solve();
+                    let waited = wait.elapsed().as_secs_f64() * 1e3;
+                    self.stats.solve_wait_ms += waited;
+                    self.stats.solve_wait_max_ms = self.stats.solve_wait_max_ms.max(waited);
+                }
+            }
+            _ => {}
+        }
         let cleaned;
         let mut output = match sanitize(output) {
             Some((clean, rejected)) => {
@@ -546,6 +595,12 @@ impl AbsoluteStage {
                 }
                 self.stats.solves += 1;
                 self.stats.solve_total_ms += map.report.total_ms;
+                self.stats.solve_assemble_ms += map.report.assemble_ms;
+                self.stats.solve_symbolic_ms += map.report.symbolic_ms;
+                self.stats.solve_factor_ms += map.report.factor_ms - map.report.symbolic_ms;
+                self.stats.solve_covariance_ms += map.report.covariance_ms;
+                self.stats.last_factor_nnz = map.report.factor_nnz;
+                self.stats.last_unknowns = map.laplacian.dim();
                 match map.symbolic_path {
                     Some(SymbolicPath::Reused) => self.stats.symbolic_reused += 1,
                     Some(SymbolicPath::OrderingReused) => self.stats.ordering_reused += 1,
@@ -561,7 +616,8 @@ impl AbsoluteStage {
                     let world = map
                         .positions_m
                         .iter()
-                        .map(|p| p.map(|p| anchor + p))
+                        .zip(&self.landmark_ids)
+                        .map(|(p, &id)| p.filter(|_| id != FRAME_NODE).map(|p| anchor + p))
                         .collect();
                     self.index = LandmarkIndex::build(world, INDEX_CELL_M);
                 }
@@ -616,8 +672,10 @@ impl AbsoluteStage {
                 let result = worker.solve(request);
                 self.install(result);
             }
-            // Background mode sent its changes above.
-            SolveMode::Manual | SolveMode::Background => self.manual_request = Some(request),
+            // Background and pipelined modes sent their changes above.
+            SolveMode::Manual | SolveMode::Background | SolveMode::Pipelined => {
+                self.manual_request = Some(request)
+            }
         }
     }
 
@@ -697,6 +755,19 @@ impl AbsoluteStage {
         let mut seen = std::collections::HashSet::with_capacity(observations.len());
         observations.retain(|o| seen.insert(o.id));
         if observations.len() < 2 {
+            return;
+        }
+        if let EdgePolicy::FrameNodes { every } = self.config.policy {
+            self.mapped_frames += 1;
+            if (self.mapped_frames - 1) % every != 0 {
+                // Still give the frame's landmarks their map ids: they
+                // may correct later frames once another frame maps them.
+                return;
+            }
+            let node = self.landmark_ids.len() as u32;
+            self.landmark_ids.push(FRAME_NODE);
+            self.map_descriptors.push(None);
+            self.edges.add_frame_node(rotation, node, &observations);
             return;
         }
         let positions: Vec<Vector3<f64>> = observations.iter().map(|o| o.p_body_m).collect();
@@ -871,6 +942,10 @@ fn cross_covariance(map: &SolvedMap, ids: &[u32], filter: &PositionFilter) -> DM
         unknowns[c / 3].map_or(0.0, |u| rhs[r * dim + 3 * u + c % 3])
     })
 }
+
+/// The track id recorded for a frame node of [`EdgePolicy::FrameNodes`]
+/// (no track has it).
+const FRAME_NODE: LandmarkId = LandmarkId::MAX;
 
 /// Grid cell of the recognition index, m.
 const INDEX_CELL_M: f64 = 1.0;

@@ -11,6 +11,7 @@ use super::absolute::{
 };
 use super::map_worker::{MapSolveWorker, SolvedMap};
 use super::nees::anees_bounds_95;
+use super::policy::EdgePolicy;
 use super::simulate_relative::{simulate_room_run, RoomRunOptions};
 use super::solve::SolverChoice;
 
@@ -115,6 +116,7 @@ fn corrected_position_is_consistent_over_many_seeds() {
         ..RoomRunOptions::default()
     };
     let config = inline(AbsoluteConfig {
+        policy: EdgePolicy::AllPairs,
         translation_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
         ..AbsoluteConfig::default()
     });
@@ -144,6 +146,7 @@ fn stereo_like_covariances_keep_the_filter_consistent() {
     // bound; see bench/README.md.)
     let options = RoomRunOptions::default();
     let config = inline(AbsoluteConfig {
+        policy: EdgePolicy::AllPairs,
         translation_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
         ..AbsoluteConfig::default()
     });
@@ -158,12 +161,94 @@ fn stereo_like_covariances_keep_the_filter_consistent() {
 }
 
 #[test]
+fn frame_nodes_keep_the_filter_consistent() {
+    // Frame nodes keep each frame's information exactly, for the
+    // stereo-like covariances too: same NEES test, same bounds, for every
+    // frame and for the default of every fifth.
+    let options = RoomRunOptions::default();
+    for every in [1, 5] {
+        let config = inline(AbsoluteConfig {
+            policy: EdgePolicy::FrameNodes { every },
+            translation_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
+            ..AbsoluteConfig::default()
+        });
+        let summary = run_nees(&config, &options, 0..SEEDS);
+        let (low, high) = anees_bounds_95(3, SEEDS as usize);
+        let mean = summary.mean_anees();
+        eprintln!(
+            "frame nodes every {every}: mean ANEES {mean:.3} in [{low:.3}, {high:.3}], RMSE corrected {:.4} m vs relative {:.4} m",
+            summary.rmse_corrected_m, summary.rmse_relative_m
+        );
+        assert!(
+            mean > low && mean < high,
+            "every {every}: ANEES {mean} outside [{low}, {high}]"
+        );
+        assert!(summary.rmse_corrected_m < 0.5 * summary.rmse_relative_m);
+    }
+}
+
+#[test]
+fn frame_nodes_give_the_map_of_the_exact_frame_marginal() {
+    // Isotropic covariances (of different sizes) commute, so all pairs
+    // with the frame-marginal weighting is then the exact marginal of each
+    // frame's information; frame nodes eliminate the frame's position in
+    // the solve instead. The two maps must agree to rounding.
+    let options = RoomRunOptions {
+        isotropic_landmarks: true,
+        laps: 0.5,
+        ..RoomRunOptions::default()
+    };
+    let run = simulate_room_run(&options);
+    let solved = |policy, weighting| {
+        let mut stage = AbsoluteStage::new(inline(AbsoluteConfig {
+            policy,
+            weighting,
+            recognition: None,
+            ..AbsoluteConfig::default()
+        }));
+        for output in &run.outputs {
+            stage.push(output);
+        }
+        stage.finish_map().expect("a map");
+        stage
+    };
+    let nodes = solved(
+        EdgePolicy::FrameNodes { every: 1 },
+        EdgeWeighting::PaperScaled,
+    );
+    let pairs = solved(EdgePolicy::AllPairs, EdgeWeighting::FrameMarginal);
+    let mut compared = 0;
+    for id in 0..options.landmarks as u64 {
+        let (Some(a), Some(b)) = (nodes.landmark_world_m(id), pairs.landmark_world_m(id)) else {
+            assert!(nodes.landmark_world_m(id).is_none() && pairs.landmark_world_m(id).is_none());
+            continue;
+        };
+        assert!((a - b).norm() < 1e-8, "landmark {id}: {a} vs {b}");
+        compared += 1;
+    }
+    assert!(compared > 50, "only {compared} landmarks compared");
+    // The frame nodes are not landmarks: nothing to recognise or save.
+    let map = nodes.map().expect("solved");
+    let frame_nodes = (0..map.positions_m.len() as u32)
+        .filter(|&id| nodes.landmark_track(id).is_none())
+        .count();
+    assert!(frame_nodes > 0);
+    let mut nodes = nodes;
+    let saved = nodes.finish_map().expect("a map");
+    assert!(saved
+        .landmarks
+        .iter()
+        .all(|l| nodes.landmark_track(l.id).is_some()));
+}
+
+#[test]
 fn the_papers_filter_is_overconfident() {
     // Same runs with the paper's edge weighting (eq. 42) and sub-matrix
     // covariance without consider terms: the NEES test must catch it.
     let options = RoomRunOptions::default();
     let config = inline(AbsoluteConfig {
         translation_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
+        policy: EdgePolicy::AllPairs,
         weighting: EdgeWeighting::Paper,
         covariance: LandmarkCovariance::SubMatrix { hops: 0 },
         ..AbsoluteConfig::default()
@@ -224,7 +309,55 @@ fn background_and_manual_solves_give_the_inline_map() {
     let (pa, pb, pc) = (last.0.unwrap(), last.1.unwrap(), last.2.unwrap());
     assert_eq!(pa, pb);
     assert_eq!(pa, pc);
-    assert!(pa.landmarks_used > 0);
+    assert!(inline_stage.stats().corrections > 20);
+}
+
+#[test]
+fn pipelined_solves_install_on_a_fixed_schedule() {
+    // Pipelined: the solve requested at frame n is installed at frame
+    // n + K whatever the timing. The same schedule run by hand in manual
+    // mode must give the same pose on every frame, and so must a second
+    // pipelined run.
+    let run = simulate_room_run(&RoomRunOptions {
+        laps: 0.5,
+        ..RoomRunOptions::default()
+    });
+    let base = AbsoluteConfig {
+        solver: SolverChoice::Cholesky,
+        ..AbsoluteConfig::default()
+    };
+    let k = base.solve_every_frames;
+    let pipelined = |config: &AbsoluteConfig| {
+        let mut stage = AbsoluteStage::new(AbsoluteConfig {
+            solve_mode: SolveMode::Pipelined,
+            ..config.clone()
+        });
+        let poses: Vec<_> = run.outputs.iter().map(|o| stage.push(o)).collect();
+        (poses, stage.stats().solves)
+    };
+    let (first, solves) = pipelined(&base);
+    let (second, _) = pipelined(&base);
+    assert_eq!(first, second);
+    assert!(solves > 5);
+    let mut manual = AbsoluteStage::new(AbsoluteConfig {
+        solve_mode: SolveMode::Manual,
+        ..base
+    });
+    let mut worker = MapSolveWorker::new(SolverChoice::Cholesky, 1);
+    let mut pending = None;
+    for (i, output) in run.outputs.iter().enumerate() {
+        if (i + 1) % k == 0 {
+            if let Some(request) = pending.take() {
+                manual.install_solved_map(worker.solve(request));
+            }
+        }
+        let pose = manual.push(output);
+        assert_eq!(pose, first[i], "frame {i}");
+        if let Some(request) = manual.take_solve_request() {
+            pending = Some(request);
+        }
+    }
+    assert!(first.iter().any(|p| p.landmarks_used > 0));
 }
 
 #[test]
@@ -489,8 +622,26 @@ fn elongated_covariances_along_different_rays_give_usable_edges() {
         delta_translation_world_m: Vector3::zeros(),
         landmarks,
     };
-    for weighting in [EdgeWeighting::FrameMarginal, EdgeWeighting::PaperScaled] {
+    for (policy, weighting, edges) in [
+        (
+            EdgePolicy::AllPairs,
+            EdgeWeighting::FrameMarginal,
+            12 * 11 / 2,
+        ),
+        (
+            EdgePolicy::AllPairs,
+            EdgeWeighting::PaperScaled,
+            12 * 11 / 2,
+        ),
+        // Twelve edges from each of the two frames' nodes.
+        (
+            EdgePolicy::FrameNodes { every: 1 },
+            EdgeWeighting::PaperScaled,
+            2 * 12,
+        ),
+    ] {
         let mut stage = AbsoluteStage::new(inline(AbsoluteConfig {
+            policy,
             weighting,
             solve_every_frames: 1,
             ..AbsoluteConfig::default()
@@ -498,7 +649,7 @@ fn elongated_covariances_along_different_rays_give_usable_edges() {
         stage.push(&output);
         stage.push(&output);
         let map = stage.map().expect("solved");
-        assert_eq!(map.problem.edges.len(), 12 * 11 / 2, "{weighting:?}");
+        assert_eq!(map.problem.edges.len(), edges, "{weighting:?}");
         for e in &map.problem.edges {
             assert!(e.info.cholesky().is_some(), "{weighting:?}: {e:?}");
         }

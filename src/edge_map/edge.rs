@@ -179,6 +179,31 @@ impl EdgeMap {
         }
     }
 
+    /// The frame-node form of one frame's observations: the frame's own
+    /// (unknown) position is node `frame_node`, and each landmark gets the
+    /// edge from it, `y = R_world_body p_body` with information
+    /// `(R Σ_body R^T)^-1`. That is the frame's measurement model itself,
+    /// so the map's information about its landmarks with the frame node
+    /// eliminated is exactly the frame's marginal (every landmark's noise
+    /// counted once, positive definite for any covariances), with m edges
+    /// per frame instead of m (m - 1) / 2.
+    #[allow(non_snake_case)]
+    pub fn add_frame_node(
+        &mut self,
+        R_world_body: &Matrix3<f64>,
+        frame_node: u32,
+        observations: &[LandmarkObservation],
+    ) {
+        for o in observations {
+            let cov_world_m2 = R_world_body * o.cov_body_m2 * R_world_body.transpose();
+            let Some(info) = cov_world_m2.try_inverse() else {
+                continue;
+            };
+            let info = 0.5 * (info + info.transpose());
+            self.add_measurement(frame_node, o.id, &(R_world_body * o.p_body_m), &info);
+        }
+    }
+
     pub fn edge(&self, i: u32, j: u32) -> Option<&FusedEdge> {
         self.edges.get(&(i.min(j), i.max(j)))
     }

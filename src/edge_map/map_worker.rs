@@ -203,8 +203,7 @@ impl MapSolveWorker {
         }
         let covariance = factor.as_ref().map(|factor| {
             let t = Instant::now();
-            let blocks =
-                covariance_blocks(factor, laplacian.dim(), &problem, &local_id, &covariance_of);
+            let blocks = covariance_blocks(factor, &problem, &local_id, &covariance_of);
             report.covariance_ms = ms_since(t);
             blocks
         });
@@ -225,10 +224,10 @@ impl MapSolveWorker {
 }
 
 /// `Σ_L(V, V)` of the map ids `ids` (those in the solved component; the
-/// others get no slot): one multi-column solve with the factor.
+/// others get no slot): forward solves with the factor
+/// ([`CholeskyFactor::inverse_entries`]).
 fn covariance_blocks(
     factor: &CholeskyFactor,
-    dim: usize,
     problem: &MapProblem,
     local_id: &[Option<u32>],
     ids: &[u32],
@@ -246,23 +245,24 @@ fn covariance_blocks(
         unknowns.push(problem.unknown_of(local));
     }
     let m = unknowns.len();
-    let mut rhs = vec![0.0; dim * 3 * m];
+    // The reference landmark has no unknowns: its rows stay zero.
+    let mut scalar = Vec::with_capacity(3 * m);
+    let mut slot_of = Vec::with_capacity(3 * m);
     for (k, u) in unknowns.iter().enumerate() {
         if let Some(u) = u {
             for c in 0..3 {
-                rhs[(3 * k + c) * dim + 3 * u + c] = 1.0;
+                scalar.push(3 * u + c);
+                slot_of.push(3 * k + c);
             }
         }
     }
-    if dim > 0 && m > 0 {
-        factor.solve_in_place(&mut rhs, 3 * m);
-    }
-    let matrix = nalgebra::DMatrix::from_fn(3 * m, 3 * m, |r, c| {
-        match (unknowns[r / 3], unknowns[c / 3]) {
-            (Some(u), Some(_)) => rhs[c * dim + 3 * u + r % 3],
-            _ => 0.0,
+    let entries = factor.inverse_entries(&scalar);
+    let mut matrix = nalgebra::DMatrix::zeros(3 * m, 3 * m);
+    for (a, &ra) in slot_of.iter().enumerate() {
+        for (b, &rb) in slot_of.iter().enumerate() {
+            matrix[(ra, rb)] = entries[(a, b)];
         }
-    });
+    }
     CovarianceBlocks { slot, matrix }
 }
 

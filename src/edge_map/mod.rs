@@ -24,6 +24,7 @@ mod absolute_tests;
 pub mod covariance;
 pub mod edge;
 pub mod edges_file;
+mod inverse_blocks;
 pub mod laplacian;
 pub mod localise;
 pub mod loop_run;

@@ -20,6 +20,17 @@ pub enum EdgePolicy {
     /// A minimum spanning tree over the co-visible landmarks (Euclidean
     /// distance): m - 1 edges, the least that keeps the frame connected.
     SpanningTree,
+    /// No landmark pairs: each frame becomes a node of the map joined to
+    /// every landmark it sees ([`super::EdgeMap::add_frame_node`]). The
+    /// frame's information is then kept exactly (the frame marginal of
+    /// all pairs, without its m^2 edges and their fill-in), at the price
+    /// of one 3-vector unknown per frame. `every` > 1 keeps only every
+    /// so many tracking frames: consecutive frames of a sliding-window
+    /// estimator carry mostly the same information (their landmark
+    /// errors are strongly correlated), so the map loses little and its
+    /// unknowns and fill shrink. [`EdgePolicy::pairs`] gives no pairs for
+    /// it; the caller adds the frame node.
+    FrameNodes { every: usize },
 }
 
 impl std::fmt::Display for EdgePolicy {
@@ -28,6 +39,8 @@ impl std::fmt::Display for EdgePolicy {
             EdgePolicy::AllPairs => write!(f, "all"),
             EdgePolicy::KNearest(k) => write!(f, "knn:{k}"),
             EdgePolicy::SpanningTree => write!(f, "mst"),
+            EdgePolicy::FrameNodes { every: 1 } => write!(f, "frame"),
+            EdgePolicy::FrameNodes { every } => write!(f, "frame:{every}"),
         }
     }
 }
@@ -38,12 +51,22 @@ impl std::str::FromStr for EdgePolicy {
         match s {
             "all" => Ok(EdgePolicy::AllPairs),
             "mst" => Ok(EdgePolicy::SpanningTree),
-            _ => match s.strip_prefix("knn:").map(str::parse::<usize>) {
-                Some(Ok(k)) if k >= 1 => Ok(EdgePolicy::KNearest(k)),
-                _ => Err(format!(
-                    "unknown edge policy `{s}`: expected all, mst or knn:K (K >= 1)"
-                )),
-            },
+            "frame" => Ok(EdgePolicy::FrameNodes { every: 1 }),
+            _ => {
+                let count = |prefix| match s.strip_prefix(prefix).map(str::parse::<usize>) {
+                    Some(Ok(k)) if k >= 1 => Some(k),
+                    _ => None,
+                };
+                if let Some(k) = count("knn:") {
+                    Ok(EdgePolicy::KNearest(k))
+                } else if let Some(every) = count("frame:") {
+                    Ok(EdgePolicy::FrameNodes { every })
+                } else {
+                    Err(format!(
+                        "unknown edge policy `{s}`: expected all, frame, frame:N, mst or knn:K (N, K >= 1)"
+                    ))
+                }
+            }
         }
     }
 }
@@ -55,6 +78,7 @@ impl EdgePolicy {
         let m = positions.len();
         let mut pairs = Vec::new();
         match *self {
+            EdgePolicy::FrameNodes { .. } => {}
             EdgePolicy::AllPairs => {
                 pairs.reserve(m * m.saturating_sub(1) / 2);
                 for a in 0..m {
@@ -165,9 +189,15 @@ mod tests {
             EdgePolicy::AllPairs,
             EdgePolicy::KNearest(4),
             EdgePolicy::SpanningTree,
+            EdgePolicy::FrameNodes { every: 1 },
+            EdgePolicy::FrameNodes { every: 5 },
         ] {
             assert_eq!(p.to_string().parse::<EdgePolicy>().unwrap(), p);
         }
+        assert!(EdgePolicy::FrameNodes { every: 1 }
+            .pairs(&line(6))
+            .is_empty());
+        assert!("frame:0".parse::<EdgePolicy>().is_err());
         assert!("knn:0".parse::<EdgePolicy>().is_err());
     }
 }

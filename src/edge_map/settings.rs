@@ -11,14 +11,20 @@ use super::recognition::RecognitionConfig;
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct AbsoluteSettings {
-    /// Which landmark pairs of a frame become edges: all, mst or knn:K.
+    /// Which edges a frame adds to the map: `frame` (a node for the
+    /// frame joined to each landmark it sees), `frame:N` (the same for
+    /// every N-th tracking frame), or landmark pairs: `all` co-visible
+    /// pairs, a spanning tree `mst`, or `knn:K` nearest neighbours.
     pub policy: String,
     /// Map solve every this many frames (the paper: 5).
     pub solve_every_frames: usize,
-    /// Where the map is solved: `background` (its own thread, off the
-    /// frame path; the frames use the newest solved map) or `inline` (on
-    /// the frame path: slower frames, but a replay gives the same result
-    /// every time).
+    /// Where the map is solved: `pipelined` (its own thread; the solve
+    /// requested at frame n is used from frame n + solve_every_frames on,
+    /// that frame waiting for it if needed: repeatable, and no wait live
+    /// while a solve takes less than that many frames), `background` (its
+    /// own thread, never waited for: frames use the newest solved map,
+    /// which depends on timing) or `inline` (on the frame path: the map
+    /// requested at frame n is used from frame n + 1).
     pub solve: String,
     /// Covariance of the visible landmarks in the correction: `exact`
     /// (blocks of A^-1 from the factor, consistent, cost grows with the
@@ -51,7 +57,12 @@ impl Default for AbsoluteSettings {
         Self {
             policy: config.policy.to_string(),
             solve_every_frames: config.solve_every_frames,
-            solve: "background".into(),
+            solve: match config.solve_mode {
+                SolveMode::Inline => "inline",
+                SolveMode::Background => "background",
+                SolveMode::Pipelined | SolveMode::Manual => "pipelined",
+            }
+            .into(),
             covariance: "exact".into(),
             submatrix_hops: 2,
             max_correction_landmarks: config.max_correction_landmarks,
@@ -85,10 +96,13 @@ impl AbsoluteSettings {
             value,
             allowed,
         };
-        let policy: EdgePolicy = self
-            .policy
-            .parse()
-            .map_err(|_| bad("absolute.policy", self.policy.clone(), "all, mst or knn:K"))?;
+        let policy: EdgePolicy = self.policy.parse().map_err(|_| {
+            bad(
+                "absolute.policy",
+                self.policy.clone(),
+                "all, frame, frame:N, mst or knn:K",
+            )
+        })?;
         let covariance = match self.covariance.as_str() {
             "exact" => LandmarkCovariance::Exact,
             "submatrix" => LandmarkCovariance::SubMatrix {
@@ -140,13 +154,14 @@ impl AbsoluteSettings {
             ));
         }
         let solve_mode = match self.solve.as_str() {
+            "pipelined" => SolveMode::Pipelined,
             "background" => SolveMode::Background,
             "inline" => SolveMode::Inline,
             _ => {
                 return Err(bad(
                     "absolute.solve",
                     self.solve.clone(),
-                    "background or inline",
+                    "pipelined, background or inline",
                 ))
             }
         };

@@ -69,8 +69,12 @@ impl Default for CityOptions {
 /// A simulated map: the fused problem and the true landmark positions.
 pub struct SimulatedMap {
     pub problem: MapProblem,
-    /// True positions by id, world frame, m.
+    /// True positions by id, world frame, m (of the frame for a frame
+    /// node).
     pub truth_m: Vec<Vector3<f64>>,
+    /// Which ids are frame nodes ([`EdgePolicy::FrameNodes`]), not
+    /// landmarks.
+    pub frame_node: Vec<bool>,
     pub frames: usize,
     pub measurements: usize,
     /// Wall time spent choosing pairs and fusing edges (eq. 41-43), ms.
@@ -90,6 +94,8 @@ impl SimulatedMap {
 pub fn simulate_city(options: &CityOptions) -> SimulatedMap {
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
     let mut truth: Vec<Vector3<f64>> = Vec::with_capacity(options.landmarks);
+    let mut frame_node: Vec<bool> = Vec::with_capacity(options.landmarks);
+    let mut landmarks = 0usize;
     let cell_m = options.range_m;
     let mut grid: HashMap<(i64, i64), Vec<u32>> = HashMap::new();
     let mut segments_done: HashMap<((i64, i64), (i64, i64)), ()> = HashMap::new();
@@ -102,7 +108,7 @@ pub fn simulate_city(options: &CityOptions) -> SimulatedMap {
     let mut candidates: Vec<(f64, u32)> = Vec::new();
     let mut positions_body: Vec<Vector3<f64>> = Vec::new();
     // Drive until every landmark exists and the last segment was driven.
-    while truth.len() < options.landmarks {
+    while landmarks < options.landmarks {
         // Choose the next street at this intersection.
         let choices: Vec<((i64, i64), f64)> = [(1, 0), (0, 1), (0, -1), (-1, 0)]
             .into_iter()
@@ -140,7 +146,7 @@ pub fn simulate_city(options: &CityOptions) -> SimulatedMap {
         let side = Vector3::new(-along.y, along.x, 0.0);
         if segments_done.insert(key, ()).is_none() {
             for k in 0..per_segment {
-                if truth.len() >= options.landmarks {
+                if landmarks >= options.landmarks {
                     break;
                 }
                 let s = rng.gen_range(0.1..0.9) * options.block_m;
@@ -154,6 +160,8 @@ pub fn simulate_city(options: &CityOptions) -> SimulatedMap {
                     .or_default()
                     .push(id);
                 truth.push(p);
+                frame_node.push(false);
+                landmarks += 1;
             }
         }
         // Frames along the segment.
@@ -223,10 +231,23 @@ pub fn simulate_city(options: &CityOptions) -> SimulatedMap {
             let t = Instant::now();
             positions_body.clear();
             positions_body.extend(observations.iter().map(|o| o.p_body_m));
-            let pairs = options.policy.pairs(&positions_body);
-            map.add_frame(&rotation, &observations, &pairs);
+            match options.policy {
+                EdgePolicy::FrameNodes { every } => {
+                    if frames % every == 0 && !observations.is_empty() {
+                        let node = truth.len() as u32;
+                        truth.push(c);
+                        frame_node.push(true);
+                        map.add_frame_node(&rotation, node, &observations);
+                        measurements += observations.len();
+                    }
+                }
+                _ => {
+                    let pairs = options.policy.pairs(&positions_body);
+                    map.add_frame(&rotation, &observations, &pairs);
+                    measurements += pairs.len();
+                }
+            }
             fuse_ms += t.elapsed().as_secs_f64() * 1e3;
-            measurements += pairs.len();
             frames += 1;
         }
         node = next;
@@ -238,6 +259,7 @@ pub fn simulate_city(options: &CityOptions) -> SimulatedMap {
     SimulatedMap {
         problem,
         truth_m: kept.iter().map(|&old| truth[old as usize]).collect(),
+        frame_node: kept.iter().map(|&old| frame_node[old as usize]).collect(),
         frames,
         measurements,
         fuse_ms,

@@ -109,6 +109,18 @@ impl CholeskyFactor {
     pub fn nnz(&self) -> usize {
         self.values.len()
     }
+
+    pub(super) fn symbolic(&self) -> &SymbolicCholesky<u32> {
+        &self.symbolic
+    }
+
+    pub(super) fn values(&self) -> &[f64] {
+        &self.values
+    }
+
+    pub(super) fn par(&self) -> Par {
+        self.par
+    }
 }
 
 /// Keeps what can be reused between map solves: the symbolic factorisation
