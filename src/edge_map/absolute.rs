@@ -1,7 +1,15 @@
 //! The absolute stage (paper eq. 41-71): consumes the relative stage's
-//! [`RelativeOutput`] frame by frame, fuses landmark-pair edges into the
-//! edge map, solves the map every K frames off the frame-rate path, and
+//! [`RelativeOutput`] frame by frame, fuses its edges into the edge map
+//! (by default a frame node joined to the frame's landmarks every 5
+//! tracking frames, [`EdgePolicy::FrameNodes`]; or the paper's landmark
+//! pairs), solves the map every K frames off the frame-rate path, and
 //! corrects the robot position with the robot position Kalman filter.
+//!
+//! The map grows by one 3-vector unknown per frame node as well as per
+//! landmark: in a bounded room with recognition the landmarks stop
+//! growing but the frame nodes do not (4 per second at 20 Hz), so a run
+//! of hours needs old frame nodes folded into their landmarks' edges,
+//! which is not done yet.
 //!
 //! Per frame ([`AbsoluteStage::push`]):
 //! 1. install a map solve that has finished, if any;
@@ -46,7 +54,7 @@ use nalgebra::{DMatrix, Isometry3, Matrix3, Translation3, Vector3};
 
 use super::covariance::submatrix_covariance;
 use super::edge::{EdgeChanges, EdgeMap, LandmarkObservation};
-use super::map_worker::{MapSolveRequest, MapSolveWorker, SolvedMap};
+use super::map_worker::{MapSolveRequest, MapSolveWorker, RobustWeights, SolvedMap};
 use super::ordering_reuse::SymbolicPath;
 use super::policy::EdgePolicy;
 use super::position_filter::{LandmarkFix, PositionFilter};
@@ -147,6 +155,13 @@ pub struct AbsoluteConfig {
     /// Recognise landmarks that come back under a new track id (None:
     /// every new id is a new landmark).
     pub recognition: Option<RecognitionConfig>,
+    /// Down-weight map edges that disagree with the solved map (a wrong
+    /// recognition) and solve again (None: plain least squares).
+    pub robust: Option<RobustWeights>,
+    /// Join consecutive frame nodes by the relative stage's translation
+    /// between them ([`EdgePolicy::FrameNodes`] only): a frame whose
+    /// landmarks are all new stays connected to the map.
+    pub odometry_edges: bool,
 }
 
 impl Default for AbsoluteConfig {
@@ -165,6 +180,8 @@ impl Default for AbsoluteConfig {
             landmark_covariance_scale: 1.0,
             solver_threads: 1,
             recognition: Some(RecognitionConfig::default()),
+            robust: Some(RobustWeights::default()),
+            odometry_edges: true,
         }
     }
 }
@@ -224,6 +241,10 @@ pub struct AbsoluteStats {
     pub last_factor_nnz: usize,
     /// Unknowns (3 per landmark or frame node) of the last solve.
     pub last_unknowns: usize,
+    /// Robust reweighting: extra solves in all, and edges down-weighted
+    /// in the last map.
+    pub robust_solves: usize,
+    pub last_downweighted_edges: usize,
     pub frame_total_ms: f64,
     pub frame_max_ms: f64,
     pub solve_errors: usize,
@@ -232,9 +253,10 @@ pub struct AbsoluteStats {
     /// Landmarks (non-finite, or covariance not positive definite),
     /// increments and poses (non-finite) that were left out.
     pub rejected_inputs: usize,
-    /// Landmarks in view and in the map left out of a correction because
-    /// the map's covariance blocks were computed before they came into
-    /// view (recognised since the last solve): they join after the next.
+    /// Landmarks in view and in the map left out of a correction that had
+    /// room for them, because the map's covariance blocks were computed
+    /// before they came into view (recognised since the last solve): they
+    /// join after the next.
     pub uncached_landmarks: usize,
     /// Mean normalised innovation squared per degree of freedom of the
     /// corrections: about 1 when the covariances the filter is given are
@@ -264,6 +286,10 @@ pub struct AbsoluteStage {
     frames_since_solve: usize,
     /// Tracking frames offered to the map ([`EdgePolicy::FrameNodes`]).
     mapped_frames: usize,
+    /// The last frame node and the relative stage's translation since it
+    /// (world frame, m) with the distance travelled: the odometry edge to
+    /// the next node. None after lost tracking (no edge across a gap).
+    odometry: Option<(u32, Vector3<f64>, f64)>,
     next_version: u64,
     stats: AbsoluteStats,
     worker: Option<MapSolveWorker>,
@@ -304,7 +330,12 @@ impl Drop for Background {
 impl AbsoluteStage {
     pub fn new(config: AbsoluteConfig) -> Self {
         let inline = config.solve_mode == SolveMode::Inline;
-        let mut worker = MapSolveWorker::new(config.solver, config.solver_threads);
+        let new_worker = || {
+            let mut worker = MapSolveWorker::new(config.solver, config.solver_threads);
+            worker.robust = config.robust;
+            worker
+        };
+        let mut worker = new_worker();
         let background = if matches!(
             config.solve_mode,
             SolveMode::Background | SolveMode::Pipelined
@@ -329,7 +360,7 @@ impl AbsoluteStage {
                     }
                 })
                 .expect("spawning the map solve thread");
-            worker = MapSolveWorker::new(config.solver, config.solver_threads);
+            worker = new_worker();
             Some(Background {
                 requests: Some(request_tx),
                 results: result_rx,
@@ -355,6 +386,7 @@ impl AbsoluteStage {
             map: None,
             frames_since_solve: 0,
             mapped_frames: 0,
+            odometry: None,
             next_version: 1,
             stats: AbsoluteStats::default(),
             worker: inline.then_some(worker),
@@ -490,6 +522,14 @@ impl AbsoluteStage {
         }
         let rotation = *output.T_world_body.rotation.to_rotation_matrix().matrix();
         let tracking = output.state == TrackingState::Tracking;
+        if tracking {
+            if let Some((_, travelled, distance)) = self.odometry.as_mut() {
+                *travelled += output.delta_translation_world_m;
+                *distance += output.delta_translation_world_m.norm();
+            }
+        } else {
+            self.odometry = None;
+        }
         let mut report = None;
         match self.filter.as_mut() {
             Some(filter) => {
@@ -601,6 +641,8 @@ impl AbsoluteStage {
                 self.stats.solve_covariance_ms += map.report.covariance_ms;
                 self.stats.last_factor_nnz = map.report.factor_nnz;
                 self.stats.last_unknowns = map.laplacian.dim();
+                self.stats.last_downweighted_edges = map.report.downweighted_edges;
+                self.stats.robust_solves += map.report.robust_iterations;
                 match map.symbolic_path {
                     Some(SymbolicPath::Reused) => self.stats.symbolic_reused += 1,
                     Some(SymbolicPath::OrderingReused) => self.stats.ordering_reused += 1,
@@ -768,6 +810,19 @@ impl AbsoluteStage {
             self.landmark_ids.push(FRAME_NODE);
             self.map_descriptors.push(None);
             self.edges.add_frame_node(rotation, node, &observations);
+            if let Some((previous, travelled, distance)) =
+                self.odometry.filter(|_| self.config.odometry_edges)
+            {
+                // The relative stage's own motion between the two nodes,
+                // a random walk of `translation_sigma_per_sqrt_m`: what
+                // the frames say about each other besides their landmarks.
+                let variance = self.config.translation_sigma_per_sqrt_m.powi(2)
+                    * distance.max(MIN_ODOMETRY_DISTANCE_M);
+                let info = Matrix3::identity() / variance;
+                self.edges
+                    .add_measurement(previous, node, &travelled, &info);
+            }
+            self.odometry = Some((node, Vector3::zeros(), 0.0));
             return;
         }
         let positions: Vec<Vector3<f64>> = observations.iter().map(|o| o.p_body_m).collect();
@@ -838,9 +893,11 @@ impl AbsoluteStage {
             _ => None,
         };
         if let Some(blocks) = cached {
-            let before = visible.len();
+            // Counted only where they cost the correction a landmark.
+            let cap = self.config.max_correction_landmarks;
+            let before = visible.len().min(cap);
             visible.retain(|v| blocks.slot.contains_key(&v.1));
-            self.stats.uncached_landmarks += before - visible.len();
+            self.stats.uncached_landmarks += before - visible.len().min(cap);
         }
         visible.truncate(self.config.max_correction_landmarks);
         if visible.is_empty() {
@@ -942,6 +999,10 @@ fn cross_covariance(map: &SolvedMap, ids: &[u32], filter: &PositionFilter) -> DM
         unknowns[c / 3].map_or(0.0, |u| rhs[r * dim + 3 * u + c % 3])
     })
 }
+
+/// Shortest distance an odometry edge's variance is computed for, m (a
+/// robot at rest still gets a finite information).
+const MIN_ODOMETRY_DISTANCE_M: f64 = 0.01;
 
 /// The track id recorded for a frame node of [`EdgePolicy::FrameNodes`]
 /// (no track has it).

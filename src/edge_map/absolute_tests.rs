@@ -192,7 +192,8 @@ fn frame_nodes_give_the_map_of_the_exact_frame_marginal() {
     // Isotropic covariances (of different sizes) commute, so all pairs
     // with the frame-marginal weighting is then the exact marginal of each
     // frame's information; frame nodes eliminate the frame's position in
-    // the solve instead. The two maps must agree to rounding.
+    // the solve instead. The two maps must agree to rounding (without the
+    // odometry edges and robust weights, which all pairs do not have).
     let options = RoomRunOptions {
         isotropic_landmarks: true,
         laps: 0.5,
@@ -204,6 +205,8 @@ fn frame_nodes_give_the_map_of_the_exact_frame_marginal() {
             policy,
             weighting,
             recognition: None,
+            robust: None,
+            odometry_edges: false,
             ..AbsoluteConfig::default()
         }));
         for output in &run.outputs {
@@ -633,11 +636,12 @@ fn elongated_covariances_along_different_rays_give_usable_edges() {
             EdgeWeighting::PaperScaled,
             12 * 11 / 2,
         ),
-        // Twelve edges from each of the two frames' nodes.
+        // Twelve edges from each of the two frames' nodes, and the
+        // odometry edge between the nodes.
         (
             EdgePolicy::FrameNodes { every: 1 },
             EdgeWeighting::PaperScaled,
-            2 * 12,
+            2 * 12 + 1,
         ),
     ] {
         let mut stage = AbsoluteStage::new(inline(AbsoluteConfig {
@@ -658,5 +662,42 @@ fn elongated_covariances_along_different_rays_give_usable_edges() {
             let p = stage.landmark_world_m(l.id).expect("placed");
             assert!((p - l.position_body_m).norm() < 1e-9, "{weighting:?}");
         }
+    }
+}
+
+#[test]
+fn odometry_joins_frame_nodes_that_share_no_landmark() {
+    // Two frames 1 m apart seeing disjoint landmarks (a turn into a new
+    // corridor): only the relative stage's motion between the frame nodes
+    // places the second set in the first one's map.
+    let frame = |t_ns: i64, x: f64, ids: std::ops::Range<u64>| RelativeOutput {
+        t_ns,
+        state: TrackingState::Tracking,
+        T_world_body: Isometry3::translation(x, 0.0, 0.0),
+        velocity_world_m_s: Vector3::zeros(),
+        biases: Default::default(),
+        delta_translation_world_m: Vector3::new(if t_ns == 1 { 1.0 } else { 0.0 }, 0.0, 0.0),
+        landmarks: ids
+            .map(|id| BodyLandmark {
+                id,
+                position_body_m: Vector3::new(2.0, id as f64 * 0.3 - 2.0, 0.5),
+                covariance_body_m2: Matrix3::identity() * 1e-4,
+                descriptor: None,
+            })
+            .collect(),
+    };
+    let mut stage = AbsoluteStage::new(inline(AbsoluteConfig {
+        policy: EdgePolicy::FrameNodes { every: 1 },
+        solve_every_frames: 1,
+        recognition: None,
+        ..AbsoluteConfig::default()
+    }));
+    stage.push(&frame(0, 0.0, 0..5));
+    stage.push(&frame(1, 1.0, 10..15));
+    stage.push(&frame(2, 1.0, 10..15));
+    for id in 10..15u64 {
+        let truth = Vector3::new(3.0, id as f64 * 0.3 - 2.0, 0.5);
+        let placed = stage.landmark_world_m(id).expect("joined by odometry");
+        assert!((placed - truth).norm() < 1e-9, "{id}: {placed}");
     }
 }

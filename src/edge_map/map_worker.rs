@@ -16,7 +16,7 @@ use nalgebra::Vector3;
 
 use super::laplacian::BlockLaplacian;
 use super::ordering_reuse::{IncrementalSymbolic, OrderingReuse, SymbolicPath};
-use super::problem::MapProblem;
+use super::problem::{MapEdge, MapProblem};
 use super::solve::{
     check_connected, solve_pcg, CgOptions, CholeskyFactor, SolveReport, SolverChoice,
 };
@@ -107,6 +107,56 @@ pub struct MapSolveWorker {
     /// Also run every CG solve from a cold start (zero) and report its
     /// iterations (measurement only; doubles the CG cost).
     pub measure_cold_start: bool,
+    /// Down-weight edges that disagree with the solved map and solve
+    /// again (Cholesky path only; None: plain least squares).
+    pub robust: Option<RobustWeights>,
+}
+
+/// Huber reweighting of a solved map's edges: an edge whose residual
+/// `r = y - (L_j - L_i)` has `chi2 = r^T S r` above `threshold_chi2` gets
+/// its information scaled by `sqrt(threshold_chi2 / chi2)`, and the map is
+/// solved again, `iterations` times at most. One wrong landmark
+/// association (two places merged into one landmark) otherwise pulls every
+/// frame and landmark near it, since the least-squares map has no other
+/// defence; reweighting needs no new symbolic factorisation (the pattern
+/// is the same).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RobustWeights {
+    pub threshold_chi2: f64,
+    pub iterations: usize,
+}
+
+impl Default for RobustWeights {
+    fn default() -> Self {
+        Self {
+            // 3 dof, 99.9 %.
+            threshold_chi2: 16.27,
+            iterations: 2,
+        }
+    }
+}
+
+impl RobustWeights {
+    /// The weight of each edge of `original` (same order as
+    /// `problem.edges`) at the solution `x` of `problem`.
+    pub fn weights(&self, problem: &MapProblem, original: &[MapEdge], x: &[f64]) -> Vec<f64> {
+        let at = |id: u32| match problem.unknown_of(id) {
+            Some(u) => Vector3::new(x[3 * u], x[3 * u + 1], x[3 * u + 2]),
+            None => Vector3::zeros(),
+        };
+        original
+            .iter()
+            .map(|e| {
+                let r = e.y_m - (at(e.j) - at(e.i));
+                let chi2 = r.dot(&(e.info * r));
+                if chi2 > self.threshold_chi2 {
+                    (self.threshold_chi2 / chi2).sqrt()
+                } else {
+                    1.0
+                }
+            })
+            .collect()
+    }
 }
 
 impl MapSolveWorker {
@@ -125,6 +175,7 @@ impl MapSolveWorker {
             choice,
             cg: CgOptions::default(),
             measure_cold_start: false,
+            robust: None,
         }
     }
 
@@ -151,7 +202,8 @@ impl MapSolveWorker {
             (full, kept)
         };
         check_connected(&problem)?;
-        let laplacian = BlockLaplacian::assemble(&problem);
+        let mut problem = problem;
+        let mut laplacian = BlockLaplacian::assemble(&problem);
         let mut report = SolveReport {
             assemble_ms: ms_since(start),
             ..Default::default()
@@ -179,7 +231,7 @@ impl MapSolveWorker {
             (x, None)
         } else {
             let t = Instant::now();
-            let (factor, path) =
+            let (mut factor, path) =
                 self.symbolic
                     .factorize(&laplacian, &problem, &kept, &mut report)?;
             symbolic_path = Some(path);
@@ -190,6 +242,33 @@ impl MapSolveWorker {
             factor.solve_in_place(&mut x, 1);
             report.solve_ms = ms_since(t);
             report.method = "cholesky";
+            if let Some(robust) = self.robust {
+                let original = problem.edges.clone();
+                for _ in 0..robust.iterations {
+                    let weights = robust.weights(&problem, &original, &x);
+                    let downweighted = weights.iter().filter(|&&w| w < 1.0).count();
+                    report.downweighted_edges = downweighted;
+                    if downweighted == 0 {
+                        break;
+                    }
+                    for (edge, (o, w)) in
+                        problem.edges.iter_mut().zip(original.iter().zip(&weights))
+                    {
+                        edge.info = o.info * *w;
+                    }
+                    laplacian = BlockLaplacian::assemble(&problem);
+                    let t = Instant::now();
+                    let mut discard = SolveReport::default();
+                    factor = self
+                        .symbolic
+                        .factorize(&laplacian, &problem, &kept, &mut discard)?
+                        .0;
+                    report.factor_ms += ms_since(t);
+                    x.copy_from_slice(&laplacian.rhs);
+                    factor.solve_in_place(&mut x, 1);
+                    report.robust_iterations += 1;
+                }
+            }
             (x, Some(factor))
         };
         let mut positions_m = vec![None; kept.iter().map(|&k| k as usize + 1).max().unwrap_or(0)];
@@ -310,6 +389,68 @@ fn ms_since(t: Instant) -> f64 {
 mod tests {
     use super::*;
     use crate::edge_map::simulate::{simulate_city, CityOptions};
+
+    #[test]
+    fn robust_weights_contain_a_wrong_association() {
+        // A simulated drive with frame nodes, measured without noise;
+        // then one landmark's edges from its later frames are moved by
+        // 1.5 m, as when a lookalike was recognised as that landmark.
+        let city = simulate_city(&CityOptions {
+            landmarks: 400,
+            policy: crate::edge_map::EdgePolicy::FrameNodes { every: 1 },
+            add_noise: false,
+            ..CityOptions::default()
+        });
+        let truth = city.truth_relative_m();
+        let mut problem = city.problem.clone();
+        let landmark = (1..problem.landmark_count)
+            .filter(|&id| !city.frame_node[id as usize])
+            .max_by_key(|&id| {
+                problem
+                    .edges
+                    .iter()
+                    .filter(|e| e.i == id || e.j == id)
+                    .count()
+            })
+            .expect("a landmark");
+        let edges: Vec<usize> = (0..problem.edges.len())
+            .filter(|&k| problem.edges[k].i == landmark || problem.edges[k].j == landmark)
+            .collect();
+        let wrong = &edges[edges.len() / 2..];
+        for &k in wrong {
+            let e = &mut problem.edges[k];
+            let shift = Vector3::new(1.5, 0.0, 0.0);
+            e.y_m += if e.j == landmark { shift } else { -shift };
+        }
+        let error = |robust: Option<RobustWeights>| {
+            let mut worker = MapSolveWorker::new(SolverChoice::Cholesky, 1);
+            worker.robust = robust;
+            let solved = worker
+                .solve(MapSolveRequest {
+                    version: 1,
+                    problem: problem.clone(),
+                    previous_m: Vec::new(),
+                    covariance_of: Vec::new(),
+                })
+                .expect("solve");
+            let worst = (0..problem.landmark_count)
+                .filter(|&id| id != landmark && !city.frame_node[id as usize])
+                .map(|id| {
+                    (solved.positions_m[id as usize].expect("placed") - truth[id as usize]).norm()
+                })
+                .fold(0.0, f64::max);
+            (worst, solved.report.downweighted_edges)
+        };
+        let (plain, _) = error(None);
+        let (robust, downweighted) = error(Some(RobustWeights::default()));
+        assert!(plain > 0.02, "the wrong edges should hurt: {plain}");
+        assert!(robust < 0.2 * plain, "robust {robust} vs plain {plain}");
+        assert!(
+            downweighted >= wrong.len() / 2,
+            "{downweighted} of {}",
+            wrong.len()
+        );
+    }
 
     /// The map as it was when only landmarks `0..n` existed (ids are
     /// assigned in the order the drive creates them).

@@ -40,6 +40,12 @@ pub struct RecognitionConfig {
     pub floor_sigma_m: f64,
     /// Never search farther than this from the prediction, m.
     pub max_search_radius_m: f64,
+    /// Do not try to recognise a landmark whose own position (in the
+    /// body, as measured in this frame) is less certain than this (largest
+    /// standard deviation, m): its gate would hold many lookalikes and the
+    /// descriptor alone then picks wrong ones (monocular depth along the
+    /// ray, seen on rendered V1_02).
+    pub max_landmark_sigma_m: f64,
 }
 
 impl Default for RecognitionConfig {
@@ -51,6 +57,7 @@ impl Default for RecognitionConfig {
             gate_chi2: 16.27,
             floor_sigma_m: 0.05,
             max_search_radius_m: 5.0,
+            max_landmark_sigma_m: 0.5,
         }
     }
 }
@@ -252,6 +259,10 @@ pub fn recognise_tracks(
             continue;
         };
         if known(l.id).is_some() {
+            continue;
+        }
+        let own = l.covariance_body_m2 * placement.landmark_covariance_scale;
+        if !(own.symmetric_eigenvalues().max() <= config.max_landmark_sigma_m.powi(2)) {
             continue;
         }
         let query = RecognitionQuery {

@@ -4,6 +4,7 @@
 
 use super::absolute::{AbsoluteConfig, LandmarkCovariance, SolveMode};
 use super::localise::LocaliseConfig;
+use super::map_worker::RobustWeights;
 use super::policy::EdgePolicy;
 use super::recognition::RecognitionConfig;
 
@@ -48,6 +49,18 @@ pub struct AbsoluteSettings {
     pub recognition_max_hamming: u32,
     /// Chi-square gate on the predicted position (3 dof).
     pub recognition_gate_chi2: f64,
+    /// Landmarks whose measured position is less certain than this
+    /// (largest standard deviation, m, after landmark_covariance_scale)
+    /// are not recognised: a wide gate holds lookalikes.
+    pub recognition_max_sigma_m: f64,
+    /// Down-weight map edges that disagree with the solved map by more
+    /// than a chi-square of 16.3 (3 dof, 0.1%) and solve again (Huber, two
+    /// rounds): a wrong recognition then bends the map less.
+    pub robust_map: bool,
+    /// Join consecutive frame nodes by the relative stage's translation
+    /// (frame policies only), so a frame that sees only new landmarks
+    /// stays connected to the map.
+    pub odometry_edges: bool,
 }
 
 impl Default for AbsoluteSettings {
@@ -71,6 +84,9 @@ impl Default for AbsoluteSettings {
             recognition: config.recognition.is_some(),
             recognition_max_hamming: recognition.max_hamming,
             recognition_gate_chi2: recognition.gate_chi2,
+            recognition_max_sigma_m: recognition.max_landmark_sigma_m,
+            robust_map: config.robust.is_some(),
+            odometry_edges: config.odometry_edges,
         }
     }
 }
@@ -172,6 +188,14 @@ impl AbsoluteSettings {
                 "0 to 128 (unrelated descriptors differ by about 128 bits)",
             ));
         }
+        let sigma = self.recognition_max_sigma_m;
+        if !(sigma.is_finite() && sigma > 0.0) {
+            return Err(bad(
+                "absolute.recognition_max_sigma_m",
+                sigma.to_string(),
+                "a positive number of metres",
+            ));
+        }
         let gate = self.recognition_gate_chi2;
         if !(gate.is_finite() && gate > 0.0) {
             return Err(bad(
@@ -191,8 +215,11 @@ impl AbsoluteSettings {
             recognition: self.recognition.then_some(RecognitionConfig {
                 max_hamming: self.recognition_max_hamming,
                 gate_chi2: gate,
+                max_landmark_sigma_m: self.recognition_max_sigma_m,
                 ..RecognitionConfig::default()
             }),
+            robust: self.robust_map.then(RobustWeights::default),
+            odometry_edges: self.odometry_edges,
             ..AbsoluteConfig::default()
         })
     }
@@ -206,6 +233,7 @@ impl AbsoluteSettings {
             recognition: RecognitionConfig {
                 max_hamming: self.recognition_max_hamming,
                 gate_chi2: self.recognition_gate_chi2,
+                max_landmark_sigma_m: self.recognition_max_sigma_m,
                 ..RecognitionConfig::default()
             },
             translation_sigma_per_sqrt_m: stage.translation_sigma_per_sqrt_m,
@@ -229,6 +257,8 @@ mod tests {
         assert_eq!(config.recognition, stage.recognition);
         assert_eq!(config.solve_every_frames, stage.solve_every_frames);
         assert_eq!(config.solve_mode, stage.solve_mode);
+        assert_eq!(config.robust, stage.robust);
+        assert_eq!(config.odometry_edges, stage.odometry_edges);
         // Except one on purpose: real frames' covariances are inflated.
         assert_eq!(stage.landmark_covariance_scale, 1.0);
         assert_eq!(config.landmark_covariance_scale, REAL_DATA_COVARIANCE_SCALE);
@@ -236,7 +266,28 @@ mod tests {
 
     #[test]
     fn each_bad_value_names_its_key() {
-        let cases: [(&str, AbsoluteSettings); 4] = [
+        let cases: [(&str, AbsoluteSettings); 7] = [
+            (
+                "absolute.recognition_max_sigma_m",
+                AbsoluteSettings {
+                    recognition_max_sigma_m: -1.0,
+                    ..Default::default()
+                },
+            ),
+            (
+                "absolute.solve",
+                AbsoluteSettings {
+                    solve: "later".into(),
+                    ..Default::default()
+                },
+            ),
+            (
+                "absolute.policy",
+                AbsoluteSettings {
+                    policy: "frame:0".into(),
+                    ..Default::default()
+                },
+            ),
             (
                 "absolute.policy",
                 AbsoluteSettings {

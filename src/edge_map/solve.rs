@@ -76,6 +76,10 @@ pub struct SolveReport {
     pub cg_iterations: usize,
     /// Entries of the Cholesky factor (0 for CG).
     pub factor_nnz: usize,
+    /// Robust reweighting: solves after the first, and edges down-weighted
+    /// in the last one.
+    pub robust_iterations: usize,
+    pub downweighted_edges: usize,
 }
 
 /// A Cholesky factor of A with its symbolic part.
