@@ -76,6 +76,7 @@ fn a_start_at_rest_uses_the_static_start() {
     }
     for (mode, bar_m) in [
         // Measured 0.008 m and 0.056 m (2026-11-23); bars about twice that.
+        // Along the spline through the ground truth: 0.009 m and 0.038 m.
         (SensorMode::StereoInertial, 0.02),
         (SensorMode::MonoInertial, 0.10),
     ] {
@@ -99,7 +100,9 @@ fn a_start_in_full_flight_is_not_taken_for_rest() {
         return;
     }
     for (mode, init_bar_s, ate_bar_m) in [
-        // Measured: 1.55 s / 0.017 m and 1.60 s / 0.025 m (2026-11-23).
+        // Measured: 1.55 s / 0.017 m and 1.60 s / 0.025 m (2026-11-23);
+        // along the spline through the ground truth 1.60 s / 0.012 m and
+        // 1.60 s / 0.018 m.
         (SensorMode::StereoInertial, 3.0, 0.04),
         (SensorMode::MonoInertial, 3.0, 0.06),
     ] {

@@ -14,4 +14,4 @@ pub mod scene;
 pub mod sequence;
 pub mod texture;
 
-pub use sequence::{simulate, ImuSource, SimConfig, SimError, SimReport};
+pub use sequence::{simulate, ImuSource, SimConfig, SimError, SimReport, SplineConfig};

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use rigslam::rig::ImuNoise;
-use rigslam::simulate::{simulate, ImuSource, SimConfig};
+use rigslam::simulate::{simulate, ImuSource, SimConfig, SplineConfig};
 
 #[derive(clap::Args)]
 pub struct SimulateArgs {
@@ -22,6 +22,17 @@ pub struct SimulateArgs {
     /// `real:FILE` (a real EuRoC imu0 csv recorded with --trajectory).
     #[arg(long, default_value = "synth", value_parser = parse_imu)]
     imu: ImuSource,
+    /// How the motion follows --trajectory: `through` (a cubic spline
+    /// through the ground truth at every knot) or `smooth` (control poses
+    /// on the ground truth, which smooths it). Default: `through` with
+    /// `--imu real:`, so the images move as the real IMU measured, and
+    /// `smooth` with the synthetic IMU, which differentiates the spline.
+    #[arg(long, value_enum)]
+    spline: Option<SplineFit>,
+    /// Knot spacing of that spline, s. Default: 0.01 for `through`, 0.05
+    /// for `smooth`.
+    #[arg(long)]
+    knot_spacing_s: Option<f64>,
     /// Render cam1 too (EuRoC's right camera).
     #[arg(long)]
     stereo: bool,
@@ -43,6 +54,33 @@ pub struct SimulateArgs {
     /// Print the report as one JSON object on stdout.
     #[arg(long)]
     json: bool,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum SplineFit {
+    Through,
+    Smooth,
+}
+
+/// The spline the options ask for; `None` (the library's choice by IMU
+/// source) when neither is given.
+fn spline_config(
+    fit: Option<SplineFit>,
+    knot_spacing_s: Option<f64>,
+    imu: &ImuSource,
+) -> Option<SplineConfig> {
+    if fit.is_none() && knot_spacing_s.is_none() {
+        return None;
+    }
+    let base = match fit {
+        Some(SplineFit::Through) => SplineConfig::REAL_IMU,
+        Some(SplineFit::Smooth) => SplineConfig::SYNTHETIC_IMU,
+        None => SplineConfig::for_imu(imu),
+    };
+    Some(SplineConfig {
+        knot_spacing_s: knot_spacing_s.unwrap_or(base.knot_spacing_s),
+        ..base
+    })
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -74,6 +112,7 @@ fn parse_imu(s: &str) -> Result<ImuSource, String> {
 
 pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
     let config = SimConfig {
+        spline: spline_config(args.spline, args.knot_spacing_s, &args.imu),
         trajectory: args.trajectory,
         duration_s: args.duration_s,
         imu: args.imu,
