@@ -24,8 +24,13 @@
 //!
 //! The returned pose takes its orientation from the relative stage and its
 //! position from the filter. Positions are in the relative stage's world
-//! frame: the map is anchored where the relative stage put the reference
-//! landmark (the first landmark of the first frame with two or more).
+//! frame: the map is anchored at the first frame node, where the relative
+//! stage put the robot in that frame ([`EdgePolicy::FrameNodes`]), or, with
+//! landmark pairs, where it put the reference landmark (the first landmark
+//! of the first frame with two or more). A robot position is exact in the
+//! relative stage's frame; a landmark's is not (a monocular landmark's
+//! depth at a static start is barely known), and the whole map would carry
+//! its error.
 //!
 //! Use from the pipeline (`rigslam run`): one stage per run, one `push`
 //! per relative-stage output, in order; the map solve runs on the stage's
@@ -245,6 +250,12 @@ pub struct AbsoluteStats {
     /// in the last map.
     pub robust_solves: usize,
     pub last_downweighted_edges: usize,
+    /// Tracks recognised in some frames but not confirmed in the next
+    /// (`RecognitionConfig::confirm_frames`): left as new landmarks.
+    pub unconfirmed_recognitions: usize,
+    /// Recognitions that put the robot elsewhere than the frame's
+    /// landmarks already in the map do (`RecognitionConfig::consensus_gate_m`).
+    pub inconsistent_recognitions: usize,
     pub frame_total_ms: f64,
     pub frame_max_ms: f64,
     pub solve_errors: usize,
@@ -273,6 +284,9 @@ pub struct AbsoluteStage {
     config: AbsoluteConfig,
     edges: EdgeMap,
     map_ids: HashMap<LandmarkId, u32>,
+    /// Tracks recognised as a map landmark in fewer than
+    /// `confirm_frames` consecutive frames: the landmark and the count.
+    pending: HashMap<LandmarkId, (u32, u32)>,
     landmark_ids: Vec<LandmarkId>,
     /// Descriptor of each map landmark (by map id), for recognition.
     map_descriptors: Vec<Option<Descriptor>>,
@@ -281,6 +295,8 @@ pub struct AbsoluteStage {
     candidates: Vec<u32>,
     /// Reference landmark (map id 0) and where the relative stage put it.
     anchor_world_m: Option<Vector3<f64>>,
+    /// Frames pushed before the one that anchored the map.
+    anchor_frame: usize,
     filter: Option<PositionFilter>,
     map: Option<SolvedMap>,
     frames_since_solve: usize,
@@ -377,11 +393,13 @@ impl AbsoluteStage {
             config,
             edges,
             map_ids: HashMap::new(),
+            pending: HashMap::new(),
             landmark_ids: Vec::new(),
             map_descriptors: Vec::new(),
             index: LandmarkIndex::default(),
             candidates: Vec::new(),
             anchor_world_m: None,
+            anchor_frame: 0,
             filter: None,
             map: None,
             frames_since_solve: 0,
@@ -411,10 +429,19 @@ impl AbsoluteStage {
         &self.config
     }
 
-    /// The reference landmark's relative-stage id and its world position
+    /// What map id 0 (the map's fixed unknown) is, and its world position
     /// (the map's anchor), once chosen.
-    pub fn reference(&self) -> Option<(LandmarkId, Vector3<f64>)> {
-        Some((*self.landmark_ids.first()?, self.anchor_world_m?))
+    pub fn reference(&self) -> Option<(MapReference, Vector3<f64>)> {
+        let anchor = self.anchor_world_m?;
+        match *self.landmark_ids.first()? {
+            FRAME_NODE => Some((
+                MapReference::Frame {
+                    index: self.anchor_frame,
+                },
+                anchor,
+            )),
+            track => Some((MapReference::Landmark(track), anchor)),
+        }
     }
 
     /// Track ids recognised as a landmark already in the map: (the track
@@ -543,16 +570,27 @@ impl AbsoluteStage {
                 }
             }
             None if tracking && output.landmarks.len() >= 2 => {
-                // The first frame with edges: its first landmark becomes the
-                // reference; the robot is placed where the relative stage
-                // says, uncertain by that landmark's measurement error.
+                // The first frame with edges anchors the map. Its node is
+                // the reference where there are frame nodes: the robot is
+                // exactly where the relative stage says. Otherwise its first
+                // landmark is, and the robot is as uncertain as that
+                // landmark's measurement.
                 let first = &output.landmarks[0];
                 let position = output.T_world_body.translation.vector;
-                self.anchor_world_m = Some(position + rotation * first.position_body_m);
-                self.filter = Some(PositionFilter::new(
-                    position,
-                    rotation * first.covariance_body_m2 * rotation.transpose(),
-                ));
+                self.anchor_frame = self.stats.frames;
+                if matches!(self.config.policy, EdgePolicy::FrameNodes { .. }) {
+                    self.anchor_world_m = Some(position);
+                    self.filter = Some(PositionFilter::new(
+                        position,
+                        Matrix3::identity() * ANCHOR_FRAME_VARIANCE_M2,
+                    ));
+                } else {
+                    self.anchor_world_m = Some(position + rotation * first.position_body_m);
+                    self.filter = Some(PositionFilter::new(
+                        position,
+                        rotation * first.covariance_body_m2 * rotation.transpose(),
+                    ));
+                }
             }
             None => {}
         }
@@ -775,8 +813,68 @@ impl AbsoluteStage {
             &config,
             &mut self.candidates,
         );
-        self.stats.recognised += found.len();
-        self.map_ids.extend(found);
+        let sigma_m2: HashMap<LandmarkId, f64> = output
+            .landmarks
+            .iter()
+            .map(|l| (l.id, l.covariance_body_m2.symmetric_eigenvalues().max()))
+            .collect();
+        // Where the frame's landmarks already in the map put the robot
+        // (per-axis median): a recognition must put it there too.
+        let implied = |l: &BodyLandmark, map_id: u32| {
+            self.index
+                .position(map_id)
+                .map(|p| p - rotation * l.position_body_m)
+        };
+        let mut known: Vec<Vector3<f64>> = output
+            .landmarks
+            .iter()
+            .filter_map(|l| implied(l, *self.map_ids.get(&l.id)?))
+            .collect();
+        let consensus = (known.len() >= MIN_CONSENSUS_LANDMARKS).then(|| {
+            Vector3::from_fn(|k, _| {
+                known.sort_by(|a, b| a[k].total_cmp(&b[k]));
+                known[known.len() / 2][k]
+            })
+        });
+        let by_id: HashMap<LandmarkId, &BodyLandmark> =
+            output.landmarks.iter().map(|l| (l.id, l)).collect();
+        let mut pending = HashMap::with_capacity(found.len());
+        for (track, map_id) in found {
+            if let (Some(consensus), Some(x)) = (
+                consensus,
+                by_id.get(&track).and_then(|l| implied(l, map_id)),
+            ) {
+                // Three of the track's own standard deviations, and the
+                // map's local disagreement.
+                let sigma2 = sigma_m2.get(&track).copied().unwrap_or(f64::INFINITY);
+                let gate2 = config.consensus_gate_m.powi(2) + 9.0 * sigma2;
+                if (x - consensus).norm_squared() > gate2 {
+                    self.stats.inconsistent_recognitions += 1;
+                    continue;
+                }
+            }
+            let count = match self.pending.get(&track) {
+                Some(&(earlier, count)) if earlier == map_id => count + 1,
+                _ => 1,
+            };
+            let precise = sigma_m2
+                .get(&track)
+                .is_some_and(|&v| v <= config.confirm_max_sigma_m.powi(2));
+            if count >= config.confirm_frames && precise {
+                self.stats.recognised += 1;
+                self.map_ids.insert(track, map_id);
+            } else if count < config.max_pending_frames {
+                pending.insert(track, (map_id, count));
+            }
+        }
+        // A pending track not recognised as the same landmark again, or
+        // gone from view, is dropped (and becomes a new landmark in fuse).
+        self.stats.unconfirmed_recognitions += self
+            .pending
+            .keys()
+            .filter(|track| !pending.contains_key(track) && !self.map_ids.contains_key(track))
+            .count();
+        self.pending = pending;
     }
 
     /// Edges of one frame (eq. 41-43) with the configured weighting.
@@ -784,15 +882,26 @@ impl AbsoluteStage {
         if output.landmarks.len() < 2 {
             return;
         }
+        // The first frame node is the map's reference, id 0 (its frame
+        // always has a node: the first of every `every`).
+        let anchor_node = matches!(self.config.policy, EdgePolicy::FrameNodes { .. })
+            && self.landmark_ids.is_empty();
+        if anchor_node {
+            self.landmark_ids.push(FRAME_NODE);
+            self.map_descriptors.push(None);
+        }
+        let pending = std::mem::take(&mut self.pending);
         let mut observations: Vec<LandmarkObservation> = output
             .landmarks
             .iter()
+            .filter(|l| !pending.contains_key(&l.id))
             .map(|l| LandmarkObservation {
                 id: self.map_id(l.id, l.descriptor),
                 p_body_m: l.position_body_m,
                 cov_body_m2: l.covariance_body_m2,
             })
             .collect();
+        self.pending = pending;
         // Two live tracks recognised as one landmark: keep the first.
         let mut seen = std::collections::HashSet::with_capacity(observations.len());
         observations.retain(|o| seen.insert(o.id));
@@ -806,9 +915,13 @@ impl AbsoluteStage {
                 // may correct later frames once another frame maps them.
                 return;
             }
-            let node = self.landmark_ids.len() as u32;
-            self.landmark_ids.push(FRAME_NODE);
-            self.map_descriptors.push(None);
+            let node = if anchor_node {
+                0
+            } else {
+                self.landmark_ids.push(FRAME_NODE);
+                self.map_descriptors.push(None);
+                self.landmark_ids.len() as u32 - 1
+            };
             self.edges.add_frame_node(rotation, node, &observations);
             if let Some((previous, travelled, distance)) =
                 self.odometry.filter(|_| self.config.odometry_edges)
@@ -1003,6 +1116,24 @@ fn cross_covariance(map: &SolvedMap, ids: &[u32], filter: &PositionFilter) -> DM
 /// Shortest distance an odometry edge's variance is computed for, m (a
 /// robot at rest still gets a finite information).
 const MIN_ODOMETRY_DISTANCE_M: f64 = 0.01;
+
+/// Landmarks already in the map a frame needs in view before a new
+/// recognition is checked against where they put the robot.
+const MIN_CONSENSUS_LANDMARKS: usize = 5;
+
+/// Variance of the robot's position at the anchoring frame node, m² (it
+/// defines the map's origin; not zero, to keep the filter well posed).
+const ANCHOR_FRAME_VARIANCE_M2: f64 = 1e-8;
+
+/// What the map's reference (map id 0, fixed at the anchor) is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MapReference {
+    /// A landmark, by the track id it entered the map with.
+    Landmark(LandmarkId),
+    /// The robot's position in a frame, by the number of frames pushed
+    /// before it.
+    Frame { index: usize },
+}
 
 /// The track id recorded for a frame node of [`EdgePolicy::FrameNodes`]
 /// (no track has it).

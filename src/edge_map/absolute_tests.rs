@@ -7,13 +7,15 @@ use nalgebra::{Isometry3, Matrix3, Vector3};
 use crate::relative::types::{BodyLandmark, RelativeOutput, TrackingState};
 
 use super::absolute::{
-    AbsoluteConfig, AbsoluteStage, EdgeWeighting, LandmarkCovariance, SolveMode,
+    AbsoluteConfig, AbsoluteStage, EdgeWeighting, LandmarkCovariance, MapReference, SolveMode,
 };
 use super::map_worker::{MapSolveWorker, SolvedMap};
 use super::nees::anees_bounds_95;
 use super::policy::EdgePolicy;
+use super::recognition::RecognitionConfig;
 use super::simulate_relative::{simulate_room_run, RoomRunOptions};
 use super::solve::SolverChoice;
+use crate::features::orb::Descriptor;
 
 /// Per-frame average NEES over `seeds` runs, and the RMS position errors
 /// (corrected, relative stage only) over all frames and runs.
@@ -63,7 +65,8 @@ pub(super) fn run_nees(
             let (reference, anchor) = stage.reference().expect("filter started");
             // Gauge: the map places the reference landmark at `anchor`;
             // the truth is compared relative to the true reference.
-            let truth_rel = run.truth_position_m[k] - run.landmarks_m[reference as usize];
+            let reference_truth = run.reference_truth_m(reference).expect("known reference");
+            let truth_rel = run.truth_position_m[k] - reference_truth;
             let error = (pose.T_world_body.translation.vector - anchor) - truth_rel;
             let relative_error = (output.T_world_body.translation.vector
                 - run.outputs[0].T_world_body.translation.vector)
@@ -220,12 +223,24 @@ fn frame_nodes_give_the_map_of_the_exact_frame_marginal() {
         EdgeWeighting::PaperScaled,
     );
     let pairs = solved(EdgePolicy::AllPairs, EdgeWeighting::FrameMarginal);
+    // The maps fix different unknowns (the first frame's node, the first
+    // landmark): compare them relative to the pairs' reference.
+    let (MapReference::Landmark(first), _) = pairs.reference().expect("anchored") else {
+        panic!("landmark pairs have a landmark reference");
+    };
+    assert!(matches!(
+        nodes.reference(),
+        Some((MapReference::Frame { index: 0 }, _))
+    ));
+    let origin = |stage: &AbsoluteStage| stage.landmark_world_m(first).expect("placed");
+    let (origin_nodes, origin_pairs) = (origin(&nodes), origin(&pairs));
     let mut compared = 0;
     for id in 0..options.landmarks as u64 {
         let (Some(a), Some(b)) = (nodes.landmark_world_m(id), pairs.landmark_world_m(id)) else {
             assert!(nodes.landmark_world_m(id).is_none() && pairs.landmark_world_m(id).is_none());
             continue;
         };
+        let (a, b) = (a - origin_nodes, b - origin_pairs);
         assert!((a - b).norm() < 1e-8, "landmark {id}: {a} vs {b}");
         compared += 1;
     }
@@ -380,7 +395,11 @@ fn landmark_map_beats_placing_landmarks_by_dead_reckoning() {
         }
     }
     let (reference, anchor) = stage.reference().unwrap();
-    let truth_ref = run.landmarks_m[reference as usize];
+    let truth_ref = run.reference_truth_m(reference).expect("known reference");
+    let dead_ref = match reference {
+        MapReference::Landmark(track) => first_seen[&track],
+        MapReference::Frame { index } => run.outputs[index].T_world_body.translation.vector,
+    };
     let (mut sq_map, mut sq_dead, mut count) = (0.0, 0.0, 0usize);
     for (id, truth) in run.landmarks_m.iter().enumerate() {
         let Some(p) = stage.landmark_world_m(id as u64) else {
@@ -388,7 +407,7 @@ fn landmark_map_beats_placing_landmarks_by_dead_reckoning() {
         };
         let truth_rel: Vector3<f64> = truth - truth_ref;
         sq_map += ((p - anchor) - truth_rel).norm_squared();
-        sq_dead += ((first_seen[&(id as u64)] - first_seen[&reference]) - truth_rel).norm_squared();
+        sq_dead += ((first_seen[&(id as u64)] - dead_ref) - truth_rel).norm_squared();
         count += 1;
     }
     assert!(count > 100, "{count} landmarks mapped");
@@ -700,4 +719,231 @@ fn odometry_joins_frame_nodes_that_share_no_landmark() {
         let placed = stage.landmark_world_m(id).expect("joined by odometry");
         assert!((placed - truth).norm() < 1e-9, "{id}: {placed}");
     }
+}
+
+/// Ten landmarks with their own descriptors, seen from a robot at rest at
+/// the origin (`frame`: all but 3 and 4, plus the frame's `extra` tracks;
+/// `mapped`: a stage with recognition `config` that has mapped all ten).
+struct RecognitionRoom;
+
+impl RecognitionRoom {
+    fn descriptor(k: u64) -> Descriptor {
+        let mut z = (k + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        [0; 4].map(|_| {
+            z ^= z << 13;
+            z ^= z >> 7;
+            z ^= z << 17;
+            z
+        })
+    }
+
+    fn at(k: u64) -> Vector3<f64> {
+        Vector3::new(2.0, k as f64 * 0.4 - 2.0, 0.3 * (k % 3) as f64)
+    }
+
+    /// Track `id` at `p` with landmark `d`'s descriptor, `sigma_m` on
+    /// each axis.
+    fn landmark(id: u64, p: Vector3<f64>, d: u64, sigma_m: f64) -> BodyLandmark {
+        BodyLandmark {
+            id,
+            position_body_m: p,
+            covariance_body_m2: Matrix3::identity() * sigma_m * sigma_m,
+            descriptor: Some(Self::descriptor(d)),
+        }
+    }
+
+    fn frame(t_ns: i64, extra: Vec<BodyLandmark>) -> RelativeOutput {
+        RelativeOutput {
+            t_ns,
+            state: TrackingState::Tracking,
+            T_world_body: Isometry3::identity(),
+            velocity_world_m_s: Vector3::zeros(),
+            biases: Default::default(),
+            delta_translation_world_m: Vector3::zeros(),
+            landmarks: (0..10)
+                .filter(|&k| k != 3 && k != 4)
+                .map(|k| Self::landmark(k, Self::at(k), k, 0.01))
+                .chain(extra)
+                .collect(),
+        }
+    }
+
+    fn mapped(config: RecognitionConfig) -> AbsoluteStage {
+        let mut stage = AbsoluteStage::new(inline(AbsoluteConfig {
+            policy: EdgePolicy::FrameNodes { every: 1 },
+            solve_every_frames: 1,
+            recognition: Some(config),
+            ..AbsoluteConfig::default()
+        }));
+        let both: Vec<BodyLandmark> = [3, 4]
+            .map(|k| Self::landmark(k, Self::at(k), k, 0.01))
+            .into();
+        for t in 0..3 {
+            stage.push(&Self::frame(t, both.clone()));
+        }
+        stage
+    }
+}
+
+#[test]
+fn a_recognition_is_joined_only_once_confirmed() {
+    // Track 100 comes back as landmark 3 (same place, same descriptor);
+    // track 200 looks like landmark 4 for one frame but is seen 1 m away
+    // from it after that (a lookalike).
+    type Room = RecognitionRoom;
+    let confirm = 3;
+    let mut stage = Room::mapped(RecognitionConfig {
+        confirm_frames: confirm,
+        ..RecognitionConfig::default()
+    });
+    let third = stage.landmark_world_m(3).expect("mapped");
+    let fourth = stage.landmark_world_m(4).expect("mapped");
+    for t in 3..3 + i64::from(confirm) {
+        let lookalike = if t == 3 {
+            Room::at(4)
+        } else {
+            Room::at(4) + Vector3::y()
+        };
+        stage.push(&Room::frame(
+            t,
+            vec![
+                Room::landmark(100, Room::at(3), 3, 0.01),
+                Room::landmark(200, lookalike, 4, 0.01),
+            ],
+        ));
+        let joined = t + 1 - 3 >= i64::from(confirm);
+        assert_eq!(stage.stats().recognised, usize::from(joined), "frame {t}");
+        assert_eq!(stage.landmark_world_m(100).is_some(), joined, "frame {t}");
+    }
+    let returned = stage.landmark_world_m(100).expect("recognised");
+    assert!((returned - third).norm() < 1e-9);
+    assert_eq!(stage.stats().unconfirmed_recognitions, 1);
+    let other = stage.landmark_world_m(200).expect("a landmark of its own");
+    assert!((other - fourth).norm() > 0.5, "{other} vs {fourth}");
+}
+
+#[test]
+fn a_recognition_waits_until_the_track_is_precise() {
+    // Track 100 is landmark 3 but its position is known to 0.3 m for its
+    // first 10 frames (a monocular depth), then to 1 cm.
+    type Room = RecognitionRoom;
+    let mut stage = Room::mapped(RecognitionConfig {
+        confirm_frames: 2,
+        confirm_max_sigma_m: 0.1,
+        ..RecognitionConfig::default()
+    });
+    for t in 3..13 {
+        stage.push(&Room::frame(
+            t,
+            vec![Room::landmark(100, Room::at(3), 3, 0.3)],
+        ));
+        assert!(stage.landmark_world_m(100).is_none(), "frame {t}: joined");
+    }
+    stage.push(&Room::frame(
+        13,
+        vec![Room::landmark(100, Room::at(3), 3, 0.01)],
+    ));
+    let third = stage.landmark_world_m(3).expect("mapped");
+    let returned = stage
+        .landmark_world_m(100)
+        .expect("recognised once precise");
+    assert!((returned - third).norm() < 1e-9);
+}
+
+#[test]
+fn a_recognition_must_put_the_robot_where_the_known_landmarks_do() {
+    // A lookalike of landmark 4 seen 0.17 m from it: inside the position
+    // gate (robot and map well known, 0.05 m floor: radius about 0.2 m)
+    // but it would put the robot 0.17 m from where the eight landmarks
+    // already in the map put it.
+    type Room = RecognitionRoom;
+    let lookalike = Room::at(4) + Vector3::new(0.0, 0.17, 0.0);
+    for (consensus_gate_m, joined) in [(0.1, false), (0.3, true)] {
+        let mut stage = Room::mapped(RecognitionConfig {
+            confirm_frames: 1,
+            consensus_gate_m,
+            ..RecognitionConfig::default()
+        });
+        stage.push(&Room::frame(
+            3,
+            vec![Room::landmark(200, lookalike, 4, 0.01)],
+        ));
+        assert_eq!(
+            stage.landmark_world_m(200) == stage.landmark_world_m(4),
+            joined,
+            "gate {consensus_gate_m} m"
+        );
+        assert_eq!(
+            stage.stats().inconsistent_recognitions,
+            usize::from(!joined)
+        );
+    }
+}
+
+#[test]
+fn the_map_is_anchored_where_the_robot_was_not_at_a_guessed_depth() {
+    // A monocular static start: for the first 20 frames the robot is at
+    // rest and the relative stage has every landmark 40 % too far along
+    // its ray (depth barely known, covariance long along the ray); then
+    // it moves and the depths are right. The robot's own position is
+    // exact throughout, so the corrected position must stay on it.
+    let rays: Vec<Vector3<f64>> = (0..12)
+        .map(|k| {
+            let a = (k as f64 / 11.0 - 0.5) * 1.2;
+            Vector3::new(a.cos(), a.sin(), 0.05 * k as f64 - 0.3).normalize()
+        })
+        .collect();
+    let landmarks_world: Vec<Vector3<f64>> = rays
+        .iter()
+        .enumerate()
+        .map(|(k, r)| r * (3.0 + 0.2 * k as f64))
+        .collect();
+    let mut stage = AbsoluteStage::new(inline(AbsoluteConfig {
+        recognition: None,
+        ..AbsoluteConfig::default()
+    }));
+    let mut worst: f64 = 0.0;
+    let mut previous = Vector3::zeros();
+    for t in 0..60i64 {
+        let at_rest = t < 20;
+        let position = if at_rest {
+            Vector3::zeros()
+        } else {
+            Vector3::new(-0.02 * (t - 19) as f64, 0.0, 0.0)
+        };
+        let landmarks = landmarks_world
+            .iter()
+            .enumerate()
+            .map(|(k, w)| {
+                let offset = w - position;
+                let (p, sigma_along) = if at_rest {
+                    (offset * 1.4, 1.0)
+                } else {
+                    (offset, 0.01)
+                };
+                let ray = offset.normalize();
+                let along = ray * ray.transpose();
+                BodyLandmark {
+                    id: k as u64,
+                    position_body_m: p,
+                    covariance_body_m2: along * sigma_along * sigma_along
+                        + (Matrix3::identity() - along) * 1e-4,
+                    descriptor: None,
+                }
+            })
+            .collect();
+        let pose = stage.push(&RelativeOutput {
+            t_ns: t,
+            state: TrackingState::Tracking,
+            T_world_body: Isometry3::translation(position.x, position.y, position.z),
+            velocity_world_m_s: Vector3::zeros(),
+            biases: Default::default(),
+            delta_translation_world_m: position - previous,
+            landmarks,
+        });
+        previous = position;
+        worst = worst.max((pose.T_world_body.translation.vector - position).norm());
+    }
+    assert!(stage.stats().corrections > 20);
+    assert!(worst < 0.01, "corrected position up to {worst} m off");
 }

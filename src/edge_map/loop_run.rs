@@ -94,7 +94,7 @@ pub fn compare_loops(options: &RoomRunOptions, config: &AbsoluteConfig) -> LoopC
                 let pose = stage.push(output);
                 pose.position_covariance_m2?;
                 let (reference, anchor) = stage.reference()?;
-                let reference_truth = run.landmarks_m[*run.track_landmark.get(&reference)?];
+                let reference_truth = run.reference_truth_m(reference)?;
                 let error =
                     (pose.T_world_body.translation.vector - anchor) - (truth - reference_truth);
                 Some(error.norm())

@@ -47,7 +47,7 @@ use std::path::PathBuf;
 
 pub use absolute::{
     AbsoluteConfig, AbsoluteStage, AbsoluteStats, CorrectedPose, EdgeWeighting, LandmarkCovariance,
-    SolveMode,
+    MapReference, SolveMode,
 };
 pub use edge::{EdgeMap, FusedEdge, LandmarkObservation};
 pub use laplacian::BlockLaplacian;

@@ -46,6 +46,22 @@ pub struct RecognitionConfig {
     /// descriptor alone then picks wrong ones (monocular depth along the
     /// ray, seen on rendered V1_02).
     pub max_landmark_sigma_m: f64,
+    /// A track is joined to a map landmark only once it has been
+    /// recognised as that same landmark in this many consecutive tracking
+    /// frames (1: at once). Until then it adds no edges; a track that
+    /// fails a confirmation becomes a new landmark.
+    pub confirm_frames: u32,
+    /// ... and only once the track's own position is at least this
+    /// certain (largest standard deviation, m): a lookalike that fits a
+    /// wide gate at a track's birth no longer fits once its depth is known.
+    pub confirm_max_sigma_m: f64,
+    /// A track still not confirmed after this many frames becomes a new
+    /// landmark.
+    pub max_pending_frames: u32,
+    /// A recognition must put the robot where the frame's landmarks
+    /// already in the map put it (their per-axis median), within this
+    /// distance plus three of the track's standard deviations, m.
+    pub consensus_gate_m: f64,
 }
 
 impl Default for RecognitionConfig {
@@ -58,6 +74,10 @@ impl Default for RecognitionConfig {
             floor_sigma_m: 0.05,
             max_search_radius_m: 5.0,
             max_landmark_sigma_m: 0.5,
+            confirm_frames: 5,
+            confirm_max_sigma_m: 0.1,
+            max_pending_frames: 40,
+            consensus_gate_m: 0.1,
         }
     }
 }

@@ -39,9 +39,9 @@ pub struct AbsoluteSettings {
     pub translation_sigma_per_sqrt_m: f64,
     /// Multiplies the relative stage's landmark covariances (>= 1 when its
     /// covariances are too small; see the corrections' mean NIS per dof in
-    /// the report, about 1 when right). Default 4, not the library's 1:
-    /// on real-IMU V1_02 the NIS per dof was 3.3 at 1 and 0.83 at 4
-    /// (bench/README.md).
+    /// the report, about 1 when right). Default 2, not the library's 1:
+    /// on the real-IMU V1_02 renderings the NIS per dof is 0.9-1.4 at 2
+    /// and 0.4-0.7 at 4, and the ATE lower at 2 (bench/README.md).
     pub landmark_covariance_scale: f64,
     /// Recognise landmarks that come back under a new track id.
     pub recognition: bool,
@@ -53,6 +53,16 @@ pub struct AbsoluteSettings {
     /// (largest standard deviation, m, after landmark_covariance_scale)
     /// are not recognised: a wide gate holds lookalikes.
     pub recognition_max_sigma_m: f64,
+    /// A track joins a map landmark only after being recognised as that
+    /// landmark in this many consecutive frames (1: at once).
+    pub recognition_confirm_frames: u32,
+    /// ... and once the track's position is this certain (largest
+    /// standard deviation, m, after landmark_covariance_scale; 0: any).
+    pub recognition_confirm_max_sigma_m: f64,
+    /// A recognition must put the robot within this distance (m, plus
+    /// three of the track's standard deviations) of where the frame's
+    /// landmarks already in the map put it.
+    pub recognition_consensus_gate_m: f64,
     /// Down-weight map edges that disagree with the solved map by more
     /// than a chi-square of 16.3 (3 dof, 0.1%) and solve again (Huber, two
     /// rounds): a wrong recognition then bends the map less.
@@ -85,6 +95,13 @@ impl Default for AbsoluteSettings {
             recognition_max_hamming: recognition.max_hamming,
             recognition_gate_chi2: recognition.gate_chi2,
             recognition_max_sigma_m: recognition.max_landmark_sigma_m,
+            recognition_confirm_frames: recognition.confirm_frames,
+            recognition_consensus_gate_m: recognition.consensus_gate_m,
+            recognition_confirm_max_sigma_m: if recognition.confirm_max_sigma_m.is_finite() {
+                recognition.confirm_max_sigma_m
+            } else {
+                0.0
+            },
             robust_map: config.robust.is_some(),
             odometry_edges: config.odometry_edges,
         }
@@ -93,7 +110,7 @@ impl Default for AbsoluteSettings {
 
 /// The window's landmark covariances are this much too small on real
 /// frames (measured by the corrections' NIS, bench/README.md).
-pub const REAL_DATA_COVARIANCE_SCALE: f64 = 4.0;
+pub const REAL_DATA_COVARIANCE_SCALE: f64 = 2.0;
 
 /// A setting out of range: its key (under `absolute.`), value and what is
 /// allowed.
@@ -196,6 +213,29 @@ impl AbsoluteSettings {
                 "a positive number of metres",
             ));
         }
+        if !(1..=100).contains(&self.recognition_confirm_frames) {
+            return Err(bad(
+                "absolute.recognition_confirm_frames",
+                self.recognition_confirm_frames.to_string(),
+                "1 to 100 frames",
+            ));
+        }
+        let consensus = self.recognition_consensus_gate_m;
+        if !(consensus.is_finite() && consensus >= 0.0) {
+            return Err(bad(
+                "absolute.recognition_consensus_gate_m",
+                consensus.to_string(),
+                "a number of metres, 0 or more",
+            ));
+        }
+        let confirm_sigma = self.recognition_confirm_max_sigma_m;
+        if !(confirm_sigma.is_finite() && confirm_sigma >= 0.0) {
+            return Err(bad(
+                "absolute.recognition_confirm_max_sigma_m",
+                confirm_sigma.to_string(),
+                "a number of metres, 0 for no limit",
+            ));
+        }
         let gate = self.recognition_gate_chi2;
         if !(gate.is_finite() && gate > 0.0) {
             return Err(bad(
@@ -216,6 +256,13 @@ impl AbsoluteSettings {
                 max_hamming: self.recognition_max_hamming,
                 gate_chi2: gate,
                 max_landmark_sigma_m: self.recognition_max_sigma_m,
+                confirm_frames: self.recognition_confirm_frames,
+                consensus_gate_m: self.recognition_consensus_gate_m,
+                confirm_max_sigma_m: if self.recognition_confirm_max_sigma_m > 0.0 {
+                    self.recognition_confirm_max_sigma_m
+                } else {
+                    f64::INFINITY
+                },
                 ..RecognitionConfig::default()
             }),
             robust: self.robust_map.then(RobustWeights::default),

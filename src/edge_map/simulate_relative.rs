@@ -95,6 +95,19 @@ pub struct RoomRun {
     pub track_landmark: HashMap<LandmarkId, usize>,
 }
 
+impl RoomRun {
+    /// True world position of the absolute stage's map reference: the
+    /// landmark a track belongs to, or the robot in a frame.
+    pub fn reference_truth_m(&self, reference: super::MapReference) -> Option<Vector3<f64>> {
+        match reference {
+            super::MapReference::Landmark(track) => {
+                Some(self.landmarks_m[*self.track_landmark.get(&track)?])
+            }
+            super::MapReference::Frame { index } => self.truth_position_m.get(index).copied(),
+        }
+    }
+}
+
 fn normal3(rng: &mut ChaCha8Rng) -> Vector3<f64> {
     Vector3::from_fn(|_, _| StandardNormal.sample(rng))
 }
