@@ -6,6 +6,7 @@
 //! the inertial error between two states. [`strapdown`] is the plain RK4
 //! integrator used as a reference and by the simulator.
 
+pub mod agreement;
 pub mod interval;
 pub mod model;
 pub mod noise;
@@ -15,6 +16,7 @@ pub mod residual;
 pub mod so3;
 pub mod strapdown;
 
+pub use agreement::{accel_agreement, AccelAgreement};
 pub use interval::{
     interpolate_sample, ImuInterval, ImuStream, IntervalConfig, IntervalError, IntervalReport,
 };

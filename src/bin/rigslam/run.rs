@@ -83,6 +83,11 @@ pub struct RunArgs {
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
+    /// Write every frame's output state here (CSV: t_ns, state, position,
+    /// quaternion xyzw, velocity, gyro bias, accel bias): to compare the
+    /// estimated biases and velocity with the ground truth's.
+    #[arg(long)]
+    states: Option<PathBuf>,
 }
 
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
@@ -141,7 +146,38 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         save_map: args.save_map.clone(),
         load_map,
     };
+    let mut states_csv = String::new();
+    if args.states.is_some() {
+        states_csv.push_str("t_ns,state,px,py,pz,qx,qy,qz,qw,vx,vy,vz,bgx,bgy,bgz,bax,bay,baz\n");
+    }
     let result = run_dataset(&dataset, &run, |output, listed| {
+        if args.states.is_some() {
+            let p = output.T_world_body.translation.vector;
+            let q = output.T_world_body.rotation.coords;
+            let v = output.velocity_world_m_s;
+            let (bg, ba) = (output.biases.gyro_rad_s, output.biases.accel_m_s2);
+            let state = format!("{:?}", output.state).to_lowercase();
+            states_csv.push_str(&format!(
+                "{},{state},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+                output.t_ns,
+                p.x,
+                p.y,
+                p.z,
+                q.x,
+                q.y,
+                q.z,
+                q.w,
+                v.x,
+                v.y,
+                v.z,
+                bg.x,
+                bg.y,
+                bg.z,
+                ba.x,
+                ba.y,
+                ba.z
+            ));
+        }
         bar.set_length(listed as u64);
         bar.inc(1);
         bar.set_message(format!("{:?}", output.state).to_lowercase());
@@ -154,6 +190,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         }
         write_tum(path, &result.outcome.trajectory)?;
+    }
+    if let Some(path) = &args.states {
+        std::fs::write(path, &states_csv)
+            .with_context(|| format!("writing the states {}", path.display()))?;
     }
     if let (Some(path), Some(relative)) = (&args.trajectory_relative, &result.trajectory_relative) {
         write_tum(path, relative)?;
