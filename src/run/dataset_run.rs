@@ -5,6 +5,7 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
+use super::recognition_check::{check_recognitions, SightingLog, WRONG_M};
 use crate::dataset::{
     groundtruth_trajectory, open_dataset, Dataset, DatasetError, SensorStream, StreamOptions,
 };
@@ -164,6 +165,7 @@ pub fn run_dataset(
     };
     let mut corrected = Vec::new();
     let mut absolute_ms = Vec::new();
+    let mut sightings = SightingLog::default();
     let mut outcome = run_stream(&mut stream, estimator.as_mut(), run.options, |o| {
         if let Some(localiser) = localiser.as_mut() {
             let start = std::time::Instant::now();
@@ -178,6 +180,7 @@ pub fn run_dataset(
             }
         }
         if let Some(stage) = absolute.as_mut() {
+            sightings.note(o);
             let start = std::time::Instant::now();
             let pose = stage.push(o);
             absolute_ms.push(start.elapsed().as_secs_f64() * 1e3);
@@ -246,6 +249,19 @@ pub fn run_dataset(
         _ => None,
     };
     let evaluation = score(&outcome.trajectory);
+    let recognition_check = absolute
+        .as_ref()
+        .zip(ground_truth.as_ref())
+        .and_then(|(stage, gt)| check_recognitions(&sightings, stage.aliases(), gt));
+    if let Some(check) = &recognition_check {
+        tracing::info!(
+            "recognitions against the ground truth: {} of {} over {WRONG_M} m ({} over 1 m), median {:.3} m",
+            check.wrong,
+            check.checked,
+            check.over_1_m,
+            check.median_m
+        );
+    }
     let evaluation_relative = trajectory_relative.as_ref().and_then(score);
 
     let (frame_stats, stages) = outcome.timing_report();
@@ -290,6 +306,7 @@ pub fn run_dataset(
         eval: evaluation.as_ref().map(|e| e.report.clone()),
         eval_relative: evaluation_relative.as_ref().map(|e| e.report.clone()),
         absolute: absolute.as_ref().map(|s| s.stats().clone()),
+        recognition_check,
         localise: localiser.as_ref().map(|l| l.stats().clone()),
     };
     Ok(DatasetRunResult {

@@ -5,6 +5,7 @@
 //! poses and counts what happened.
 
 pub mod dataset_run;
+pub mod recognition_check;
 pub mod report;
 
 use std::collections::BTreeMap;

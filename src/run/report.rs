@@ -85,6 +85,9 @@ pub struct RunReport {
     pub eval_relative: Option<EvalReport>,
     /// The absolute stage's counters and times, when it ran.
     pub absolute: Option<AbsoluteStats>,
+    /// The absolute stage's recognitions checked against the ground truth,
+    /// when it ran and recognised landmarks.
+    pub recognition_check: Option<super::recognition_check::RecognitionCheck>,
     /// Localisation in a saved map (`--load-map`), when it ran.
     pub localise: Option<crate::edge_map::localise::LocaliseStats>,
 }
