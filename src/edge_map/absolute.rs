@@ -64,7 +64,9 @@ use super::ordering_reuse::SymbolicPath;
 use super::policy::EdgePolicy;
 use super::position_filter::{LandmarkFix, PositionFilter};
 use super::problem::MapProblem;
-use super::recognition::{recognise_tracks, FramePlacement, LandmarkIndex, RecognitionConfig};
+use super::recognition::{
+    consistent_recognitions, recognise_tracks, FramePlacement, LandmarkIndex, RecognitionConfig,
+};
 use super::solve::SolverChoice;
 use super::EdgeMapError;
 use crate::features::orb::Descriptor;
@@ -818,41 +820,20 @@ impl AbsoluteStage {
             .iter()
             .map(|l| (l.id, l.covariance_body_m2.symmetric_eigenvalues().max()))
             .collect();
-        // Where the frame's landmarks already in the map put the robot
-        // (per-axis median): a recognition must put it there too.
-        let implied = |l: &BodyLandmark, map_id: u32| {
-            self.index
-                .position(map_id)
-                .map(|p| p - rotation * l.position_body_m)
-        };
-        let mut known: Vec<Vector3<f64>> = output
-            .landmarks
-            .iter()
-            .filter_map(|l| implied(l, *self.map_ids.get(&l.id)?))
-            .collect();
-        let consensus = (known.len() >= MIN_CONSENSUS_LANDMARKS).then(|| {
-            Vector3::from_fn(|k, _| {
-                known.sort_by(|a, b| a[k].total_cmp(&b[k]));
-                known[known.len() / 2][k]
-            })
-        });
-        let by_id: HashMap<LandmarkId, &BodyLandmark> =
-            output.landmarks.iter().map(|l| (l.id, l)).collect();
+        // A recognition must place the robot where the frame's landmarks
+        // already in the map place it.
+        let (found, inconsistent) = consistent_recognitions(
+            &self.index,
+            &output.landmarks,
+            rotation,
+            |track| self.map_ids.get(&track).copied(),
+            found,
+            &config,
+            1.0,
+        );
+        self.stats.inconsistent_recognitions += inconsistent;
         let mut pending = HashMap::with_capacity(found.len());
         for (track, map_id) in found {
-            if let (Some(consensus), Some(x)) = (
-                consensus,
-                by_id.get(&track).and_then(|l| implied(l, map_id)),
-            ) {
-                // Three of the track's own standard deviations, and the
-                // map's local disagreement.
-                let sigma2 = sigma_m2.get(&track).copied().unwrap_or(f64::INFINITY);
-                let gate2 = config.consensus_gate_m.powi(2) + 9.0 * sigma2;
-                if (x - consensus).norm_squared() > gate2 {
-                    self.stats.inconsistent_recognitions += 1;
-                    continue;
-                }
-            }
             let count = match self.pending.get(&track) {
                 Some(&(earlier, count)) if earlier == map_id => count + 1,
                 _ => 1,
@@ -1116,10 +1097,6 @@ fn cross_covariance(map: &SolvedMap, ids: &[u32], filter: &PositionFilter) -> DM
 /// Shortest distance an odometry edge's variance is computed for, m (a
 /// robot at rest still gets a finite information).
 const MIN_ODOMETRY_DISTANCE_M: f64 = 0.01;
-
-/// Landmarks already in the map a frame needs in view before a new
-/// recognition is checked against where they put the robot.
-const MIN_CONSENSUS_LANDMARKS: usize = 5;
 
 /// Variance of the robot's position at the anchoring frame node, m² (it
 /// defines the map's origin; not zero, to keep the filter well posed).

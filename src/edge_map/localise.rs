@@ -21,7 +21,9 @@ use rand_chacha::ChaCha8Rng;
 
 use super::map_file::SavedMap;
 use super::position_filter::{LandmarkFix, PositionFilter};
-use super::recognition::{recognise_tracks, FramePlacement, LandmarkIndex, RecognitionConfig};
+use super::recognition::{
+    consistent_recognitions, recognise_tracks, FramePlacement, LandmarkIndex, RecognitionConfig,
+};
 use crate::features::matching::hamming;
 use crate::features::orb::Descriptor;
 use crate::relative::types::{LandmarkId, RelativeOutput, TrackingState};
@@ -99,6 +101,9 @@ pub struct LocaliseStats {
     /// Times the relative stage lost tracking and localisation restarted.
     pub resets: usize,
     pub recognised: usize,
+    /// Recognitions that placed the robot elsewhere than the frame's
+    /// associated landmarks do (see [`consistent_recognitions`]).
+    pub inconsistent_recognitions: usize,
     pub corrections: usize,
     /// Landmarks left out of a correction by the innovation gate.
     pub gated_out: usize,
@@ -406,6 +411,16 @@ impl MapLocaliser {
             &self.config.recognition,
             &mut self.candidates,
         );
+        let (found, inconsistent) = consistent_recognitions(
+            &self.index,
+            &output.landmarks,
+            &rotation,
+            |track| self.associations.get(&track).copied(),
+            found,
+            &self.config.recognition,
+            self.config.landmark_covariance_scale,
+        );
+        self.stats.inconsistent_recognitions += inconsistent;
         self.stats.recognised += found.len();
         self.associations.extend(found);
         // Tracks that ended are forgotten.

@@ -308,6 +308,65 @@ pub fn recognise_tracks(
     found
 }
 
+/// Landmarks already associated a frame needs in view before a new
+/// recognition is checked against where they place the robot.
+pub const MIN_CONSENSUS_LANDMARKS: usize = 5;
+
+/// Keeps the recognitions `found` (track, map id) that place the robot
+/// where the frame's landmarks already associated with the map (`known`)
+/// place it: within `consensus_gate_m` plus three of the track's own
+/// standard deviations (body covariance times `covariance_scale`) of their
+/// per-axis median. The robot position a landmark implies is its map
+/// position minus its rotated body-frame offset. With fewer than
+/// [`MIN_CONSENSUS_LANDMARKS`] known landmarks in view all are kept.
+/// Returns the kept recognitions and how many were dropped.
+pub fn consistent_recognitions(
+    index: &LandmarkIndex,
+    landmarks: &[BodyLandmark],
+    rotation: &Matrix3<f64>,
+    known: impl Fn(LandmarkId) -> Option<u32>,
+    found: Vec<(LandmarkId, u32)>,
+    config: &RecognitionConfig,
+    covariance_scale: f64,
+) -> (Vec<(LandmarkId, u32)>, usize) {
+    let implied = |l: &BodyLandmark, map_id: u32| {
+        index
+            .position(map_id)
+            .map(|p| p - rotation * l.position_body_m)
+    };
+    let mut placed: Vec<Vector3<f64>> = landmarks
+        .iter()
+        .filter_map(|l| implied(l, known(l.id)?))
+        .collect();
+    if placed.len() < MIN_CONSENSUS_LANDMARKS {
+        return (found, 0);
+    }
+    let consensus = Vector3::from_fn(|k, _| {
+        placed.sort_by(|a, b| a[k].total_cmp(&b[k]));
+        placed[placed.len() / 2][k]
+    });
+    let by_id: HashMap<LandmarkId, &BodyLandmark> = landmarks.iter().map(|l| (l.id, l)).collect();
+    let before = found.len();
+    let kept: Vec<(LandmarkId, u32)> = found
+        .into_iter()
+        .filter(|&(track, map_id)| {
+            let Some(l) = by_id.get(&track) else {
+                return false;
+            };
+            let Some(x) = implied(l, map_id) else {
+                return false;
+            };
+            let sigma2 = (l.covariance_body_m2 * covariance_scale)
+                .symmetric_eigenvalues()
+                .max();
+            let gate2 = config.consensus_gate_m.powi(2) + 9.0 * sigma2;
+            (x - consensus).norm_squared() <= gate2
+        })
+        .collect();
+    let dropped = before - kept.len();
+    (kept, dropped)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -471,6 +530,50 @@ mod tests {
             ),
             None
         );
+    }
+
+    #[test]
+    fn recognitions_must_agree_with_the_known_landmarks() {
+        // The robot at (0, -2, 0), turned by nothing, sees landmarks 0-5 of
+        // the line map already associated (tracks 10-15) and two new
+        // tracks: 20 at landmark 7's true offset, 21 claiming landmark 8
+        // but seen 0.4 m from it.
+        let (index, _) = line_map();
+        let robot = Vector3::new(0.0, -2.0, 0.0);
+        let seen = |track: u64, world: Vector3<f64>| BodyLandmark {
+            id: track,
+            position_body_m: world - robot,
+            covariance_body_m2: Matrix3::identity() * 1e-4,
+            descriptor: None,
+        };
+        let at = |k: u32| index.position(k).expect("placed");
+        let mut landmarks: Vec<BodyLandmark> = (0..6).map(|k| seen(10 + k, at(k as u32))).collect();
+        landmarks.push(seen(20, at(7)));
+        landmarks.push(seen(21, at(8) + Vector3::new(0.0, 0.4, 0.0)));
+        let known = |track: u64| (10..16).contains(&track).then(|| (track - 10) as u32);
+        let config = RecognitionConfig::default();
+        let (kept, dropped) = consistent_recognitions(
+            &index,
+            &landmarks,
+            &Matrix3::identity(),
+            known,
+            vec![(20, 7), (21, 8)],
+            &config,
+            1.0,
+        );
+        assert_eq!(kept, vec![(20, 7)]);
+        assert_eq!(dropped, 1);
+        // With fewer than five known landmarks in view nothing is judged.
+        let (kept, dropped) = consistent_recognitions(
+            &index,
+            &landmarks[2..],
+            &Matrix3::identity(),
+            known,
+            vec![(20, 7), (21, 8)],
+            &config,
+            1.0,
+        );
+        assert_eq!((kept.len(), dropped), (2, 0));
     }
 
     #[test]
