@@ -31,13 +31,6 @@ fn shared(relative: &str) -> Option<PathBuf> {
     path.exists().then_some(path)
 }
 
-fn biases(gt: &GroundTruthState) -> ImuBiases {
-    ImuBiases {
-        gyro_rad_s: gt.gyro_bias_rad_s,
-        accel_m_s2: gt.accel_bias_m_s2,
-    }
-}
-
 /// One row of the GTSAM fixture.
 struct GtsamInterval {
     t_start_ns: i64,
@@ -124,7 +117,7 @@ fn euler_matches_gtsam_on_v1_01() {
             .expect("covered");
         assert!(interval.report.reliable);
         let pre = integrator
-            .integrate_interval(&interval, &biases(start))
+            .integrate_interval(&interval, &ImuBiases::from(start))
             .expect("integrable");
         assert_eq!(pre.steps, g.steps);
         worst_r = worst_r.max(log(&(exp(&g.theta).transpose() * pre.delta_R)).norm());
@@ -196,7 +189,7 @@ fn predict_ground_truth(
                 unreliable += 1;
             }
             let pre = integrator
-                .integrate_interval(&interval, &biases(a))
+                .integrate_interval(&interval, &ImuBiases::from(a))
                 .expect("integrable");
             let start = NavState {
                 t_ns: a.t_ns,
@@ -204,7 +197,7 @@ fn predict_ground_truth(
                 position_world_m: a.T_world_body.translation.vector,
                 velocity_world_m_s: a.velocity_m_s,
             };
-            let end = pre.predict(&start, &biases(a), &gravity);
+            let end = pre.predict(&start, &ImuBiases::from(a), &gravity);
             let truth: UnitQuaternion<f64> = b.T_world_body.rotation;
             e.rotation_deg
                 .push(end.R_world_body.angle_to(&truth).to_degrees());

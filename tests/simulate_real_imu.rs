@@ -27,20 +27,7 @@ use rigslam::simulate::SplineConfig;
 use rigslam::trajectory::Trajectory;
 
 fn shared(relative: &str) -> Option<PathBuf> {
-    let path = rigslam::shared_data::shared_data_dir()?.join(relative);
-    assert!(
-        path.exists() || std::env::var_os("CI").is_none(),
-        "{} is missing and CI is set",
-        path.display()
-    );
-    path.exists().then_some(path)
-}
-
-fn biases(gt: &GroundTruthState) -> ImuBiases {
-    ImuBiases {
-        gyro_rad_s: gt.gyro_bias_rad_s,
-        accel_m_s2: gt.accel_bias_m_s2,
-    }
+    rigslam::shared_data::path_or_skip(relative)
 }
 
 /// Median and 90th percentile.
@@ -127,9 +114,9 @@ fn agreement(
             continue;
         };
         let pre = integrator
-            .integrate_interval(&interval, &biases(a))
+            .integrate_interval(&interval, &ImuBiases::from(a))
             .expect("integrable");
-        let predicted = pre.predict(&start.nav, &biases(a), &gravity);
+        let predicted = pre.predict(&start.nav, &ImuBiases::from(a), &gravity);
         out.rotation_deg.push(
             predicted
                 .R_world_body
@@ -156,7 +143,7 @@ fn ideal_vs_real(motion: &Motion, real: &[ImuSample], gt: &[GroundTruthState]) -
         .filter(|s| (motion.start_ns()..=motion.end_ns()).contains(&s.t_ns))
     {
         let k = gt.partition_point(|g| g.t_ns <= s.t_ns).saturating_sub(1);
-        let b = biases(&gt[k]);
+        let b = ImuBiases::from(&gt[k]);
         let ideal = ideal_sample(motion, s.t_ns);
         let f = Vector3::from(ideal.accel_m_s2);
         accel += (f + b.accel_m_s2 - Vector3::from(s.accel_m_s2)).norm_squared();

@@ -39,6 +39,16 @@ pub struct ImuBiases {
     pub accel_m_s2: Vector3<f64>,
 }
 
+impl From<&crate::dataset::GroundTruthState> for ImuBiases {
+    /// The biases a ground-truth state records (EuRoC's estimate).
+    fn from(gt: &crate::dataset::GroundTruthState) -> Self {
+        Self {
+            gyro_rad_s: gt.gyro_bias_rad_s,
+            accel_m_s2: gt.accel_bias_m_s2,
+        }
+    }
+}
+
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum StrapdownError {
     #[error("IMU sample {index} at {t_ns} ns does not come after the previous one")]

@@ -348,10 +348,7 @@ fn imu_stream(
                 .map(|s| {
                     let k = gt.partition_point(|g| g.t_ns <= s.t_ns);
                     gt.get(k.saturating_sub(1))
-                        .map_or(ImuBiases::default(), |g| ImuBiases {
-                            gyro_rad_s: g.gyro_bias_rad_s,
-                            accel_m_s2: g.accel_bias_m_s2,
-                        })
+                        .map_or(ImuBiases::default(), ImuBiases::from)
                 })
                 .collect();
             Ok((samples, biases))
