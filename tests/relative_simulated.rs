@@ -7,8 +7,8 @@
 use std::path::{Path, PathBuf};
 
 use rigslam::dataset::{
-    open_dataset, read_euroc_groundtruth, write_euroc_groundtruth, SensorEvent, SensorStream,
-    StreamOptions,
+    open_dataset, read_euroc_groundtruth, write_euroc_groundtruth, Dataset, SensorEvent,
+    SensorStream, StreamOptions,
 };
 use rigslam::relative::{
     build_estimator, EstimatorKind, FrameInput, RelativeConfig, SensorMode, TrackingState,
@@ -49,6 +49,20 @@ fn render(out: &Path, skip_s: f64, seconds: f64) -> Option<()> {
     };
     simulate(&config, out).expect("render");
     Some(())
+}
+
+/// Both images and the IMU of the whole of `dataset`, in time order.
+fn stereo_imu_stream(dataset: &Dataset) -> SensorStream<'_> {
+    SensorStream::new(
+        dataset,
+        StreamOptions {
+            stereo: true,
+            imu: true,
+            start_ns: None,
+            max_frames: None,
+        },
+    )
+    .expect("stream")
 }
 
 fn ate_and_init(dir: &Path, mode: SensorMode) -> (f64, f64, u64, serde_json::Value) {
@@ -141,16 +155,7 @@ fn damaged_input_never_gives_nan_or_an_unannounced_jump() {
             &RelativeConfig::default(),
         )
         .expect("estimator");
-        let stream = SensorStream::new(
-            &dataset,
-            StreamOptions {
-                stereo: true,
-                imu: true,
-                start_ns: None,
-                max_frames: None,
-            },
-        )
-        .expect("stream");
+        let stream = stereo_imu_stream(&dataset);
         let events: Vec<SensorEvent> = stream.map(|e| e.expect("event")).collect();
         let first_frame_ns = events
             .iter()
@@ -298,16 +303,7 @@ fn the_ekf_on_the_imu_alone_in_motion_reports_lost() {
         &config,
     )
     .expect("estimator");
-    let stream = SensorStream::new(
-        &dataset,
-        StreamOptions {
-            stereo: true,
-            imu: true,
-            start_ns: None,
-            max_frames: None,
-        },
-    )
-    .expect("stream");
+    let stream = stereo_imu_stream(&dataset);
     let (w, h) = (rig.cameras[0].model.width(), rig.cameras[0].model.height());
     let black = Image::mono8(w, h, vec![0; (w * h) as usize]).expect("image");
     let blind_from = 140;
