@@ -815,11 +815,6 @@ impl AbsoluteStage {
             &config,
             &mut self.candidates,
         );
-        let sigma_m2: HashMap<LandmarkId, f64> = output
-            .landmarks
-            .iter()
-            .map(|l| (l.id, l.covariance_body_m2.symmetric_eigenvalues().max()))
-            .collect();
         // A recognition must place the robot where the frame's landmarks
         // already in the map place it.
         let (found, inconsistent) = consistent_recognitions(
@@ -838,9 +833,14 @@ impl AbsoluteStage {
                 Some(&(earlier, count)) if earlier == map_id => count + 1,
                 _ => 1,
             };
-            let precise = sigma_m2
-                .get(&track)
-                .is_some_and(|&v| v <= config.confirm_max_sigma_m.powi(2));
+            let precise = output
+                .landmarks
+                .iter()
+                .find(|l| l.id == track)
+                .is_some_and(|l| {
+                    l.covariance_body_m2.symmetric_eigenvalues().max()
+                        <= config.confirm_max_sigma_m.powi(2)
+                });
             if count >= config.confirm_frames && precise {
                 self.stats.recognised += 1;
                 self.map_ids.insert(track, map_id);

@@ -329,6 +329,9 @@ pub fn consistent_recognitions(
     config: &RecognitionConfig,
     covariance_scale: f64,
 ) -> (Vec<(LandmarkId, u32)>, usize) {
+    if found.is_empty() {
+        return (found, 0);
+    }
     let implied = |l: &BodyLandmark, map_id: u32| {
         index
             .position(map_id)
