@@ -165,7 +165,12 @@ pub fn run_dataset(
     };
     let mut corrected = Vec::new();
     let mut absolute_ms = Vec::new();
-    let mut sightings = SightingLog::default();
+    let ground_truth = run
+        .groundtruth
+        .clone()
+        .or_else(|| dataset_groundtruth(&dataset));
+    // Only kept when there is a ground truth to check recognitions with.
+    let mut sightings = ground_truth.as_ref().map(|_| SightingLog::default());
     let mut outcome = run_stream(&mut stream, estimator.as_mut(), run.options, |o| {
         if let Some(localiser) = localiser.as_mut() {
             let start = std::time::Instant::now();
@@ -180,7 +185,9 @@ pub fn run_dataset(
             }
         }
         if let Some(stage) = absolute.as_mut() {
-            sightings.note(o);
+            if let Some(log) = sightings.as_mut() {
+                log.note(o);
+            }
             let start = std::time::Instant::now();
             let pose = stage.push(o);
             absolute_ms.push(start.elapsed().as_secs_f64() * 1e3);
@@ -223,10 +230,6 @@ pub fn run_dataset(
         ));
     }
 
-    let ground_truth = run
-        .groundtruth
-        .clone()
-        .or_else(|| dataset_groundtruth(&dataset));
     let align = run.align.unwrap_or(match mode {
         SensorMode::Mono => Alignment::Sim3,
         _ => Alignment::Se3,
@@ -252,7 +255,8 @@ pub fn run_dataset(
     let recognition_check = absolute
         .as_ref()
         .zip(ground_truth.as_ref())
-        .and_then(|(stage, gt)| check_recognitions(&sightings, stage.aliases(), gt));
+        .zip(sightings.as_ref())
+        .and_then(|((stage, gt), log)| check_recognitions(log, stage.aliases(), gt));
     if let Some(check) = &recognition_check {
         tracing::info!(
             "recognitions against the ground truth: {} of {} over {WRONG_M} m ({} over 1 m), median {:.3} m",
