@@ -252,19 +252,7 @@ impl AbsoluteSettings {
             translation_sigma_per_sqrt_m: sigma,
             landmark_covariance_scale: scale,
             solve_mode,
-            recognition: self.recognition.then_some(RecognitionConfig {
-                max_hamming: self.recognition_max_hamming,
-                gate_chi2: gate,
-                max_landmark_sigma_m: self.recognition_max_sigma_m,
-                confirm_frames: self.recognition_confirm_frames,
-                consensus_gate_m: self.recognition_consensus_gate_m,
-                confirm_max_sigma_m: if self.recognition_confirm_max_sigma_m > 0.0 {
-                    self.recognition_confirm_max_sigma_m
-                } else {
-                    f64::INFINITY
-                },
-                ..RecognitionConfig::default()
-            }),
+            recognition: self.recognition.then(|| self.recognition_config()),
             robust: self.robust_map.then(RobustWeights::default),
             odometry_edges: self.odometry_edges,
             ..AbsoluteConfig::default()
@@ -274,15 +262,28 @@ impl AbsoluteSettings {
     /// The localiser's settings (`--load-map`): the recognition gates,
     /// increment noise and correction size of this table, checked as for
     /// the absolute stage.
+    /// The recognition gates of this table, for the absolute stage and the
+    /// localiser alike (checked by [`Self::to_config`]).
+    fn recognition_config(&self) -> RecognitionConfig {
+        RecognitionConfig {
+            max_hamming: self.recognition_max_hamming,
+            gate_chi2: self.recognition_gate_chi2,
+            max_landmark_sigma_m: self.recognition_max_sigma_m,
+            confirm_frames: self.recognition_confirm_frames,
+            consensus_gate_m: self.recognition_consensus_gate_m,
+            confirm_max_sigma_m: if self.recognition_confirm_max_sigma_m > 0.0 {
+                self.recognition_confirm_max_sigma_m
+            } else {
+                f64::INFINITY
+            },
+            ..RecognitionConfig::default()
+        }
+    }
+
     pub fn to_localise_config(&self) -> Result<LocaliseConfig, SettingError> {
         let stage = self.to_config()?;
         Ok(LocaliseConfig {
-            recognition: RecognitionConfig {
-                max_hamming: self.recognition_max_hamming,
-                gate_chi2: self.recognition_gate_chi2,
-                max_landmark_sigma_m: self.recognition_max_sigma_m,
-                ..RecognitionConfig::default()
-            },
+            recognition: self.recognition_config(),
             translation_sigma_per_sqrt_m: stage.translation_sigma_per_sqrt_m,
             max_correction_landmarks: stage.max_correction_landmarks,
             landmark_covariance_scale: stage.landmark_covariance_scale,
@@ -313,7 +314,28 @@ mod tests {
 
     #[test]
     fn each_bad_value_names_its_key() {
-        let cases: [(&str, AbsoluteSettings); 7] = [
+        let cases: [(&str, AbsoluteSettings); 10] = [
+            (
+                "absolute.recognition_confirm_frames",
+                AbsoluteSettings {
+                    recognition_confirm_frames: 0,
+                    ..Default::default()
+                },
+            ),
+            (
+                "absolute.recognition_consensus_gate_m",
+                AbsoluteSettings {
+                    recognition_consensus_gate_m: f64::NAN,
+                    ..Default::default()
+                },
+            ),
+            (
+                "absolute.recognition_confirm_max_sigma_m",
+                AbsoluteSettings {
+                    recognition_confirm_max_sigma_m: -0.1,
+                    ..Default::default()
+                },
+            ),
             (
                 "absolute.recognition_max_sigma_m",
                 AbsoluteSettings {
