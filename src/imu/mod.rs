@@ -16,7 +16,7 @@ pub mod residual;
 pub mod so3;
 pub mod strapdown;
 
-pub use agreement::{accel_agreement, AccelAgreement};
+pub use agreement::{accel_agreement, gyro_agreement, AccelAgreement, GyroAgreement};
 pub use interval::{
     interpolate_sample, ImuInterval, ImuStream, IntervalConfig, IntervalError, IntervalReport,
 };

@@ -17,8 +17,8 @@ use crate::dataset::{
     read_euroc_groundtruth, read_euroc_imu_csv, read_trajectory_any, DatasetError, EurocWriter,
     GroundTruthState,
 };
-use crate::imu::accel_agreement;
 use crate::imu::ImuBiases;
+use crate::imu::{accel_agreement, gyro_agreement};
 use crate::rig::{CameraCalibration, ImuNoise};
 use crate::sensors::{Image, ImuSample};
 use crate::trajectory::Trajectory;
@@ -168,6 +168,8 @@ pub struct SimReport {
     /// m/s^2/sqrt(Hz); written to `imu0/sensor.yaml` when above the
     /// datasheet's.
     pub imu_accel_noise_measured: Option<f64>,
+    /// The same for its gyroscope ([`gyro_agreement`]), rad/s/sqrt(Hz).
+    pub imu_gyro_noise_measured: Option<f64>,
 }
 
 /// Windows over which a real IMU log is compared with the motion: the
@@ -472,14 +474,22 @@ pub fn simulate(config: &SimConfig, out: &Path) -> Result<SimReport, SimError> {
     // datasheet noise says (V1_02: 0.02 against 0.002 m/s^2/sqrt(Hz),
     // see `imu::agreement`); the estimator reads the noise from this
     // file, so it must describe the log as it is.
-    let imu_accel_noise_measured = match config.imu {
-        ImuSource::Real(_) => accel_agreement(&groundtruth, &samples, REAL_IMU_AGREEMENT_WINDOW_S)
-            .map(|a| a.noise_density_m_s2_sqrt_hz),
-        ImuSource::Synthetic => None,
-    };
+    let real = matches!(config.imu, ImuSource::Real(_));
+    let window_s = REAL_IMU_AGREEMENT_WINDOW_S;
+    let imu_accel_noise_measured = real
+        .then(|| accel_agreement(&groundtruth, &samples, window_s))
+        .flatten()
+        .map(|a| a.noise_density_m_s2_sqrt_hz);
+    let imu_gyro_noise_measured = real
+        .then(|| gyro_agreement(&groundtruth, &samples, window_s))
+        .flatten()
+        .map(|a| a.noise_density_rad_s_sqrt_hz);
+    let noise = &mut imu_calib.noise;
     if let Some(density) = imu_accel_noise_measured {
-        let noise = &mut imu_calib.noise;
         noise.accelerometer_noise_density = noise.accelerometer_noise_density.max(density);
+    }
+    if let Some(density) = imu_gyro_noise_measured {
+        noise.gyroscope_noise_density = noise.gyroscope_noise_density.max(density);
     }
     writer.write_imu(&imu_calib, &samples)?;
     writer.write_groundtruth(&groundtruth)?;
@@ -503,6 +513,7 @@ pub fn simulate(config: &SimConfig, out: &Path) -> Result<SimReport, SimError> {
         render_write_fps: images as f64 / (render_s + write_s).max(1e-12),
         total_s: started.elapsed().as_secs_f64(),
         imu_accel_noise_measured,
+        imu_gyro_noise_measured,
     })
 }
 
@@ -633,14 +644,18 @@ mod tests {
         let ds = EurocDataset::open(dir.path()).unwrap();
         let noise = ds.imu.unwrap().calibration.noise;
         assert_eq!(noise.accelerometer_noise_density, measured);
-        assert_eq!(
-            noise.gyroscope_noise_density,
-            ImuNoise::EUROC_ADIS16448.gyroscope_noise_density
+        let gyro = report.imu_gyro_noise_measured.expect("2 whole windows");
+        // Above the datasheet's 0.00017 rad/s/sqrt(Hz) too.
+        assert!(
+            gyro > ImuNoise::EUROC_ADIS16448.gyroscope_noise_density,
+            "{gyro}"
         );
+        assert_eq!(noise.gyroscope_noise_density, gyro);
         // A synthetic IMU keeps the noise it was made with.
         let other = tempfile::tempdir().unwrap();
         let synthetic = simulate(&quick(1, 3.0, false), other.path()).unwrap();
         assert_eq!(synthetic.imu_accel_noise_measured, None);
+        assert_eq!(synthetic.imu_gyro_noise_measured, None);
     }
 
     #[test]

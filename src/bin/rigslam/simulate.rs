@@ -152,6 +152,14 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
             report.total_s,
             args.out.display()
         );
+        if let (Some(a), Some(g)) = (
+            report.imu_accel_noise_measured,
+            report.imu_gyro_noise_measured,
+        ) {
+            println!(
+                "simulate: the IMU log against the rendered motion: accelerometer {a:.4} m/s^2/sqrt(Hz), gyroscope {g:.6} rad/s/sqrt(Hz) (0.25 s windows); imu0/sensor.yaml says the larger of these and the datasheet's"
+            );
+        }
     }
     Ok(())
 }
