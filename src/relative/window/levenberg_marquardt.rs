@@ -14,6 +14,7 @@ use nalgebra::{DMatrix, Matrix2, SMatrix, SVector, Vector2, Vector3};
 use super::inertial::{
     bias_walk_factor, inertial_factor, tangent_basis, update_direction, GRAVITY_COL,
 };
+use super::marginalise::{marginalise_boundary, LinkEnd};
 use super::prior::{sqrt_information2, GravityPrior, OldestFreePrior};
 use super::reprojection::{reproject, reprojection_error, GATE_SQ};
 use super::schur::{self, Chunk, LandmarkBlock, ObservationRow};
@@ -103,9 +104,12 @@ impl Window {
         report
     }
 
-    /// Moves the eq. 34 prior to the oldest free keyframe when it
-    /// changed: centred on its estimate, with `prior_weight` times the
-    /// marginal information of the last solve (or the configured sigmas).
+    /// Moves the eq. 34 prior to the boundary (the newest fixed keyframe)
+    /// when it changed: marginalised from the previous boundary prior and
+    /// the departing link when both ends have a marginal
+    /// ([`super::marginalise`]); else centred on the estimate with
+    /// `prior_weight` times the last solve's marginal information (or the
+    /// configured sigmas).
     fn refresh_velocity_prior(&mut self, n_fixed: usize) {
         if !self.use_imu || n_fixed == 0 || n_fixed >= self.keyframes.len() {
             return;
@@ -115,9 +119,38 @@ impl Window {
             return;
         }
         let c = &self.config;
-        let prior = kf
-            .state_marginal
-            .and_then(|m| OldestFreePrior::from_covariance(kf.seq, &kf.state, &m, c.prior_weight))
+        let marginalised = n_fixed
+            .checked_sub(2)
+            .filter(|_| c.marginalise_boundary)
+            .map(|i| &self.keyframes[i])
+            .and_then(|old| {
+                let previous = self.velocity_prior.filter(|p| p.seq == old.seq)?;
+                marginalise_boundary(
+                    &previous,
+                    LinkEnd {
+                        state: &old.state,
+                        marginal: old.state_marginal.as_ref()?,
+                    },
+                    LinkEnd {
+                        state: &kf.state,
+                        marginal: kf.state_marginal.as_ref()?,
+                    },
+                    kf.seq,
+                    kf.imu.as_ref()?,
+                    kf.bias_walk_sqrt_info.as_ref()?,
+                    &self.gravity_dir,
+                    &tangent_basis(&self.gravity_dir),
+                    &self.gravity_prior,
+                    c.boundary_pose_covariance_scale,
+                )
+            });
+        let prior = marginalised
+            .or_else(|| {
+                kf.state_marginal.and_then(|m| {
+                    let m9 = m.fixed_view::<9, 9>(VEL, VEL).into_owned();
+                    OldestFreePrior::from_covariance(kf.seq, &kf.state, &m9, c.prior_weight)
+                })
+            })
             .unwrap_or_else(|| {
                 OldestFreePrior::isotropic(
                     kf.seq,
@@ -533,8 +566,8 @@ impl Window {
             let p = &self.problem;
             if self.use_imu {
                 for (slot, kf) in self.keyframes.iter_mut().skip(p.n_fixed).enumerate() {
-                    let o = slot * p.state_dim + VEL;
-                    kf.state_marginal = Some(cov.fixed_view::<9, 9>(o, o).into_owned());
+                    let o = slot * p.state_dim;
+                    kf.state_marginal = Some(cov.fixed_view::<15, 15>(o, o).into_owned());
                 }
             }
             if let Some(og) = p.gravity_offset {

@@ -84,6 +84,17 @@ impl OldestFreePrior {
         })
     }
 
+    /// Centred on `state` with the information matrix `info`.
+    pub fn from_information(seq: u64, state: &KeyframeState, info: &Matrix9) -> Option<Self> {
+        let sym = (info + info.transpose()) * 0.5;
+        let sqrt_info = sym.cholesky()?.l().transpose();
+        sqrt_info.iter().all(|v| v.is_finite()).then_some(Self {
+            seq,
+            mean: stacked(state),
+            sqrt_info,
+        })
+    }
+
     /// Whitened residual and its Jacobian with respect to `[dv, dbg, dba]`.
     pub fn factor(&self, state: &KeyframeState) -> (Vector9, Matrix9) {
         (

@@ -44,9 +44,10 @@ pub(crate) struct Keyframe {
     pub imu: Option<InertialLink>,
     /// `1 / sigma` of the bias random walk from the previous keyframe.
     pub bias_walk_sqrt_info: Option<Vector6<f64>>,
-    /// Marginal covariance of `[v, b_g, b_a]` after the last optimisation
-    /// (source of the eq. 34 prior once this keyframe is the oldest free).
-    pub state_marginal: Option<SMatrix<f64, 9, 9>>,
+    /// Marginal covariance of `[dphi, dp, dv, d b_g, d b_a]` after the
+    /// last optimisation in which this keyframe was free (source of the
+    /// eq. 34 prior once it is the boundary).
+    pub state_marginal: Option<SMatrix<f64, 15, 15>>,
 }
 
 pub(crate) fn nav_state(s: &KeyframeState) -> NavState {

@@ -1024,8 +1024,9 @@ fn mono_inertial_sliding(cfg: WindowConfig, verbose: bool) -> (f64, f64, f64) {
         if verbose {
             let dv = (latest.velocity_world_m_s - scene.truth(t).velocity_world_m_s).norm();
             println!(
-                "kf {k}: {dp:.4} m {dr:.3} deg {dv:.4} m/s g {g:.3} deg ba {:.4}",
-                (latest.biases.accel_m_s2 - scene.biases.accel_m_s2).norm()
+                "kf {k}: {dp:.4} m {dr:.3} deg {dv:.4} m/s g {g:.3} deg ba {:.4} bg {:.5}",
+                (latest.biases.accel_m_s2 - scene.biases.accel_m_s2).norm(),
+                (latest.biases.gyro_rad_s - scene.biases.gyro_rad_s).norm()
             );
         }
         worst = (worst.0.max(dp), worst.1.max(dr), worst.2.max(g));
@@ -1054,5 +1055,80 @@ fn mono_inertial_sliding_stays_on_the_truth() {
     assert!(
         dp < 0.035 && dr < 0.5 && dg < 0.3,
         "{dp} m {dr} deg, gravity {dg} deg"
+    );
+}
+
+/// Stereo-inertial sliding over `keyframes` with 1 px noise and the
+/// pipeline's IMU-predicted guesses; the RMS gyro and accel bias errors
+/// of the newest keyframe over the second half of the run.
+fn bias_error_sliding(cfg: WindowConfig, keyframes: usize) -> (f64, f64) {
+    let mut r = rng(61);
+    let duration_s = keyframe_time(keyframes) as f64 * 1e-9 + 1.0;
+    let scene = Scene::new(&mut r, 1500, duration_s);
+    let mut w = Window::new(cfg, &scene.rig).expect("valid");
+    let (mut sum_g, mut sum_a, mut n) = (0.0, 0.0, 0);
+    for k in 0..keyframes {
+        let t = keyframe_time(k);
+        let imu = (k > 0).then(|| scene.preintegrate(keyframe_time(k - 1), t));
+        let guess = match (&imu, w.latest()) {
+            (Some(pre), Some(prev)) => {
+                let nav = pre.predict(
+                    &state::nav_state(prev),
+                    &prev.biases,
+                    &w.gravity_world_m_s2(),
+                );
+                KeyframeState {
+                    t_ns: t,
+                    T_world_body: Isometry3::from_parts(
+                        nav.position_world_m.into(),
+                        nav.R_world_body,
+                    ),
+                    velocity_world_m_s: nav.velocity_world_m_s,
+                    biases: prev.biases,
+                }
+            }
+            // What an initialiser hands over: biases unknown.
+            _ => KeyframeState {
+                biases: ImuBiases::default(),
+                ..scene.truth(t)
+            },
+        };
+        let frame = scene.frame(t, true, 1.0, 0.0, &mut r);
+        w.push_keyframe(guess, &frame, imu).expect("valid");
+        w.optimize();
+        if k >= keyframes / 2 {
+            let b = w.latest().expect("keyframes").biases;
+            sum_g += (b.gyro_rad_s - scene.biases.gyro_rad_s).norm_squared();
+            sum_a += (b.accel_m_s2 - scene.biases.accel_m_s2).norm_squared();
+            n += 1;
+        }
+    }
+    ((sum_g / n as f64).sqrt(), (sum_a / n as f64).sqrt())
+}
+
+#[test]
+fn marginalised_boundary_prior_keeps_the_bias_information() {
+    // The prior carried by marginalisation counts each keyframe's
+    // measurements once and keeps them: the biases' estimate improves
+    // over the run. Re-using half the last solve's marginal keeps about
+    // two windows' worth and re-estimates them from that. (The accel
+    // bias is poorly observable in this 15 s run either way, 0.13-0.14
+    // m/s^2 off, traded against the gravity direction; not asserted.)
+    let base = WindowConfig {
+        gyro_bias_prior_sigma_rad_s: 0.01,
+        ..config(true)
+    };
+    let marginalised = bias_error_sliding(base.clone(), 60);
+    let reused = bias_error_sliding(
+        WindowConfig {
+            marginalise_boundary: false,
+            ..base
+        },
+        60,
+    );
+    println!("bias error, marginalised {marginalised:?}, re-used marginal {reused:?}");
+    assert!(
+        marginalised.0 < 0.5 * reused.0,
+        "gyro bias: marginalised {marginalised:?}, re-used {reused:?}"
     );
 }
