@@ -142,6 +142,7 @@ impl Window {
                     &tangent_basis(&self.gravity_dir),
                     &self.gravity_prior,
                     c.boundary_pose_covariance_scale,
+                    c.boundary_prior_memory_s,
                 )
             });
         let prior = marginalised

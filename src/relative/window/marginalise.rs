@@ -18,8 +18,8 @@
 //! and everything but the new `[v, b_g, b_a]` is eliminated (Schur
 //! complement). The result is the next boundary prior. Unlike re-using a
 //! share of the last solve's marginal, it counts each measurement once, so
-//! the biases' information accumulates over the run (bounded by the random
-//! walk) instead of being re-estimated from about two windows' data.
+//! the biases' information accumulates (over `boundary_prior_memory_s`)
+//! instead of being re-estimated from about two windows' data.
 
 use nalgebra::{DMatrix, DVector, Matrix2, Matrix3x2, SMatrix, Vector3, Vector6};
 
@@ -50,7 +50,8 @@ pub(crate) struct LinkEnd<'a> {
 /// The boundary prior on `new` after marginalising `old`, the link
 /// between them (`link`, `bias_walk_sqrt_info`, stored on `new`) and
 /// gravity, with the new pose's marginal covariance scaled by
-/// `pose_covariance_scale` (see [`super::WindowConfig`]). None if a block
+/// `pose_covariance_scale`, and the result's information by
+/// `exp(-dt / memory_s)` (see [`super::WindowConfig`]). None if a block
 /// is not positive definite.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn marginalise_boundary(
@@ -64,6 +65,7 @@ pub(crate) fn marginalise_boundary(
     gravity_basis: &Matrix3x2<f64>,
     gravity_prior: &GravityPrior,
     pose_covariance_scale: f64,
+    memory_s: f64,
 ) -> Option<OldestFreePrior> {
     let mut h = DMatrix::<f64>::zeros(DIM, DIM);
     let mut g = DVector::<f64>::zeros(DIM);
@@ -142,6 +144,7 @@ pub(crate) fn marginalise_boundary(
     let info = Matrix9::from_iterator((&info + info.transpose()).iter().map(|v| 0.5 * v));
     let chol = info.cholesky()?;
     let step = -chol.solve(&Vector9::from_iterator(grad.iter().copied()));
+    let info = info * (-link.pre.dt_s / memory_s).exp();
     let mut mean_state = *new.state;
     mean_state.velocity_world_m_s += step.fixed_rows::<3>(0);
     mean_state.biases.gyro_rad_s += step.fixed_rows::<3>(3);
@@ -222,6 +225,7 @@ mod tests {
             &tangent_basis(&down),
             &c.gravity,
             1.0,
+            f64::INFINITY,
         )
         .expect("positive definite")
     }

@@ -1114,21 +1114,30 @@ fn marginalised_boundary_prior_keeps_the_bias_information() {
     // two windows' worth and re-estimates them from that. (The accel
     // bias is poorly observable in this 15 s run either way, 0.13-0.14
     // m/s^2 off, traded against the gravity direction; not asserted.)
+    // Measured: gyro bias 0.54 mrad/s re-used, 0.29 with the default 10 s
+    // memory, 0.18 with no forgetting.
     let base = WindowConfig {
         gyro_bias_prior_sigma_rad_s: 0.01,
         ..config(true)
     };
-    let marginalised = bias_error_sliding(base.clone(), 60);
     let reused = bias_error_sliding(
         WindowConfig {
             marginalise_boundary: false,
+            ..base.clone()
+        },
+        60,
+    );
+    let default_memory = bias_error_sliding(base.clone(), 60);
+    let kept = bias_error_sliding(
+        WindowConfig {
+            boundary_prior_memory_s: f64::INFINITY,
             ..base
         },
         60,
     );
-    println!("bias error, marginalised {marginalised:?}, re-used marginal {reused:?}");
+    println!("bias error: re-used marginal {reused:?}, 10 s memory {default_memory:?}, all kept {kept:?}");
     assert!(
-        marginalised.0 < 0.5 * reused.0,
-        "gyro bias: marginalised {marginalised:?}, re-used {reused:?}"
+        default_memory.0 < 0.75 * reused.0 && kept.0 < 0.5 * reused.0,
+        "gyro bias: re-used {reused:?}, 10 s {default_memory:?}, kept {kept:?}"
     );
 }
