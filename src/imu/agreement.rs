@@ -144,6 +144,44 @@ fn whole_windows(t_ns: &[i64], window_s: f64) -> Option<Vec<(usize, usize)>> {
     Some(out)
 }
 
+/// The ground truth and `samples` (both time-ordered) compared over
+/// consecutive whole windows of `window_s`: `at_sample` turns each sample
+/// inside the ground truth's span into what the comparison needs,
+/// `window_error` turns a window's run of them into a 3-vector error.
+/// Returns the number of windows and the per-axis mean square error;
+/// `None` when no whole window fits.
+fn mean_square_error<T>(
+    gt: &[GroundTruthState],
+    samples: &[ImuSample],
+    window_s: f64,
+    at_sample: impl Fn(&ImuSample, GroundTruthAt) -> T,
+    window_error: impl Fn(&[(i64, T)]) -> Vector3<f64>,
+) -> Option<(usize, Vector3<f64>)> {
+    let mut hint = 0;
+    let inside: Vec<(i64, T)> = samples
+        .iter()
+        .filter_map(|s| Some((s.t_ns, at_sample(s, groundtruth_at(gt, s.t_ns, &mut hint)?))))
+        .collect();
+    let stamps: Vec<i64> = inside.iter().map(|s| s.0).collect();
+    let windows = whole_windows(&stamps, window_s)?;
+    if windows.is_empty() {
+        return None;
+    }
+    let sum_sq: Vector3<f64> = windows
+        .iter()
+        .map(|&(i, j)| {
+            let e = window_error(&inside[i..=j]);
+            e.component_mul(&e)
+        })
+        .sum();
+    Some((windows.len(), sum_sq / windows.len() as f64))
+}
+
+/// Seconds from `a` to `b`.
+fn seconds(a: i64, b: i64) -> f64 {
+    (b - a) as f64 * 1e-9
+}
+
 /// Compares `samples` (time-ordered) with `gt` (time-ordered, with
 /// velocities and accelerometer biases) over consecutive windows of
 /// `window_s` seconds. `None` when no whole window fits.
@@ -152,37 +190,28 @@ pub fn accel_agreement(
     samples: &[ImuSample],
     window_s: f64,
 ) -> Option<AccelAgreement> {
-    // World-frame bias-corrected specific force and velocity at each
-    // sample inside the ground truth's span.
-    let mut hint = 0;
-    let inside: Vec<(i64, Vector3<f64>, Vector3<f64>)> = samples
-        .iter()
-        .filter_map(|s| {
-            let at = groundtruth_at(gt, s.t_ns, &mut hint)?;
-            let f = at.attitude * (Vector3::from(s.accel_m_s2) - at.accel_bias_m_s2);
-            Some((s.t_ns, f, at.velocity_m_s))
-        })
-        .collect();
-    let stamps: Vec<i64> = inside.iter().map(|s| s.0).collect();
-    let windows = whole_windows(&stamps, window_s)?;
-    if windows.is_empty() {
-        return None;
-    }
     let g = gravity_world_m_s2();
-    let mut sum_sq = Vector3::zeros();
-    for &(i, j) in &windows {
-        let integral: Vector3<f64> = inside[i..=j]
-            .windows(2)
-            .map(|w| (w[0].1 + w[1].1) * (0.5 * (w[1].0 - w[0].0) as f64 * 1e-9))
-            .sum();
-        let t_s = (inside[j].0 - inside[i].0) as f64 * 1e-9;
-        let e = inside[j].2 - inside[i].2 - g * t_s - integral;
-        sum_sq += e.component_mul(&e);
-    }
-    let mean_sq = sum_sq / windows.len() as f64;
+    let (windows, mean_sq) = mean_square_error(
+        gt,
+        samples,
+        window_s,
+        // World-frame bias-corrected specific force, and the velocity.
+        |s, at| {
+            let f = at.attitude * (Vector3::from(s.accel_m_s2) - at.accel_bias_m_s2);
+            (f, at.velocity_m_s)
+        },
+        |run| {
+            let integral: Vector3<f64> = run
+                .windows(2)
+                .map(|w| (w[0].1 .0 + w[1].1 .0) * (0.5 * seconds(w[0].0, w[1].0)))
+                .sum();
+            let (first, last) = (&run[0], &run[run.len() - 1]);
+            last.1 .1 - first.1 .1 - g * seconds(first.0, last.0) - integral
+        },
+    )?;
     Some(AccelAgreement {
         window_s,
-        windows: windows.len(),
+        windows,
         rms_velocity_error_m_s: mean_sq.map(f64::sqrt),
         noise_density_m_s2_sqrt_hz: (mean_sq.sum() / 3.0).sqrt() / window_s.sqrt(),
     })
@@ -200,36 +229,28 @@ pub fn gyro_agreement(
     samples: &[ImuSample],
     window_s: f64,
 ) -> Option<GyroAgreement> {
-    let mut hint = 0;
-    let inside: Vec<(i64, Vector3<f64>, UnitQuaternion<f64>)> = samples
-        .iter()
-        .filter_map(|s| {
-            let at = groundtruth_at(gt, s.t_ns, &mut hint)?;
-            let rate = Vector3::from(s.gyro_rad_s) - at.gyro_bias_rad_s;
-            Some((s.t_ns, rate, at.attitude))
-        })
-        .collect();
-    let stamps: Vec<i64> = inside.iter().map(|s| s.0).collect();
-    let windows = whole_windows(&stamps, window_s)?;
-    if windows.is_empty() {
-        return None;
-    }
-    let mut sum_sq = Vector3::zeros();
-    for &(i, j) in &windows {
-        let integrated = inside[i..=j]
-            .windows(2)
-            .fold(UnitQuaternion::identity(), |q, w| {
-                let dt = (w[1].0 - w[0].0) as f64 * 1e-9;
-                q * UnitQuaternion::from_scaled_axis((w[0].1 + w[1].1) * (0.5 * dt))
+    let (windows, mean_sq) = mean_square_error(
+        gt,
+        samples,
+        window_s,
+        |s, at| {
+            (
+                Vector3::from(s.gyro_rad_s) - at.gyro_bias_rad_s,
+                at.attitude,
+            )
+        },
+        |run| {
+            let integrated = run.windows(2).fold(UnitQuaternion::identity(), |q, w| {
+                let dt = seconds(w[0].0, w[1].0);
+                q * UnitQuaternion::from_scaled_axis((w[0].1 .0 + w[1].1 .0) * (0.5 * dt))
             });
-        let truth = inside[i].2.inverse() * inside[j].2;
-        let e = (truth.inverse() * integrated).scaled_axis();
-        sum_sq += e.component_mul(&e);
-    }
-    let mean_sq = sum_sq / windows.len() as f64;
+            let truth = run[0].1 .1.inverse() * run[run.len() - 1].1 .1;
+            (truth.inverse() * integrated).scaled_axis()
+        },
+    )?;
     Some(GyroAgreement {
         window_s,
-        windows: windows.len(),
+        windows,
         rms_angle_error_rad: mean_sq.map(f64::sqrt),
         noise_density_rad_s_sqrt_hz: (mean_sq.sum() / 3.0).sqrt() / window_s.sqrt(),
     })

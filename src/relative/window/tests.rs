@@ -985,6 +985,27 @@ fn empty_frames_give_no_nan() {
     }
 }
 
+/// The next keyframe's guess as the pipeline makes it: the IMU's
+/// prediction from the window's newest estimate.
+fn imu_prediction(
+    w: &Window,
+    pre: &Preintegrated,
+    prev: &KeyframeState,
+    t_ns: i64,
+) -> KeyframeState {
+    let nav = pre.predict(
+        &state::nav_state(prev),
+        &prev.biases,
+        &w.gravity_world_m_s2(),
+    );
+    KeyframeState {
+        t_ns,
+        T_world_body: Isometry3::from_parts(nav.position_world_m.into(), nav.R_world_body),
+        velocity_world_m_s: nav.velocity_world_m_s,
+        biases: prev.biases,
+    }
+}
+
 fn mono_inertial_sliding(cfg: WindowConfig, verbose: bool) -> (f64, f64, f64) {
     let mut r = rng(59);
     let scene = Scene::new(&mut r, 1500, 12.0);
@@ -994,22 +1015,7 @@ fn mono_inertial_sliding(cfg: WindowConfig, verbose: bool) -> (f64, f64, f64) {
         let t = keyframe_time(k);
         let imu = (k > 0).then(|| scene.preintegrate(keyframe_time(k - 1), t));
         let guess = match (&imu, w.latest()) {
-            (Some(pre), Some(prev)) => {
-                let nav = pre.predict(
-                    &state::nav_state(prev),
-                    &prev.biases,
-                    &w.gravity_world_m_s2(),
-                );
-                KeyframeState {
-                    t_ns: t,
-                    T_world_body: Isometry3::from_parts(
-                        nav.position_world_m.into(),
-                        nav.R_world_body,
-                    ),
-                    velocity_world_m_s: nav.velocity_world_m_s,
-                    biases: prev.biases,
-                }
-            }
+            (Some(pre), Some(prev)) => imu_prediction(&w, pre, prev, t),
             _ => scene.truth(t),
         };
         let frame = scene.frame(t, false, 1.0, 0.0, &mut r);
@@ -1071,22 +1077,7 @@ fn bias_error_sliding(cfg: WindowConfig, keyframes: usize) -> (f64, f64) {
         let t = keyframe_time(k);
         let imu = (k > 0).then(|| scene.preintegrate(keyframe_time(k - 1), t));
         let guess = match (&imu, w.latest()) {
-            (Some(pre), Some(prev)) => {
-                let nav = pre.predict(
-                    &state::nav_state(prev),
-                    &prev.biases,
-                    &w.gravity_world_m_s2(),
-                );
-                KeyframeState {
-                    t_ns: t,
-                    T_world_body: Isometry3::from_parts(
-                        nav.position_world_m.into(),
-                        nav.R_world_body,
-                    ),
-                    velocity_world_m_s: nav.velocity_world_m_s,
-                    biases: prev.biases,
-                }
-            }
+            (Some(pre), Some(prev)) => imu_prediction(&w, pre, prev, t),
             // What an initialiser hands over: biases unknown.
             _ => KeyframeState {
                 biases: ImuBiases::default(),
