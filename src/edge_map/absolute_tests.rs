@@ -635,15 +635,7 @@ fn elongated_covariances_along_different_rays_give_usable_edges() {
             }
         })
         .collect();
-    let output = RelativeOutput {
-        t_ns: 0,
-        state: TrackingState::Tracking,
-        T_world_body: Isometry3::identity(),
-        velocity_world_m_s: Vector3::zeros(),
-        biases: Default::default(),
-        delta_translation_world_m: Vector3::zeros(),
-        landmarks,
-    };
+    let output = RelativeOutput::tracking_at_origin(0, landmarks);
     for (policy, weighting, edges) in [
         (
             EdgePolicy::AllPairs,
@@ -753,19 +745,14 @@ impl RecognitionRoom {
     }
 
     fn frame(t_ns: i64, extra: Vec<BodyLandmark>) -> RelativeOutput {
-        RelativeOutput {
+        RelativeOutput::tracking_at_origin(
             t_ns,
-            state: TrackingState::Tracking,
-            T_world_body: Isometry3::identity(),
-            velocity_world_m_s: Vector3::zeros(),
-            biases: Default::default(),
-            delta_translation_world_m: Vector3::zeros(),
-            landmarks: (0..10)
+            (0..10)
                 .filter(|&k| k != 3 && k != 4)
                 .map(|k| Self::landmark(k, Self::at(k), k, 0.01))
                 .chain(extra)
                 .collect(),
-        }
+        )
     }
 
     fn mapped(config: RecognitionConfig) -> AbsoluteStage {

@@ -91,3 +91,20 @@ pub struct RelativeOutput {
     pub delta_translation_world_m: Vector3<f64>,
     pub landmarks: Vec<BodyLandmark>,
 }
+
+#[cfg(test)]
+impl RelativeOutput {
+    /// Test fixture: tracking at the world origin, at rest, seeing
+    /// `landmarks`.
+    pub(crate) fn tracking_at_origin(t_ns: i64, landmarks: Vec<BodyLandmark>) -> Self {
+        Self {
+            t_ns,
+            state: TrackingState::Tracking,
+            T_world_body: Isometry3::identity(),
+            velocity_world_m_s: Vector3::zeros(),
+            biases: ImuBiases::default(),
+            delta_translation_world_m: Vector3::zeros(),
+            landmarks,
+        }
+    }
+}

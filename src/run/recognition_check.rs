@@ -125,9 +125,9 @@ fn body_pose_at(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::relative::types::{BodyLandmark, TrackingState};
+    use crate::relative::types::BodyLandmark;
     use crate::trajectory::StampedPose;
-    use nalgebra::{Isometry3, Matrix3, UnitQuaternion};
+    use nalgebra::{Matrix3, UnitQuaternion};
 
     /// The robot drives along x at 1 m/s, turned 90 deg about z; ground
     /// truth every 10 ms.
@@ -149,20 +149,15 @@ mod tests {
     /// Where the relative stage would see world point `p` at `t_ns`.
     fn seen(id: LandmarkId, p: Vector3<f64>, t_ns: i64, sigma_m: f64) -> RelativeOutput {
         let (position, rotation) = body_pose_at(&truth(), t_ns).expect("inside");
-        RelativeOutput {
+        RelativeOutput::tracking_at_origin(
             t_ns,
-            state: TrackingState::Tracking,
-            T_world_body: Isometry3::identity(),
-            velocity_world_m_s: Vector3::zeros(),
-            biases: Default::default(),
-            delta_translation_world_m: Vector3::zeros(),
-            landmarks: vec![BodyLandmark {
+            vec![BodyLandmark {
                 id,
                 position_body_m: rotation.transpose() * (p - position),
                 covariance_body_m2: Matrix3::identity() * sigma_m * sigma_m,
                 descriptor: None,
             }],
-        }
+        )
     }
 
     #[test]
