@@ -125,12 +125,13 @@ impl Window {
             .map(|i| &self.keyframes[i])
             .and_then(|old| {
                 let previous = self.velocity_prior.filter(|p| p.seq == old.seq)?;
+                // The chain starts once the previous boundary was itself
+                // optimised as a free keyframe (after a handover it was
+                // not: its prior is then the configured sigmas).
+                old.state_marginal?;
                 marginalise_boundary(
                     &previous,
-                    LinkEnd {
-                        state: &old.state,
-                        marginal: old.state_marginal.as_ref()?,
-                    },
+                    &old.state,
                     LinkEnd {
                         state: &kf.state,
                         marginal: kf.state_marginal.as_ref()?,

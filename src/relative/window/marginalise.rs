@@ -38,12 +38,11 @@ const KEPT_DIM: usize = 9;
 /// The old keyframe's pose: the first columns, conditioned on.
 const OLD_POSE_DIM: usize = 6;
 
-/// One side of the departing link.
+/// The new end of the departing link.
 pub(crate) struct LinkEnd<'a> {
     pub state: &'a KeyframeState,
     /// Marginal covariance of `[dphi dp dv dbg dba]` from the last solve
-    /// in which this keyframe was free; only the new end's pose block is
-    /// used.
+    /// in which this keyframe was free; its pose block is used.
     pub marginal: &'a Matrix15,
 }
 
@@ -56,7 +55,7 @@ pub(crate) struct LinkEnd<'a> {
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn marginalise_boundary(
     previous: &OldestFreePrior,
-    old: LinkEnd<'_>,
+    old: &KeyframeState,
     new: LinkEnd<'_>,
     new_seq: u64,
     link: &InertialLink,
@@ -81,7 +80,7 @@ pub(crate) fn marginalise_boundary(
     };
     let range = |start: usize, len: usize| (start..start + len).collect::<Vec<_>>();
 
-    let (r, j) = inertial_factor(link, old.state, new.state, gravity_dir, gravity_basis);
+    let (r, j) = inertial_factor(link, old, new.state, gravity_dir, gravity_basis);
     debug_assert_eq!(GRAVITY_COL, 2 * FULL_DIM);
     add(
         r.as_slice(),
@@ -89,7 +88,7 @@ pub(crate) fn marginalise_boundary(
         &range(0, DIM),
     );
 
-    let (r, j) = bias_walk_factor(bias_walk_sqrt_info, old.state, new.state);
+    let (r, j) = bias_walk_factor(bias_walk_sqrt_info, old, new.state);
     let mut cols = range(BG, 6);
     cols.extend(range(FULL_DIM + BG, 6));
     add(
@@ -98,7 +97,7 @@ pub(crate) fn marginalise_boundary(
         &cols,
     );
 
-    let (r, j) = previous.factor(old.state);
+    let (r, j) = previous.factor(old);
     add(
         r.as_slice(),
         &DMatrix::from_column_slice(9, 9, j.as_slice()),
@@ -210,10 +209,7 @@ mod tests {
         let down = Vector3::new(0.0, 0.0, -1.0);
         marginalise_boundary(
             &c.previous,
-            LinkEnd {
-                state: &c.old,
-                marginal: &c.marginal,
-            },
+            &c.old,
             LinkEnd {
                 state: &c.new,
                 marginal: &c.marginal,
