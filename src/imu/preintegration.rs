@@ -96,6 +96,12 @@ pub struct Preintegrated {
     pub delta_p_m: Vector3<f64>,
     /// Covariance of `[dphi, dv, dp]` from the white measurement noise.
     pub covariance: Matrix9,
+    /// The gyroscope's share of `covariance` (the rest is the
+    /// accelerometer's): the propagation is linear in the two noise
+    /// variances, so scaling the densities by `s_g` and `s_a` gives
+    /// `s_g^2 covariance_gyro + s_a^2 (covariance - covariance_gyro)`
+    /// without integrating again ([`Self::scaled_covariance`]).
+    pub covariance_gyro: Matrix9,
     pub d_R_d_bg: Matrix3<f64>,
     pub d_v_d_bg: Matrix3<f64>,
     pub d_v_d_ba: Matrix3<f64>,
@@ -119,6 +125,14 @@ pub struct CorrectedDeltas {
 }
 
 impl Preintegrated {
+    /// The covariance had the gyroscope's and the accelerometer's noise
+    /// densities been `gyro_scale` and `accel_scale` times those
+    /// integrated with.
+    pub fn scaled_covariance(&self, gyro_scale: f64, accel_scale: f64) -> Matrix9 {
+        let accel = self.covariance - self.covariance_gyro;
+        self.covariance_gyro * gyro_scale.powi(2) + accel * accel_scale.powi(2)
+    }
+
     /// The deltas for `biases` instead of the integration biases, by the
     /// bias Jacobians (Forster eq. 44), without integrating again.
     pub fn corrected(&self, biases: &ImuBiases) -> CorrectedDeltas {
@@ -273,6 +287,7 @@ impl Preintegrator {
         let (mut dv_dbg, mut dv_dba) = (Matrix3::zeros(), Matrix3::zeros());
         let (mut dp_dbg, mut dp_dba) = (Matrix3::zeros(), Matrix3::zeros());
         let mut cov: Blocks = [[Matrix3::zeros(); 3]; 3];
+        let mut cov_gyro: Blocks = [[Matrix3::zeros(); 3]; 3];
         for step in &self.steps {
             let h = step.h_s;
             // Weighted sums over the rule's nodes: rotated specific force,
@@ -309,15 +324,18 @@ impl Preintegrator {
                 inc_v_bg = f_bg * w1;
                 inc_p_bg = f_bg * w2;
             }
-            propagate_covariance(
-                &mut cov,
-                &step.exp_theta.transpose(),
-                &(hat(&inc_v) * step.rot_lo),
-                &(hat(&inc_p) * step.rot_lo),
-                h,
+            let transition = (
+                step.exp_theta.transpose(),
+                hat(&inc_v) * step.rot_lo,
+                hat(&inc_p) * step.rot_lo,
             );
+            for c in [&mut cov, &mut cov_gyro] {
+                propagate_covariance(c, &transition.0, &transition.1, &transition.2, h);
+            }
             let jr = &step.jr_theta;
-            cov[0][0] += jr * jr.transpose() * (var_g * h);
+            let gyro_noise = jr * jr.transpose() * (var_g * h);
+            cov[0][0] += gyro_noise;
+            cov_gyro[0][0] += gyro_noise;
             let qa = var_a / h;
             cov[1][1] += rot_v * rot_v.transpose() * qa;
             cov[1][2] += rot_v * rot_p.transpose() * qa;
@@ -330,17 +348,7 @@ impl Preintegrator {
             dp += dv * h + inc_p;
             dv += inc_v;
         }
-        let mut covariance = Matrix9::zeros();
-        for (r, row) in cov.iter().enumerate() {
-            for (c, block) in row.iter().enumerate().skip(r) {
-                covariance
-                    .fixed_view_mut::<3, 3>(3 * r, 3 * c)
-                    .copy_from(block);
-                covariance
-                    .fixed_view_mut::<3, 3>(3 * c, 3 * r)
-                    .copy_from(&block.transpose());
-            }
-        }
+        let (covariance, covariance_gyro) = (symmetric(&cov), symmetric(&cov_gyro));
         Ok(Preintegrated {
             t_start_ns,
             t_end_ns,
@@ -351,6 +359,7 @@ impl Preintegrator {
             delta_v_m_s: dv,
             delta_p_m: dp,
             covariance,
+            covariance_gyro,
             d_R_d_bg: jac_end,
             d_v_d_bg: dv_dbg,
             d_v_d_ba: dv_dba,
@@ -457,6 +466,19 @@ fn rate_integral(rule: &StepRule, samples: &[ImuSample], bg: &Vector3<f64>) -> V
         theta += (Vector3::from(samples[rule.nodes[m]].gyro_rad_s) - bg) * rule.single[m];
     }
     theta
+}
+
+/// The symmetric 9x9 matrix of its upper blocks.
+fn symmetric(blocks: &Blocks) -> Matrix9 {
+    let mut m = Matrix9::zeros();
+    for (r, row) in blocks.iter().enumerate() {
+        for (c, block) in row.iter().enumerate().skip(r) {
+            m.fixed_view_mut::<3, 3>(3 * r, 3 * c).copy_from(block);
+            m.fixed_view_mut::<3, 3>(3 * c, 3 * r)
+                .copy_from(&block.transpose());
+        }
+    }
+    m
 }
 
 /// `P <- A P A^T` for the step's transition
@@ -818,6 +840,49 @@ mod tests {
                     "{scheme:?} entry {i}: ratio {ratio}"
                 );
             }
+        }
+    }
+
+    /// Integrating with noise densities scaled by (3, 7) gives the
+    /// covariance that `scaled_covariance(3, 7)` forms from the split.
+    #[test]
+    fn scaled_covariance_equals_integrating_with_scaled_noise() {
+        let clean = samples(5);
+        let b = ImuBiases::default();
+        for scheme in IntegrationScheme::ALL {
+            let pre = Preintegrator::new(scheme, NOISE)
+                .integrate(&clean, 0, 100_000_000, &b)
+                .expect("covered");
+            let scaled_noise = ImuNoise {
+                gyroscope_noise_density: NOISE.gyroscope_noise_density * 3.0,
+                accelerometer_noise_density: NOISE.accelerometer_noise_density * 7.0,
+                ..NOISE
+            };
+            let direct = Preintegrator::new(scheme, scaled_noise)
+                .integrate(&clean, 0, 100_000_000, &b)
+                .expect("covered");
+            let formed = pre.scaled_covariance(3.0, 7.0);
+            let err = (formed - direct.covariance).abs().max();
+            assert!(
+                err <= 1e-9 * direct.covariance.abs().max(),
+                "{scheme:?}: {err:e}"
+            );
+            // The gyro share alone is what a noiseless accelerometer gives.
+            let gyro_only = Preintegrator::new(
+                scheme,
+                ImuNoise {
+                    accelerometer_noise_density: 0.0,
+                    ..NOISE
+                },
+            )
+            .integrate(&clean, 0, 100_000_000, &b)
+            .expect("covered");
+            let err = (pre.covariance_gyro - gyro_only.covariance).abs().max();
+            assert!(
+                err <= 1e-9 * pre.covariance.abs().max(),
+                "{scheme:?}: {err:e}"
+            );
+            assert!(pre.covariance_gyro[(3, 3)] < pre.covariance[(3, 3)]);
         }
     }
 

@@ -5,6 +5,7 @@
 use std::path::Path;
 
 use crate::edge_map::settings::AbsoluteSettings;
+use crate::relative::window::{NoiseAdaptationConfig, NoiseScale};
 
 /// Which estimator runs the relative stage.
 #[derive(
@@ -52,6 +53,19 @@ pub struct RelativeConfig {
     /// After a loss, how long the IMU alone may carry the state before a
     /// full re-initialisation is needed, s.
     pub imu_only_max_s: f64,
+    /// Estimate online how much noisier (or quieter) the IMU is than its
+    /// calibration declares, from the window's inertial residuals, and
+    /// weigh it by that (`relative/window/noise_adaptation.rs`).
+    pub imu_noise_adaptation: bool,
+    /// Multipliers on the declared gyroscope and accelerometer noise
+    /// densities to start from (and keep, with the adaptation off).
+    pub imu_noise_scale_gyro: f64,
+    pub imu_noise_scale_accel: f64,
+    /// Horizon of the adaptation, s.
+    pub imu_noise_adaptation_memory_s: f64,
+    /// Bounds of either multiplier.
+    pub imu_noise_scale_min: f64,
+    pub imu_noise_scale_max: f64,
     /// The absolute stage's settings (`[absolute]`; used with `--absolute`).
     pub absolute: AbsoluteSettings,
 }
@@ -68,6 +82,12 @@ impl Default for RelativeConfig {
             init_max_scale_rel_std: 0.03,
             lost_after_frames: 3,
             imu_only_max_s: 1.0,
+            imu_noise_adaptation: true,
+            imu_noise_scale_gyro: 1.0,
+            imu_noise_scale_accel: 1.0,
+            imu_noise_adaptation_memory_s: 20.0,
+            imu_noise_scale_min: 0.1,
+            imu_noise_scale_max: 100.0,
             absolute: AbsoluteSettings::default(),
         }
     }
@@ -80,6 +100,8 @@ pub enum ConfigError {
     Read { path: String, message: String },
     #[error("{path}: {message}")]
     Parse { path: String, message: String },
+    #[error("{0}")]
+    Invalid(String),
     #[error("{key} = {value} is out of range: {allowed}")]
     OutOfRange {
         key: &'static str,
@@ -186,8 +208,27 @@ impl RelativeConfig {
             self.imu_only_max_s.to_string(),
             "a number >= 0",
         )?;
+        if let Err(message) = self.noise_adaptation().validate() {
+            return Err(ConfigError::Invalid(message));
+        }
         self.absolute.to_config()?;
         Ok(())
+    }
+
+    /// The window's IMU noise adaptation from these settings.
+    pub fn noise_adaptation(&self) -> NoiseAdaptationConfig {
+        NoiseAdaptationConfig {
+            enabled: self.imu_noise_adaptation,
+            initial: NoiseScale {
+                gyro: self.imu_noise_scale_gyro,
+                accel: self.imu_noise_scale_accel,
+                pixel: 1.0,
+            },
+            memory_s: self.imu_noise_adaptation_memory_s,
+            min_scale: self.imu_noise_scale_min,
+            max_scale: self.imu_noise_scale_max,
+            ..NoiseAdaptationConfig::default()
+        }
     }
 }
 
@@ -222,5 +263,17 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("absolute.policy"), "{err}");
+        for (text, key) in [
+            ("imu_noise_scale_gyro = 0.0\n", "noise_scale_gyro"),
+            ("imu_noise_scale_accel = -2.0\n", "noise_scale_accel"),
+            ("imu_noise_scale_accel = 1000.0\n", "noise_scale_accel"),
+            ("imu_noise_adaptation_memory_s = nan\n", "memory_s"),
+        ] {
+            std::fs::write(&path, text).expect("write");
+            let err = RelativeConfig::from_toml_file(&path)
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(key), "{text}: {err}");
+        }
     }
 }

@@ -169,6 +169,12 @@ pub trait RelativeEstimator {
 
     /// Counters for the run report (dropped samples, lost events, ...).
     fn counters(&self) -> Vec<(&'static str, u64)>;
+
+    /// The multipliers on the declared IMU noise the estimator weighs the
+    /// IMU with now (None: no IMU, or weighted as declared, unadapted).
+    fn imu_noise_scale(&self) -> Option<crate::relative::window::NoiseScale> {
+        None
+    }
 }
 
 #[cfg(test)]

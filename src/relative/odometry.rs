@@ -46,7 +46,7 @@ use super::tracker::{Tracker, TrackerConfig};
 use super::types::{
     BodyLandmark, KeyframeState, LandmarkId, RelativeOutput, TrackedFrame, TrackingState,
 };
-use super::window::{Window, WindowConfig};
+use super::window::{NoiseScale, Window, WindowConfig};
 
 /// Where the stage is.
 #[derive(Debug, Clone, PartialEq)]
@@ -195,6 +195,7 @@ impl WindowOdometry {
             keyframes_free: config.window_free,
             pixel_sigma: config.pixel_sigma_px,
             use_imu: false,
+            noise_adaptation: config.noise_adaptation(),
             ..WindowConfig::default()
         };
         let window = Window::new(window_config.clone(), &used)
@@ -229,9 +230,12 @@ impl WindowOdometry {
         self.rig.cameras[0].T_body_cam
     }
 
+    /// An empty window that keeps what the IMU's noise was found to be.
     fn new_window(&mut self) {
+        let noise = self.window.noise_adaptation().clone();
         self.window = Window::new(self.window_config.clone(), &self.rig)
             .expect("the same config and rig were accepted at start");
+        self.window.keep_noise_adaptation(noise);
     }
 
     /// Gyro-predicted rotation of the current left camera in the previous
@@ -934,6 +938,12 @@ impl RelativeEstimator for WindowOdometry {
 
     fn last_timings(&self) -> &FrameTimings {
         &self.timings
+    }
+
+    fn imu_noise_scale(&self) -> Option<NoiseScale> {
+        self.imu
+            .is_some()
+            .then(|| self.window.noise_adaptation().scale())
     }
 
     fn counters(&self) -> Vec<(&'static str, u64)> {

@@ -304,6 +304,7 @@ pub fn run_dataset(
         poses_written: outcome.trajectory.len(),
         stream: stream_counts,
         counters,
+        imu_noise_scale: estimator.imu_noise_scale(),
         peak_rss_mib: rss_peak,
         rss_at_10pct_mib: outcome.rss_at_10pct_mib,
         rss_at_end_mib: rss_now,

@@ -71,6 +71,10 @@ pub struct RunReport {
     pub stream: StreamCounts,
     /// The estimator's own counters (drops, resets, keyframes, ...).
     pub counters: BTreeMap<String, u64>,
+    /// At the end: the multipliers on the declared gyroscope and
+    /// accelerometer noise densities the estimator weighed the IMU with
+    /// (estimated online unless `imu_noise_adaptation = false`).
+    pub imu_noise_scale: Option<crate::relative::window::NoiseScale>,
     /// Peak resident memory of the process, MiB (Linux VmHWM).
     pub peak_rss_mib: Option<f64>,
     /// Resident memory at 10 % and at the end of the run, MiB: flat memory

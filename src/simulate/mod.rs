@@ -8,6 +8,7 @@
 
 pub mod euroc_rig;
 pub mod imu_synth;
+pub mod interpolated;
 pub mod motion;
 pub mod render;
 pub mod scene;

@@ -11,6 +11,7 @@
 
 use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 
+use super::interpolated::InterpolatedMotion;
 use crate::trajectory::Trajectory;
 
 /// The body's kinematic state at one instant.
@@ -29,6 +30,8 @@ pub struct MotionState {
 pub enum Motion {
     Builtin(BuiltinMotion),
     Spline(SplineMotion),
+    /// Recorded poses interpolated, no fit ([`super::interpolated`]).
+    Interpolated(InterpolatedMotion),
 }
 
 impl Motion {
@@ -36,12 +39,14 @@ impl Motion {
         match self {
             Motion::Builtin(m) => m.start_ns,
             Motion::Spline(m) => m.start_ns(),
+            Motion::Interpolated(m) => m.start_ns(),
         }
     }
     pub fn end_ns(&self) -> i64 {
         match self {
             Motion::Builtin(m) => m.start_ns + (m.duration_s * 1e9).round() as i64,
             Motion::Spline(m) => m.end_ns(),
+            Motion::Interpolated(m) => m.end_ns(),
         }
     }
     /// State at `t_ns` (clamped to the defined span).
@@ -50,6 +55,7 @@ impl Motion {
         match self {
             Motion::Builtin(m) => m.state(t_ns),
             Motion::Spline(m) => m.state(t_ns),
+            Motion::Interpolated(m) => m.state(t_ns),
         }
     }
 }

@@ -9,6 +9,7 @@ use nalgebra::Vector3;
 
 use super::euroc_rig::{euroc_cam0, euroc_cam1, euroc_imu0};
 use super::imu_synth::{synthesize, ImuSynthConfig};
+use super::interpolated::InterpolatedMotion;
 use super::motion::{BuiltinMotion, Motion, MotionError, SplineMotion};
 use super::render::{RenderOptions, Renderer};
 use super::scene::{Aabb, Scene, SceneConfig};
@@ -105,6 +106,14 @@ pub struct SimConfig {
     /// How a trajectory file becomes a spline; `None` chooses by the IMU
     /// source ([`SplineConfig::for_imu`]).
     pub spline: Option<SplineConfig>,
+    /// Follow a recorded trajectory without a spline: the poses
+    /// interpolated at each stamp ([`super::interpolated`]); real IMU only.
+    pub interpolate_poses: bool,
+    /// With a real IMU log, write into `imu0/sensor.yaml` the noise the
+    /// log shows against the rendered motion when it is above the
+    /// datasheet's (true), or the datasheet's alone, as a user on a robot
+    /// would have it (false).
+    pub declare_measured_noise: bool,
     /// Progress bar on stderr (shown only when it is a terminal).
     pub show_progress: bool,
 }
@@ -132,6 +141,8 @@ impl Default for SimConfig {
             box_count: 12,
             texel_m: 0.005,
             spline: None,
+            interpolate_poses: false,
+            declare_measured_noise: true,
             show_progress: true,
         }
     }
@@ -227,6 +238,17 @@ fn check_config(config: &SimConfig) -> Result<(), SimError> {
             config.box_count
         )));
     }
+    if config.interpolate_poses && !matches!(config.imu, ImuSource::Real(_)) {
+        return Err(SimError::Config(
+            "interpolated poses have no usable acceleration: they need a real IMU log (--imu real:FILE)".into(),
+        ));
+    }
+    if config.interpolate_poses && config.spline.is_some() {
+        return Err(SimError::Config(
+            "interpolated poses and a spline are two ways to follow the trajectory: choose one"
+                .into(),
+        ));
+    }
     if matches!(config.imu, ImuSource::Real(_)) && config.trajectory.is_none() {
         return Err(SimError::Config(
             "a real IMU log needs its own ground-truth trajectory (--trajectory)".into(),
@@ -244,6 +266,12 @@ fn build_motion(config: &SimConfig) -> Result<(Motion, i64, i64), SimError> {
         )),
         Some(path) => {
             let trajectory = read_trajectory_any(path)?;
+            if config.interpolate_poses {
+                let motion = InterpolatedMotion::new(&trajectory).map_err(|e| {
+                    SimError::Config(format!("{}: cannot interpolate: {e}", path.display()))
+                })?;
+                return finish_motion(config, Motion::Interpolated(motion));
+            }
             let spline = config
                 .spline
                 .unwrap_or_else(|| SplineConfig::for_imu(&config.imu));
@@ -253,6 +281,11 @@ fn build_motion(config: &SimConfig) -> Result<(Motion, i64, i64), SimError> {
             })?)
         }
     };
+    finish_motion(config, motion)
+}
+
+/// The motion with its span clipped to the requested duration.
+fn finish_motion(config: &SimConfig, motion: Motion) -> Result<(Motion, i64, i64), SimError> {
     let start_ns = motion.start_ns();
     let end_ns = match config.duration_s {
         Some(d) => (start_ns + (d * 1e9).round() as i64).min(motion.end_ns()),
@@ -485,10 +518,11 @@ pub fn simulate(config: &SimConfig, out: &Path) -> Result<SimReport, SimError> {
         .flatten()
         .map(|a| a.noise_density_rad_s_sqrt_hz);
     let noise = &mut imu_calib.noise;
-    if let Some(density) = imu_accel_noise_measured {
+    let declared = config.declare_measured_noise;
+    if let Some(density) = imu_accel_noise_measured.filter(|_| declared) {
         noise.accelerometer_noise_density = noise.accelerometer_noise_density.max(density);
     }
-    if let Some(density) = imu_gyro_noise_measured {
+    if let Some(density) = imu_gyro_noise_measured.filter(|_| declared) {
         noise.gyroscope_noise_density = noise.gyroscope_noise_density.max(density);
     }
     writer.write_imu(&imu_calib, &samples)?;

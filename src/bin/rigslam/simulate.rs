@@ -27,6 +27,8 @@ pub struct SimulateArgs {
     /// on the ground truth, which smooths it). Default: `through` with
     /// `--imu real:`, so the images move as the real IMU measured, and
     /// `smooth` with the synthetic IMU, which differentiates the spline.
+    /// `none`: no spline, the recorded poses interpolated at each stamp
+    /// (position linearly, orientation by slerp); real IMU only.
     #[arg(long, value_enum)]
     spline: Option<SplineFit>,
     /// Knot spacing of that spline, s. Default: 0.01 for `through`, 0.05
@@ -36,6 +38,18 @@ pub struct SimulateArgs {
     /// Render cam1 too (EuRoC's right camera).
     #[arg(long)]
     stereo: bool,
+    /// Boxes in the room (furniture-sized, textured) [12].
+    #[arg(long, default_value_t = 12)]
+    boxes: usize,
+    /// Texture cell size of the room's surfaces, mm [5].
+    #[arg(long, default_value_t = 5.0)]
+    texel_mm: f32,
+    /// What a real IMU log's imu0/sensor.yaml declares: `measured` (the
+    /// log's noise against the rendered motion where it is above the
+    /// datasheet's: what the ground truth reveals) or `datasheet` (the
+    /// ADIS16448's own values: what a user on a robot has).
+    #[arg(long, value_enum, default_value_t = DeclaredNoise::Measured)]
+    declared_noise: DeclaredNoise,
     /// Seed of the scene, textures, image noise and IMU noise.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -60,6 +74,13 @@ pub struct SimulateArgs {
 enum SplineFit {
     Through,
     Smooth,
+    None,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum DeclaredNoise {
+    Measured,
+    Datasheet,
 }
 
 /// The spline the options ask for; `None` (the library's choice by IMU
@@ -69,13 +90,13 @@ fn spline_config(
     knot_spacing_s: Option<f64>,
     imu: &ImuSource,
 ) -> Option<SplineConfig> {
-    if fit.is_none() && knot_spacing_s.is_none() {
+    if fit.is_none() && knot_spacing_s.is_none() || fit == Some(SplineFit::None) {
         return None;
     }
     let base = match fit {
         Some(SplineFit::Through) => SplineConfig::REAL_IMU,
         Some(SplineFit::Smooth) => SplineConfig::SYNTHETIC_IMU,
-        None => SplineConfig::for_imu(imu),
+        Some(SplineFit::None) | None => SplineConfig::for_imu(imu),
     };
     Some(SplineConfig {
         knot_spacing_s: knot_spacing_s.unwrap_or(base.knot_spacing_s),
@@ -113,6 +134,10 @@ fn parse_imu(s: &str) -> Result<ImuSource, String> {
 pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
     let config = SimConfig {
         spline: spline_config(args.spline, args.knot_spacing_s, &args.imu),
+        interpolate_poses: args.spline == Some(SplineFit::None),
+        declare_measured_noise: args.declared_noise == DeclaredNoise::Measured,
+        box_count: args.boxes,
+        texel_m: args.texel_mm * 1e-3,
         trajectory: args.trajectory,
         duration_s: args.duration_s,
         imu: args.imu,
@@ -126,6 +151,9 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
         show_progress: !args.no_progress && !args.json,
         ..SimConfig::default()
     };
+    if args.spline == Some(SplineFit::None) && args.knot_spacing_s.is_some() {
+        anyhow::bail!("--knot-spacing-s needs a spline; --spline none interpolates the poses");
+    }
     let report = simulate(&config, &args.out)
         .with_context(|| format!("simulating into {}", args.out.display()))?;
     if args.json {
@@ -157,7 +185,12 @@ pub fn run(args: SimulateArgs) -> anyhow::Result<()> {
             report.imu_gyro_noise_measured,
         ) {
             println!(
-                "simulate: the IMU log against the rendered motion: accelerometer {a:.4} m/s^2/sqrt(Hz), gyroscope {g:.6} rad/s/sqrt(Hz) (0.25 s windows); imu0/sensor.yaml says the larger of these and the datasheet's"
+                "simulate: the IMU log against the rendered motion: accelerometer {a:.4} m/s^2/sqrt(Hz), gyroscope {g:.6} rad/s/sqrt(Hz) (0.25 s windows); imu0/sensor.yaml says {}",
+                if args.declared_noise == DeclaredNoise::Measured {
+                    "the larger of these and the datasheet's"
+                } else {
+                    "the datasheet's (--declared-noise datasheet)"
+                }
             );
         }
     }

@@ -76,10 +76,18 @@ pub fn parse_imu_yaml(text: &str, path: &Path) -> Result<ImuCalibration, Dataset
         T_body_imu: f.transform("T_BS")?,
         rate_hz: f.positive("rate_hz")?,
         noise: ImuNoise {
-            gyroscope_noise_density: f.positive("gyroscope_noise_density")?,
-            gyroscope_random_walk: f.positive("gyroscope_random_walk")?,
-            accelerometer_noise_density: f.positive("accelerometer_noise_density")?,
-            accelerometer_random_walk: f.positive("accelerometer_random_walk")?,
+            gyroscope_noise_density: f.plausible_noise("gyroscope_noise_density", 0.1, 0.005)?,
+            gyroscope_random_walk: f.plausible_noise("gyroscope_random_walk", 0.1, 0.0001)?,
+            accelerometer_noise_density: f.plausible_noise(
+                "accelerometer_noise_density",
+                2.0,
+                0.02,
+            )?,
+            accelerometer_random_walk: f.plausible_noise(
+                "accelerometer_random_walk",
+                1.0,
+                0.003,
+            )?,
         },
     })
 }
@@ -254,6 +262,27 @@ impl Fields<'_> {
             Err(self.bad(
                 field,
                 format!("expected a positive finite number, found {v}"),
+            ))
+        }
+    }
+
+    /// A noise figure: positive, and at most `max` (SI units per
+    /// sqrt(Hz)); above that it is a unit or convention mistake (deg
+    /// instead of rad, a per-sample sigma, a variance), and weighing the
+    /// IMU by it would throw the IMU away. `typical` is a consumer MEMS
+    /// part's value, for the message.
+    fn plausible_noise(&self, field: &str, max: f64, typical: f64) -> Result<f64, DatasetError> {
+        let v = self.positive(field)?;
+        if v <= max {
+            Ok(v)
+        } else {
+            Err(self.bad(
+                field,
+                format!(
+                    "{v} is not a plausible noise figure (at most {max}; a consumer MEMS IMU has about {typical}): \
+                     give it in SI units per sqrt(Hz), as a continuous-time density (Kalibr's convention), \
+                     not in degrees, per sample or as a variance"
+                ),
             ))
         }
     }
@@ -500,6 +529,50 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
                 < 1e-15
         );
         assert_eq!(back.T_body_imu.translation, calib.T_body_imu.translation);
+    }
+
+    /// Noise figures of zero, below zero, absurd (1e3: deg instead of
+    /// rad, a variance, ...) or missing are refused, naming the key.
+    #[test]
+    fn implausible_or_missing_imu_noise_is_refused_by_name() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let calib = ImuCalibration {
+            T_body_imu: Isometry3::identity(),
+            rate_hz: 200.0,
+            noise: ImuNoise::EUROC_ADIS16448,
+        };
+        let good = imu_yaml(&calib);
+        for key in [
+            "gyroscope_noise_density",
+            "gyroscope_random_walk",
+            "accelerometer_noise_density",
+            "accelerometer_random_walk",
+        ] {
+            let line = good
+                .lines()
+                .find(|l| l.starts_with(key))
+                .expect("the writer writes every key")
+                .to_string();
+            for (value, says) in [
+                ("0.0", "positive"),
+                ("-0.002", "positive"),
+                ("1000.0", "not a plausible noise figure"),
+            ] {
+                let text = good.replace(&line, &format!("{key}: {value}"));
+                let err = read_imu_yaml(&write(dir.path(), &text))
+                    .unwrap_err()
+                    .to_string();
+                assert!(
+                    err.contains(key) && err.contains(says),
+                    "{key}={value}: {err}"
+                );
+            }
+            let text = good.replace(&line, "");
+            let err = read_imu_yaml(&write(dir.path(), &text))
+                .unwrap_err()
+                .to_string();
+            assert!(err.contains(key), "{key} missing: {err}");
+        }
     }
 
     /// Each broken variant must fail with an error naming the field.

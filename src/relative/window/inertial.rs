@@ -13,6 +13,7 @@
 
 use nalgebra::{Matrix3x2, SMatrix, SVector, Vector2, Vector3, Vector6};
 
+use super::noise_adaptation::NoiseScale;
 use super::state::{nav_state, BA, BG, FULL_DIM, POS, ROT, VEL};
 use crate::imu::so3::{exp, hat};
 use crate::imu::{bias_walk_covariance, imu_residual, Preintegrated, GRAVITY_M_S2};
@@ -34,9 +35,20 @@ pub(crate) struct InertialLink {
 }
 
 impl InertialLink {
+    /// Weighted by the noise it was integrated with.
+    #[cfg(test)]
     pub fn new(pre: Preintegrated) -> Self {
-        let sqrt_info = whitening(&pre.covariance);
+        Self::scaled(pre, NoiseScale::DECLARED)
+    }
+
+    /// Weighted by that noise times `scale`.
+    pub fn scaled(pre: Preintegrated, scale: NoiseScale) -> Self {
+        let sqrt_info = whitening(&pre.scaled_covariance(scale.gyro, scale.accel));
         Self { pre, sqrt_info }
+    }
+
+    pub fn rescale(&mut self, scale: NoiseScale) {
+        self.sqrt_info = whitening(&self.pre.scaled_covariance(scale.gyro, scale.accel));
     }
 }
 

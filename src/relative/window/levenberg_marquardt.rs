@@ -100,6 +100,7 @@ impl Window {
         report.landmarks = self.problem.landmarks.len();
         report.observations = self.problem.rows.len();
         report.exact_marginals = self.compute_marginals();
+        self.measure_noise();
         report.ms = start.elapsed().as_secs_f64() * 1e3;
         report
     }
@@ -299,8 +300,14 @@ impl Window {
     pub(super) fn linearize(&mut self, build: bool) -> f64 {
         let p = &mut self.problem;
         let keyframes = &self.keyframes;
-        let inv_sigma = 1.0 / self.config.pixel_sigma;
-        let k = self.config.huber_px / self.config.pixel_sigma;
+        // Whitened with the pixel sigma the features show
+        // ([`super::noise_adaptation`]); `sq_error` stays in declared
+        // units so that the outlier gates keep their size in pixels.
+        let pixel_scale = self.noise.scale().pixel;
+        let sigma = self.config.pixel_sigma * pixel_scale;
+        let inv_sigma = 1.0 / sigma;
+        let to_declared = pixel_scale * pixel_scale;
+        let k = self.config.huber_px / sigma;
         let kernel = self.config.robust_kernel;
         let invalid_cost = 0.5 * kernel.evaluate(INVALID_SQ_ERROR, k).0;
         if build {
@@ -330,8 +337,9 @@ impl Window {
                 Some(e) => {
                     row.valid = true;
                     row.residual = e * inv_sigma;
-                    row.sq_error = row.residual.norm_squared();
-                    let (rho, weight) = kernel.evaluate(row.sq_error, k);
+                    let whitened = row.residual.norm_squared();
+                    row.sq_error = whitened * to_declared;
+                    let (rho, weight) = kernel.evaluate(whitened, k);
                     row.weight = weight;
                     cost += 0.5 * rho;
                 }

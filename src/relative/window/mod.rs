@@ -30,6 +30,7 @@ pub mod inertial;
 pub mod levenberg_marquardt;
 mod marginalise;
 pub mod new_landmarks;
+pub mod noise_adaptation;
 pub mod prior;
 pub mod reprojection;
 pub mod rig_camera;
@@ -47,6 +48,7 @@ use nalgebra::{DMatrix, Isometry3, Matrix3x2, Vector3};
 
 pub use frame_pose::FramePose;
 pub use levenberg_marquardt::WindowReport;
+pub use noise_adaptation::{NoiseAdaptation, NoiseAdaptationConfig, NoiseScale};
 pub use reprojection::RobustKernel;
 
 use inertial::{bias_walk_sqrt_info, tangent_basis, InertialLink};
@@ -128,6 +130,10 @@ pub struct WindowConfig {
     pub min_track_inliers: usize,
     /// LM iterations of [`Window::track_frame`] [8].
     pub track_max_iterations: usize,
+    /// The IMU's noise as the window weighs it: a scale on the declared
+    /// densities, estimated online from the inertial residuals
+    /// ([`noise_adaptation`]).
+    pub noise_adaptation: NoiseAdaptationConfig,
 }
 
 impl Default for WindowConfig {
@@ -157,6 +163,7 @@ impl Default for WindowConfig {
             gravity_prior_weight: 0.9,
             min_track_inliers: 12,
             track_max_iterations: 8,
+            noise_adaptation: NoiseAdaptationConfig::default(),
         }
     }
 }
@@ -169,6 +176,8 @@ pub enum WindowError {
         value: String,
         allowed: &'static str,
     },
+    #[error("IMU noise adaptation: {0}")]
+    InvalidNoiseAdaptation(String),
     #[error("the rig has no camera")]
     NoCamera,
     #[error("use_imu is set but the rig has no IMU")]
@@ -264,6 +273,9 @@ impl WindowConfig {
                 "a number > 0 (inf: no flagging)",
             );
         }
+        if let Err(message) = self.noise_adaptation.validate() {
+            return Err(WindowError::InvalidNoiseAdaptation(message));
+        }
         if self.max_depth_m <= self.min_depth_m {
             return bad(
                 "max_depth_m",
@@ -319,6 +331,13 @@ pub struct Window {
     config: WindowConfig,
     cameras: Vec<RigCamera>,
     imu_noise: Option<ImuNoise>,
+    /// The scale on `imu_noise` the inertial terms are weighted with.
+    noise: NoiseAdaptation,
+    /// Sequence number of the keyframe ending the last link measured.
+    last_measured_link: Option<u64>,
+    /// Sequence number of the newest keyframe of the last solve whose
+    /// reprojection errors were measured.
+    last_measured_images: Option<u64>,
     use_imu: bool,
     keyframes: VecDeque<Keyframe>,
     next_seq: u64,
@@ -351,11 +370,14 @@ impl Window {
         }
         let down = Vector3::new(0.0, 0.0, -1.0);
         Ok(Self {
+            noise: NoiseAdaptation::new(config.noise_adaptation),
             use_imu: config.use_imu,
             gravity_prior: GravityPrior::isotropic(down, config.gravity_prior_sigma_rad),
             config,
             cameras: rig.cameras.iter().cloned().map(RigCamera::new).collect(),
             imu_noise,
+            last_measured_link: None,
+            last_measured_images: None,
             keyframes: VecDeque::new(),
             next_seq: 0,
             landmarks: HashMap::new(),
@@ -417,7 +439,7 @@ impl Window {
                         expected_end_ns: guess.t_ns,
                     });
                 }
-                Some(InertialLink::new(pre))
+                Some(InertialLink::scaled(pre, self.noise.scale()))
             }
             _ => None,
         };
@@ -678,7 +700,7 @@ impl Window {
                 expected_end_ns: pre.t_end_ns,
             });
         }
-        self.keyframes[pos].imu = Some(InertialLink::new(pre));
+        self.keyframes[pos].imu = Some(InertialLink::scaled(pre, self.noise.scale()));
         Ok(())
     }
 
@@ -693,6 +715,157 @@ impl Window {
         self.velocity_prior = None;
         self.state_covariance = None;
         Ok(())
+    }
+
+    /// The scale on the declared IMU noise the inertial terms are
+    /// weighted with now, and the adaptation behind it.
+    pub fn noise_adaptation(&self) -> &NoiseAdaptation {
+        &self.noise
+    }
+
+    /// Continues from an earlier window's estimate of the IMU's noise (a
+    /// new window after a loss of tracking).
+    pub fn keep_noise_adaptation(&mut self, noise: NoiseAdaptation) {
+        self.noise = noise;
+        let scale = self.noise.scale();
+        for kf in self.keyframes.iter_mut() {
+            if let Some(link) = kf.imu.as_mut() {
+                link.rescale(scale);
+            }
+        }
+    }
+
+    /// Feeds the noise adaptation ([`noise_adaptation`]) with the last
+    /// solve's reprojection errors and its oldest inertial link, and
+    /// re-weights every link with the answer.
+    pub(super) fn measure_noise(&mut self) {
+        if !self.use_imu || !self.noise.config().enabled {
+            return;
+        }
+        self.measure_image_noise();
+        self.measure_inertial_noise();
+    }
+
+    /// The reprojection errors of the last solve's inliers against their
+    /// redundancy (two per observation less three per landmark and six
+    /// per free keyframe), once per newest keyframe.
+    fn measure_image_noise(&mut self) {
+        let p = &self.problem;
+        let Some(newest) = self.keyframes.back() else {
+            return;
+        };
+        if self.last_measured_images == Some(newest.seq) {
+            return;
+        }
+        let gate = self.config.outlier_chi2;
+        let (mut chi2, mut rows) = (0.0, 0usize);
+        let mut landmarks = 0usize;
+        for lm in &p.landmarks {
+            let mut seen = 0;
+            for r in &p.rows[lm.rows.clone()] {
+                if r.valid && r.sq_error <= gate {
+                    chi2 += r.residual.norm_squared();
+                    seen += 1;
+                }
+            }
+            if seen >= 2 {
+                rows += seen;
+                landmarks += 1;
+            } else if seen == 1 {
+                // A single observation of a landmark says nothing.
+                for r in &p.rows[lm.rows.clone()] {
+                    if r.valid && r.sq_error <= gate {
+                        chi2 -= r.residual.norm_squared();
+                    }
+                }
+            }
+        }
+        let free = self.keyframes.len().saturating_sub(p.n_fixed);
+        let redundancy = 2.0 * rows as f64 - 3.0 * landmarks as f64 - 6.0 * free as f64;
+        let dt_s = match self.keyframes.len() {
+            n if n >= 2 => (newest.state.t_ns - self.keyframes[n - 2].state.t_ns) as f64 * 1e-9,
+            _ => return,
+        };
+        self.last_measured_images = Some(newest.seq);
+        self.noise.add_images(chi2, redundancy, dt_s);
+    }
+
+    /// Measures the inertial link the last solve saw longest (from the
+    /// boundary to the oldest free keyframe) once.
+    fn measure_inertial_noise(&mut self) {
+        let p = &self.problem;
+        let (Some(cov), Some(og), Some(ob)) = (
+            self.state_covariance.as_ref(),
+            p.gravity_offset,
+            p.boundary_offset,
+        ) else {
+            return;
+        };
+        let nf = p.n_fixed;
+        if !self.use_imu || nf == 0 || nf >= self.keyframes.len() {
+            return;
+        }
+        let (ki, kj) = (&self.keyframes[nf - 1], &self.keyframes[nf]);
+        if self.last_measured_link == Some(kj.seq) {
+            return;
+        }
+        let Some(link) = kj.imu.as_ref() else {
+            return;
+        };
+        let (r, j) = inertial::inertial_factor(
+            link,
+            &ki.state,
+            &kj.state,
+            &self.gravity_dir,
+            &p.gravity_basis,
+        );
+        // The link's columns in the solve's covariance: the boundary's
+        // pose is held (no column), its [v, b_g, b_a] at `ob`; the oldest
+        // free keyframe is slot 0; gravity at `og`.
+        let column = |c: usize| -> Option<usize> {
+            if c < state::FULL_DIM {
+                (c >= state::VEL).then(|| ob + c - state::VEL)
+            } else if c < 2 * state::FULL_DIM {
+                Some(c - state::FULL_DIM)
+            } else {
+                Some(og + c - 2 * state::FULL_DIM)
+            }
+        };
+        let cols: Vec<(usize, usize)> = (0..inertial::INERTIAL_COLS)
+            .filter_map(|c| column(c).map(|k| (c, k)))
+            .collect();
+        // tr(J Sigma J^T) of the rotation rows and of the rest.
+        let mut hat_diag = [0.0f64; 9];
+        for (row, h) in hat_diag.iter_mut().enumerate() {
+            let mut acc = 0.0;
+            for &(a, ka) in &cols {
+                let ja = j[(row, a)];
+                if ja == 0.0 {
+                    continue;
+                }
+                for &(b, kb) in &cols {
+                    acc += ja * cov[(ka, kb)] * j[(row, b)];
+                }
+            }
+            *h = acc;
+        }
+        let evidence = noise_adaptation::LinkEvidence {
+            chi2_rotation: r.fixed_rows::<3>(0).norm_squared(),
+            redundancy_rotation: 3.0 - hat_diag[..3].iter().sum::<f64>(),
+            chi2_translation: r.fixed_rows::<6>(3).norm_squared(),
+            redundancy_translation: 6.0 - hat_diag[3..].iter().sum::<f64>(),
+            dt_s: link.pre.dt_s,
+        };
+        self.last_measured_link = Some(kj.seq);
+        let before = self.noise.scale();
+        let after = self.noise.add(&evidence);
+        if after != before {
+            for kf in self.keyframes.iter_mut() {
+                if let Some(link) = kf.imu.as_mut() {
+                    link.rescale(after);
+                }
+            }
+        }
     }
 
     pub fn imu_enabled(&self) -> bool {

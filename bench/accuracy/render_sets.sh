@@ -1,0 +1,50 @@
+#!/usr/bin/env bash
+# Renders the two accuracy sets from the real EuRoC logs in ../shared/data.
+#
+#   development set: V1_02 along a cubic spline through the ground truth
+#     (`--spline through`, the default room, seeds 0-5), the real V1_02 IMU;
+#     what the estimator is tuned on.
+#   evaluation set (held apart, never tuned on): the ground-truth poses
+#     interpolated at each camera stamp with no spline (`--spline none`),
+#     other rooms (box count, texture scale) and scene seeds, the real
+#     V1_01 and V1_02 IMUs; scored from rest and in flight.
+#
+# Every sensor.yaml declares the ADIS16448's datasheet noise
+# (`--declared-noise datasheet`): what a user on a robot has, not what the
+# ground truth reveals.
+#
+# usage: bench/accuracy/render_sets.sh OUT_DIR [dev|eval|all]
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+out=${1:?usage: render_sets.sh OUT_DIR [dev|eval|all]}
+which=${2:-all}
+data=../shared/data/euroc
+bin=${RIGSLAM:-target/release/rigslam}
+[ -x "$bin" ] || { echo "build first: cargo build --release (or set RIGSLAM)" >&2; exit 1; }
+mkdir -p "$out"
+
+render() { # name, then simulate's options
+  local name=$1; shift
+  if [ -f "$out/$name/mav0/state_groundtruth_estimate0/data.csv" ]; then
+    echo "have $out/$name"; return
+  fi
+  echo "rendering $out/$name" >&2
+  "$bin" simulate --out "$out/$name" --stereo --no-progress --declared-noise datasheet "$@"
+}
+
+if [ "$which" = dev ] || [ "$which" = all ]; then
+  for seed in 0 1 2 3 4 5; do
+    render "dev_v102_s$seed" --trajectory "$data/ground_truth/V1_02_groundtruth.csv" \
+      --imu "real:$data/ground_truth/V1_02_imu0.csv" --spline through --seed "$seed"
+  done
+fi
+if [ "$which" = eval ] || [ "$which" = all ]; then
+  # V1_01 from rest (65 s), a room with many large-textured boxes.
+  render eval_v101_a --trajectory "$data/ground_truth/V1_01_gt_200hz.txt" \
+    --imu "real:$data/V1_01_micro/mav0/imu0/data.csv" --spline none \
+    --duration-s 65 --boxes 20 --texel-mm 8 --seed 101
+  # V1_02 (83 s), a sparse room with fine texture.
+  render eval_v102_b --trajectory "$data/ground_truth/V1_02_groundtruth.csv" \
+    --imu "real:$data/ground_truth/V1_02_imu0.csv" --spline none \
+    --boxes 6 --texel-mm 4 --seed 102
+fi
