@@ -66,6 +66,9 @@ pub struct RelativeConfig {
     /// Bounds of either multiplier.
     pub imu_noise_scale_min: f64,
     pub imu_noise_scale_max: f64,
+    /// Estimate the bias random walks' scales too (off: measured worse
+    /// in mono-inertial, see the adaptation's module doc).
+    pub imu_walk_adaptation: bool,
     /// The absolute stage's settings (`[absolute]`; used with `--absolute`).
     pub absolute: AbsoluteSettings,
 }
@@ -88,6 +91,7 @@ impl Default for RelativeConfig {
             imu_noise_adaptation_memory_s: 20.0,
             imu_noise_scale_min: 0.1,
             imu_noise_scale_max: 100.0,
+            imu_walk_adaptation: false,
             absolute: AbsoluteSettings::default(),
         }
     }
@@ -223,10 +227,13 @@ impl RelativeConfig {
                 gyro: self.imu_noise_scale_gyro,
                 accel: self.imu_noise_scale_accel,
                 pixel: 1.0,
+                gyro_walk: 1.0,
+                accel_walk: 1.0,
             },
             memory_s: self.imu_noise_adaptation_memory_s,
             min_scale: self.imu_noise_scale_min,
             max_scale: self.imu_noise_scale_max,
+            adapt_walk: self.imu_walk_adaptation,
             ..NoiseAdaptationConfig::default()
         }
     }

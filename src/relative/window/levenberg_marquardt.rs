@@ -139,7 +139,7 @@ impl Window {
                     },
                     kf.seq,
                     kf.imu.as_ref()?,
-                    kf.bias_walk_sqrt_info.as_ref()?,
+                    &self.noise.scale().walk(kf.bias_walk_sqrt_info.as_ref()?),
                     &self.gravity_dir,
                     &tangent_basis(&self.gravity_dir),
                     &self.gravity_prior,
@@ -304,6 +304,7 @@ impl Window {
         // ([`super::noise_adaptation`]); `sq_error` stays in declared
         // units so that the outlier gates keep their size in pixels.
         let pixel_scale = self.noise.scale().pixel;
+        let walk_scale = self.noise.scale();
         let sigma = self.config.pixel_sigma * pixel_scale;
         let inv_sigma = 1.0 / sigma;
         let to_declared = pixel_scale * pixel_scale;
@@ -410,8 +411,9 @@ impl Window {
                         );
                     }
                 }
-                if let Some(sqrt_info) = &kj.bias_walk_sqrt_info {
-                    let (r, j) = bias_walk_factor(sqrt_info, &ki.state, &kj.state);
+                if let Some(declared) = &kj.bias_walk_sqrt_info {
+                    let sqrt_info = walk_scale.walk(declared);
+                    let (r, j) = bias_walk_factor(&sqrt_info, &ki.state, &kj.state);
                     cost += 0.5 * r.norm_squared();
                     if build {
                         let bias = |pos: usize| rest(pos).map(|o| o + (BG - VEL));

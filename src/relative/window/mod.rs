@@ -849,11 +849,52 @@ impl Window {
             }
             *h = acc;
         }
+        // The bias walk between the same keyframes: columns [i: b_g b_a |
+        // j: b_g b_a], whitened with the current walk scale.
+        let (walk_chi2, walk_redundancy) = match kj.bias_walk_sqrt_info.as_ref() {
+            Some(declared) => {
+                let sqrt_info = self.noise.scale().walk(declared);
+                let (rw, jw) = inertial::bias_walk_factor(&sqrt_info, &ki.state, &kj.state);
+                let walk_cols: Vec<(usize, usize)> = (0..12)
+                    .filter_map(|c| {
+                        let full = if c < 6 {
+                            state::BG + c
+                        } else {
+                            state::FULL_DIM + state::BG + c - 6
+                        };
+                        column(full).map(|k| (c, k))
+                    })
+                    .collect();
+                let mut hat = [0.0f64; 6];
+                for (row, h) in hat.iter_mut().enumerate() {
+                    for &(a, ka) in &walk_cols {
+                        for &(b, kb) in &walk_cols {
+                            *h += jw[(row, a)] * cov[(ka, kb)] * jw[(row, b)];
+                        }
+                    }
+                }
+                (
+                    [
+                        rw.fixed_rows::<3>(0).norm_squared(),
+                        rw.fixed_rows::<3>(3).norm_squared(),
+                    ],
+                    [
+                        3.0 - hat[..3].iter().sum::<f64>(),
+                        3.0 - hat[3..].iter().sum::<f64>(),
+                    ],
+                )
+            }
+            None => ([0.0; 2], [0.0; 2]),
+        };
         let evidence = noise_adaptation::LinkEvidence {
             chi2_rotation: r.fixed_rows::<3>(0).norm_squared(),
             redundancy_rotation: 3.0 - hat_diag[..3].iter().sum::<f64>(),
             chi2_translation: r.fixed_rows::<6>(3).norm_squared(),
             redundancy_translation: 6.0 - hat_diag[3..].iter().sum::<f64>(),
+            chi2_gyro_walk: walk_chi2[0],
+            redundancy_gyro_walk: walk_redundancy[0],
+            chi2_accel_walk: walk_chi2[1],
+            redundancy_accel_walk: walk_redundancy[1],
             dt_s: link.pre.dt_s,
         };
         self.last_measured_link = Some(kj.seq);

@@ -43,6 +43,7 @@ pub(crate) struct Keyframe {
     /// The preintegrated IMU from the previous keyframe to this one.
     pub imu: Option<InertialLink>,
     /// `1 / sigma` of the bias random walk from the previous keyframe.
+    /// As declared: [`super::NoiseScale::walk`] scales it where it is used.
     pub bias_walk_sqrt_info: Option<Vector6<f64>>,
     /// Marginal covariance of `[dphi, dp, dv, d b_g, d b_a]` after the
     /// last optimisation in which this keyframe was free (source of the
