@@ -15,11 +15,14 @@ use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::service::builder::event::EventOpenError;
+use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
 use iceoryx2::prelude::{
     ipc_threadsafe, CallbackProgression, SemanticString, ServiceName, SignalHandlingMode,
     ZeroCopySend,
 };
 
+use super::access::explain_refusal;
 use super::message::{PoseMessage, StatusMessage, POSE_LAYOUT_VERSION, STATUS_LAYOUT_VERSION};
 
 /// The iceoryx2 service variant used throughout: its ports are `Send` and
@@ -50,6 +53,11 @@ pub struct IpcConfig {
     /// sets e.g. `/run/rigslam/iceoryx2/` (`RuntimeDirectory=rigslam`).
     /// Shared memory itself lives in `/dev/shm` either way.
     pub root_path: Option<PathBuf>,
+    /// The group whose members may subscribe (`[publish] group`): the
+    /// daemon gives it the root directory and its files. `None`: the
+    /// daemon's own effective (primary) group, `rigslam` under the shipped
+    /// unit. Only the daemon reads it; subscribers follow the root.
+    pub group: Option<String>,
 }
 
 impl Default for IpcConfig {
@@ -57,6 +65,7 @@ impl Default for IpcConfig {
         Self {
             service_prefix: DEFAULT_SERVICE_PREFIX.to_string(),
             root_path: None,
+            group: None,
         }
     }
 }
@@ -107,6 +116,25 @@ pub enum IpcError {
     ServiceName { name: String, reason: String },
     #[error("cannot create an iceoryx2 node: {reason}")]
     Node { reason: String },
+    #[error("permission denied: {message}")]
+    Permission { message: String },
+    #[error("publish.group {name:?}: {reason}")]
+    Group { name: String, reason: String },
+    #[error(
+        "{path:?} belongs to user {owner}, not to {user} who publishes: another process \
+         created it first (taking the service name) or an earlier run as {owner} left it; \
+         stop that process, remove it (`sudo rm -rf {path:?}`) and start again"
+    )]
+    Foreign {
+        path: PathBuf,
+        owner: String,
+        user: String,
+    },
+    #[error(
+        "service {service} does not exist: rigslamd is not running, or runs with another \
+         root_path or service_prefix (it, not a subscriber, creates the services)"
+    )]
+    NotPublished { service: String },
     #[error("service {service}: {action}: {reason}")]
     Service {
         service: String,
@@ -189,9 +217,21 @@ pub(crate) fn create_node(config: &IpcConfig) -> Result<Node<Ipc>, IpcError> {
         .config(&iox_config)
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<Ipc>()
-        .map_err(|e| IpcError::Node {
-            reason: format!("{e:?}"),
+        .map_err(|e| {
+            let reason = format!("{e:?}");
+            explain_refusal(config, &reason).unwrap_or(IpcError::Node { reason })
         })
+}
+
+/// An iceoryx2 error of `action` on `service`, said as a permission
+/// problem when it is one.
+fn refused(config: &IpcConfig, service: &str, action: &'static str, e: impl Debug) -> IpcError {
+    let reason = format!("{e:?}");
+    explain_refusal(config, &reason).unwrap_or(IpcError::Service {
+        service: service.to_string(),
+        action,
+        reason,
+    })
 }
 
 /// Removes what processes that died without cleaning up (a daemon killed
@@ -277,7 +317,18 @@ pub(crate) struct Services<T: Message> {
 }
 
 impl<T: Message> Services<T> {
-    pub fn open(node: &Node<Ipc>, name: &str) -> Result<Self, IpcError> {
+    /// Opens the stream's services; creates them too unless `open_only`
+    /// (a subscriber of a daemon that runs as another user never creates
+    /// them: that would be taking the name before the daemon).
+    ///
+    /// One publisher and one notifier at most: the daemon holds them, so
+    /// no other process gets a publisher through iceoryx2 while it runs.
+    pub fn open(
+        config: &IpcConfig,
+        node: &Node<Ipc>,
+        name: &str,
+        open_only: bool,
+    ) -> Result<Self, IpcError> {
         let service = service_name(name)?;
         let pubsub = node
             .service_builder(&service)
@@ -287,18 +338,43 @@ impl<T: Message> Services<T> {
             .enable_safe_overflow(true)
             .subscriber_max_buffer_size(MAX_SUBSCRIBER_BUFFER)
             .history_size(0)
-            .open_or_create()
-            .map_err(|e| IpcError::service(name, "open publish-subscribe service", e))?;
-        let event = node
-            .service_builder(&service)
-            .event()
-            .open_or_create()
-            .map_err(|e| IpcError::service(name, "open event service", e))?;
+            .max_publishers(1);
+        let pubsub = if open_only {
+            pubsub.open().map_err(|e| match e {
+                PublishSubscribeOpenError::DoesNotExist => IpcError::NotPublished {
+                    service: name.to_string(),
+                },
+                e => refused(config, name, "open publish-subscribe service", e),
+            })?
+        } else {
+            pubsub
+                .open_or_create()
+                .map_err(|e| refused(config, name, "open publish-subscribe service", e))?
+        };
+        let event = node.service_builder(&service).event().max_notifiers(1);
+        let event = if open_only {
+            event.open().map_err(|e| match e {
+                EventOpenError::DoesNotExist => IpcError::NotPublished {
+                    service: name.to_string(),
+                },
+                e => refused(config, name, "open event service", e),
+            })?
+        } else {
+            event
+                .open_or_create()
+                .map_err(|e| refused(config, name, "open event service", e))?
+        };
         Ok(Self {
             name: name.to_string(),
             pubsub,
             event,
         })
+    }
+
+    /// iceoryx2's hash of the service: its files are named after it.
+    pub fn file_stem(&self) -> String {
+        use iceoryx2::service::port_factory::PortFactory;
+        self.pubsub.service_hash().as_str().to_string()
     }
 
     pub fn publisher(&self) -> Result<PublisherPorts<T>, IpcError> {
