@@ -43,6 +43,11 @@ fn id_of(name: &str, flag: &str) -> Vec<u32> {
         .collect()
 }
 
+fn id_of_opt(name: &str) -> Option<u32> {
+    let out = Command::new("id").arg("-u").arg(name).output().ok()?;
+    String::from_utf8_lossy(&out.stdout).trim().parse().ok()
+}
+
 impl Identity {
     fn of(name: &str) -> Self {
         Identity {
@@ -101,6 +106,20 @@ impl Accounts {
 
 impl Drop for Accounts {
     fn drop(&mut self) {
+        // What the test users' processes left in /dev/shm (a killed
+        // process, or a reader that may not remove the daemon's files).
+        let uids: Vec<u32> = self
+            .users
+            .iter()
+            .filter_map(|u| id_of_opt(u))
+            .collect();
+        if let Ok(entries) = std::fs::read_dir("/dev/shm") {
+            for entry in entries.flatten() {
+                if entry.metadata().is_ok_and(|m| uids.contains(&m.uid())) {
+                    let _ = std::fs::remove_file(entry.path());
+                }
+            }
+        }
         for user in &self.users {
             let _ = Command::new("userdel").arg(user).output();
         }
@@ -260,7 +279,7 @@ fn echo(service: &str, root: &Path, ready: &Path, quiet_s: f64) -> Command {
     c
 }
 
-fn daemon(dataset: &Path, prefix: &str, root: &Path, report: &Path) -> Command {
+fn daemon_command(dataset: &Path, prefix: &str, root: &Path, report: &Path) -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_rigslamd"));
     c.arg("--replay")
         .arg(dataset)
@@ -445,7 +464,12 @@ fn site(a: &Identity, unit_settings: bool) -> Site {
         chmod(&run, 0o750);
         run.join("iceoryx2")
     } else {
-        tmp.path().join("iox")
+        // A folder of A's, as a home directory would be.
+        let own = tmp.path().join("a");
+        std::fs::create_dir(&own).expect("A's folder");
+        chown(&own, a.uid, a.gid);
+        chmod(&own, 0o755);
+        own.join("iox")
     };
     Site {
         root,
@@ -482,7 +506,9 @@ fn group_access(unit_settings: bool) {
     let mut holders = Vec::new();
     for service in [&pose, &pose_fast] {
         let ready = site.flags.join(format!("a_{}", service.replace('/', "_")));
-        let w = Watched::start(as_user(echo(service, &site.root, &ready, 15.0), &a, umask));
+        // Done before B's readers (15 s): a reader of the group is the
+        // last user of the services, which it may not remove.
+        let w = Watched::start(as_user(echo(service, &site.root, &ready, 10.0), &a, umask));
         wait_file(&ready, Duration::from_secs(20), &w);
         holders.push(w);
     }
@@ -499,7 +525,7 @@ fn group_access(unit_settings: bool) {
     run("gpasswd", &["-d", &d.name, &group]);
 
     let daemon = Watched::start(as_user(
-        daemon(&dataset, &prefix, &site.root, &site.report),
+        daemon_command(&dataset, &prefix, &site.root, &site.report),
         &a,
         umask,
     ));
@@ -523,6 +549,21 @@ fn group_access(unit_settings: bool) {
         stderr.contains(&format!("usermod -aG {group} {}", c.name)),
         "{stderr}"
     );
+
+    // A root that does not exist under a folder C may not write: said so.
+    if !unit_settings {
+        let elsewhere = site.root.with_file_name("not_yet");
+        let ready = site.flags.join("c_elsewhere");
+        let (ok, _, stderr) = Watched::start(as_user(
+            echo(&pose, &elsewhere, &ready, 2.0),
+            &c,
+            umask,
+        ))
+        .finish(Duration::from_secs(30));
+        assert!(!ok && stderr.contains("cannot create"), "{stderr}");
+        assert!(stderr.contains("is not writable by"), "{stderr}");
+        assert!(!stderr.contains("InternalError"), "{stderr}");
+    }
 
     // The C example says the same for a C reader, and lets B in.
     if let Some(exe) = c_example(&site) {
@@ -605,6 +646,20 @@ fn group_access(unit_settings: bool) {
         assert!(ok, "A's reader: {stderr}");
         assert_eq!(json_number(&stdout, "received"), expected, "{stdout}");
     }
+
+    // The readers of the group left last and could not remove the daemon's
+    // service files: the next start of the daemon still publishes.
+    let again = Watched::start(as_user(
+        daemon_command(&dataset, &prefix, &site.root, &site.report),
+        &a,
+        umask,
+    ));
+    again.wait_for("publishing", Duration::from_secs(60));
+    // SAFETY: signalling our own child.
+    unsafe { libc::kill(again.child.id() as libc::pid_t, libc::SIGTERM) };
+    let (ok, _, log) = again.finish(Duration::from_secs(60));
+    assert!(ok, "the second start failed:\n{log}");
+    assert!(log.contains("left marked for destruction"), "{log}");
 }
 
 #[test]
@@ -643,7 +698,7 @@ fn a_name_taken_before_the_daemon_starts_stops_it_with_a_message() {
     ));
     wait_file(&ready, Duration::from_secs(20), &squatter);
     let (ok, _, log) = Watched::start(as_user(
-        daemon(&dataset, &prefix, &site.root, &site.report),
+        daemon_command(&dataset, &prefix, &site.root, &site.report),
         &a,
         0o022,
     ))

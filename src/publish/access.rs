@@ -366,27 +366,50 @@ pub(crate) fn refuse_foreign_file(path: &Path) -> Result<(), IpcError> {
     }
 }
 
+/// Whether this process (its effective ids) may access `path` as `wanted`.
+fn accessible(path: &Path, wanted: libc::c_int) -> bool {
+    let Ok(c_path) = std::ffi::CString::new(path.as_os_str().as_bytes()) else {
+        return true;
+    };
+    // SAFETY: a valid C string; checks with the effective ids.
+    unsafe { libc::faccessat(libc::AT_FDCWD, c_path.as_ptr(), wanted, libc::AT_EACCESS) == 0 }
+}
+
 /// Says why a root directory is closed to this process, naming the
 /// group of the first directory on its path that is closed (the root,
 /// or the runtime directory above it) and how to join it.
 fn check_reachable(root: &Path) -> Result<(), IpcError> {
     let mut closed = None;
+    let mut parent: Option<&Path> = None;
     for dir in root.ancestors().collect::<Vec<_>>().into_iter().rev() {
         let Ok(meta) = std::fs::metadata(dir) else {
-            // Not there (yet): iceoryx2 creates it or says why not.
-            return Ok(());
+            // Not there (yet): iceoryx2 creates it, which needs write
+            // access to the last directory that is.
+            return match parent {
+                Some(p) if !accessible(p, libc::W_OK | libc::X_OK) => {
+                    let m = std::fs::metadata(p).ok();
+                    Err(permission(format!(
+                        "cannot create {}: {} (user {}, group {}, mode {:o}) is not writable by \
+                         {}; start the daemon first (it creates its root), or choose a \
+                         root_path under a directory this user may write",
+                        root.display(),
+                        p.display(),
+                        m.as_ref().map_or("?".into(), |m| user_name(m.uid())),
+                        m.as_ref().map_or("?".into(), |m| group_by_gid(m.gid()).name),
+                        m.as_ref().map_or(0, |m| m.mode() & 0o7777),
+                        user_name(effective_uid())
+                    )))
+                }
+                _ => Ok(()),
+            };
         };
+        parent = Some(dir);
         let wanted = if dir == root {
             libc::R_OK | libc::W_OK | libc::X_OK
         } else {
             libc::X_OK
         };
-        let Ok(c_path) = std::ffi::CString::new(dir.as_os_str().as_bytes()) else {
-            return Ok(());
-        };
-        // SAFETY: a valid C string; checks with the effective ids.
-        let rc = unsafe { libc::faccessat(libc::AT_FDCWD, c_path.as_ptr(), wanted, libc::AT_EACCESS) };
-        if rc != 0 {
+        if !accessible(dir, wanted) {
             closed = Some((dir.to_path_buf(), meta));
             break;
         }

@@ -12,8 +12,12 @@ pub struct Group {
 }
 
 /// Tries a `get*_r` lookup with a growing buffer. `call` fills the
-/// record and returns the C library's error number (0: done, found or not).
-fn with_buffer(mut call: impl FnMut(&mut Vec<libc::c_char>) -> libc::c_int) -> libc::c_int {
+/// record and returns the C library's error number (0: done, found or
+/// not). Returns that number and the buffer, which the record's strings
+/// point into: read them while it lives.
+fn with_buffer(
+    mut call: impl FnMut(&mut Vec<libc::c_char>) -> libc::c_int,
+) -> (libc::c_int, Vec<libc::c_char>) {
     let mut buffer = vec![0 as libc::c_char; 1024];
     loop {
         let rc = call(&mut buffer);
@@ -21,7 +25,7 @@ fn with_buffer(mut call: impl FnMut(&mut Vec<libc::c_char>) -> libc::c_int) -> l
             buffer.resize(buffer.len() * 4, 0);
             continue;
         }
-        return rc;
+        return (rc, buffer);
     }
 }
 
@@ -40,7 +44,7 @@ pub fn group_by_name(name: &str) -> Result<Option<Group>, String> {
     // SAFETY: plain C struct, filled by getgrnam_r before it is read.
     let mut raw: libc::group = unsafe { std::mem::zeroed() };
     let mut found: *mut libc::group = std::ptr::null_mut();
-    let rc = with_buffer(|buffer| unsafe {
+    let (rc, _buffer) = with_buffer(|buffer| unsafe {
         libc::getgrnam_r(
             c_name.as_ptr(),
             &mut raw,
@@ -64,7 +68,7 @@ pub fn group_by_gid(gid: u32) -> Group {
     // SAFETY: as in group_by_name.
     let mut raw: libc::group = unsafe { std::mem::zeroed() };
     let mut found: *mut libc::group = std::ptr::null_mut();
-    let rc = with_buffer(|buffer| unsafe {
+    let (rc, _buffer) = with_buffer(|buffer| unsafe {
         libc::getgrgid_r(gid, &mut raw, buffer.as_mut_ptr(), buffer.len(), &mut found)
     });
     if rc == 0 && !found.is_null() {
@@ -82,7 +86,7 @@ pub fn user(uid: u32) -> (String, Option<u32>) {
     // SAFETY: plain C struct, filled by getpwuid_r before it is read.
     let mut raw: libc::passwd = unsafe { std::mem::zeroed() };
     let mut found: *mut libc::passwd = std::ptr::null_mut();
-    let rc = with_buffer(|buffer| unsafe {
+    let (rc, _buffer) = with_buffer(|buffer| unsafe {
         libc::getpwuid_r(uid, &mut raw, buffer.as_mut_ptr(), buffer.len(), &mut found)
     });
     if rc == 0 && !found.is_null() {

@@ -4,9 +4,9 @@
 
 use crate::sensors::yei::device::host_monotonic_ns;
 
-use super::access::{effective_root, refuse_foreign_file, Access, SHM_DIR};
+use super::access::{refuse_foreign_file, Access};
 use super::message::{PoseMessage, StatusMessage};
-use super::service::{create_node, IpcConfig, IpcError, Message, Services, Stream};
+use super::service::{create_node, service_file, IpcConfig, IpcError, Message, Services, Stream};
 use iceoryx2::node::Node;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
@@ -29,12 +29,10 @@ pub struct StreamPublisher<T: Message> {
 impl<T: Message> StreamPublisher<T> {
     fn open(config: &IpcConfig, node: &Node<Ipc>, name: String) -> Result<Self, IpcError> {
         let services = Services::<T>::open(config, node, &name, false)?;
-        // The service's files must be the daemon's own: another user's
-        // static or dynamic config means the name was taken before it.
-        let stem = services.file_stem();
-        let root = effective_root(config);
-        refuse_foreign_file(&root.join("services").join(format!("iox2_{stem}.service")))?;
-        refuse_foreign_file(&std::path::Path::new(SHM_DIR).join(format!("iox2_{stem}.dynamic")))?;
+        // The service file must be the daemon's own: another user's means
+        // the name was taken before it. (Its dynamic config in /dev/shm is
+        // created with it, exclusively, by the same process.)
+        refuse_foreign_file(&service_file(config, &services.file_stem()))?;
         let (publisher, notifier) = services.publisher()?;
         Ok(Self {
             service: name,

@@ -18,11 +18,13 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::service::builder::event::EventOpenError;
 use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
 use iceoryx2::prelude::{
-    ipc_threadsafe, CallbackProgression, SemanticString, ServiceName, SignalHandlingMode,
-    ZeroCopySend,
+    ipc_threadsafe, CallbackProgression, MessagingPattern, SemanticString, ServiceName,
+    SignalHandlingMode, ZeroCopySend,
 };
+use iceoryx2::service::service_hash::ServiceHash;
 
-use super::access::explain_refusal;
+use super::access::{effective_root, explain_refusal};
+use super::group::effective_uid;
 use super::message::{PoseMessage, StatusMessage, POSE_LAYOUT_VERSION, STATUS_LAYOUT_VERSION};
 
 /// The iceoryx2 service variant used throughout: its ports are `Send` and
@@ -303,6 +305,46 @@ pub(crate) fn service_name(name: &str) -> Result<ServiceName, IpcError> {
     })
 }
 
+/// iceoryx2 marks a service for destruction when its last user leaves,
+/// and removes its files; a reader of the group is not allowed to remove
+/// the daemon's, so after such a reader was the last, the service stays
+/// marked and cannot be opened. The creator (the daemon's user) then
+/// removes the service file, its own, and creates the service anew.
+fn create_over_stale<R, E: Debug>(
+    config: &IpcConfig,
+    service: &ServiceName,
+    pattern: MessagingPattern,
+    mut attempt: impl FnMut() -> Result<R, E>,
+) -> Result<R, E> {
+    match attempt() {
+        Err(e) if format!("{e:?}").contains("IsMarkedForDestruction") => {
+            let hash = ServiceHash::new::<<Ipc as iceoryx2::service::Service>::ServiceNameHasher>(
+                service, pattern,
+            );
+            let file = service_file(config, hash.as_str());
+            let mine = std::fs::symlink_metadata(&file)
+                .is_ok_and(|m| std::os::unix::fs::MetadataExt::uid(&m) == effective_uid());
+            if !mine || std::fs::remove_file(&file).is_err() {
+                return Err(e);
+            }
+            tracing::info!(
+                "{}: removed {} left marked for destruction (its last user could not remove it)",
+                service.as_str(),
+                file.display()
+            );
+            attempt()
+        }
+        other => other,
+    }
+}
+
+/// The static config file of the service with iceoryx2 hash `hash`.
+pub(crate) fn service_file(config: &IpcConfig, hash: &str) -> PathBuf {
+    effective_root(config)
+        .join("services")
+        .join(format!("iox2_{hash}.service"))
+}
+
 /// A publisher and the notifier that announces its samples.
 pub(crate) type PublisherPorts<T> = (Publisher<Ipc, T, ()>, Notifier<Ipc>);
 /// A subscriber and the listener it blocks on.
@@ -330,39 +372,42 @@ impl<T: Message> Services<T> {
         open_only: bool,
     ) -> Result<Self, IpcError> {
         let service = service_name(name)?;
-        let pubsub = node
-            .service_builder(&service)
-            .publish_subscribe::<T>()
-            // A slow or dead subscriber loses its oldest samples; the
-            // publisher never blocks on it.
-            .enable_safe_overflow(true)
-            .subscriber_max_buffer_size(MAX_SUBSCRIBER_BUFFER)
-            .history_size(0)
-            .max_publishers(1);
+        let pubsub_builder = || {
+            node.service_builder(&service)
+                .publish_subscribe::<T>()
+                // A slow or dead subscriber loses its oldest samples; the
+                // publisher never blocks on it.
+                .enable_safe_overflow(true)
+                .subscriber_max_buffer_size(MAX_SUBSCRIBER_BUFFER)
+                .history_size(0)
+                .max_publishers(1)
+        };
         let pubsub = if open_only {
-            pubsub.open().map_err(|e| match e {
+            pubsub_builder().open().map_err(|e| match e {
                 PublishSubscribeOpenError::DoesNotExist => IpcError::NotPublished {
                     service: name.to_string(),
                 },
                 e => refused(config, name, "open publish-subscribe service", e),
             })?
         } else {
-            pubsub
-                .open_or_create()
-                .map_err(|e| refused(config, name, "open publish-subscribe service", e))?
+            create_over_stale(config, &service, MessagingPattern::PublishSubscribe, || {
+                pubsub_builder().open_or_create()
+            })
+            .map_err(|e| refused(config, name, "open publish-subscribe service", e))?
         };
-        let event = node.service_builder(&service).event().max_notifiers(1);
+        let event_builder = || node.service_builder(&service).event().max_notifiers(1);
         let event = if open_only {
-            event.open().map_err(|e| match e {
+            event_builder().open().map_err(|e| match e {
                 EventOpenError::DoesNotExist => IpcError::NotPublished {
                     service: name.to_string(),
                 },
                 e => refused(config, name, "open event service", e),
             })?
         } else {
-            event
-                .open_or_create()
-                .map_err(|e| refused(config, name, "open event service", e))?
+            create_over_stale(config, &service, MessagingPattern::Event, || {
+                event_builder().open_or_create()
+            })
+            .map_err(|e| refused(config, name, "open event service", e))?
         };
         Ok(Self {
             name: name.to_string(),
