@@ -35,7 +35,11 @@ struct Identity {
 }
 
 fn id_of(name: &str, flag: &str) -> Vec<u32> {
-    let out = Command::new("id").arg(flag).arg(name).output().expect("run id");
+    let out = Command::new("id")
+        .arg(flag)
+        .arg(name)
+        .output()
+        .expect("run id");
     assert!(out.status.success(), "id {flag} {name}: {out:?}");
     String::from_utf8_lossy(&out.stdout)
         .split_whitespace()
@@ -108,11 +112,7 @@ impl Drop for Accounts {
     fn drop(&mut self) {
         // What the test users' processes left in /dev/shm (a killed
         // process, or a reader that may not remove the daemon's files).
-        let uids: Vec<u32> = self
-            .users
-            .iter()
-            .filter_map(|u| id_of_opt(u))
-            .collect();
+        let uids: Vec<u32> = self.users.iter().filter_map(|u| id_of_opt(u)).collect();
         if let Ok(entries) = std::fs::read_dir("/dev/shm") {
             for entry in entries.flatten() {
                 if entry.metadata().is_ok_and(|m| uids.contains(&m.uid())) {
@@ -161,7 +161,11 @@ fn as_user(mut command: Command, who: &Identity, umask: u32) -> Command {
 fn chown(path: &Path, uid: u32, gid: u32) {
     let c = CString::new(path.as_os_str().as_encoded_bytes()).expect("path");
     // SAFETY: valid C string.
-    assert_eq!(unsafe { libc::chown(c.as_ptr(), uid, gid) }, 0, "chown {path:?}");
+    assert_eq!(
+        unsafe { libc::chown(c.as_ptr(), uid, gid) },
+        0,
+        "chown {path:?}"
+    );
 }
 
 fn chmod(path: &Path, mode: u32) {
@@ -311,8 +315,8 @@ fn files_open_to_others(uid: u32) -> Vec<String> {
 }
 
 fn json_number(json: &str, key: &str) -> u64 {
-    let value: serde_json::Value = serde_json::from_str(json.trim())
-        .unwrap_or_else(|e| panic!("not JSON ({e}): {json}"));
+    let value: serde_json::Value =
+        serde_json::from_str(json.trim()).unwrap_or_else(|e| panic!("not JSON ({e}): {json}"));
     value[key]
         .as_u64()
         .unwrap_or_else(|| panic!("no {key} in {json}"))
@@ -380,7 +384,12 @@ fn attempts_to_publish() {
             continue;
         }
         let owner = entry.metadata().map(|m| m.uid()).unwrap_or(0);
-        if owner != std::env::var("RSL_DAEMON_UID").ok().and_then(|u| u.parse().ok()).unwrap_or(u32::MAX) {
+        if owner
+            != std::env::var("RSL_DAEMON_UID")
+                .ok()
+                .and_then(|u| u.parse().ok())
+                .unwrap_or(u32::MAX)
+        {
             continue;
         }
         segments += 1;
@@ -394,11 +403,19 @@ fn attempts_to_publish() {
 
 fn attempt_to_publish(b: &Identity, root: &Path, prefix: &str, daemon_uid: u32) -> String {
     let mut c = Command::new(std::env::current_exe().expect("test binary"));
-    c.args(["--exact", "attempts_to_publish", "--ignored", "--nocapture", "--test-threads=1"])
-        .env("RSL_ROOT", root)
-        .env("RSL_PREFIX", prefix)
-        .env("RSL_DAEMON_UID", daemon_uid.to_string());
-    let out: Output = as_user(c, b, 0o022).output().expect("run the attempts as B");
+    c.args([
+        "--exact",
+        "attempts_to_publish",
+        "--ignored",
+        "--nocapture",
+        "--test-threads=1",
+    ])
+    .env("RSL_ROOT", root)
+    .env("RSL_PREFIX", prefix)
+    .env("RSL_DAEMON_UID", daemon_uid.to_string());
+    let out: Output = as_user(c, b, 0o022)
+        .output()
+        .expect("run the attempts as B");
     let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
     assert!(
         out.status.success(),
@@ -425,7 +442,11 @@ fn c_example(site: &Site) -> Option<PathBuf> {
         .arg(&exe)
         .output()
         .expect("run gcc");
-    assert!(build.status.success(), "gcc: {}", String::from_utf8_lossy(&build.stderr));
+    assert!(
+        build.status.success(),
+        "gcc: {}",
+        String::from_utf8_lossy(&build.stderr)
+    );
     chmod(&exe, 0o755);
     Some(exe)
 }
@@ -516,7 +537,9 @@ fn group_access(unit_settings: bool) {
     // B (in G) subscribes to both pose streams.
     let mut readers = Vec::new();
     for (who, service) in [(&b, &pose), (&b, &pose_fast), (&d, &pose)] {
-        let ready = site.flags.join(format!("{}_{}", who.name, service.replace('/', "_")));
+        let ready = site
+            .flags
+            .join(format!("{}_{}", who.name, service.replace('/', "_")));
         let w = Watched::start(as_user(echo(service, &site.root, &ready, 15.0), who, umask));
         wait_file(&ready, Duration::from_secs(20), &w);
         readers.push(w);
@@ -534,12 +557,9 @@ fn group_access(unit_settings: bool) {
 
     // C (not in G) is refused, and told which group and how to join.
     let ready_c = site.flags.join("c");
-    let (ok, _, stderr) = Watched::start(as_user(
-        echo(&pose, &site.root, &ready_c, 2.0),
-        &c,
-        umask,
-    ))
-    .finish(Duration::from_secs(30));
+    let (ok, _, stderr) =
+        Watched::start(as_user(echo(&pose, &site.root, &ready_c, 2.0), &c, umask))
+            .finish(Duration::from_secs(30));
     assert!(!ok, "C is outside the group but subscribed:\n{stderr}");
     assert!(!ready_c.exists(), "C got as far as subscribing");
     assert!(stderr.contains("permission denied"), "{stderr}");
@@ -554,12 +574,9 @@ fn group_access(unit_settings: bool) {
     if !unit_settings {
         let elsewhere = site.root.with_file_name("not_yet");
         let ready = site.flags.join("c_elsewhere");
-        let (ok, _, stderr) = Watched::start(as_user(
-            echo(&pose, &elsewhere, &ready, 2.0),
-            &c,
-            umask,
-        ))
-        .finish(Duration::from_secs(30));
+        let (ok, _, stderr) =
+            Watched::start(as_user(echo(&pose, &elsewhere, &ready, 2.0), &c, umask))
+                .finish(Duration::from_secs(30));
         assert!(!ok && stderr.contains("cannot create"), "{stderr}");
         assert!(stderr.contains("is not writable by"), "{stderr}");
         assert!(!stderr.contains("InternalError"), "{stderr}");
@@ -580,7 +597,11 @@ fn group_access(unit_settings: bool) {
             "C: {stderr}"
         );
         let out = check(&b);
-        assert!(out.status.success(), "B: {}", String::from_utf8_lossy(&out.stderr));
+        assert!(
+            out.status.success(),
+            "B: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
     }
 
     // D, out of the group now, is refused a new subscription.
@@ -591,23 +612,44 @@ fn group_access(unit_settings: bool) {
         umask,
     ))
     .finish(Duration::from_secs(30));
-    assert!(!ok && stderr.contains(&format!("group {group}")), "{stderr}");
+    assert!(
+        !ok && stderr.contains(&format!("group {group}")),
+        "{stderr}"
+    );
 
     // B cannot publish: iceoryx2 gives the one publisher and the one
     // notifier to the daemon, rigslam's publisher refuses another user's
     // root, and the payload segments are read-only for the group.
     let attempts = attempt_to_publish(&b, &site.root, &prefix, a.uid);
-    assert!(attempts.contains("iceoryx2 publisher: refused"), "{attempts}");
-    assert!(attempts.contains("iceoryx2 notifier: refused"), "{attempts}");
-    assert!(attempts.contains("rigslam publisher: refused"), "{attempts}");
-    assert!(attempts.contains(&format!("belongs to user {}", a.name)), "{attempts}");
+    assert!(
+        attempts.contains("iceoryx2 publisher: refused"),
+        "{attempts}"
+    );
+    assert!(
+        attempts.contains("iceoryx2 notifier: refused"),
+        "{attempts}"
+    );
+    assert!(
+        attempts.contains("rigslam publisher: refused"),
+        "{attempts}"
+    );
+    assert!(
+        attempts.contains(&format!("belongs to user {}", a.name)),
+        "{attempts}"
+    );
     assert!(!attempts.contains("ALLOWED"), "{attempts}");
-    assert!(!attempts.contains("payload segments of the daemon: 0"), "{attempts}");
+    assert!(
+        !attempts.contains("payload segments of the daemon: 0"),
+        "{attempts}"
+    );
 
     // The files: root A:G 0770, nothing of the daemon's open to others,
     // its payload segments 0640.
     let meta = std::fs::metadata(&site.root).expect("root");
-    assert_eq!((meta.uid(), meta.gid(), meta.mode() & 0o7777), (a.uid, a.gid, 0o770));
+    assert_eq!(
+        (meta.uid(), meta.gid(), meta.mode() & 0o7777),
+        (a.uid, a.gid, 0o770)
+    );
     // New connection segments are narrowed within a status period.
     let end = Instant::now() + Duration::from_secs(5);
     loop {
@@ -615,7 +657,10 @@ fn group_access(unit_settings: bool) {
         if open.is_empty() {
             break;
         }
-        assert!(Instant::now() < end, "the daemon's user's files open too wide: {open:?}");
+        assert!(
+            Instant::now() < end,
+            "the daemon's user's files open too wide: {open:?}"
+        );
         std::thread::sleep(Duration::from_millis(200));
     }
 
@@ -635,7 +680,11 @@ fn group_access(unit_settings: bool) {
     {
         let (ok, stdout, stderr) = w.finish(Duration::from_secs(60));
         assert!(ok, "{who}: {stderr}");
-        assert_eq!(json_number(&stdout, "received"), expected, "{who}: {stdout}");
+        assert_eq!(
+            json_number(&stdout, "received"),
+            expected,
+            "{who}: {stdout}"
+        );
         assert_eq!(json_number(&stdout, "missed"), 0, "{who}: {stdout}");
         if who == "D pose" {
             assert!(stderr.contains("no longer in group"), "{who}: {stderr}");
@@ -704,7 +753,10 @@ fn a_name_taken_before_the_daemon_starts_stops_it_with_a_message() {
     ))
     .finish(Duration::from_secs(60));
     assert!(!ok, "the daemon published into B's service:\n{log}");
-    assert!(log.contains(&format!("belongs to user {}", b.name)), "{log}");
+    assert!(
+        log.contains(&format!("belongs to user {}", b.name)),
+        "{log}"
+    );
     assert!(log.contains("services"), "{log}");
     drop(squatter);
 }

@@ -526,7 +526,13 @@ pub fn check(config: &DaemonConfig, file: &Path) -> Result<RigModel, Vec<Problem
         if let Err(crate::publish::IpcError::Group { reason, .. }) =
             crate::publish::publishing_group(&config.publish)
         {
-            bad("publish.group", format!("{:?}: {reason}", config.publish.group.as_deref().unwrap_or("")));
+            bad(
+                "publish.group",
+                format!(
+                    "{:?}: {reason}",
+                    config.publish.group.as_deref().unwrap_or("")
+                ),
+            );
         }
     }
     if config.publish.service_prefix.is_empty() || config.publish.service_prefix.ends_with('/') {

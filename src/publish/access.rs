@@ -263,9 +263,8 @@ impl Access {
 }
 
 fn chgrp(path: &Path, group: &Group) -> Result<(), IpcError> {
-    let c_path = std::ffi::CString::new(path.as_os_str().as_bytes()).map_err(|_| {
-        permission(format!("{}: path contains a NUL byte", path.display()))
-    })?;
+    let c_path = std::ffi::CString::new(path.as_os_str().as_bytes())
+        .map_err(|_| permission(format!("{}: path contains a NUL byte", path.display())))?;
     // SAFETY: a valid C string; uid -1 keeps the owner.
     let rc = unsafe { libc::lchown(c_path.as_ptr(), u32::MAX, group.gid) };
     if rc == 0 {
@@ -395,7 +394,8 @@ fn check_reachable(root: &Path) -> Result<(), IpcError> {
                         root.display(),
                         p.display(),
                         m.as_ref().map_or("?".into(), |m| user_name(m.uid())),
-                        m.as_ref().map_or("?".into(), |m| group_by_gid(m.gid()).name),
+                        m.as_ref()
+                            .map_or("?".into(), |m| group_by_gid(m.gid()).name),
                         m.as_ref().map_or(0, |m| m.mode() & 0o7777),
                         user_name(effective_uid())
                     )))
@@ -490,7 +490,9 @@ mod tests {
             group: Some("rsl_no_such_group_xyz".into()),
             ..IpcConfig::default()
         };
-        let text = publishing_group(&config).expect_err("missing group").to_string();
+        let text = publishing_group(&config)
+            .expect_err("missing group")
+            .to_string();
         assert!(text.contains("rsl_no_such_group_xyz"), "{text}");
         assert!(text.contains("groupadd"), "{text}");
     }

@@ -148,7 +148,8 @@ pub fn user_listed_in_group(uid: u32, gid: u32) -> bool {
         let mut groups = vec![0 as libc::gid_t; count as usize];
         let mut n = count;
         // SAFETY: `groups` holds `n` entries; getgrouplist writes at most that many.
-        let rc = unsafe { libc::getgrouplist(c_name.as_ptr(), primary, groups.as_mut_ptr(), &mut n) };
+        let rc =
+            unsafe { libc::getgrouplist(c_name.as_ptr(), primary, groups.as_mut_ptr(), &mut n) };
         if rc >= 0 {
             return groups[..n as usize].contains(&gid);
         }
@@ -173,7 +174,10 @@ mod tests {
 
     #[test]
     fn a_missing_group_is_none_not_an_error() {
-        assert_eq!(group_by_name("rsl_no_such_group_xyz").expect("lookup"), None);
+        assert_eq!(
+            group_by_name("rsl_no_such_group_xyz").expect("lookup"),
+            None
+        );
         assert!(group_by_name("a\0b").is_err());
     }
 

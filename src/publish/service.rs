@@ -15,12 +15,12 @@ use iceoryx2::port::listener::Listener;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
-use iceoryx2::service::builder::event::EventOpenError;
-use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
 use iceoryx2::prelude::{
     ipc_threadsafe, CallbackProgression, MessagingPattern, SemanticString, ServiceName,
     SignalHandlingMode, ZeroCopySend,
 };
+use iceoryx2::service::builder::event::EventOpenError;
+use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
 use iceoryx2::service::service_hash::ServiceHash;
 
 use super::access::{effective_root, explain_refusal};
@@ -123,9 +123,10 @@ pub enum IpcError {
     #[error("publish.group {name:?}: {reason}")]
     Group { name: String, reason: String },
     #[error(
-        "{path:?} belongs to user {owner}, not to {user} who publishes: another process \
-         created it first (taking the service name) or an earlier run as {owner} left it; \
-         stop that process, remove it (`sudo rm -rf {path:?}`) and start again"
+        "{path:?} belongs to user {owner}, not to {user}, who would publish: only its owner \
+         publishes there. If {owner} is not the daemon's user, another process took the \
+         service name before the daemon, or a run as {owner} left it behind: stop that \
+         process, remove it (`sudo rm -rf {path:?}`) and start the daemon again"
     )]
     Foreign {
         path: PathBuf,

@@ -84,7 +84,8 @@ impl<T: Message> Subscription<T> {
     ) -> Result<Self, IpcError> {
         let access = Access::for_subscriber(config)?;
         let node = create_node(config)?;
-        let services = Services::<T>::open(config, &node, service, access.services_of_another_user())?;
+        let services =
+            Services::<T>::open(config, &node, service, access.services_of_another_user())?;
         let (subscriber, listener) = services.subscriber(buffer)?;
         // This process's files (node, event socket and counter, connection
         // segments) to the daemon's group, away from everyone else.
