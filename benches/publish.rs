@@ -27,6 +27,7 @@ fn run(rate_hz: f64, count: u64, spin: bool) -> serde_json::Value {
     let config = IpcConfig {
         service_prefix: format!("rigslam_bench_{}_{}", std::process::id(), rate_hz as u64),
         root_path: Some(root.path().to_path_buf()),
+        group: None,
     };
     let mut publisher = PosePublisher::open(&config).expect("publisher");
     let mut echo = Command::new(env!("CARGO_BIN_EXE_rigslam"))

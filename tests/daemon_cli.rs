@@ -104,6 +104,7 @@ fn private_ipc(test: &str, root: &Path) -> IpcConfig {
     IpcConfig {
         service_prefix: format!("rigslamd_test_{}_{test}", std::process::id()),
         root_path: Some(root.to_path_buf()),
+        group: None,
     }
 }
 
@@ -168,6 +169,20 @@ fn check_config_names_file_key_and_why() {
         );
     }
     assert!(out.contains("missing.yaml"), "{out}");
+
+    // A publishing group that does not exist: the key, the group, the fix.
+    let (ok, out) = check_config(
+        "[camera]\nsource = \"v4l2\"\ndevice = \"/dev/video0\"\n[imu]\nsource = \"yei\"\n\
+         port = \"/dev/ttyACM0\"\n[publish]\ngroup = \"rsl_no_such_group\"\n",
+        dir.path(),
+    );
+    assert!(!ok);
+    assert!(
+        out.contains(&format!("{file}: publish.group: "))
+            && out.contains("rsl_no_such_group")
+            && out.contains("groupadd"),
+        "{out}"
+    );
 
     // A calibration file that lacks a field: the file and the field.
     let Some(euroc) = euroc() else {

@@ -18,6 +18,7 @@ fn echo_json_reports_the_samples_of_a_short_run() {
     let config = IpcConfig {
         service_prefix: format!("rigslam_echo_{}", std::process::id()),
         root_path: Some(root.path().to_path_buf()),
+        group: None,
     };
     let stop = Arc::new(AtomicBool::new(false));
     let publisher = {

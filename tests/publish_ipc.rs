@@ -22,6 +22,7 @@ fn private_config(test: &str) -> (IpcConfig, tempfile::TempDir) {
     let config = IpcConfig {
         service_prefix: format!("rigslam_test_{}_{test}", std::process::id()),
         root_path: Some(root.path().to_path_buf()),
+        group: None,
     };
     (config, root)
 }

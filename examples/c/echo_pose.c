@@ -21,7 +21,12 @@
  *     loop: wait on the listener (timed wait) -> then receive every sample
  *       (iox2_subscriber_receive), cast iox2_sample_payload's pointer and
  *       call print_pose() below, drop the sample.
+ *
+ * The poses are for the daemon's user and its group only (`usermod -aG
+ * rigslam USER`); `./echo_pose --check-access /run/rigslam/iceoryx2` shows
+ * what rigslam_access.h tells a reader that is not allowed in.
  */
+#include "rigslam_access.h" /* first: it asks for _GNU_SOURCE */
 #include <inttypes.h>
 #include <stdio.h>
 #include <string.h>
@@ -68,9 +73,23 @@ static int print_pose(const rigslam_pose_message_t *m) {
 
 int main(int argc, char **argv) {
     FILE *in = stdin;
+    if (argc == 3 && strcmp(argv[1], "--check-access") == 0) {
+        /* What a reader does before (or after a failed) iox2_node_builder_create():
+         * say plainly when a permission keeps it from the daemon's root path. */
+        char why[1024];
+        int rc = rigslam_explain_access(argv[2], why, sizeof why);
+        if (rc != 0) {
+            fprintf(stderr, "%s\n", rc > 0 ? why : "permission denied (message too long)");
+            return 1;
+        }
+        printf("%s: open to this process\n", argv[2]);
+        return 0;
+    }
     if (argc > 2) {
-        fprintf(stderr, "usage: %s [FILE]  (raw rigslam_pose_message_t records; stdin when absent)\n",
-                argv[0]);
+        fprintf(stderr,
+                "usage: %s [FILE]  (raw rigslam_pose_message_t records; stdin when absent)\n"
+                "       %s --check-access ROOT_PATH  (may this process read the daemon's poses?)\n",
+                argv[0], argv[0]);
         return 2;
     }
     if (argc == 2 && (in = fopen(argv[1], "rb")) == NULL) {

@@ -520,6 +520,21 @@ pub fn check(config: &DaemonConfig, file: &Path) -> Result<RigModel, Vec<Problem
             );
         }
     }
+    if config.publish.group.is_some() {
+        // The group must exist and hold the daemon's user (a typo would
+        // otherwise lock every reader out); the message names the fix.
+        if let Err(crate::publish::IpcError::Group { reason, .. }) =
+            crate::publish::publishing_group(&config.publish)
+        {
+            bad(
+                "publish.group",
+                format!(
+                    "{:?}: {reason}",
+                    config.publish.group.as_deref().unwrap_or("")
+                ),
+            );
+        }
+    }
     if config.publish.service_prefix.is_empty() || config.publish.service_prefix.ends_with('/') {
         bad(
             "publish.service_prefix",

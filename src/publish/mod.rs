@@ -14,11 +14,15 @@
 //! in `include/rigslam/pose_message.h`; README.md beside this file shows a
 //! consumer in both languages.
 
+mod access;
+mod group;
 mod message;
 mod publisher;
 mod service;
 mod subscriber;
 
+pub use access::{publishing_group, ROOT_MODE};
+pub use group::Group;
 pub use message::*;
 pub use publisher::{PosePublisher, PublisherNode, StreamPublisher};
 pub use service::{

@@ -4,11 +4,13 @@
 
 use crate::sensors::yei::device::host_monotonic_ns;
 
+use super::access::{refuse_foreign_file, Access};
 use super::message::{PoseMessage, StatusMessage};
-use super::service::{create_node, IpcConfig, IpcError, Message, Services, Stream};
+use super::service::{create_node, service_file, IpcConfig, IpcError, Message, Services, Stream};
 use iceoryx2::node::Node;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
+use iceoryx2::port::update_connections::UpdateConnections;
 
 use super::service::Ipc;
 
@@ -18,19 +20,26 @@ pub struct StreamPublisher<T: Message> {
     publisher: Publisher<Ipc, T, ()>,
     notifier: Notifier<Ipc>,
     next_sequence: u64,
+    /// Whether the last attempt to connect new subscribers failed (said once).
+    connect_failed: bool,
     // Keeps the service's static config alive as long as the ports.
     _services: Services<T>,
 }
 
 impl<T: Message> StreamPublisher<T> {
-    fn open(node: &Node<Ipc>, name: String) -> Result<Self, IpcError> {
-        let services = Services::<T>::open(node, &name)?;
+    fn open(config: &IpcConfig, node: &Node<Ipc>, name: String) -> Result<Self, IpcError> {
+        let services = Services::<T>::open(config, node, &name, false)?;
+        // The service file must be the daemon's own: another user's means
+        // the name was taken before it. (Its dynamic config in /dev/shm is
+        // created with it, exclusively, by the same process.)
+        refuse_foreign_file(&service_file(config, &services.file_stem()))?;
         let (publisher, notifier) = services.publisher()?;
         Ok(Self {
             service: name,
             publisher,
             notifier,
             next_sequence: 0,
+            connect_failed: false,
             _services: services,
         })
     }
@@ -43,6 +52,22 @@ impl<T: Message> StreamPublisher<T> {
         let sequence = self.next_sequence;
         let mut stamped = *message;
         stamped.stamp(sequence, host_monotonic_ns());
+        // Connect new subscribers first: when one cannot be reached (its
+        // files are closed to the daemon), iceoryx2 would fail this send
+        // for everyone; this way the others still get the sample.
+        match self.publisher.update_connections() {
+            Ok(()) => self.connect_failed = false,
+            Err(e) if !self.connect_failed => {
+                self.connect_failed = true;
+                tracing::warn!(
+                    "{}: a new subscriber cannot be connected ({e:?}); publishing to the others \
+                     (a subscriber outside the publishing group, or one whose files are closed \
+                     to the daemon)",
+                    self.service
+                );
+            }
+            Err(_) => {}
+        }
         self.publisher
             .send_copy(stamped)
             .map_err(|e| IpcError::service(&self.service, "send sample", e))?;
@@ -72,21 +97,42 @@ pub struct PosePublisher {
     pose: StreamPublisher<PoseMessage>,
     pose_fast: StreamPublisher<PoseMessage>,
     status: StreamPublisher<StatusMessage>,
+    access: Access,
     // Dropped last: the ports above belong to it.
     _node: Node<Ipc>,
 }
 
 impl PosePublisher {
-    /// Opens (or creates) the three services and their ports.
+    /// Opens (or creates) the three services and their ports, for the
+    /// daemon's user and the publishing group only (`config.group`; see
+    /// src/publish/README.md, "Who may read"). Refuses a root directory or
+    /// service files of another user.
     pub fn open(config: &IpcConfig) -> Result<Self, IpcError> {
+        let access = Access::for_publisher(config)?;
         let node = create_node(config)?;
         let prefix = &config.service_prefix;
-        Ok(Self {
-            pose: StreamPublisher::open(&node, Stream::Pose.service_name(prefix))?,
-            pose_fast: StreamPublisher::open(&node, Stream::PoseFast.service_name(prefix))?,
-            status: StreamPublisher::open(&node, Stream::Status.service_name(prefix))?,
+        let publisher = Self {
+            pose: StreamPublisher::open(config, &node, Stream::Pose.service_name(prefix))?,
+            pose_fast: StreamPublisher::open(config, &node, Stream::PoseFast.service_name(prefix))?,
+            status: StreamPublisher::open(config, &node, Stream::Status.service_name(prefix))?,
+            access,
             _node: node,
-        })
+        };
+        publisher.narrow_new_files()?;
+        Ok(publisher)
+    }
+
+    /// Gives the files the daemon created since the last call (segments
+    /// of new subscribers' connections) to the publishing group and takes
+    /// them from everyone else; returns how many changed. Call it now and
+    /// then (the daemon does once per status period).
+    pub fn narrow_new_files(&self) -> Result<usize, IpcError> {
+        self.access.narrow_own_files()
+    }
+
+    /// The group that may subscribe.
+    pub fn group_name(&self) -> Option<&str> {
+        self.access.group().map(|g| g.name.as_str())
     }
 
     /// Publishes a frame-rate pose on `<prefix>/pose`; returns its sequence number.
@@ -119,7 +165,10 @@ impl PosePublisher {
             self.pose,
             self.pose_fast,
             self.status,
-            PublisherNode { _node: self._node },
+            PublisherNode {
+                access: self.access,
+                _node: self._node,
+            },
         )
     }
 }
@@ -127,5 +176,13 @@ impl PosePublisher {
 /// The iceoryx2 node behind split publishers; keep it alive as long as
 /// they are used.
 pub struct PublisherNode {
+    access: Access,
     _node: Node<Ipc>,
+}
+
+impl PublisherNode {
+    /// [`PosePublisher::narrow_new_files`].
+    pub fn narrow_new_files(&self) -> Result<usize, IpcError> {
+        self.access.narrow_own_files()
+    }
 }

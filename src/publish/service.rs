@@ -16,10 +16,15 @@ use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::{
-    ipc_threadsafe, CallbackProgression, SemanticString, ServiceName, SignalHandlingMode,
-    ZeroCopySend,
+    ipc_threadsafe, CallbackProgression, MessagingPattern, SemanticString, ServiceName,
+    SignalHandlingMode, ZeroCopySend,
 };
+use iceoryx2::service::builder::event::EventOpenError;
+use iceoryx2::service::builder::publish_subscribe::PublishSubscribeOpenError;
+use iceoryx2::service::service_hash::ServiceHash;
 
+use super::access::{effective_root, explain_refusal};
+use super::group::effective_uid;
 use super::message::{PoseMessage, StatusMessage, POSE_LAYOUT_VERSION, STATUS_LAYOUT_VERSION};
 
 /// The iceoryx2 service variant used throughout: its ports are `Send` and
@@ -50,6 +55,11 @@ pub struct IpcConfig {
     /// sets e.g. `/run/rigslam/iceoryx2/` (`RuntimeDirectory=rigslam`).
     /// Shared memory itself lives in `/dev/shm` either way.
     pub root_path: Option<PathBuf>,
+    /// The group whose members may subscribe (`[publish] group`): the
+    /// daemon gives it the root directory and its files. `None`: the
+    /// daemon's own effective (primary) group, `rigslam` under the shipped
+    /// unit. Only the daemon reads it; subscribers follow the root.
+    pub group: Option<String>,
 }
 
 impl Default for IpcConfig {
@@ -57,6 +67,7 @@ impl Default for IpcConfig {
         Self {
             service_prefix: DEFAULT_SERVICE_PREFIX.to_string(),
             root_path: None,
+            group: None,
         }
     }
 }
@@ -107,6 +118,26 @@ pub enum IpcError {
     ServiceName { name: String, reason: String },
     #[error("cannot create an iceoryx2 node: {reason}")]
     Node { reason: String },
+    #[error("permission denied: {message}")]
+    Permission { message: String },
+    #[error("publish.group {name:?}: {reason}")]
+    Group { name: String, reason: String },
+    #[error(
+        "{path:?} belongs to user {owner}, not to {user}, who would publish: only its owner \
+         publishes there. If {owner} is not the daemon's user, another process took the \
+         service name before the daemon, or a run as {owner} left it behind: stop that \
+         process, remove it (`sudo rm -rf {path:?}`) and start the daemon again"
+    )]
+    Foreign {
+        path: PathBuf,
+        owner: String,
+        user: String,
+    },
+    #[error(
+        "service {service} does not exist: rigslamd is not running, or runs with another \
+         root_path or service_prefix (it, not a subscriber, creates the services)"
+    )]
+    NotPublished { service: String },
     #[error("service {service}: {action}: {reason}")]
     Service {
         service: String,
@@ -189,9 +220,21 @@ pub(crate) fn create_node(config: &IpcConfig) -> Result<Node<Ipc>, IpcError> {
         .config(&iox_config)
         .signal_handling_mode(SignalHandlingMode::Disabled)
         .create::<Ipc>()
-        .map_err(|e| IpcError::Node {
-            reason: format!("{e:?}"),
+        .map_err(|e| {
+            let reason = format!("{e:?}");
+            explain_refusal(config, &reason).unwrap_or(IpcError::Node { reason })
         })
+}
+
+/// An iceoryx2 error of `action` on `service`, said as a permission
+/// problem when it is one.
+fn refused(config: &IpcConfig, service: &str, action: &'static str, e: impl Debug) -> IpcError {
+    let reason = format!("{e:?}");
+    explain_refusal(config, &reason).unwrap_or(IpcError::Service {
+        service: service.to_string(),
+        action,
+        reason,
+    })
 }
 
 /// Removes what processes that died without cleaning up (a daemon killed
@@ -263,6 +306,46 @@ pub(crate) fn service_name(name: &str) -> Result<ServiceName, IpcError> {
     })
 }
 
+/// iceoryx2 marks a service for destruction when its last user leaves,
+/// and removes its files; a reader of the group is not allowed to remove
+/// the daemon's, so after such a reader was the last, the service stays
+/// marked and cannot be opened. The creator (the daemon's user) then
+/// removes the service file, its own, and creates the service anew.
+fn create_over_stale<R, E: Debug>(
+    config: &IpcConfig,
+    service: &ServiceName,
+    pattern: MessagingPattern,
+    mut attempt: impl FnMut() -> Result<R, E>,
+) -> Result<R, E> {
+    match attempt() {
+        Err(e) if format!("{e:?}").contains("IsMarkedForDestruction") => {
+            let hash = ServiceHash::new::<<Ipc as iceoryx2::service::Service>::ServiceNameHasher>(
+                service, pattern,
+            );
+            let file = service_file(config, hash.as_str());
+            let mine = std::fs::symlink_metadata(&file)
+                .is_ok_and(|m| std::os::unix::fs::MetadataExt::uid(&m) == effective_uid());
+            if !mine || std::fs::remove_file(&file).is_err() {
+                return Err(e);
+            }
+            tracing::info!(
+                "{}: removed {} left marked for destruction (its last user could not remove it)",
+                service.as_str(),
+                file.display()
+            );
+            attempt()
+        }
+        other => other,
+    }
+}
+
+/// The static config file of the service with iceoryx2 hash `hash`.
+pub(crate) fn service_file(config: &IpcConfig, hash: &str) -> PathBuf {
+    effective_root(config)
+        .join("services")
+        .join(format!("iox2_{hash}.service"))
+}
+
 /// A publisher and the notifier that announces its samples.
 pub(crate) type PublisherPorts<T> = (Publisher<Ipc, T, ()>, Notifier<Ipc>);
 /// A subscriber and the listener it blocks on.
@@ -277,28 +360,67 @@ pub(crate) struct Services<T: Message> {
 }
 
 impl<T: Message> Services<T> {
-    pub fn open(node: &Node<Ipc>, name: &str) -> Result<Self, IpcError> {
+    /// Opens the stream's services; creates them too unless `open_only`
+    /// (a subscriber of a daemon that runs as another user never creates
+    /// them: that would be taking the name before the daemon).
+    ///
+    /// One publisher and one notifier at most: the daemon holds them, so
+    /// no other process gets a publisher through iceoryx2 while it runs.
+    pub fn open(
+        config: &IpcConfig,
+        node: &Node<Ipc>,
+        name: &str,
+        open_only: bool,
+    ) -> Result<Self, IpcError> {
         let service = service_name(name)?;
-        let pubsub = node
-            .service_builder(&service)
-            .publish_subscribe::<T>()
-            // A slow or dead subscriber loses its oldest samples; the
-            // publisher never blocks on it.
-            .enable_safe_overflow(true)
-            .subscriber_max_buffer_size(MAX_SUBSCRIBER_BUFFER)
-            .history_size(0)
-            .open_or_create()
-            .map_err(|e| IpcError::service(name, "open publish-subscribe service", e))?;
-        let event = node
-            .service_builder(&service)
-            .event()
-            .open_or_create()
-            .map_err(|e| IpcError::service(name, "open event service", e))?;
+        let pubsub_builder = || {
+            node.service_builder(&service)
+                .publish_subscribe::<T>()
+                // A slow or dead subscriber loses its oldest samples; the
+                // publisher never blocks on it.
+                .enable_safe_overflow(true)
+                .subscriber_max_buffer_size(MAX_SUBSCRIBER_BUFFER)
+                .history_size(0)
+                .max_publishers(1)
+        };
+        let pubsub = if open_only {
+            pubsub_builder().open().map_err(|e| match e {
+                PublishSubscribeOpenError::DoesNotExist => IpcError::NotPublished {
+                    service: name.to_string(),
+                },
+                e => refused(config, name, "open publish-subscribe service", e),
+            })?
+        } else {
+            create_over_stale(config, &service, MessagingPattern::PublishSubscribe, || {
+                pubsub_builder().open_or_create()
+            })
+            .map_err(|e| refused(config, name, "open publish-subscribe service", e))?
+        };
+        let event_builder = || node.service_builder(&service).event().max_notifiers(1);
+        let event = if open_only {
+            event_builder().open().map_err(|e| match e {
+                EventOpenError::DoesNotExist => IpcError::NotPublished {
+                    service: name.to_string(),
+                },
+                e => refused(config, name, "open event service", e),
+            })?
+        } else {
+            create_over_stale(config, &service, MessagingPattern::Event, || {
+                event_builder().open_or_create()
+            })
+            .map_err(|e| refused(config, name, "open event service", e))?
+        };
         Ok(Self {
             name: name.to_string(),
             pubsub,
             event,
         })
+    }
+
+    /// iceoryx2's hash of the service: its files are named after it.
+    pub fn file_stem(&self) -> String {
+        use iceoryx2::service::port_factory::PortFactory;
+        self.pubsub.service_hash().as_str().to_string()
     }
 
     pub fn publisher(&self) -> Result<PublisherPorts<T>, IpcError> {

@@ -7,8 +7,12 @@ use iceoryx2::node::Node;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::subscriber::Subscriber;
 
+use super::access::Access;
 use super::message::{PoseMessage, StatusMessage};
 use super::service::{create_node, Ipc, IpcConfig, IpcError, Message, Services, Stream};
+
+/// How often a subscription narrows the files it created meanwhile.
+const NARROWING_PERIOD: Duration = Duration::from_secs(1);
 
 /// Samples a subscriber queues unless told otherwise.
 pub const DEFAULT_SUBSCRIBER_BUFFER: usize = 16;
@@ -20,6 +24,9 @@ pub struct Subscription<T: Message> {
     listener: Listener<Ipc>,
     last_sequence: Option<u64>,
     missed: u64,
+    access: Access,
+    next_narrowing: Instant,
+    membership_warned: bool,
     _services: Services<T>,
     // Dropped last: the ports above belong to it.
     _node: Node<Ipc>,
@@ -63,23 +70,35 @@ impl StatusSubscriber {
 
 impl<T: Message> Subscription<T> {
     /// Subscribes to the service with the full name `service` (e.g.
-    /// `rigslam/pose`), creating it if no publisher has yet. `buffer` is
-    /// how many samples wait for [`Self::take_all`]; when more arrive
-    /// the oldest are dropped (1 keeps only the newest).
+    /// `rigslam/pose`). When the daemon runs as another user, the service
+    /// must exist ([`IpcError::NotPublished`] otherwise) and this user must
+    /// be in its group ([`IpcError::Permission`] names the group and how
+    /// to join it); as the daemon's own user it is created if no
+    /// publisher has yet. `buffer` is how many samples wait for
+    /// [`Self::take_all`]; when more arrive the oldest are dropped (1
+    /// keeps only the newest).
     pub fn open_service(
         config: &IpcConfig,
         service: &str,
         buffer: usize,
     ) -> Result<Self, IpcError> {
+        let access = Access::for_subscriber(config)?;
         let node = create_node(config)?;
-        let services = Services::<T>::open(&node, service)?;
+        let services =
+            Services::<T>::open(config, &node, service, access.services_of_another_user())?;
         let (subscriber, listener) = services.subscriber(buffer)?;
+        // This process's files (node, event socket and counter, connection
+        // segments) to the daemon's group, away from everyone else.
+        access.narrow_own_files()?;
         Ok(Self {
             service: service.to_string(),
             subscriber,
             listener,
             last_sequence: None,
             missed: 0,
+            access,
+            next_narrowing: Instant::now() + NARROWING_PERIOD,
+            membership_warned: false,
             _services: services,
             _node: node,
         })
@@ -91,6 +110,19 @@ impl<T: Message> Subscription<T> {
     /// previous sample already taken) go back to waiting.
     pub fn wait(&mut self, timeout: Duration) -> Result<bool, IpcError> {
         let deadline = Instant::now() + timeout;
+        if Instant::now() >= self.next_narrowing {
+            // Connection segments to a publisher that came later.
+            self.next_narrowing = Instant::now() + NARROWING_PERIOD;
+            if let Err(e) = self.access.narrow_own_files() {
+                tracing::warn!("{}: {e}", self.service);
+            }
+            if !self.membership_warned {
+                if let Some(warning) = self.access.membership_lost() {
+                    tracing::warn!("{}: {warning}", self.service);
+                    self.membership_warned = true;
+                }
+            }
+        }
         loop {
             if self
                 .subscriber

@@ -101,6 +101,7 @@ pub fn run(args: EchoArgs) -> anyhow::Result<()> {
     let config = IpcConfig {
         service_prefix: prefix.to_string(),
         root_path: args.root_path.clone(),
+        group: None,
     };
     if args.tum.is_some() && service.ends_with("status") {
         anyhow::bail!("--tum needs a pose stream, not {service}");

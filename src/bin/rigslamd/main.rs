@@ -173,9 +173,10 @@ fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     }
     let publisher =
         PosePublisher::open(&config.publish).context("opening the iceoryx2 services")?;
-    let (pose, pose_fast, mut status_publisher, _node) = publisher.split();
+    let group = publisher.group_name().unwrap_or("?").to_string();
+    let (pose, pose_fast, mut status_publisher, node) = publisher.split();
     tracing::info!(
-        "publishing {}, {} and {}",
+        "publishing {}, {} and {} to the daemon's user and group {group}",
         pose.service_name(),
         pose_fast.service_name(),
         status_publisher.service_name()
@@ -237,6 +238,10 @@ fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
                 status.imu_drops
             );
             if let Err(e) = status_publisher.publish(&status) {
+                tracing::warn!("{e}");
+            }
+            // Connection segments of subscribers that joined meanwhile.
+            if let Err(e) = node.narrow_new_files() {
                 tracing::warn!("{e}");
             }
             let healthy = is_healthy(&status, uses_imu);
