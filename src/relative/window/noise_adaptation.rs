@@ -186,8 +186,8 @@ pub struct NoiseAdaptation {
     gyro_walk_sums: (f64, f64),
     accel_walk_sums: (f64, f64),
     links: u64,
-    /// Links whose evidence was clamped away (scale at a bound).
-    at_bound: u64,
+    /// Consecutive links with a scale at a bound (warned at the first).
+    links_at_bound: u64,
 }
 
 /// A redundancy below this share of the rows' count says the link is not
@@ -207,7 +207,7 @@ impl NoiseAdaptation {
             gyro_walk_sums: (w * 3.0 * s.gyro_walk * s.gyro_walk, w * 3.0),
             accel_walk_sums: (w * 3.0 * s.accel_walk * s.accel_walk, w * 3.0),
             links: 0,
-            at_bound: 0,
+            links_at_bound: 0,
         }
     }
 
@@ -333,7 +333,17 @@ impl NoiseAdaptation {
         };
         self.links += 1;
         if self.at_bound() {
-            self.at_bound += 1;
+            if self.links_at_bound == 0 {
+                tracing::warn!(
+                    "IMU noise adaptation: a scale reached its bound [{}, {}] ({:?}): the IMU disagrees with the images far more (or less) than its calibration declares; check the noise figures and the camera-IMU calibration",
+                    self.config.min_scale,
+                    self.config.max_scale,
+                    self.scale
+                );
+            }
+            self.links_at_bound += 1;
+        } else {
+            self.links_at_bound = 0;
         }
         self.scale
     }
