@@ -1,4 +1,4 @@
-"""allantools peer for `rigslam-calibrate noise` (issue 8): overlapping Allan
+"""allantools peer for `rigslam-calibrate noise`: overlapping Allan
 deviation of the real 2.78 h ADIS16405 static log, per axis, in SI units
 (gyro rad/s, accel m/s^2), at the cluster sizes rigslam uses
 (m_k = floor(10^(k/10) + 0.5), k = 0, 1, ..., while m <= N/4, deduplicated).

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# allantools peer for `rigslam-calibrate noise` (issue 8): installs allantools
+# allantools peer for `rigslam-calibrate noise`: installs allantools
 # from PyPI in ./.venv-peers (gitignored) and recreates
 # fixtures/allan/adis16405_oadev.json, the overlapping Allan deviation of the
 # real ADIS16405 static log per axis. fixtures/allan/README.md records

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Scaling table for `rigslam map solve` against CHOLMOD (issue 6):
+# Scaling table for `rigslam map solve` against CHOLMOD:
 # generates map problems of 1e3..1e6 landmarks (simulated drive, knn:4
 # edges), solves each with both, alternating, REPEATS times (1 for 1e6),
 # and prints the markdown rows of bench/README.md with the best time of

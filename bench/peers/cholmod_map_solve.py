@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""CHOLMOD peer for `rigslam map solve` (issue 6).
+"""CHOLMOD peer for `rigslam map solve`.
 
 Reads the same edges file (`# landmarks N edges M reference R`, then
 `i j ex ey ez s00 s01 s02 s11 s12 s22`), assembles A L = B (paper eq. 54-57:

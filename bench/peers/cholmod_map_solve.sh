@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Peer for `rigslam map solve` (issue 6): CHOLMOD through scipy +
+# Peer for `rigslam map solve`: CHOLMOD through scipy +
 # scikit-sparse, solving the same edges files.
 #
 # Usage: bench/peers/cholmod_map_solve.sh EDGES OUT [--json]   (from the repository root)

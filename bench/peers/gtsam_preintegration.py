@@ -1,4 +1,4 @@
-"""GTSAM peer for rigslam's IMU preintegration (issue 4).
+"""GTSAM peer for rigslam's IMU preintegration.
 
 Preintegrates the real EuRoC V1_01 IMU between consecutive 20 Hz ground-truth
 stamps with GTSAM's PreintegratedImuMeasurements, holding each sample constant

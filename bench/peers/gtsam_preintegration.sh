@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# GTSAM peer for IMU preintegration (issue 4): installs gtsam from PyPI in
+# GTSAM peer for IMU preintegration: installs gtsam from PyPI in
 # ./.venv (gitignored), recreates fixtures/gtsam/v1_01_preintegration.txt
 # (GTSAM's deltas and covariances for 200 V1_01 intervals spread over the flight) and times
 # GTSAM per sample. fixtures/gtsam/README.md records version, date, command.

@@ -1,4 +1,4 @@
-"""imucal peer for `rigslam-calibrate imu` (issue 8): runs imucal's Ferraris
+"""imucal peer for `rigslam-calibrate imu`: runs imucal's Ferraris
 calibration on the real session with its section list and writes the
 matrices, in imucal's own convention and in ours (x_c = S x_r + b, SI), as
 JSON.

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# imucal peer for `rigslam-calibrate imu` (issue 8): installs imucal from PyPI
+# imucal peer for `rigslam-calibrate imu`: installs imucal from PyPI
 # in ./.venv-peers (gitignored) and recreates fixtures/imucal/ferraris_session.json,
 # imucal's Ferraris calibration of the real session with its section list.
 # fixtures/imucal/README.md records version, date and command.

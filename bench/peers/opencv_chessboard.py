@@ -1,4 +1,4 @@
-"""OpenCV peer of `rigslam-calibrate camera` (issue 8): OpenCV's chessboard
+"""OpenCV peer of `rigslam-calibrate camera`: OpenCV's chessboard
 corners and calibrateCamera on the 13 real 9x6 images of
 ../shared/data/calib/chessboard_9x6_25mm, written as one JSON fixture.
 

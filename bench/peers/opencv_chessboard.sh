@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# OpenCV peer for `rigslam-calibrate camera` (issue 8): installs
+# OpenCV peer for `rigslam-calibrate camera`: installs
 # opencv-python-headless from PyPI in ./.venv-opencv (gitignored) and
 # recreates fixtures/opencv/chessboard_9x6_25mm.json, OpenCV's corners and
 # calibrateCamera results on the 13 real chessboard images.
