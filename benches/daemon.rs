@@ -1,5 +1,4 @@
-//! The daemon on a replay, measured from outside as its users see it
-//! (issue 9's benchmarks):
+//! The daemon on a replay, measured from outside as its users see it:
 //!
 //! - frame arrival to `rigslam/pose` published, p50 and p99 (the daemon's
 //!   own exit report; target p99 under 20 ms at 20 Hz);

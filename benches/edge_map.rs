@@ -1,4 +1,4 @@
-//! Edge-map costs (issue 6): one edge fusion update (eq. 43) and the
+//! Edge-map costs: one edge fusion update (eq. 43) and the
 //! assembly + factorisation + solve of A L = B on a simulated 10k-landmark
 //! drive. The scaling table against CHOLMOD is made by
 //! bench/peers/cholmod_map_scaling.sh; see bench/README.md.

@@ -1,4 +1,4 @@
-//! Publish -> receive latency between two processes (issue 9 target: p99
+//! Publish -> receive latency between two processes (target: p99
 //! under 100 us), at the IMU rate of `pose_fast` (10 kHz) and at a camera
 //! rate (20 Hz).
 //!

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 /// `../shared/data` relative to the repository, or `$RIGSLAM_SHARED_DATA`
 /// when set (a checkout elsewhere). `None` when it is missing, so a test
 /// can skip; but when `CI` is set a missing folder panics, because CI must
-/// run the real-data tests, not skip them (DESIGN.md, "Data for tests").
+/// run the real-data tests, not skip them.
 pub fn shared_data_dir() -> Option<PathBuf> {
     let dir = std::env::var_os("RIGSLAM_SHARED_DATA")
         .map(PathBuf::from)

@@ -1,5 +1,5 @@
 //! `rigslam camera` end to end: the pattern camera's report has the keys
-//! DESIGN.md promises, and a missing device or an unknown format gives an
+//! its users rely on, and a missing device or an unknown format gives an
 //! error that names it and says what to check.
 
 use std::process::Command;

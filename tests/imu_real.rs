@@ -1,4 +1,4 @@
-//! IMU preintegration on real data (issue 4): against GTSAM's recorded
+//! IMU preintegration on real data: against GTSAM's recorded
 //! output, and against EuRoC ground truth.
 //!
 //! `fixtures/gtsam/v1_01_preintegration.txt` is GTSAM 4.3.0's

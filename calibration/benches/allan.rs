@@ -1,4 +1,4 @@
-//! Speed of the noise analysis (issue 8 bar: one million samples on six
+//! Speed of the noise analysis (target: one million samples on six
 //! axes in under 2 s): the still check, six overlapping Allan curves at 51
 //! cluster times (one thread per axis) and the fits, on a simulated still
 //! log of 1 000 000 samples at 100 Hz. Results in bench/README.md.

@@ -1,6 +1,6 @@
 //! The files the calibration writes for the daemon: Kalibr's `imu.yaml`
 //! (continuous-time noise, read back by `rigslam::imu::read_kalibr_imu_yaml`)
-//! and the IMU intrinsics `x_c = S x_r + b` (DESIGN.md, "Calibration files").
+//! and the IMU intrinsics `x_c = S x_r + b`.
 
 use std::path::Path;
 

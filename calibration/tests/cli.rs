@@ -1,5 +1,5 @@
 //! The `rigslam-calibrate imu` and `noise` commands end to end on logs
-//! written here: the JSON keys DESIGN.md promises, the files beside the
+//! written here: the JSON keys users rely on, the files beside the
 //! YAML, and a message that says what to recollect on bad input.
 
 use std::path::Path;

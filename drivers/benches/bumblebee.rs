@@ -1,4 +1,4 @@
-//! Per-frame cost of the Bumblebee stereo path at 1024x768 (issue 7: under
+//! Per-frame cost of the Bumblebee stereo path at 1024x768 (target: under
 //! 1 ms for split + demosaic). Input: a EuRoC V1_01 cam0/cam1 pair tiled
 //! to 1024x768 and interleaved as the camera sends it (random bytes when
 //! ../shared/data is missing).

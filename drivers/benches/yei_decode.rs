@@ -1,4 +1,4 @@
-//! YEI 3-Space stream decoding throughput (issue 7 asks >= 1,000,000
+//! YEI 3-Space stream decoding throughput (target >= 1,000,000
 //! packets/s on one core). Input: 10,000 gyro+accel packets with the
 //! streaming header (32 bytes each), fed in 4 KiB reads as from a port.
 

@@ -1,4 +1,4 @@
-//! Sensor clock -> host clock alignment (issue 7, item 3).
+//! Sensor clock -> host clock alignment.
 //!
 //! A sensor stamps its samples with its own clock (the YEI's microsecond
 //! counter, a camera's tick counter); the host stamps the moment the bytes

@@ -11,7 +11,7 @@ use rigslam_drivers::camera::demosaic::{bilinear_rgb, luma};
 use rigslam_drivers::{BayerPattern, Frame, Image, PixelFormat};
 
 /// `../shared/data` beside the repository (or `$RIGSLAM_SHARED_DATA`);
-/// missing data fails under CI and skips otherwise (DESIGN.md).
+/// missing data fails under CI and skips otherwise.
 fn shared_data() -> Option<PathBuf> {
     let dir = std::env::var_os("RIGSLAM_SHARED_DATA")
         .map(PathBuf::from)

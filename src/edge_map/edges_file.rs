@@ -1,4 +1,4 @@
-//! The stand-alone edge-map text format of `rigslam map solve` (issue 6).
+//! The stand-alone edge-map text format of `rigslam map solve`.
 //!
 //! ```text
 //! # landmarks N edges M reference R

@@ -1,4 +1,4 @@
-//! Localising in a saved map (issue 6, item 6): `rigslam run --load-map`.
+//! Localising in a saved map: `rigslam run --load-map`.
 //!
 //! The relative stage runs as usual in its own world frame. Until the
 //! robot is localised, each tracking frame's landmarks are matched to the

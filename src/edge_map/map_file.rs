@@ -1,4 +1,4 @@
-//! Saved maps (issue 6, item 6): the landmarks of a solved edge map with
+//! Saved maps: the landmarks of a solved edge map with
 //! their covariance and descriptor, written at the end of a run
 //! (`rigslam run --absolute --save-map FILE`) and loaded to localise in
 //! (`--load-map FILE`, [`super::localise`]).

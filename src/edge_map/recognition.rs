@@ -1,4 +1,4 @@
-//! Landmark identity (issue 6, item 5): a landmark the relative stage
+//! Landmark identity: a landmark the relative stage
 //! hands over under a new track id (its track was lost, or the robot came
 //! back to a place) is recognised as a landmark already in the map, so its
 //! new edges join the old ones and the map closes the loop.

@@ -1,6 +1,6 @@
 //! Simulated relative-stage outputs for the absolute stage: a robot drives
 //! laps of an oval path inside a room whose walls carry landmarks, and each
-//! frame hands over what the relative stage would (issue 5, item 5): its
+//! frame hands over what the relative stage would: its
 //! dead-reckoned pose (orientation exact, position integrated from noisy
 //! increments), the noisy increment itself, and the visible landmarks in
 //! the body frame with stereo-like covariances, their noise drawn from

@@ -1,5 +1,5 @@
 //! Publishing: poses and status to other processes over iceoryx2 shared
-//! memory (issue 9, item 2; DESIGN.md "Published poses").
+//! memory (src/publish/README.md).
 //!
 //! Three services, each a publish-subscribe service paired with an event
 //! service of the same name, notified after every sample so that a

@@ -1,5 +1,5 @@
-//! Recordings of live sensor streams as MCAP files (DESIGN.md: one channel
-//! per sensor stream, replayable bit for bit, opened by Foxglove).
+//! Recordings of live sensor streams as MCAP files (one channel per
+//! sensor stream, replayable bit for bit, opened by Foxglove).
 //!
 //! Messages are JSON (serde_json with exact float round-tripping) described
 //! by a JSON Schema, so viewers can plot them without custom code, and

@@ -77,7 +77,7 @@ pub struct BodyLandmark {
     pub descriptor: Option<Descriptor>,
 }
 
-/// The relative stage's answer for one frame (issue 5, item 5).
+/// The relative stage's answer for one frame.
 #[allow(non_snake_case)]
 #[derive(Debug, Clone, PartialEq)]
 pub struct RelativeOutput {

@@ -38,7 +38,7 @@ pub struct DatasetRun {
     pub groundtruth: Option<Trajectory>,
     /// `None`: se3 for metric modes, sim3 for `mono`.
     pub align: Option<Alignment>,
-    /// Run the absolute stage (edge map + position filter, issue 6) on
+    /// Run the absolute stage (edge map + position filter) on
     /// the relative stage's outputs; the corrected trajectory becomes
     /// the run's trajectory and the relative one is kept beside it.
     pub absolute: bool,

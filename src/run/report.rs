@@ -1,6 +1,6 @@
 //! The numbers of one `rigslam run`: per-frame and per-stage timings
 //! (mean, p50, p99), counts, and the accuracy when ground truth is known.
-//! Written by `--report FILE` and `--json` with the keys of DESIGN.md.
+//! Written by `--report FILE` and `--json` with the keys listed on [`RunReport`].
 
 use std::collections::BTreeMap;
 

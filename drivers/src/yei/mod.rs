@@ -1,4 +1,4 @@
-//! YEI 3-Space serial IMU (issue 7): the pure binary codec
+//! YEI 3-Space serial IMU: the pure binary codec
 //! ([`protocol`], [`commands`]), the device driver that owns the port and a
 //! decode thread ([`device`]), and a simulated sensor serving the protocol on
 //! a pseudo-terminal for tests ([`simulated`]).

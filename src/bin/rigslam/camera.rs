@@ -50,7 +50,7 @@ pub struct CameraArgs {
     json: bool,
 }
 
-/// What `--json` prints (DESIGN.md: frames, rate_hz, drops, width, height, format).
+/// What `--json` prints (keys: frames, rate_hz, drops, width, height, format).
 #[derive(serde::Serialize)]
 struct Report {
     frames: u64,

@@ -1,4 +1,4 @@
-//! `rigslam map`: stand-alone edge-map problems (issue 6): solve one from
+//! `rigslam map`: stand-alone edge-map problems: solve one from
 //! an edges file, generate one from a simulated drive, compare edge policies.
 
 use std::path::PathBuf;

@@ -1,7 +1,7 @@
 //! `rigslamd`: the rig's daemon. Reads the camera and the IMU (or a
 //! recording), runs the SLAM stages, publishes poses over iceoryx2, talks
-//! to systemd. See `rigslam::daemon` for the pipeline and DESIGN.md for
-//! the contracts.
+//! to systemd. See `rigslam::daemon` for the pipeline and src/publish/README.md
+//! for what it publishes.
 
 mod notify;
 mod report;

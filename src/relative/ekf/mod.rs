@@ -1,5 +1,5 @@
-//! The paper's EKF variant of the relative stage (issue 5, item 4,
-//! `--estimator ekf`): a baseline to compare the window against.
+//! The paper's EKF variant of the relative stage
+//! (`--estimator ekf`): a baseline to compare the window against.
 //!
 //! An EKF-SLAM visual-inertial filter on tracked observations (no image
 //! processing here; the tracker feeds [`TrackedFrame`]s):

@@ -1,7 +1,7 @@
 //! Visual-inertial alignment: the IMU compared with the vision-only motion
 //! of a few keyframes to estimate the gyroscope bias, the metric scale,
 //! gravity and every keyframe's velocity (the paper's initialisation mode,
-//! issue 5 item 3; DESIGN.md "The method", stage 1).
+//! stage 1 of the method).
 //!
 //! Inputs: N >= 4 keyframes with camera poses `T_c0_ci` from vision alone
 //! (rotation exact, position up to an unknown scale, in an arbitrary frame

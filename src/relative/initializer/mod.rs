@@ -1,4 +1,4 @@
-//! Initialisation mode of the relative stage (issue 5, item 3): from
+//! Initialisation mode of the relative stage: from
 //! nothing to a metric, gravity-aligned state.
 //!
 //! Three independent pieces, in the order a start uses them:

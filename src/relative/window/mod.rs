@@ -287,6 +287,29 @@ impl WindowConfig {
     }
 }
 
+/// The diagonal of `J Sigma J^T` for the `N` rows of a Jacobian read
+/// through `j(row, col)`, over `cols`: pairs of a Jacobian column and its
+/// row and column in the covariance `cov`.
+fn hat_diagonal<const N: usize>(
+    j: impl Fn(usize, usize) -> f64,
+    cols: &[(usize, usize)],
+    cov: &DMatrix<f64>,
+) -> [f64; N] {
+    let mut diag = [0.0; N];
+    for (row, h) in diag.iter_mut().enumerate() {
+        for &(a, ka) in cols {
+            let ja = j(row, a);
+            if ja == 0.0 {
+                continue;
+            }
+            for &(b, kb) in cols {
+                *h += ja * cov[(ka, kb)] * j(row, b);
+            }
+        }
+    }
+    diag
+}
+
 /// A landmark of the window.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Landmark {
@@ -758,26 +781,19 @@ impl Window {
             return;
         }
         let gate = self.config.outlier_chi2;
-        let (mut chi2, mut rows) = (0.0, 0usize);
-        let mut landmarks = 0usize;
+        let (mut chi2, mut rows, mut landmarks) = (0.0, 0usize, 0usize);
         for lm in &p.landmarks {
-            let mut seen = 0;
-            for r in &p.rows[lm.rows.clone()] {
-                if r.valid && r.sq_error <= gate {
-                    chi2 += r.residual.norm_squared();
-                    seen += 1;
-                }
-            }
+            let (seen, sum) = p.rows[lm.rows.clone()]
+                .iter()
+                .filter(|r| r.valid && r.sq_error <= gate)
+                .fold((0usize, 0.0), |(n, sum), r| {
+                    (n + 1, sum + r.residual.norm_squared())
+                });
+            // A single observation of a landmark says nothing.
             if seen >= 2 {
+                chi2 += sum;
                 rows += seen;
                 landmarks += 1;
-            } else if seen == 1 {
-                // A single observation of a landmark says nothing.
-                for r in &p.rows[lm.rows.clone()] {
-                    if r.valid && r.sq_error <= gate {
-                        chi2 -= r.residual.norm_squared();
-                    }
-                }
             }
         }
         let free = self.keyframes.len().saturating_sub(p.n_fixed);
@@ -835,20 +851,7 @@ impl Window {
             .filter_map(|c| column(c).map(|k| (c, k)))
             .collect();
         // tr(J Sigma J^T) of the rotation rows and of the rest.
-        let mut hat_diag = [0.0f64; 9];
-        for (row, h) in hat_diag.iter_mut().enumerate() {
-            let mut acc = 0.0;
-            for &(a, ka) in &cols {
-                let ja = j[(row, a)];
-                if ja == 0.0 {
-                    continue;
-                }
-                for &(b, kb) in &cols {
-                    acc += ja * cov[(ka, kb)] * j[(row, b)];
-                }
-            }
-            *h = acc;
-        }
+        let hat_diag: [f64; 9] = hat_diagonal(|r, c| j[(r, c)], &cols, cov);
         // The bias walk between the same keyframes: columns [i: b_g b_a |
         // j: b_g b_a], whitened with the current walk scale.
         let (walk_chi2, walk_redundancy) = match kj.bias_walk_sqrt_info.as_ref() {
@@ -865,14 +868,7 @@ impl Window {
                         column(full).map(|k| (c, k))
                     })
                     .collect();
-                let mut hat = [0.0f64; 6];
-                for (row, h) in hat.iter_mut().enumerate() {
-                    for &(a, ka) in &walk_cols {
-                        for &(b, kb) in &walk_cols {
-                            *h += jw[(row, a)] * cov[(ka, kb)] * jw[(row, b)];
-                        }
-                    }
-                }
+                let hat: [f64; 6] = hat_diagonal(|r, c| jw[(r, c)], &walk_cols, cov);
                 (
                     [
                         rw.fixed_rows::<3>(0).norm_squared(),
