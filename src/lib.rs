@@ -1,12 +1,22 @@
 //! rigslam: the SLAM core.
 //!
-//! Follow one frame through the modules in this order: sensor samples come
-//! from `rigslam_drivers` (re-exported as [`sensors`]); [`dataset`] reads
-//! and writes recorded sequences; [`camera`] projects and unprojects;
-//! [`trajectory`] holds timestamped poses; [`eval`] scores an estimate
-//! against ground truth; [`simulate`] renders synthetic sequences;
-//! [`two_view`] estimates relative and absolute poses from correspondences;
-//! [`publish`] sends poses to other processes over shared memory.
+//! Follow one frame through the modules in this order (the picture and
+//! the threads are in docs/architecture.md, the method and its equations
+//! in docs/design.md): sensor samples come from `rigslam_drivers`
+//! (re-exported as [`sensors`]), live through the [`daemon`]'s source
+//! threads or replayed from a recording by [`dataset`] (EuRoC, KITTI,
+//! TUM) and [`recording`] (MCAP); [`rig`] holds the calibration they come
+//! with and [`camera`] projects and unprojects. The relative stage,
+//! [`relative`], tracks the image with [`features`] and [`two_view`],
+//! integrates the IMU between frames with [`imu`] and optimises a window
+//! of keyframes; the absolute stage, [`edge_map`], turns its output into
+//! a linear map and a position filter (today in `rigslam run --absolute`,
+//! driven by [`run`]). The [`daemon`] runs the relative stage on its own
+//! thread and [`publish`] sends each pose to other processes over shared
+//! memory. Offline, [`trajectory`] holds timestamped poses, [`eval`]
+//! scores an estimate against ground truth, [`simulate`] renders
+//! synthetic sequences, and [`shared_data`] finds the real test
+//! recordings.
 
 pub use rigslam_drivers as sensors;
 
