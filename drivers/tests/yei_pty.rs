@@ -134,7 +134,13 @@ fn reconnects_after_the_port_closes() {
     sim.inject(Fault::ClosePort {
         reopen_after: Duration::from_millis(300),
     });
-    // Samples keep coming once the port is back.
+    // Wait for the driver to notice (under load it may still be handing
+    // out samples read before the close), then samples keep coming once
+    // the port is back.
+    let deadline = std::time::Instant::now() + Duration::from_secs(20);
+    while dev.stats().reconnects == 0 && std::time::Instant::now() < deadline {
+        take(&dev, 10, Duration::from_secs(1));
+    }
     take(&dev, 200, Duration::from_secs(20));
     let stats = dev.stats();
     assert_eq!(stats.disconnects, 1, "{stats:?}");
