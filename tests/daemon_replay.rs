@@ -193,6 +193,41 @@ fn replay_as_fast_as_possible_repeats_bit_for_bit() {
     for (i, (x, y)) in a.iter().zip(&b).enumerate() {
         assert_eq!(bits(x), bits(y), "pose {i} differs: {x:?} vs {y:?}");
     }
+    // Tracked poses carry the odometry's covariance once the window runs
+    // (at rest before the first motion the pose is the origin itself):
+    // every one from then on, symmetric, not negative on the diagonal,
+    // growing with the way travelled.
+    let tracked: Vec<&PoseMessage> = a
+        .iter()
+        .filter(|m| m.tracking_state == TRACKING_STATE_TRACKING)
+        .collect();
+    let first = tracked
+        .iter()
+        .position(|m| m.covariance_matrix().is_some())
+        .expect("a tracked pose with a covariance");
+    let covariances: Vec<_> = tracked[first..]
+        .iter()
+        .map(|m| m.covariance_matrix())
+        .collect::<Option<_>>()
+        .expect("every tracked pose after the first with a covariance has one");
+    assert!(
+        covariances.len() >= 5,
+        "{} with a covariance",
+        covariances.len()
+    );
+    for c in &covariances {
+        assert!((c - c.transpose()).amax() < 1e-12 * c.amax(), "{c}");
+        assert!(
+            (0..6).all(|i| c[(i, i)] >= 0.0 && c[(i, i)].is_finite()),
+            "{c}"
+        );
+    }
+    let position_variance = |c: &nalgebra::Matrix6<f64>| c.fixed_view::<3, 3>(0, 0).trace();
+    let (first, last) = (&covariances[0], &covariances[covariances.len() - 1]);
+    assert!(
+        position_variance(last) > position_variance(first),
+        "first {first}, last {last}"
+    );
 }
 
 #[test]

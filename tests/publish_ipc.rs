@@ -46,6 +46,7 @@ fn message(i: u64) -> PoseMessage {
         biases: ImuBiases::default(),
         delta_translation_world_m: Vector3::zeros(),
         landmarks: Vec::new(),
+        pose_covariance: None,
     };
     let covariance = Matrix6::from_fn(|r, c| f + (6 * r + c) as f64);
     PoseMessage::from_relative(&output, Some(&covariance))
@@ -193,6 +194,9 @@ fn streams_are_separate_and_status_round_trips() {
         imu_rate_hz: 400.0,
         imu_drops: 3,
         latency_p99_us: 1234.5,
+        imu_noise_scale_gyro: 4.5,
+        imu_noise_scale_accel: 7.25,
+        pixel_noise_scale: 0.375,
         ..StatusMessage::default()
     };
     status.set_queues(&[

@@ -124,6 +124,9 @@ fn rust_layout() -> Vec<(&'static str, usize, usize, Vec<Field>)> {
                 latency_p50_us,
                 latency_p99_us,
                 queues,
+                imu_noise_scale_gyro,
+                imu_noise_scale_accel,
+                pixel_noise_scale,
             ),
         ),
     ]

@@ -390,11 +390,12 @@ fn datasheet_noise_is_corrected_online() {
             .expect("ground truth")
             .ate_rmse_m;
         let scale = result.report.imu_noise_scale.expect("an IMU");
-        eprintln!("adaptation {adapt}: ATE {ate:.4} m, scale {scale:?}");
-        (ate, scale)
+        let nees = result.report.nees.clone();
+        eprintln!("adaptation {adapt}: ATE {ate:.4} m, scale {scale:?}, NEES {nees:?}");
+        (ate, scale, nees)
     };
-    let (ate_declared, declared) = run(false);
-    let (ate_adapted, adapted) = run(true);
+    let (ate_declared, declared, nees_declared) = run(false);
+    let (ate_adapted, adapted, nees) = run(true);
     assert_eq!(declared.accel, 1.0);
     assert!(
         (2.0..30.0).contains(&adapted.accel) && (1.5..15.0).contains(&adapted.gyro),
@@ -404,5 +405,18 @@ fn datasheet_noise_is_corrected_online() {
     assert!(
         ate_adapted < 0.9 * ate_declared,
         "adapted {ate_adapted} m vs declared {ate_declared} m"
+    );
+    // The published covariance against the truth: a consistent one scores
+    // 1 per degree of freedom. Measured 2026-11-26: 9.5 with the declared
+    // noise, 3.1 with the estimated one (still too confident: the target
+    // of 0.5-2 is not reached, bench/accuracy/README.md); this guards the
+    // gain and the order of magnitude.
+    let nees = nees.expect("a covariance on the tracked frames");
+    let nees_declared = nees_declared.expect("a covariance on the tracked frames");
+    assert!(nees.poses > 500 && nees.origins == 1, "{nees:?}");
+    assert!((0.5..4.0).contains(&nees.mean_per_dof), "{nees:?}");
+    assert!(
+        nees.mean_per_dof < 0.5 * nees_declared.mean_per_dof,
+        "{nees:?} vs declared {nees_declared:?}"
     );
 }

@@ -31,9 +31,9 @@ extern "C" {
 #endif
 
 #define RIGSLAM_POSE_LAYOUT_VERSION 1u
-#define RIGSLAM_STATUS_LAYOUT_VERSION 1u
+#define RIGSLAM_STATUS_LAYOUT_VERSION 2u
 #define RIGSLAM_POSE_TYPE_NAME "rigslam_pose_message_v1"
-#define RIGSLAM_STATUS_TYPE_NAME "rigslam_status_message_v1"
+#define RIGSLAM_STATUS_TYPE_NAME "rigslam_status_message_v2"
 
 /* tracking_state values */
 #define RIGSLAM_TRACKING_STATE_INITIALIZING 0u /* no metric pose yet */
@@ -71,6 +71,8 @@ typedef struct rigslam_pose_message {
 #define RIGSLAM_HEALTH_CAMERA_STALLED (1u << 3)
 #define RIGSLAM_HEALTH_TIMESTAMP_JUMP (1u << 4)
 #define RIGSLAM_HEALTH_STAGE_STUCK (1u << 5)
+/* the estimated noise sits at a bound: the declared noise is far off */
+#define RIGSLAM_HEALTH_NOISE_AT_BOUND (1u << 6)
 
 #define RIGSLAM_STATUS_MAX_QUEUES 8
 
@@ -99,6 +101,11 @@ typedef struct rigslam_status_message {
     double latency_p50_us; /* frame arrival to pose published */
     double latency_p99_us;
     rigslam_queue_fill_t queues[RIGSLAM_STATUS_MAX_QUEUES];
+    /* multipliers on the declared noise the estimator weighs with,
+     * estimated online (1: as declared; NaN: no estimate) */
+    double imu_noise_scale_gyro;
+    double imu_noise_scale_accel;
+    double pixel_noise_scale;
 } rigslam_status_message_t;
 
 #if defined(__cplusplus)
@@ -130,7 +137,7 @@ RIGSLAM_STATIC_ASSERT(offsetof(rigslam_queue_fill_t, name) == 0, "queue fill nam
 RIGSLAM_STATIC_ASSERT(offsetof(rigslam_queue_fill_t, len) == 16, "queue fill len");
 RIGSLAM_STATIC_ASSERT(offsetof(rigslam_queue_fill_t, capacity) == 20, "queue fill capacity");
 
-RIGSLAM_STATIC_ASSERT(sizeof(rigslam_status_message_t) == 296, "status size");
+RIGSLAM_STATIC_ASSERT(sizeof(rigslam_status_message_t) == 320, "status size");
 RIGSLAM_STATIC_ASSERT(RIGSLAM_ALIGNOF(rigslam_status_message_t) == 8, "status alignment");
 RIGSLAM_STATIC_ASSERT(offsetof(rigslam_status_message_t, layout_version) == 0, "status layout_version");
 RIGSLAM_STATIC_ASSERT(offsetof(rigslam_status_message_t, sensor_health) == 4, "status sensor_health");
@@ -148,6 +155,9 @@ RIGSLAM_STATIC_ASSERT(offsetof(rigslam_status_message_t, pose_drops) == 80, "sta
 RIGSLAM_STATIC_ASSERT(offsetof(rigslam_status_message_t, latency_p50_us) == 88, "status latency_p50_us");
 RIGSLAM_STATIC_ASSERT(offsetof(rigslam_status_message_t, latency_p99_us) == 96, "status latency_p99_us");
 RIGSLAM_STATIC_ASSERT(offsetof(rigslam_status_message_t, queues) == 104, "status queues");
+RIGSLAM_STATIC_ASSERT(offsetof(rigslam_status_message_t, imu_noise_scale_gyro) == 296, "status imu_noise_scale_gyro");
+RIGSLAM_STATIC_ASSERT(offsetof(rigslam_status_message_t, imu_noise_scale_accel) == 304, "status imu_noise_scale_accel");
+RIGSLAM_STATIC_ASSERT(offsetof(rigslam_status_message_t, pixel_noise_scale) == 312, "status pixel_noise_scale");
 
 #ifdef __cplusplus
 } /* extern "C" */

@@ -206,6 +206,7 @@ mod tests {
             biases: ImuBiases::default(),
             delta_translation_world_m: Vector3::zeros(),
             landmarks: vec![],
+            pose_covariance: None,
         }
     }
 

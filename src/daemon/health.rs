@@ -9,8 +9,10 @@ use std::sync::Mutex;
 
 use crate::publish::{
     QueueFill, StatusMessage, HEALTH_CAMERA_STALLED, HEALTH_CAMERA_STREAMING,
-    HEALTH_IMU_RECONNECTING, HEALTH_IMU_STREAMING, HEALTH_STAGE_STUCK, HEALTH_TIMESTAMP_JUMP,
+    HEALTH_IMU_RECONNECTING, HEALTH_IMU_STREAMING, HEALTH_NOISE_AT_BOUND, HEALTH_STAGE_STUCK,
+    HEALTH_TIMESTAMP_JUMP,
 };
+use crate::relative::window::NoiseScale;
 use crate::run::TimingStats;
 use crate::sensors::yei::device::host_monotonic_ns;
 
@@ -40,6 +42,11 @@ pub struct Health {
     pub tracking_state: AtomicU32,
     /// Set by a replay source when the recording has been played out.
     pub source_finished: AtomicBool,
+    /// The estimator's noise scales (gyro, accel, pixel) as f64 bits,
+    /// valid when `noise_known`; `noise_at_bound` when one hit a bound.
+    noise_scale_bits: [AtomicU64; 3],
+    noise_known: AtomicBool,
+    noise_at_bound: AtomicBool,
     /// Frame arrival to pose published, us, since the last status.
     latency_window_us: Mutex<Vec<f64>>,
     /// Every latency of the run (the exit report), in fixed memory.
@@ -147,6 +154,18 @@ impl Health {
         h
     }
 
+    /// What the estimator weighs its measurements with now (None: it
+    /// estimates nothing), for the status.
+    pub fn record_noise_scale(&self, scale: Option<NoiseScale>, at_bound: bool) {
+        if let Some(s) = scale {
+            for (bits, v) in self.noise_scale_bits.iter().zip([s.gyro, s.accel, s.pixel]) {
+                bits.store(v.to_bits(), Ordering::Relaxed);
+            }
+        }
+        self.noise_known.store(scale.is_some(), Ordering::Relaxed);
+        self.noise_at_bound.store(at_bound, Ordering::Relaxed);
+    }
+
     pub fn record_latency_us(&self, us: f64) {
         self.latency_window_us
             .lock()
@@ -236,6 +255,18 @@ impl Health {
         if self.stage_stuck(now, rules.stuck_ns) {
             m.sensor_health |= HEALTH_STAGE_STUCK;
         }
+        if self.noise_known.load(Ordering::Relaxed) {
+            let [g, a, p] = self
+                .noise_scale_bits
+                .each_ref()
+                .map(|b| f64::from_bits(b.load(Ordering::Relaxed)));
+            m.imu_noise_scale_gyro = g;
+            m.imu_noise_scale_accel = a;
+            m.pixel_noise_scale = p;
+        }
+        if self.noise_at_bound.load(Ordering::Relaxed) {
+            m.sensor_health |= HEALTH_NOISE_AT_BOUND;
+        }
         m.set_queues(queues);
         *base = RateBase {
             t_ns: now,
@@ -266,6 +297,10 @@ pub fn health_words(health: u32) -> String {
         (HEALTH_CAMERA_STALLED, "camera stalled"),
         (HEALTH_TIMESTAMP_JUMP, "timestamp jump"),
         (HEALTH_STAGE_STUCK, "slam stage stuck"),
+        (
+            HEALTH_NOISE_AT_BOUND,
+            "noise estimate at its bound: check the sensor file",
+        ),
     ];
     let words: Vec<&str> = names
         .iter()
@@ -281,7 +316,48 @@ pub fn health_words(health: u32) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::LatencyHistogram;
+    use super::*;
+
+    #[test]
+    fn status_says_what_noise_the_estimator_weighs_with() {
+        let health = Health::new();
+        let rules = HealthRules {
+            camera_stall_ns: 1_000_000_000,
+            imu_stall_ns: 1_000_000_000,
+            stuck_ns: 10_000_000_000,
+            uses_imu: true,
+        };
+        let mut base = RateBase::default();
+        let before = health.status(&rules, &mut base, &[], (0, 0));
+        assert!(before.imu_noise_scale_gyro.is_nan() && before.pixel_noise_scale.is_nan());
+        let scale = NoiseScale {
+            gyro: 3.5,
+            accel: 100.0,
+            pixel: 0.25,
+            ..NoiseScale::DECLARED
+        };
+        health.record_noise_scale(Some(scale), true);
+        let m = health.status(&rules, &mut base, &[], (0, 0));
+        assert_eq!(
+            (
+                m.imu_noise_scale_gyro,
+                m.imu_noise_scale_accel,
+                m.pixel_noise_scale
+            ),
+            (3.5, 100.0, 0.25)
+        );
+        assert_ne!(m.sensor_health & HEALTH_NOISE_AT_BOUND, 0);
+        assert!(health_words(m.sensor_health).contains("check the sensor file"));
+        health.record_noise_scale(Some(NoiseScale::DECLARED), false);
+        let m = health.status(&rules, &mut base, &[], (0, 0));
+        assert_eq!(m.sensor_health & HEALTH_NOISE_AT_BOUND, 0);
+        assert_eq!(m.imu_noise_scale_accel, 1.0);
+        health.record_noise_scale(None, false);
+        assert!(health
+            .status(&rules, &mut base, &[], (0, 0))
+            .imu_noise_scale_gyro
+            .is_nan());
+    }
 
     #[test]
     fn histogram_quantiles_are_within_one_percent_above() {

@@ -282,12 +282,17 @@ impl Stage {
             right: frame.right.as_ref().map(|r| &r.image),
         };
         let output = self.estimator.push_frame(&input);
+        health.record_noise_scale(
+            self.estimator.imu_noise_scale(),
+            self.estimator.noise_at_bound(),
+        );
         self.fast.on_frame(&output);
         health
             .tracking_state
             .store(tracking_state_code(output.state), Ordering::Relaxed);
         let message = if output.state == TrackingState::Tracking {
-            PoseMessage::from_relative(&output, None)
+            let covariance = output.pose_covariance.as_ref().map(|c| &c.matrix);
+            PoseMessage::from_relative(&output, covariance)
         } else {
             // No usable pose yet: say so, with the estimator's numbers
             // as they are (flags tell the reader not to use them).

@@ -696,6 +696,7 @@ fn odometry_joins_frame_nodes_that_share_no_landmark() {
                 descriptor: None,
             })
             .collect(),
+        pose_covariance: None,
     };
     let mut stage = AbsoluteStage::new(inline(AbsoluteConfig {
         policy: EdgePolicy::FrameNodes { every: 1 },
@@ -927,6 +928,7 @@ fn the_map_is_anchored_where_the_robot_was_not_at_a_guessed_depth() {
             biases: Default::default(),
             delta_translation_world_m: position - previous,
             landmarks,
+            pose_covariance: None,
         });
         previous = position;
         worst = worst.max((pose.T_world_body.translation.vector - position).norm());

@@ -257,6 +257,7 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
             biases: ImuBiases::default(),
             delta_translation_world_m: delta,
             landmarks,
+            pose_covariance: None,
         });
         truth_position_m.push(p);
         previous_truth = Some(p);

@@ -3,10 +3,12 @@
 //! An estimate is scored in this order: [`associate`] pairs its poses with
 //! ground-truth poses by time; [`align`] fits the requested transformation;
 //! [`metrics`] computes the errors; [`report`] gathers them into the numbers
-//! `rigslam eval` prints; [`plot`] draws them.
+//! `rigslam eval` prints; [`plot`] draws them. [`consistency`] checks a
+//! published covariance against the errors (NEES).
 
 pub mod align;
 pub mod associate;
+pub mod consistency;
 pub mod error;
 pub mod metrics;
 pub mod plot;

@@ -22,7 +22,7 @@ use crate::relative::types::{RelativeOutput, TrackingState};
 /// Layout version of [`PoseMessage`]; bump it on any change of the layout.
 pub const POSE_LAYOUT_VERSION: u32 = 1;
 /// Layout version of [`StatusMessage`]; bump it on any change of the layout.
-pub const STATUS_LAYOUT_VERSION: u32 = 1;
+pub const STATUS_LAYOUT_VERSION: u32 = 2;
 
 /// [`PoseMessage::tracking_state`]: collecting frames, no metric pose yet.
 pub const TRACKING_STATE_INITIALIZING: u32 = 0;
@@ -129,13 +129,17 @@ pub const HEALTH_TIMESTAMP_JUMP: u32 = 1 << 4;
 /// [`StatusMessage::sensor_health`]: a pipeline stage made no progress
 /// within its watchdog time.
 pub const HEALTH_STAGE_STUCK: u32 = 1 << 5;
+/// [`StatusMessage::sensor_health`]: the estimated noise sits at a bound
+/// of its range: the noise in the rig's sensor file is far from what the
+/// sensors show (a unit mistake, or a much noisier IMU than declared).
+pub const HEALTH_NOISE_AT_BOUND: u32 = 1 << 6;
 
 /// How many queues [`StatusMessage::queues`] has room for.
 pub const STATUS_MAX_QUEUES: usize = 8;
 
 /// The daemon's health, published on `rigslam/status` about once a second.
 ///
-/// Byte layout (size 296, alignment 8, no padding):
+/// Byte layout (size 320, alignment 8, no padding):
 ///
 /// | offset | field | type |
 /// |---|---|---|
@@ -155,8 +159,11 @@ pub const STATUS_MAX_QUEUES: usize = 8;
 /// | 88 | `latency_p50_us` | f64 |
 /// | 96 | `latency_p99_us` | f64 |
 /// | 104 | `queues` | QueueFill\[8\] |
+/// | 296 | `imu_noise_scale_gyro` | f64 |
+/// | 304 | `imu_noise_scale_accel` | f64 |
+/// | 312 | `pixel_noise_scale` | f64 |
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("rigslam_status_message_v1")]
+#[type_name("rigslam_status_message_v2")]
 #[repr(C)]
 pub struct StatusMessage {
     /// [`STATUS_LAYOUT_VERSION`] of the writer.
@@ -192,6 +199,14 @@ pub struct StatusMessage {
     pub latency_p99_us: f64,
     /// Fill of the queue in front of each stage, first `queue_count` used.
     pub queues: [QueueFill; STATUS_MAX_QUEUES],
+    /// The multipliers on the declared gyroscope and accelerometer noise
+    /// densities and on the declared pixel sigma that the estimator
+    /// weighs the measurements with, estimated online from its own
+    /// residuals (1: as declared). NaN when there is no estimate (no IMU,
+    /// or before the SLAM stage ran).
+    pub imu_noise_scale_gyro: f64,
+    pub imu_noise_scale_accel: f64,
+    pub pixel_noise_scale: f64,
 }
 
 impl QueueFill {
@@ -243,6 +258,9 @@ impl Default for StatusMessage {
             latency_p50_us: 0.0,
             latency_p99_us: 0.0,
             queues: [QueueFill::default(); STATUS_MAX_QUEUES],
+            imu_noise_scale_gyro: f64::NAN,
+            imu_noise_scale_accel: f64::NAN,
+            pixel_noise_scale: f64::NAN,
         }
     }
 }
@@ -331,8 +349,8 @@ impl PoseMessage {
     }
 
     /// The relative stage's answer for one frame (the `rigslam/pose`
-    /// stream). `RelativeOutput` carries no pose covariance, so the
-    /// covariance is given separately when the estimator has one.
+    /// stream). The covariance is given separately (usually the output's
+    /// own `pose_covariance`) so that a caller can publish another one.
     pub fn from_relative(output: &RelativeOutput, covariance: Option<&Matrix6<f64>>) -> Self {
         let msg = Self::new(output.t_ns, output.state, &output.T_world_body)
             .with_velocity(&output.velocity_world_m_s);
@@ -405,6 +423,7 @@ mod tests {
             biases: ImuBiases::default(),
             delta_translation_world_m: Vector3::zeros(),
             landmarks: Vec::new(),
+            pose_covariance: None,
         }
     }
 

@@ -122,6 +122,7 @@ impl EkfOdometry {
             } else {
                 Vec::new()
             },
+            pose_covariance: None,
         };
         self.last_output = Some(out.clone());
         out

@@ -175,6 +175,11 @@ pub trait RelativeEstimator {
     fn imu_noise_scale(&self) -> Option<crate::relative::window::NoiseScale> {
         None
     }
+
+    /// True while an estimated noise scale sits at a bound of its range.
+    fn noise_at_bound(&self) -> bool {
+        false
+    }
 }
 
 #[cfg(test)]

@@ -26,6 +26,6 @@ pub use config::{ConfigError, EstimatorKind, RelativeConfig};
 pub use estimator::{FrameInput, FrameTimings, RelativeEstimator, RigError, RigModel, SensorMode};
 pub use odometry::{build_estimator, OdometryError, WindowOdometry};
 pub use types::{
-    BodyLandmark, KeyframeState, LandmarkId, Observation, RelativeOutput, TrackedFrame,
-    TrackingState,
+    BodyLandmark, KeyframeState, LandmarkId, Observation, PoseCovariance, RelativeOutput,
+    TrackedFrame, TrackingState,
 };

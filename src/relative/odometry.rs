@@ -30,7 +30,7 @@
 
 use std::collections::HashMap;
 
-use nalgebra::{Isometry3, Rotation3, Translation3, Vector2, Vector3};
+use nalgebra::{Isometry3, Matrix6, Rotation3, Translation3, Vector2, Vector3};
 
 use crate::imu::{ImuBiases, NavState, Preintegrated, GRAVITY_M_S2};
 use crate::sensors::ImuSample;
@@ -44,9 +44,10 @@ use super::initializer::{
 };
 use super::tracker::{Tracker, TrackerConfig};
 use super::types::{
-    BodyLandmark, KeyframeState, LandmarkId, RelativeOutput, TrackedFrame, TrackingState,
+    BodyLandmark, KeyframeState, LandmarkId, PoseCovariance, RelativeOutput, TrackedFrame,
+    TrackingState,
 };
-use super::window::{NoiseScale, Window, WindowConfig};
+use super::window::{pose_covariance, NoiseScale, Window, WindowConfig};
 
 /// Where the stage is.
 #[derive(Debug, Clone, PartialEq)]
@@ -121,6 +122,12 @@ pub struct WindowOdometry {
     bad_frames: usize,
     /// The last trusted metric state, carried through a loss by the IMU.
     last_good: Option<KeyframeState>,
+    /// The newest frame's pose covariance given the newest keyframe
+    /// (window convention), for [`Self::output`].
+    frame_marginal: Option<Matrix6<f64>>,
+    /// The last tracked pose that had a covariance, with it: where a new
+    /// window that continues the trajectory takes its uncertainty from.
+    last_covariance: Option<(Isometry3<f64>, PoseCovariance)>,
     timings: FrameTimings,
     counters: Counters,
 }
@@ -220,6 +227,8 @@ impl WindowOdometry {
             last_vision_ns: None,
             bad_frames: 0,
             last_good: None,
+            frame_marginal: None,
+            last_covariance: None,
             timings: FrameTimings::default(),
             counters: Counters::default(),
         })
@@ -291,6 +300,14 @@ impl WindowOdometry {
             Some(f) if tracking == TrackingState::Tracking => self.body_landmarks(state, f),
             _ => Vec::new(),
         };
+        let given = self.frame_marginal.take();
+        let pose_covariance = match tracking {
+            TrackingState::Tracking => self.pose_covariance(state, given),
+            _ => None,
+        };
+        if let Some(c) = pose_covariance {
+            self.last_covariance = Some((state.T_world_body, c));
+        }
         let out = RelativeOutput {
             t_ns: state.t_ns,
             state: tracking,
@@ -299,9 +316,51 @@ impl WindowOdometry {
             biases: state.biases,
             delta_translation_world_m: delta,
             landmarks,
+            pose_covariance,
         };
         self.last_output = Some(out.clone());
         out
+    }
+
+    /// The covariance of `state`'s pose: the newest keyframe's, carried
+    /// to the frame with the frame's own covariance given the keyframe
+    /// (`given`; none at rest, where the pose is held).
+    #[allow(non_snake_case)]
+    fn pose_covariance(
+        &self,
+        state: &KeyframeState,
+        given: Option<Matrix6<f64>>,
+    ) -> Option<PoseCovariance> {
+        let (origin_t_ns, T_world_origin) = self.window.covariance_origin()?;
+        let (kf, kf_covariance) = self.window.newest_pose_covariance()?;
+        let covariance = if kf.t_ns == state.t_ns {
+            kf_covariance
+        } else {
+            pose_covariance::compose(
+                &kf.T_world_body,
+                &kf_covariance,
+                &state.T_world_body,
+                &given.unwrap_or_else(Matrix6::zeros),
+            )
+        };
+        Some(PoseCovariance {
+            matrix: pose_covariance::to_published(&state.T_world_body, &covariance),
+            origin_t_ns,
+            T_world_origin,
+        })
+    }
+
+    /// The covariance of a pose the IMU predicted over `pre` from the
+    /// newest keyframe, given that keyframe.
+    fn imu_prediction_marginal(&self, pre: &Preintegrated) -> Option<Matrix6<f64>> {
+        let kf = self.window.latest()?;
+        let scale = self.window.noise_adaptation().scale();
+        Some(pose_covariance::imu_prediction(
+            pre,
+            &kf.T_world_body,
+            scale.gyro,
+            scale.accel,
+        ))
     }
 
     /// The window's landmarks seen in `frame`, in the frame's body, with
@@ -421,6 +480,7 @@ impl WindowOdometry {
         let mut state = if placed.good {
             self.last_vision_ns = Some(t_ns);
             self.bad_frames = 0;
+            self.frame_marginal = placed.pose_marginal;
             placed.state
         } else {
             let since_vision_s = self
@@ -458,6 +518,7 @@ impl WindowOdometry {
             // keyframes (a keyframe every frame filled it with 0.5 s of
             // IMU-only states whose biases wandered off).
             self.counters.imu_only_frames += 1;
+            self.frame_marginal = pre.as_ref().and_then(|p| self.imu_prediction_marginal(p));
             guess
         };
         if !self.window.imu_enabled() {
@@ -572,11 +633,15 @@ impl WindowOdometry {
 
     /// Starts the window, inertial terms on, from a known metric state
     /// (the last rest frame, or a state the IMU carried through a loss).
+    /// The trajectory goes on from `state`, and so does its covariance:
+    /// the last one, carried to `state` with `added` (the IMU's share when
+    /// it carried the state).
     fn start_inertial_window(
         &mut self,
         state: KeyframeState,
         frame: &TrackedFrame,
         gravity_sigma_rad: f64,
+        added: Matrix6<f64>,
     ) -> bool {
         self.new_window();
         let ok = self.window.enable_imu(true).is_ok()
@@ -589,6 +654,13 @@ impl WindowOdometry {
             self.counters.keyframes += 1;
             self.tracker.mark_keyframe(frame.t_ns);
             self.last_vision_ns = Some(frame.t_ns);
+            if let Some((pose, c)) = self.last_covariance {
+                let before = pose_covariance::from_published(&pose, &c.matrix);
+                let covariance =
+                    pose_covariance::compose(&pose, &before, &state.T_world_body, &added);
+                self.window
+                    .continue_covariance_chain((c.origin_t_ns, c.T_world_origin), covariance);
+            }
         }
         ok
     }
@@ -616,7 +688,7 @@ impl WindowOdometry {
                 frame: rest_frame,
             } = self.phase.clone()
             {
-                if self.start_inertial_window(state, &rest_frame, 0.01) {
+                if self.start_inertial_window(state, &rest_frame, 0.01, Matrix6::zeros()) {
                     self.phase = Phase::Tracking;
                     let mut frame = frame;
                     frame.is_keyframe = true;
@@ -627,8 +699,15 @@ impl WindowOdometry {
             if let Some(good) = self.last_good {
                 let dt_s = (t_ns - good.t_ns) as f64 * 1e-9;
                 if dt_s <= self.config.imu_only_max_s {
-                    if let Some((state, _)) = self.propagate(&good, t_ns) {
-                        if self.start_inertial_window(state, &frame, 0.02) {
+                    if let Some((state, pre)) = self.propagate(&good, t_ns) {
+                        let scale = self.window.noise_adaptation().scale();
+                        let added = pose_covariance::imu_prediction(
+                            &pre,
+                            &good.T_world_body,
+                            scale.gyro,
+                            scale.accel,
+                        );
+                        if self.start_inertial_window(state, &frame, 0.02, added) {
                             self.counters.imu_only_frames += 1;
                             self.phase = Phase::Tracking;
                             self.last = Some(state);
@@ -674,6 +753,14 @@ impl WindowOdometry {
             return self.unplaced_output(t_ns, TrackingState::Initializing);
         }
         self.counters.keyframes += 1;
+        if !self.mode.uses_imu() {
+            if let Some((pose, c)) = self.last_covariance {
+                let before = pose_covariance::from_published(&pose, &c.matrix);
+                let covariance = pose_covariance::compose(&pose, &before, &pose, &Matrix6::zeros());
+                self.window
+                    .continue_covariance_chain((c.origin_t_ns, c.T_world_origin), covariance);
+            }
+        }
         self.vision_started(state, &frame)
     }
 
@@ -944,6 +1031,10 @@ impl RelativeEstimator for WindowOdometry {
         self.imu
             .is_some()
             .then(|| self.window.noise_adaptation().scale())
+    }
+
+    fn noise_at_bound(&self) -> bool {
+        self.window.noise_adaptation().at_bound()
     }
 
     fn counters(&self) -> Vec<(&'static str, u64)> {

@@ -2,7 +2,7 @@
 //! of it. Kept apart from the algorithms so that the tracker, the
 //! initialiser, the window and the EKF baseline agree on one vocabulary.
 
-use nalgebra::{Isometry3, Matrix3, Vector2, Vector3};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Vector2, Vector3};
 
 use crate::features::orb::Descriptor;
 use crate::imu::ImuBiases;
@@ -77,6 +77,22 @@ pub struct BodyLandmark {
     pub descriptor: Option<Descriptor>,
 }
 
+/// How uncertain a relative pose is: odometry drifts, so the covariance
+/// grows with the way travelled since its origin, the keyframe that fixed
+/// the window's frame (at the start and after each re-initialisation).
+#[allow(non_snake_case)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PoseCovariance {
+    /// Over `[dx dy dz drx dry drz]`: position error in the world frame
+    /// (m), then the rotation error about the world axes (rad) with
+    /// `R_true = Exp(dr) R_est`, as ROS `PoseWithCovariance` and the
+    /// published pose message.
+    pub matrix: Matrix6<f64>,
+    /// Stamp and pose of the origin (zero covariance).
+    pub origin_t_ns: i64,
+    pub T_world_origin: Isometry3<f64>,
+}
+
 /// The relative stage's answer for one frame.
 #[allow(non_snake_case)]
 #[derive(Debug, Clone, PartialEq)]
@@ -90,6 +106,9 @@ pub struct RelativeOutput {
     /// frame: the Kalman position filter's prediction input (eq. 60).
     pub delta_translation_world_m: Vector3<f64>,
     pub landmarks: Vec<BodyLandmark>,
+    /// None while initialising or lost, and from estimators that keep
+    /// none.
+    pub pose_covariance: Option<PoseCovariance>,
 }
 
 #[cfg(test)]
@@ -105,6 +124,7 @@ impl RelativeOutput {
             biases: ImuBiases::default(),
             delta_translation_world_m: Vector3::zeros(),
             landmarks,
+            pose_covariance: None,
         }
     }
 }

@@ -12,6 +12,7 @@ use crate::dataset::{
 use crate::edge_map::localise::MapLocaliser;
 use crate::edge_map::map_file::{MapFileError, SavedMap};
 use crate::edge_map::AbsoluteStage;
+use crate::eval::consistency::{pose_nees, CovariancePose};
 use crate::eval::report::Evaluation;
 use crate::eval::{evaluate, Alignment, EvalOptions};
 use crate::relative::TrackingState;
@@ -171,6 +172,7 @@ pub fn run_dataset(
         .or_else(|| dataset_groundtruth(&dataset));
     // Only kept when there is a ground truth to check recognitions with.
     let mut sightings = ground_truth.as_ref().map(|_| SightingLog::default());
+    let mut covariance_poses = Vec::new();
     let mut outcome = run_stream(&mut stream, estimator.as_mut(), run.options, |o| {
         if let Some(localiser) = localiser.as_mut() {
             let start = std::time::Instant::now();
@@ -198,6 +200,15 @@ pub fn run_dataset(
                     pose.T_world_body.rotation,
                 ));
             }
+        }
+        if let (Some(c), Some(_), TrackingState::Tracking) =
+            (o.pose_covariance, ground_truth.as_ref(), o.state)
+        {
+            covariance_poses.push(CovariancePose {
+                t_ns: o.t_ns,
+                T_world_body: o.T_world_body,
+                covariance: c,
+            });
         }
         on_frame(o, listed)
     })?;
@@ -305,6 +316,9 @@ pub fn run_dataset(
         stream: stream_counts,
         counters,
         imu_noise_scale: estimator.imu_noise_scale(),
+        nees: ground_truth
+            .as_ref()
+            .and_then(|gt| pose_nees(&covariance_poses, gt)),
         peak_rss_mib: rss_peak,
         rss_at_10pct_mib: outcome.rss_at_10pct_mib,
         rss_at_end_mib: rss_now,
@@ -407,6 +421,12 @@ pub fn summary_line(r: &RunReport) -> String {
         line += &format!(
             "; noise weighed as {:.1}x the declared gyroscope, {:.1}x the accelerometer, {:.2}x the pixel sigma",
             s.gyro, s.accel, s.pixel
+        );
+    }
+    if let Some(n) = &r.nees {
+        line += &format!(
+            "; covariance NEES per dof {:.2} (position {:.2}, rotation {:.2})",
+            n.mean_per_dof, n.position_per_dof, n.rotation_per_dof
         );
     }
     line

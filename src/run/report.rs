@@ -75,6 +75,9 @@ pub struct RunReport {
     /// accelerometer noise densities the estimator weighed the IMU with
     /// (estimated online unless `imu_noise_adaptation = false`).
     pub imu_noise_scale: Option<crate::relative::window::NoiseScale>,
+    /// Consistency of the published pose covariance against the ground
+    /// truth (NEES per degree of freedom; 1 is consistent).
+    pub nees: Option<crate::eval::consistency::NeesReport>,
     /// Peak resident memory of the process, MiB (Linux VmHWM).
     pub peak_rss_mib: Option<f64>,
     /// Resident memory at 10 % and at the end of the run, MiB: flat memory

@@ -270,7 +270,7 @@ fn print_status(m: &StatusMessage, _latency_us: f64) {
         .map(|q| format!("{} {}/{}", q.name_str(), q.len, q.capacity))
         .collect();
     println!(
-        "#{} camera {:.1} Hz imu {:.1} Hz pose {:.1} Hz, drops camera {} imu {} pose {}, latency p50 {:.0} us p99 {:.0} us, health 0x{:x}, queues [{}]",
+        "#{} camera {:.1} Hz imu {:.1} Hz pose {:.1} Hz, drops camera {} imu {} pose {}, latency p50 {:.0} us p99 {:.0} us, health 0x{:x}, noise scale gyro {:.2} accel {:.2} pixel {:.2}, queues [{}]",
         m.sequence,
         m.camera_rate_hz,
         m.imu_rate_hz,
@@ -281,6 +281,9 @@ fn print_status(m: &StatusMessage, _latency_us: f64) {
         m.latency_p50_us,
         m.latency_p99_us,
         m.sensor_health,
+        m.imu_noise_scale_gyro,
+        m.imu_noise_scale_accel,
+        m.pixel_noise_scale,
         queues.join(", ")
     );
 }

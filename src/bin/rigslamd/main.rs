@@ -227,7 +227,7 @@ fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             next_status += status_period;
             let status = pipeline.status();
             let words = health_words(status.sensor_health);
-            let line = format!(
+            let mut line = format!(
                 "camera {:.1} Hz, imu {:.0} Hz, pose {:.1} Hz, latency p50 {:.1} ms p99 {:.1} ms, drops {}/{}; {words}",
                 status.camera_rate_hz,
                 status.imu_rate_hz,
@@ -237,6 +237,14 @@ fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
                 status.camera_drops,
                 status.imu_drops
             );
+            if status.imu_noise_scale_gyro.is_finite() {
+                line += &format!(
+                    "; noise weighed {:.1}x gyro, {:.1}x accel, {:.2}x pixel as declared",
+                    status.imu_noise_scale_gyro,
+                    status.imu_noise_scale_accel,
+                    status.pixel_noise_scale
+                );
+            }
             if let Err(e) = status_publisher.publish(&status) {
                 tracing::warn!("{e}");
             }

@@ -12,7 +12,7 @@
 
 use std::time::Instant;
 
-use nalgebra::{SMatrix, SVector, Vector2, Vector3};
+use nalgebra::{Matrix6, SMatrix, SVector, Vector2, Vector3};
 
 use super::inertial::{whitening, Matrix9};
 use super::reprojection::{reproject, reprojection_error, GATE_SQ};
@@ -36,7 +36,36 @@ pub struct FramePose {
     pub final_cost: f64,
     /// Enough inliers (`min_track_inliers`) and a finite state.
     pub good: bool,
+    /// Covariance of the pose's `[dphi, dp]` given the landmarks and the
+    /// latest keyframe, with the noise the window estimated
+    /// ([`super::NoiseScale`]); None when the pose is not determined.
+    pub pose_marginal: Option<Matrix6<f64>>,
     pub ms: f64,
+}
+
+/// How the frame's residuals are weighed: `1 / pixel sigma` and the
+/// inertial residual's square-root information.
+struct Weights {
+    inv_sigma: f64,
+    imu_sqrt_info: Option<Matrix9>,
+}
+
+/// The `[dphi, dp]` block of the inverse of the information `h` over the
+/// first `dim` unknowns (6: pose, 9: pose and velocity).
+fn pose_marginal(h: &Matrix9x9, dim: usize) -> Option<Matrix6<f64>> {
+    let c = if dim == 9 {
+        h.cholesky()?
+            .inverse()
+            .fixed_view::<6, 6>(0, 0)
+            .into_owned()
+    } else {
+        h.fixed_view::<6, 6>(0, 0)
+            .into_owned()
+            .cholesky()?
+            .inverse()
+    };
+    let c = (c + c.transpose()) * 0.5;
+    c.iter().all(|v| v.is_finite()).then_some(c)
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -72,6 +101,7 @@ impl Window {
             iterations: 0,
             final_cost: 0.0,
             good: false,
+            pose_marginal: None,
             ms: 0.0,
         };
         if !state_is_finite(&guess) {
@@ -102,16 +132,20 @@ impl Window {
             (true, Some(pre), Some(l))
                 if pre.t_start_ns == l.t_ns && pre.t_end_ns == guess.t_ns && pre.dt_s > 0.0 =>
             {
-                Some((pre, l, whitening(&pre.covariance)))
+                Some((pre, l))
             }
             _ => None,
         };
         let mut state = guess;
-        if let Some((_, l, _)) = &imu {
+        if let Some((_, l)) = &imu {
             state.biases = l.biases;
         }
         let dim = if imu.is_some() { 9 } else { 6 };
-        let inv_sigma = 1.0 / self.config.pixel_sigma;
+        let declared = Weights {
+            inv_sigma: 1.0 / self.config.pixel_sigma,
+            imu_sqrt_info: imu.map(|(pre, _)| whitening(&pre.covariance)),
+        };
+        let inv_sigma = declared.inv_sigma;
         let k = self.config.huber_px / self.config.pixel_sigma;
         let kernel = self.config.robust_kernel;
         let cameras = &self.cameras;
@@ -119,8 +153,10 @@ impl Window {
         // Cost and (optionally) normal equations of the frame's pose.
         let evaluate = |s: &KeyframeState,
                         rows: &[TrackRow],
-                        normal: Option<(&mut Matrix9x9, &mut Vector9)>|
+                        normal: Option<(&mut Matrix9x9, &mut Vector9)>,
+                        weights: &Weights|
          -> f64 {
+            let inv_sigma = weights.inv_sigma;
             let mut cost = 0.0;
             let mut h = Matrix9x9::zeros();
             let mut b = Vector9::zeros();
@@ -151,7 +187,7 @@ impl Window {
                     }
                 }
             }
-            if let Some((pre, l, sqrt_info)) = &imu {
+            if let (Some((pre, l)), Some(sqrt_info)) = (&imu, &weights.imu_sqrt_info) {
                 let res = imu_residual(pre, &nav_state(l), &nav_state(s), &l.biases, &gravity);
                 let r = sqrt_info * res.residual;
                 cost += 0.5 * r.norm_squared();
@@ -182,7 +218,7 @@ impl Window {
             let mut lambda = 1e-4;
             let mut h = Matrix9x9::zeros();
             let mut b = Vector9::zeros();
-            cost = evaluate(&state, rows, Some((&mut h, &mut b)));
+            cost = evaluate(&state, rows, Some((&mut h, &mut b)), &declared);
             for _ in 0..self.config.track_max_iterations {
                 iterations += 1;
                 let mut accepted = false;
@@ -205,7 +241,7 @@ impl Window {
                     let mut full = [0.0; FULL_DIM];
                     full[..dim].copy_from_slice(&delta.as_slice()[..dim]);
                     apply_update(&mut candidate, &full[..if dim == 9 { FULL_DIM } else { 6 }]);
-                    let new_cost = evaluate(&candidate, rows, None);
+                    let new_cost = evaluate(&candidate, rows, None, &declared);
                     if new_cost.is_finite() && new_cost <= cost {
                         converged = cost - new_cost <= 1e-6 * cost || delta.amax() < 1e-12;
                         state = candidate;
@@ -219,7 +255,7 @@ impl Window {
                 if !accepted || converged {
                     break;
                 }
-                cost = evaluate(&state, rows, Some((&mut h, &mut b)));
+                cost = evaluate(&state, rows, Some((&mut h, &mut b)), &declared);
             }
             // Drop the outliers and refine once.
             let chi2 = self.config.outlier_chi2;
@@ -243,6 +279,20 @@ impl Window {
         out.iterations = iterations;
         out.final_cost = cost;
         out.good = state_is_finite(&state) && out.inliers >= self.config.min_track_inliers;
+        if out.good {
+            // The information at the answer, weighed with the noise the
+            // window estimated (the solve itself uses the declared one).
+            let scale = self.noise.scale();
+            let estimated = Weights {
+                inv_sigma: inv_sigma / scale.pixel,
+                imu_sqrt_info: imu
+                    .map(|(pre, _)| whitening(&pre.scaled_covariance(scale.gyro, scale.accel))),
+            };
+            let mut h = Matrix9x9::zeros();
+            let mut b = Vector9::zeros();
+            evaluate(&state, rows, Some((&mut h, &mut b)), &estimated);
+            out.pose_marginal = pose_marginal(&h, dim);
+        }
         out.state = state;
         out.ms = start.elapsed().as_secs_f64() * 1e3;
         out

@@ -576,6 +576,10 @@ impl Window {
         };
         if let Some(cov) = &cov {
             let p = &self.problem;
+            for (slot, kf) in self.keyframes.iter_mut().skip(p.n_fixed).enumerate() {
+                let o = slot * p.state_dim;
+                kf.pose_marginal = Some(cov.fixed_view::<6, 6>(o, o).into_owned());
+            }
             if self.use_imu {
                 for (slot, kf) in self.keyframes.iter_mut().skip(p.n_fixed).enumerate() {
                     let o = slot * p.state_dim;
@@ -593,6 +597,7 @@ impl Window {
                 }
             }
         }
+        self.update_pose_covariances(self.problem.n_fixed);
         self.fill_body_landmarks(cov.as_ref());
         let exact = cov.is_some();
         self.state_covariance = cov;

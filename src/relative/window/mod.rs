@@ -31,6 +31,7 @@ pub mod levenberg_marquardt;
 mod marginalise;
 pub mod new_landmarks;
 pub mod noise_adaptation;
+pub mod pose_covariance;
 pub mod prior;
 pub mod reprojection;
 pub mod rig_camera;
@@ -44,7 +45,7 @@ mod tests;
 
 use std::collections::{HashMap, HashSet, VecDeque};
 
-use nalgebra::{DMatrix, Isometry3, Matrix3x2, Vector3};
+use nalgebra::{DMatrix, Isometry3, Matrix3x2, Matrix6, Vector3};
 
 pub use frame_pose::FramePose;
 pub use levenberg_marquardt::WindowReport;
@@ -373,6 +374,9 @@ pub struct Window {
     problem: Problem,
     /// Marginal covariance of the free states after the last optimise.
     state_covariance: Option<DMatrix<f64>>,
+    /// Stamp and pose of the keyframe the pose covariances are relative
+    /// to ([`pose_covariance`]).
+    covariance_origin: Option<(i64, Isometry3<f64>)>,
     body_landmarks: Vec<BodyLandmark>,
     /// Scratch for the stereo pairing of a new keyframe.
     scratch_pairs: Vec<(LandmarkId, usize)>,
@@ -413,6 +417,7 @@ impl Window {
                 ..Problem::default()
             },
             state_covariance: None,
+            covariance_origin: None,
             body_landmarks: Vec::new(),
             scratch_pairs: Vec::new(),
             scratch_seen: HashSet::new(),
@@ -496,7 +501,12 @@ impl Window {
             imu: link,
             bias_walk_sqrt_info: bias_walk,
             state_marginal: None,
+            pose_marginal: None,
+            pose_covariance: None,
         });
+        if self.keyframes.len() == 1 {
+            self.restart_covariance_chain();
+        }
         if self.keyframes.len() > self.config.keyframes_kept {
             self.keyframes.pop_front();
             self.forget_unobserved();
@@ -551,6 +561,81 @@ impl Window {
         self.keyframes.iter().map(|k| &k.state)
     }
 
+    /// The newest keyframe and the covariance of its `[dphi, dp]`
+    /// relative to [`Self::covariance_origin`] (see [`pose_covariance`]);
+    /// None before a solve placed it.
+    pub fn newest_pose_covariance(&self) -> Option<(&KeyframeState, Matrix6<f64>)> {
+        let kf = self.keyframes.back()?;
+        Some((&kf.state, kf.pose_covariance?))
+    }
+
+    /// Stamp and pose of the keyframe the pose covariances are relative
+    /// to: the oldest one when the window started or was last moved as a
+    /// whole (handover, new states).
+    pub fn covariance_origin(&self) -> Option<(i64, Isometry3<f64>)> {
+        self.covariance_origin
+    }
+
+    /// Continues a trajectory: the oldest keyframe's pose covariance is
+    /// `covariance` (window convention) relative to `origin` (stamp and
+    /// pose), instead of being the origin itself. For a window started
+    /// from a state the previous one handed on (after a rest, or carried
+    /// by the IMU through a loss).
+    pub fn continue_covariance_chain(
+        &mut self,
+        origin: (i64, Isometry3<f64>),
+        covariance: Matrix6<f64>,
+    ) {
+        if let Some(kf) = self.keyframes.front_mut() {
+            kf.pose_covariance = Some(covariance);
+            self.covariance_origin = Some(origin);
+        }
+    }
+
+    /// Makes the oldest keyframe the origin of the pose covariances.
+    fn restart_covariance_chain(&mut self) {
+        for kf in self.keyframes.iter_mut() {
+            kf.pose_marginal = None;
+            kf.pose_covariance = None;
+        }
+        self.covariance_origin = self.keyframes.front_mut().map(|kf| {
+            kf.pose_covariance = Some(Matrix6::zeros());
+            (kf.state.t_ns, kf.state.T_world_body)
+        });
+    }
+
+    /// Carries the pose covariances to the keyframes after a solve: fixed
+    /// ones that have none from the one before them, every free one from
+    /// the boundary and its marginal ([`pose_covariance`]).
+    fn update_pose_covariances(&mut self, n_fixed: usize) {
+        // A marginal given the held keyframes is too confident (they are
+        // not exact): the same scale as for the boundary prior.
+        let scale = self.config.boundary_pose_covariance_scale;
+        let kfs = &mut self.keyframes;
+        for i in 1..n_fixed.min(kfs.len()) {
+            if kfs[i].pose_covariance.is_none() {
+                let given = kfs[i].pose_marginal.unwrap_or_else(Matrix6::zeros) * scale;
+                kfs[i].pose_covariance = kfs[i - 1].pose_covariance.map(|c| {
+                    pose_covariance::compose(
+                        &kfs[i - 1].state.T_world_body,
+                        &c,
+                        &kfs[i].state.T_world_body,
+                        &given,
+                    )
+                });
+            }
+        }
+        let Some(b) = n_fixed.checked_sub(1).filter(|&b| b < kfs.len()) else {
+            return;
+        };
+        let (boundary, covariance) = (kfs[b].state.T_world_body, kfs[b].pose_covariance);
+        for kf in kfs.iter_mut().skip(n_fixed) {
+            kf.pose_covariance = covariance.zip(kf.pose_marginal).map(|(c, m)| {
+                pose_covariance::compose(&boundary, &c, &kf.state.T_world_body, &(m * scale))
+            });
+        }
+    }
+
     pub fn keyframe_count(&self) -> usize {
         self.keyframes.len()
     }
@@ -595,6 +680,7 @@ impl Window {
             kf.state = *s;
             kf.state_marginal = None;
         }
+        self.restart_covariance_chain();
         self.velocity_prior = None;
         Ok(())
     }
@@ -692,6 +778,7 @@ impl Window {
         if let Some(a) = self.scale_anchor.as_mut() {
             a.distance *= scale;
         }
+        self.restart_covariance_chain();
         self.state_covariance = None;
         self.body_landmarks.clear();
         Ok(())

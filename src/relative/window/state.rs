@@ -6,7 +6,7 @@
 //! perturbation, as in [`crate::imu::residual`]), `p <- p + dp` and
 //! `v <- v + dv` in the world frame, biases additive.
 
-use nalgebra::{SMatrix, UnitQuaternion, Vector2, Vector3, Vector6};
+use nalgebra::{Matrix6, SMatrix, UnitQuaternion, Vector2, Vector3, Vector6};
 
 use super::inertial::InertialLink;
 use crate::imu::NavState;
@@ -49,6 +49,12 @@ pub(crate) struct Keyframe {
     /// last optimisation in which this keyframe was free (source of the
     /// eq. 34 prior once it is the boundary).
     pub state_marginal: Option<SMatrix<f64, 15, 15>>,
+    /// Marginal covariance of `[dphi, dp]` given the fixed keyframes,
+    /// from the last optimisation in which this keyframe was free.
+    pub pose_marginal: Option<Matrix6<f64>>,
+    /// Covariance of `[dphi, dp]` relative to the window's origin
+    /// ([`super::pose_covariance`]); zero for the origin.
+    pub pose_covariance: Option<Matrix6<f64>>,
 }
 
 pub(crate) fn nav_state(s: &KeyframeState) -> NavState {
