@@ -83,6 +83,8 @@ struct Counters {
     alignments_tried: u64,
     bootstraps_tried: u64,
     frames_without_imu: u64,
+    /// Vision restarts placed where the trajectory before the loss went.
+    resumed: u64,
 }
 
 /// Median image motion between frames under which the images agree that
@@ -93,6 +95,10 @@ const REST_FLOW_PX: f64 = 1.5;
 const REST_DRIFT_PX: f64 = 1.5;
 /// A keyframe at least this often, s (the tracker may ask sooner).
 const MAX_KEYFRAME_GAP_NS: i64 = 500_000_000;
+/// After a loss, the IMU carries the last trusted state to where vision
+/// starts again for at most this long; beyond, the trajectory goes on from
+/// the last trusted pose itself.
+const RESUME_PROPAGATE_MAX_S: f64 = 5.0;
 
 /// The paper's relative stage with the windowed estimator.
 pub struct WindowOdometry {
@@ -128,6 +134,13 @@ pub struct WindowOdometry {
     /// The last tracked pose that had a covariance, with it: where a new
     /// window that continues the trajectory takes its uncertainty from.
     last_covariance: Option<(Isometry3<f64>, PoseCovariance)>,
+    /// The last trusted state, kept through a reset (`last_good` is
+    /// dropped once too old for the IMU to carry): where a vision
+    /// restart continues the trajectory from.
+    resume_from: Option<KeyframeState>,
+    /// Where the first keyframe of a vision restart is taken to be, with
+    /// the covariance the way there adds: stamp, pose, covariance.
+    resume: Option<(i64, Isometry3<f64>, Matrix6<f64>)>,
     timings: FrameTimings,
     counters: Counters,
 }
@@ -229,6 +242,8 @@ impl WindowOdometry {
             last_good: None,
             frame_marginal: None,
             last_covariance: None,
+            resume_from: None,
+            resume: None,
             timings: FrameTimings::default(),
             counters: Counters::default(),
         })
@@ -414,6 +429,80 @@ impl WindowOdometry {
         self.previous_pixels.clear();
     }
 
+    fn trust(&mut self, state: KeyframeState) {
+        self.last_good = Some(state);
+        self.resume_from = Some(state);
+    }
+
+    /// Inertial modes restarting from vision after a loss: where the
+    /// keyframe at `t_ns` is, from the last trusted state (carried by the
+    /// IMU when it can), so that the alignment's frame is moved there
+    /// instead of starting a new trajectory at the origin.
+    fn plan_resume(&mut self, t_ns: i64) {
+        self.resume = None;
+        let Some(good) = self.resume_from.filter(|g| g.t_ns <= t_ns) else {
+            return;
+        };
+        let gap_s = (t_ns - good.t_ns) as f64 * 1e-9;
+        let carried = (gap_s <= RESUME_PROPAGATE_MAX_S)
+            .then(|| self.propagate(&good, t_ns))
+            .flatten();
+        let scale = self.window.noise_adaptation().scale();
+        self.resume = Some(match carried {
+            Some((state, pre)) => (
+                t_ns,
+                state.T_world_body,
+                pose_covariance::imu_prediction(&pre, &good.T_world_body, scale.gyro, scale.accel),
+            ),
+            None => {
+                // Held: the pose is off by about the way travelled since.
+                let sigma_m = good.velocity_world_m_s.norm() * gap_s;
+                let mut added = Matrix6::zeros();
+                for i in 3..6 {
+                    added[(i, i)] = sigma_m * sigma_m;
+                }
+                (t_ns, good.T_world_body, added)
+            }
+        });
+    }
+
+    /// After the alignment: moves the window (yaw and translation, so
+    /// that gravity stays) to put its first keyframe where the trajectory
+    /// before the loss says it is, and continues its covariance.
+    #[allow(non_snake_case)]
+    fn apply_resume(&mut self) {
+        let Some((t_ns, pose, added)) = self.resume.take() else {
+            return;
+        };
+        let Some(first) = self.window.keyframes().next().copied() else {
+            return;
+        };
+        if first.t_ns != t_ns {
+            return;
+        }
+        let yaw = |q: &nalgebra::UnitQuaternion<f64>| {
+            let r = q.to_rotation_matrix();
+            r[(1, 0)].atan2(r[(0, 0)])
+        };
+        let turn = nalgebra::UnitQuaternion::from_axis_angle(
+            &Vector3::z_axis(),
+            yaw(&pose.rotation) - yaw(&first.T_world_body.rotation),
+        );
+        let shift = pose.translation.vector - turn * first.T_world_body.translation.vector;
+        let T_new_old = Isometry3::from_parts(Translation3::from(shift), turn);
+        if self.window.transform(1.0, T_new_old).is_err() {
+            return;
+        }
+        self.counters.resumed += 1;
+        if let Some((before_pose, c)) = self.last_covariance {
+            let before = pose_covariance::from_published(&before_pose, &c.matrix);
+            let moved = T_new_old * first.T_world_body;
+            let covariance = pose_covariance::compose(&before_pose, &before, &moved, &added);
+            self.window
+                .continue_covariance_chain((c.origin_t_ns, c.T_world_origin), covariance);
+        }
+    }
+
     /// The state at `t_ns` from `anchor` by the IMU.
     fn propagate(
         &mut self,
@@ -496,7 +585,7 @@ impl WindowOdometry {
                     }
                     self.counters.static_frames += 1;
                     self.last = Some(rest);
-                    self.last_good = Some(rest);
+                    self.trust(rest);
                     let out = self.output(&rest, TrackingState::Tracking, None);
                     self.set_rest_anchor(&frame);
                     self.phase = Phase::Resting { state: rest, frame };
@@ -545,7 +634,7 @@ impl WindowOdometry {
         if tracking == TrackingState::Tracking
             && (self.mode.uses_imu() == self.window.imu_enabled())
         {
-            self.last_good = Some(state);
+            self.trust(state);
         }
         self.output(&state, tracking, Some(&frame))
     }
@@ -673,7 +762,7 @@ impl WindowOdometry {
                 self.counters.static_frames += 1;
                 self.gyro_bias_rad_s = state.biases.gyro_rad_s;
                 self.last = Some(state);
-                self.last_good = Some(state);
+                self.trust(state);
                 let out = self.output(&state, TrackingState::Tracking, None);
                 if !matches!(self.phase, Phase::Resting { .. }) {
                     self.set_rest_anchor(&frame);
@@ -752,6 +841,9 @@ impl WindowOdometry {
         {
             return self.unplaced_output(t_ns, TrackingState::Initializing);
         }
+        if self.mode.uses_imu() {
+            self.plan_resume(t_ns);
+        }
         self.counters.keyframes += 1;
         if !self.mode.uses_imu() {
             if let Some((pose, c)) = self.last_covariance {
@@ -788,6 +880,9 @@ impl WindowOdometry {
             _ => {
                 self.tracker.mark_keyframe(t_ns);
                 self.phase = Phase::Initializing { first: Some(frame) };
+                if self.mode.uses_imu() {
+                    self.plan_resume(t_ns);
+                }
                 return self.unplaced_output(t_ns, TrackingState::Initializing);
             }
         };
@@ -809,6 +904,9 @@ impl WindowOdometry {
                 if t_ns - first.t_ns > 2_000_000_000 {
                     self.tracker.mark_keyframe(t_ns);
                     self.phase = Phase::Initializing { first: Some(frame) };
+                    if self.mode.uses_imu() {
+                        self.plan_resume(t_ns);
+                    }
                 }
                 return self.unplaced_output(t_ns, TrackingState::Initializing);
             }
@@ -873,7 +971,7 @@ impl WindowOdometry {
             .latest()
             .expect("an aligned window has keyframes");
         self.last = Some(state);
-        self.last_good = Some(state);
+        self.trust(state);
         self.gyro_bias_rad_s = state.biases.gyro_rad_s;
         self.output(&state, TrackingState::Tracking, Some(&frame))
     }
@@ -949,6 +1047,7 @@ impl WindowOdometry {
             self.reset();
             return false;
         }
+        self.apply_resume();
         let window = &mut self.window;
         self.timings.time("window", || {
             window.optimize();
@@ -1051,6 +1150,7 @@ impl RelativeEstimator for WindowOdometry {
             ("alignments_tried", c.alignments_tried),
             ("bootstraps_tried", c.bootstraps_tried),
             ("frames_without_imu", c.frames_without_imu),
+            ("resumed", c.resumed),
             (
                 "imu_samples_dropped",
                 self.imu.as_ref().map_or(0, ImuBuffer::dropped),
