@@ -221,6 +221,11 @@ pub fn read_positions(path: &Path) -> Result<Vec<Vector3<f64>>, EdgeMapError> {
         path: path.to_owned(),
         source,
     })?;
+    parse_positions(&text, path)
+}
+
+/// Parses the text of a positions file; `path` only names it in errors.
+pub fn parse_positions(text: &str, path: &Path) -> Result<Vec<Vector3<f64>>, EdgeMapError> {
     let mut positions = Vec::new();
     for (k, line) in text.lines().enumerate() {
         let line = line.trim();

@@ -118,12 +118,17 @@ impl SavedMap {
             path: path.to_path_buf(),
             source,
         })?;
+        Self::read_from(BufReader::new(file), path)
+    }
+
+    /// Reads a map from `reader`; `path` names it in errors.
+    pub fn read_from(reader: impl BufRead, path: &Path) -> Result<Self, MapFileError> {
         let parse = |line: usize, message: String| MapFileError::Parse {
             path: path.to_path_buf(),
             line,
             message,
         };
-        let mut lines = BufReader::new(file).lines().enumerate();
+        let mut lines = reader.lines().enumerate();
         let (_, first) = lines
             .next()
             .ok_or_else(|| parse(1, "empty file: not a rigslam map".into()))?;

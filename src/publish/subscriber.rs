@@ -22,8 +22,7 @@ pub struct Subscription<T: Message> {
     service: String,
     subscriber: Subscriber<Ipc, T, ()>,
     listener: Listener<Ipc>,
-    last_sequence: Option<u64>,
-    missed: u64,
+    check: SampleCheck,
     access: Access,
     next_narrowing: Instant,
     membership_warned: bool,
@@ -68,6 +67,40 @@ impl StatusSubscriber {
     }
 }
 
+/// What a subscriber checks of every sample it takes, whatever bytes the
+/// publisher put in shared memory: the layout version, and the sequence
+/// number against the previous sample's (a gap counts as missed samples).
+#[derive(Debug, Clone, Default)]
+pub struct SampleCheck {
+    last_sequence: Option<u64>,
+    missed: u64,
+}
+
+impl SampleCheck {
+    /// Checks `message`, taken from `service` (named in the error).
+    pub fn accept<T: Message>(&mut self, service: &str, message: &T) -> Result<(), IpcError> {
+        if message.layout_version() != T::LAYOUT_VERSION {
+            return Err(IpcError::LayoutVersion {
+                service: service.to_string(),
+                found: message.layout_version(),
+                expected: T::LAYOUT_VERSION,
+            });
+        }
+        if let Some(last) = self.last_sequence {
+            if message.sequence() > last + 1 {
+                self.missed += message.sequence() - last - 1;
+            }
+        }
+        self.last_sequence = Some(message.sequence());
+        Ok(())
+    }
+
+    /// Samples skipped between the ones accepted (sequence gaps).
+    pub fn missed(&self) -> u64 {
+        self.missed
+    }
+}
+
 impl<T: Message> Subscription<T> {
     /// Subscribes to the service with the full name `service` (e.g.
     /// `rigslam/pose`). When the daemon runs as another user, the service
@@ -94,8 +127,7 @@ impl<T: Message> Subscription<T> {
             service: service.to_string(),
             subscriber,
             listener,
-            last_sequence: None,
-            missed: 0,
+            check: SampleCheck::default(),
             access,
             next_narrowing: Instant::now() + NARROWING_PERIOD,
             membership_warned: false,
@@ -157,19 +189,7 @@ impl<T: Message> Subscription<T> {
         };
         let message: T = *sample.payload();
         drop(sample);
-        if message.layout_version() != T::LAYOUT_VERSION {
-            return Err(IpcError::LayoutVersion {
-                service: self.service.clone(),
-                found: message.layout_version(),
-                expected: T::LAYOUT_VERSION,
-            });
-        }
-        if let Some(last) = self.last_sequence {
-            if message.sequence() > last + 1 {
-                self.missed += message.sequence() - last - 1;
-            }
-        }
-        self.last_sequence = Some(message.sequence());
+        self.check.accept(&self.service, &message)?;
         Ok(Some(message))
     }
 
@@ -206,7 +226,7 @@ impl<T: Message> Subscription<T> {
     /// dropped because the buffer overflowed, or before this subscriber
     /// connected after the first taken one.
     pub fn missed(&self) -> u64 {
-        self.missed
+        self.check.missed()
     }
 
     /// The full service name.

@@ -19,8 +19,8 @@ mod sensor_replay;
 /// Files carried in a recording: (attachment name, bytes).
 pub type Attachments = Vec<(String, Vec<u8>)>;
 pub use sensor_replay::{
-    calibration_attachment_name, calibration_attachments, for_each_sensor_event, is_mcap,
-    rig_of_recording, SensorTopics,
+    calibration_attachment_name, calibration_attachments, for_each_sensor_event,
+    for_each_sensor_event_in, is_mcap, rig_of_recording, rig_of_recording_in, SensorTopics,
 };
 
 /// Schema name of IMU messages.
@@ -429,9 +429,26 @@ impl McapRecorder {
     }
 }
 
+/// The whole file, naming it in the error.
+fn read_bytes(path: &Path) -> Result<Vec<u8>, RecordingError> {
+    std::fs::read(path).map_err(|source| RecordingError::Read {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
 /// Reads back every IMU sample of `topic`, in file order.
 pub fn read_imu_channel(path: &Path, topic: &str) -> Result<Vec<ImuSample>, RecordingError> {
-    read_channel(path, topic, |m: ImuMessage| ImuSample {
+    read_imu_channel_in(&read_bytes(path)?, path, topic)
+}
+
+/// [`read_imu_channel`] of a recording's bytes; `path` names it in errors.
+pub fn read_imu_channel_in(
+    bytes: &[u8],
+    path: &Path,
+    topic: &str,
+) -> Result<Vec<ImuSample>, RecordingError> {
+    read_channel(bytes, path, topic, |m: ImuMessage| ImuSample {
         t_ns: m.t_ns,
         gyro_rad_s: m.gyro_rad_s,
         accel_m_s2: m.accel_m_s2,
@@ -439,17 +456,14 @@ pub fn read_imu_channel(path: &Path, topic: &str) -> Result<Vec<ImuSample>, Reco
 }
 
 fn read_channel<M: serde::de::DeserializeOwned, T>(
+    bytes: &[u8],
     path: &Path,
     topic: &str,
     convert: impl Fn(M) -> T,
 ) -> Result<Vec<T>, RecordingError> {
-    let bytes = std::fs::read(path).map_err(|source| RecordingError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
     let mut out = Vec::new();
     let mut seen = false;
-    let stream = mcap::MessageStream::new(&bytes).map_err(|source| RecordingError::Mcap {
+    let stream = mcap::MessageStream::new(bytes).map_err(|source| RecordingError::Mcap {
         path: path.to_path_buf(),
         source,
     })?;
@@ -482,7 +496,16 @@ fn read_channel<M: serde::de::DeserializeOwned, T>(
 
 /// Reads back every pose of `topic`, in file order.
 pub fn read_pose_channel(path: &Path, topic: &str) -> Result<Vec<RecordedPose>, RecordingError> {
-    read_channel(path, topic, |m: PoseJson| RecordedPose {
+    read_pose_channel_in(&read_bytes(path)?, path, topic)
+}
+
+/// [`read_pose_channel`] of a recording's bytes; `path` names it in errors.
+pub fn read_pose_channel_in(
+    bytes: &[u8],
+    path: &Path,
+    topic: &str,
+) -> Result<Vec<RecordedPose>, RecordingError> {
+    read_channel(bytes, path, topic, |m: PoseJson| RecordedPose {
         t_ns: m.t_ns,
         tracking_state: m.tracking_state,
         position_world_m: [m.pose.position.x, m.pose.position.y, m.pose.position.z],
@@ -502,22 +525,26 @@ pub fn read_pose_channel(path: &Path, topic: &str) -> Result<Vec<RecordedPose>, 
 
 /// The attachments of a complete recording (from its summary), by name.
 pub fn read_attachments(path: &Path) -> Result<BTreeMap<String, Vec<u8>>, RecordingError> {
-    let bytes = std::fs::read(path).map_err(|source| RecordingError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    read_attachments_in(&read_bytes(path)?, path)
+}
+
+/// [`read_attachments`] of a recording's bytes; `path` names it in errors.
+pub fn read_attachments_in(
+    bytes: &[u8],
+    path: &Path,
+) -> Result<BTreeMap<String, Vec<u8>>, RecordingError> {
     let mcap_err = |source| RecordingError::Mcap {
         path: path.to_path_buf(),
         source,
     };
-    let summary = mcap::Summary::read(&bytes)
+    let summary = mcap::Summary::read(bytes)
         .map_err(mcap_err)?
         .ok_or_else(|| RecordingError::NoSummary {
             path: path.to_path_buf(),
         })?;
     let mut out = BTreeMap::new();
     for index in &summary.attachment_indexes {
-        let a = mcap::read::attachment(&bytes, index).map_err(mcap_err)?;
+        let a = mcap::read::attachment(bytes, index).map_err(mcap_err)?;
         out.insert(a.name, a.data.into_owned());
     }
     Ok(out)
@@ -526,11 +553,15 @@ pub fn read_attachments(path: &Path) -> Result<BTreeMap<String, Vec<u8>>, Record
 /// The topics of a recording and their message counts (from its summary,
 /// so only a completely written file answers).
 pub fn channel_counts(path: &Path) -> Result<BTreeMap<String, u64>, RecordingError> {
-    let bytes = std::fs::read(path).map_err(|source| RecordingError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    let summary = mcap::Summary::read(&bytes)
+    channel_counts_in(&read_bytes(path)?, path)
+}
+
+/// [`channel_counts`] of a recording's bytes; `path` names it in errors.
+pub fn channel_counts_in(
+    bytes: &[u8],
+    path: &Path,
+) -> Result<BTreeMap<String, u64>, RecordingError> {
+    let summary = mcap::Summary::read(bytes)
         .map_err(|source| RecordingError::Mcap {
             path: path.to_path_buf(),
             source,

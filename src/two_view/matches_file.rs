@@ -188,8 +188,17 @@ pub struct RelativeMotion {
 /// Reads a relative ground-truth file (format in the module documentation).
 pub fn read_relative_motions(path: &Path) -> Result<Vec<RelativeMotion>, DatasetError> {
     let text = std::fs::read_to_string(path).map_err(|e| DatasetError::io(path, e))?;
+    parse_relative_motions(path, &text)
+}
+
+/// Parses the text of a relative ground-truth file; `path` only names it
+/// in errors.
+pub fn parse_relative_motions(
+    path: &Path,
+    text: &str,
+) -> Result<Vec<RelativeMotion>, DatasetError> {
     let mut out = Vec::new();
-    for (line_no, line) in data_lines(&text) {
+    for (line_no, line) in data_lines(text) {
         let tokens: Vec<&str> = line.split_whitespace().collect();
         if tokens.len() != 13 {
             return Err(DatasetError::malformed(
