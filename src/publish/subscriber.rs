@@ -86,9 +86,15 @@ impl SampleCheck {
                 expected: T::LAYOUT_VERSION,
             });
         }
+        // The publisher writes the sequence; it may be anything (a
+        // restart, u64::MAX), so no step here may overflow.
         if let Some(last) = self.last_sequence {
-            if message.sequence() > last + 1 {
-                self.missed += message.sequence() - last - 1;
+            if let Some(gap) = message
+                .sequence()
+                .checked_sub(last)
+                .and_then(|d| d.checked_sub(1))
+            {
+                self.missed = self.missed.saturating_add(gap);
             }
         }
         self.last_sequence = Some(message.sequence());
@@ -232,5 +238,56 @@ impl<T: Message> Subscription<T> {
     /// The full service name.
     pub fn service_name(&self) -> &str {
         &self.service
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pose(sequence: u64) -> PoseMessage {
+        let mut m = PoseMessage::new(
+            0,
+            crate::relative::types::TrackingState::Tracking,
+            &nalgebra::Isometry3::identity(),
+        );
+        m.sequence = sequence;
+        m
+    }
+
+    #[test]
+    fn gaps_count_as_missed_and_restarts_do_not() {
+        let mut check = SampleCheck::default();
+        for s in [0, 1, 5, 6, 2, 3] {
+            check
+                .accept("rigslam/pose", &pose(s))
+                .expect("current layout");
+        }
+        assert_eq!(check.missed(), 3);
+    }
+
+    /// Found by fuzzing: a sample with sequence u64::MAX made the next
+    /// one overflow `last + 1` (a panic with overflow checks, a wrapped
+    /// count without), and huge gaps could overflow the count.
+    #[test]
+    fn any_sequence_a_publisher_writes_is_taken() {
+        let mut check = SampleCheck::default();
+        for s in [u64::MAX, 0, u64::MAX, 0, 5] {
+            check
+                .accept("rigslam/pose", &pose(s))
+                .expect("current layout");
+        }
+        assert_eq!(check.missed(), u64::MAX);
+    }
+
+    #[test]
+    fn a_foreign_layout_is_refused_by_name() {
+        let mut m = pose(0);
+        m.layout_version = 99;
+        let e = SampleCheck::default()
+            .accept("rigslam/pose", &m)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("rigslam/pose") && e.contains("99"), "{e}");
     }
 }
