@@ -15,6 +15,7 @@ use std::path::{Path, PathBuf};
 use rigslam_drivers::ImuSample;
 use thiserror::Error;
 
+mod mcap_bounds;
 mod sensor_replay;
 /// Files carried in a recording: (attachment name, bytes).
 pub type Attachments = Vec<(String, Vec<u8>)>;
@@ -53,6 +54,15 @@ pub enum RecordingError {
         topic: String,
         sequence: u32,
         source: serde_json::Error,
+    },
+    /// A length field that does not fit the file (a string, map, chunk
+    /// or attachment longer than what holds it); `offset` is the byte it
+    /// is at.
+    #[error("{path}: malformed MCAP: {reason}")]
+    Malformed {
+        path: PathBuf,
+        offset: u64,
+        reason: String,
     },
     #[error("{path} has no channel {topic}")]
     NoChannel { path: PathBuf, topic: String },
@@ -429,6 +439,16 @@ impl McapRecorder {
     }
 }
 
+/// Refuses a file whose length fields do not fit its bytes, before the
+/// `mcap` crate trusts them (see `mcap_bounds.rs`).
+fn check_bounds(bytes: &[u8], path: &Path) -> Result<(), RecordingError> {
+    mcap_bounds::check(bytes).map_err(|(offset, reason)| RecordingError::Malformed {
+        path: path.to_path_buf(),
+        offset,
+        reason,
+    })
+}
+
 /// The whole file, naming it in the error.
 fn read_bytes(path: &Path) -> Result<Vec<u8>, RecordingError> {
     std::fs::read(path).map_err(|source| RecordingError::Read {
@@ -461,6 +481,7 @@ fn read_channel<M: serde::de::DeserializeOwned, T>(
     topic: &str,
     convert: impl Fn(M) -> T,
 ) -> Result<Vec<T>, RecordingError> {
+    check_bounds(bytes, path)?;
     let mut out = Vec::new();
     let mut seen = false;
     let stream = mcap::MessageStream::new(bytes).map_err(|source| RecordingError::Mcap {
@@ -533,6 +554,7 @@ pub fn read_attachments_in(
     bytes: &[u8],
     path: &Path,
 ) -> Result<BTreeMap<String, Vec<u8>>, RecordingError> {
+    check_bounds(bytes, path)?;
     let mcap_err = |source| RecordingError::Mcap {
         path: path.to_path_buf(),
         source,
@@ -544,6 +566,13 @@ pub fn read_attachments_in(
         })?;
     let mut out = BTreeMap::new();
     for index in &summary.attachment_indexes {
+        mcap_bounds::check_attachment(bytes, index.offset, index.length).map_err(
+            |(offset, reason)| RecordingError::Malformed {
+                path: path.to_path_buf(),
+                offset,
+                reason,
+            },
+        )?;
         let a = mcap::read::attachment(bytes, index).map_err(mcap_err)?;
         out.insert(a.name, a.data.into_owned());
     }
@@ -561,6 +590,7 @@ pub fn channel_counts_in(
     bytes: &[u8],
     path: &Path,
 ) -> Result<BTreeMap<String, u64>, RecordingError> {
+    check_bounds(bytes, path)?;
     let summary = mcap::Summary::read(bytes)
         .map_err(|source| RecordingError::Mcap {
             path: path.to_path_buf(),

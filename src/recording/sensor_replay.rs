@@ -148,6 +148,7 @@ pub fn for_each_sensor_event_in(
         path: path.to_path_buf(),
         source,
     };
+    super::check_bounds(bytes, path)?;
     let stream = mcap::MessageStream::new(bytes).map_err(mcap_err)?;
     let mut left: Option<Frame> = None;
     let mut count = 0u64;
