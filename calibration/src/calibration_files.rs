@@ -69,8 +69,13 @@ impl IntrinsicsFile {
 
 /// Reads what [`IntrinsicsFile`] writes.
 pub fn read_intrinsics_yaml(path: &Path) -> Result<ImuIntrinsics, DatasetError> {
-    let text = read_text(path)?;
-    let file: IntrinsicsFile = serde_yaml::from_str(&text).map_err(|e| {
+    parse_intrinsics_yaml(&read_text(path)?, path)
+}
+
+/// Parses the text of what [`IntrinsicsFile`] writes; `path` names it in
+/// errors.
+pub fn parse_intrinsics_yaml(text: &str, path: &Path) -> Result<ImuIntrinsics, DatasetError> {
+    let file: IntrinsicsFile = serde_yaml::from_str(text).map_err(|e| {
         let line = e.location().map_or(0, |l| l.line());
         DatasetError::malformed(path, line, format!("not an IMU intrinsics file: {e}"))
     })?;

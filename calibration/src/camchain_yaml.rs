@@ -57,8 +57,14 @@ pub fn write_camchain(path: &Path, entries: &[CamchainEntry]) -> std::io::Result
 pub fn read_intrinsics(path: &Path, cam: &str) -> anyhow::Result<PinholeRadtan> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    parse_intrinsics(&text, path, cam)
+}
+
+/// `camN` intrinsics from the text of a sequence.yaml / camchain; `path`
+/// names it in errors.
+pub fn parse_intrinsics(text: &str, path: &Path, cam: &str) -> anyhow::Result<PinholeRadtan> {
     let yaml: serde_yaml::Value =
-        serde_yaml::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
+        serde_yaml::from_str(text).with_context(|| format!("parsing {}", path.display()))?;
     let entry = yaml
         .get(cam)
         .with_context(|| format!("{}: no `{cam}` entry", path.display()))?;

@@ -50,17 +50,24 @@ pub fn groundtruth_trajectory(states: &[GroundTruthState]) -> Trajectory {
 /// Reads a 17-column EuRoC ground-truth CSV. Stamps must increase. A `#`
 /// header, when there is one, must have 17 columns.
 pub fn read_euroc_groundtruth(path: &Path) -> Result<Vec<GroundTruthState>, DatasetError> {
-    let text = read_text(path)?;
+    parse_euroc_groundtruth(&read_text(path)?, path)
+}
+
+/// Parses the text of a ground-truth CSV; `path` names it in errors.
+pub fn parse_euroc_groundtruth(
+    text: &str,
+    path: &Path,
+) -> Result<Vec<GroundTruthState>, DatasetError> {
     check_euroc_header(
         path,
-        &text,
+        text,
         &[17],
         "17 columns (t_ns, p xyz, q wxyz, v xyz, gyro bias xyz, accel bias xyz) \
          for EuRoC ground truth",
     )?;
     let mut states = Vec::new();
     let mut stamps = Vec::new();
-    for (line_no, line) in data_lines(&text) {
+    for (line_no, line) in data_lines(text) {
         let (t_ns, f) = parse_stamped_row::<16>(path, line_no, line, ',')?;
         let [px, py, pz, qw, qx, qy, qz, vx, vy, vz, gx, gy, gz, ax, ay, az] = f;
         let q = unit_quaternion(path, line_no, Quaternion::new(qw, qx, qy, qz))?;
@@ -85,23 +92,28 @@ pub fn read_euroc_groundtruth(path: &Path) -> Result<Vec<GroundTruthState>, Data
 /// must have the first row's column count; a `#` header, when there is
 /// one, must have 17 or 8 columns.
 pub fn read_euroc_trajectory(path: &Path) -> Result<Trajectory, DatasetError> {
-    let text = read_text(path)?;
+    parse_euroc_trajectory(&read_text(path)?, path)
+}
+
+/// Parses the text of a EuRoC-style trajectory CSV; `path` names it in
+/// errors.
+pub fn parse_euroc_trajectory(text: &str, path: &Path) -> Result<Trajectory, DatasetError> {
     check_euroc_header(
         path,
-        &text,
+        text,
         &[17, 8],
         "17 (ground truth) or 8 (t_ns, p xyz, q wxyz) columns for a EuRoC trajectory",
     )?;
-    let columns = data_lines(&text)
+    let columns = data_lines(text)
         .next()
         .map(|(_, l)| l.split(',').count())
         .unwrap_or(17);
     if columns == 17 {
-        return read_euroc_groundtruth(path).map(|s| groundtruth_trajectory(&s));
+        return parse_euroc_groundtruth(text, path).map(|s| groundtruth_trajectory(&s));
     }
     let mut poses = Vec::new();
     let mut stamps = Vec::new();
-    for (line_no, line) in data_lines(&text) {
+    for (line_no, line) in data_lines(text) {
         let (t_ns, f) = parse_stamped_row::<7>(path, line_no, line, ',').map_err(|e| match e {
             DatasetError::Malformed { path, line, .. } if columns != 8 => DatasetError::malformed(
                 path,

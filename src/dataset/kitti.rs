@@ -155,9 +155,18 @@ pub fn read_kitti_poses_stamped(
     path: &Path,
     stamps_ns: &[i64],
 ) -> Result<Trajectory, DatasetError> {
-    let text = read_text(path)?;
+    parse_kitti_poses_stamped(&read_text(path)?, path, stamps_ns)
+}
+
+/// Parses the text of a KITTI `poses.txt`; `path` names it in errors.
+#[allow(non_snake_case)]
+pub fn parse_kitti_poses_stamped(
+    text: &str,
+    path: &Path,
+    stamps_ns: &[i64],
+) -> Result<Trajectory, DatasetError> {
     let mut poses = Vec::new();
-    for (line_no, line) in data_lines(&text) {
+    for (line_no, line) in data_lines(text) {
         let m: [f64; 12] = parse_fields(path, line_no, line, ' ')?;
         let Some(&t_ns) = stamps_ns.get(poses.len()) else {
             return Err(DatasetError::malformed(
@@ -182,10 +191,14 @@ pub fn read_kitti_poses_stamped(
 
 /// `times.txt`: one stamp in seconds per line, increasing.
 fn read_times(path: &Path) -> Result<Vec<i64>, DatasetError> {
-    let text = read_text(path)?;
+    parse_times(&read_text(path)?, path)
+}
+
+/// Parses the text of a `times.txt`; `path` names it in errors.
+pub fn parse_times(text: &str, path: &Path) -> Result<Vec<i64>, DatasetError> {
     let mut stamps = Vec::new();
     let mut lines = Vec::new();
-    for (line_no, line) in data_lines(&text) {
+    for (line_no, line) in data_lines(text) {
         let [_t_s]: [f64; 1] = parse_fields(path, line_no, line, ' ')?;
         stamps.push(seconds_to_ns(path, line_no, line)?);
         lines.push(line_no);
@@ -198,9 +211,14 @@ fn read_times(path: &Path) -> Result<Vec<i64>, DatasetError> {
 /// `P0: 12 numbers`; lines without a `NAME:` prefix are named P0, P1, ...
 /// in order, as some copies of the files strip the names.
 fn read_projection(path: &Path, name: &str) -> Result<[f64; 12], DatasetError> {
-    let text = read_text(path)?;
+    parse_projection(&read_text(path)?, path, name)
+}
+
+/// The 3x4 projection matrix `name` from the text of a `calib.txt`;
+/// `path` names it in errors.
+pub fn parse_projection(text: &str, path: &Path, name: &str) -> Result<[f64; 12], DatasetError> {
     let mut bare = 0;
-    for (line_no, line) in data_lines(&text) {
+    for (line_no, line) in data_lines(text) {
         let (key, values) = match line.split_once(':') {
             Some((k, v)) => (k.trim().to_owned(), v),
             None => {

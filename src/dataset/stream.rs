@@ -120,7 +120,9 @@ impl<'a> SensorStream<'a> {
             .start_ns
             .map_or(0, |t| left.partition_point(|e| e.t_ns < t));
         let first_frame_ns = left.get(next_frame).map_or(i64::MAX, |e| e.t_ns);
-        let next_imu = imu.partition_point(|s| s.t_ns < first_frame_ns - 2_000_000_000);
+        // Saturating: a listing may start at any stamp, i64::MIN included.
+        let imu_from_ns = first_frame_ns.saturating_sub(2_000_000_000);
+        let next_imu = imu.partition_point(|s| s.t_ns < imu_from_ns);
         Ok(Self {
             left,
             load_left,
@@ -258,6 +260,70 @@ mod tests {
         }
         assert_eq!(frames, 20);
         assert!(stereo >= 19, "{stereo}");
+    }
+
+    /// Found by fuzzing: a listing starting at i64::MIN overflowed the
+    /// stream's 2 s look-back for IMU samples (a panic with overflow
+    /// checks; without, every sample was skipped).
+    #[test]
+    fn a_listing_may_start_at_any_stamp() {
+        use crate::camera::{CameraModel, PinholeRadtan};
+        use crate::dataset::euroc::{EurocCamera, EurocDataset, EurocImu};
+        use crate::rig::{CameraCalibration, ImuCalibration, ImuNoise};
+        use nalgebra::Isometry3;
+
+        let noise = ImuNoise {
+            gyroscope_noise_density: 1e-4,
+            gyroscope_random_walk: 1e-5,
+            accelerometer_noise_density: 1e-3,
+            accelerometer_random_walk: 1e-4,
+        };
+        let sample = |t_ns| ImuSample {
+            t_ns,
+            gyro_rad_s: [0.0; 3],
+            accel_m_s2: [0.0, 0.0, 9.8],
+        };
+        let dataset = Dataset::Euroc(EurocDataset {
+            root: "mav0".into(),
+            cameras: vec![EurocCamera {
+                name: "cam0".into(),
+                camera_index: 0,
+                calibration: CameraCalibration {
+                    model: CameraModel::PinholeRadtan(
+                        PinholeRadtan::new(8, 6, [10.0, 10.0, 4.0, 3.0], [0.0; 5]).expect("camera"),
+                    ),
+                    T_body_cam: Isometry3::identity(),
+                    rate_hz: 20.0,
+                },
+                frames: vec![ImageEntry {
+                    t_ns: i64::MIN,
+                    path: None,
+                }],
+                csv_path: "mav0/cam0/data.csv".into(),
+            }],
+            imu: Some(EurocImu {
+                calibration: ImuCalibration {
+                    T_body_imu: Isometry3::identity(),
+                    rate_hz: 200.0,
+                    noise,
+                },
+                samples: vec![sample(i64::MIN), sample(0)],
+                dropped_nonfinite: 0,
+            }),
+            groundtruth: None,
+        });
+        let options = StreamOptions {
+            stereo: false,
+            imu: true,
+            start_ns: None,
+            max_frames: None,
+        };
+        let stream = SensorStream::new(&dataset, options).expect("stream");
+        let imu = stream
+            .filter(|e| matches!(e, Ok(SensorEvent::Imu(_))))
+            .count();
+        // The sample at the frame's stamp and the one after it.
+        assert_eq!(imu, 2);
     }
 
     #[test]

@@ -16,10 +16,14 @@ use crate::trajectory::{StampedPose, Trajectory};
 /// ns exactly (rounding only digits past the nanosecond): going through
 /// f64 would lose about 0.2 us near 1.4e9 s.
 pub fn read_tum(path: &Path) -> Result<Trajectory, DatasetError> {
-    let text = read_text(path)?;
+    parse_tum(&read_text(path)?, path)
+}
+
+/// Parses the text of a TUM file; `path` names it in errors.
+pub fn parse_tum(text: &str, path: &Path) -> Result<Trajectory, DatasetError> {
     let mut poses = Vec::new();
     let mut stamps = Vec::new();
-    for (line_no, line) in data_lines(&text) {
+    for (line_no, line) in data_lines(text) {
         let f: [f64; 8] = parse_fields(path, line_no, line, ' ')?;
         let q = Quaternion::new(f[7], f[4], f[5], f[6]);
         let orientation = unit_quaternion(path, line_no, q)?;

@@ -50,7 +50,10 @@ pub fn parse_edges(text: &str, path: &Path) -> Result<MapProblem, EdgeMapError> 
         })?;
     let (landmarks, edge_count, reference) =
         parse_header(header).map_err(|m| err(header_line, m))?;
-    let mut edges = Vec::with_capacity(edge_count.min(1 << 26));
+    // The count is the header's word, checked against the lines at the
+    // end; reserve for no more than the text can hold (an edge takes at
+    // least 22 bytes), not for whatever the header says.
+    let mut edges = Vec::with_capacity(edge_count.min(text.len() / 22));
     for (line, content) in lines {
         let content = content.trim();
         if content.is_empty() || content.starts_with('#') {
@@ -221,6 +224,11 @@ pub fn read_positions(path: &Path) -> Result<Vec<Vector3<f64>>, EdgeMapError> {
         path: path.to_owned(),
         source,
     })?;
+    parse_positions(&text, path)
+}
+
+/// Parses the text of a positions file; `path` only names it in errors.
+pub fn parse_positions(text: &str, path: &Path) -> Result<Vec<Vector3<f64>>, EdgeMapError> {
     let mut positions = Vec::new();
     for (k, line) in text.lines().enumerate() {
         let line = line.trim();
@@ -280,6 +288,22 @@ mod tests {
 
     const GOOD: &str =
         "# landmarks 3 edges 2 reference 0\n0 1 1 0 0 1 0 0 1 0 1\n1 2 0 1 0 2 0.5 0 2 0 2\n";
+
+    /// Found by fuzzing: a header announcing 2^26 or more edges made the
+    /// reader reserve 2^26 of them, 6.4 GB (an abort), before reading a
+    /// line. The allocation is caught by `tests/fuzz_corpus.rs` on
+    /// `corpus/edges_file/huge_count.edges`; the error stays.
+    #[test]
+    fn a_huge_edge_count_is_an_error_not_an_allocation() {
+        let (line, m) = line_error(
+            "# landmarks 3 edges 1152921504606846976 reference 0\n0 1 1 0 0 1 0 0 1 0 1\n",
+        );
+        assert_eq!(line, 1);
+        assert!(
+            m.contains("header announces 1152921504606846976 edges, the file has 1"),
+            "{m}"
+        );
+    }
 
     #[test]
     fn reads_a_good_file() {

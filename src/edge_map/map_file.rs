@@ -27,6 +27,9 @@ use crate::features::orb::Descriptor;
 
 const HEADER: &str = "# rigslam map v1 landmarks";
 
+/// Landmarks reserved for up front at most, whatever the header announces.
+const PREALLOCATED_LANDMARKS: usize = 4096;
+
 /// One landmark of a saved map.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MapLandmark {
@@ -118,12 +121,17 @@ impl SavedMap {
             path: path.to_path_buf(),
             source,
         })?;
+        Self::read_from(BufReader::new(file), path)
+    }
+
+    /// Reads a map from `reader`; `path` names it in errors.
+    pub fn read_from(reader: impl BufRead, path: &Path) -> Result<Self, MapFileError> {
         let parse = |line: usize, message: String| MapFileError::Parse {
             path: path.to_path_buf(),
             line,
             message,
         };
-        let mut lines = BufReader::new(file).lines().enumerate();
+        let mut lines = reader.lines().enumerate();
         let (_, first) = lines
             .next()
             .ok_or_else(|| parse(1, "empty file: not a rigslam map".into()))?;
@@ -135,7 +143,10 @@ impl SavedMap {
             .strip_prefix(HEADER)
             .and_then(|n| n.trim().parse().ok())
             .ok_or_else(|| parse(1, format!("expected `{HEADER} N`, found `{first}`")))?;
-        let mut landmarks = Vec::with_capacity(expected.min(1 << 24));
+        // The count is the file's word, checked against the lines at the
+        // end: reserve for what a file of any size plausibly holds, not
+        // for whatever the header says (2^60 would abort the process).
+        let mut landmarks = Vec::with_capacity(expected.min(PREALLOCATED_LANDMARKS));
         let mut seen = std::collections::HashSet::new();
         for (index, text) in lines {
             let number = index + 1;
@@ -284,5 +295,23 @@ mod tests {
         }
         let missing = SavedMap::read(&dir.path().join("none.txt")).unwrap_err();
         assert!(missing.to_string().contains("none.txt"), "{missing}");
+    }
+
+    /// Found by fuzzing: a header announcing 2^60 (or any count from
+    /// 2^24) landmarks made the reader reserve room for 2^24 of them,
+    /// 2.4 GB, before reading a line. The error stays; the allocation is
+    /// caught by `tests/fuzz_corpus.rs` on `corpus/map_file/huge_count.txt`.
+    #[test]
+    fn a_huge_landmark_count_is_an_error_not_an_allocation() {
+        for count in ["1152921504606846976", "16777216", "18446744073709551615"] {
+            let text = format!("{HEADER} {count}\n0 1 2 3 1 0 0 1 0 1 -\n");
+            let err = SavedMap::read_from(text.as_bytes(), Path::new("huge.map"))
+                .unwrap_err()
+                .to_string();
+            assert!(
+                err.starts_with("huge.map:1:") && err.contains("the file holds 1"),
+                "{err}"
+            );
+        }
     }
 }

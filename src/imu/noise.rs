@@ -53,7 +53,12 @@ pub fn bias_walk_covariance(noise: &ImuNoise, dt_s: f64) -> Matrix6<f64> {
 /// the top level or under `imu0:`) or a EuRoC `sensor.yaml` (`rate_hz`).
 /// Returns the noise and the nominal rate in Hz.
 pub fn read_kalibr_imu_yaml(path: &Path) -> Result<(ImuNoise, f64), DatasetError> {
-    let text = read_text(path)?;
+    parse_kalibr_imu_yaml(&read_text(path)?, path)
+}
+
+/// Parses the text of a Kalibr `imu.yaml` or EuRoC `sensor.yaml`; `path`
+/// names it in errors.
+pub fn parse_kalibr_imu_yaml(text: &str, path: &Path) -> Result<(ImuNoise, f64), DatasetError> {
     // EuRoC files begin with OpenCV's `%YAML:1.0`, which YAML parsers reject.
     let body: String = text
         .lines()

@@ -209,6 +209,40 @@ pub struct StatusMessage {
     pub pixel_noise_scale: f64,
 }
 
+/// A message of `size_of::<T>()` bytes as they lie in shared memory;
+/// `None` for any other length. Only for the `#[repr(C)]` messages of this
+/// module, whose fields are integers, floats and byte arrays: every bit
+/// pattern is a valid value, so any bytes a publisher wrote can be read.
+fn from_wire_bytes<T: Copy>(bytes: &[u8]) -> Option<T> {
+    (bytes.len() == std::mem::size_of::<T>()).then(|| {
+        // SAFETY: the length is checked, the read is unaligned, and every
+        // bit pattern is a valid T (see above).
+        unsafe { std::ptr::read_unaligned(bytes.as_ptr().cast::<T>()) }
+    })
+}
+
+impl StatusMessage {
+    /// The message in `bytes` as a reader finds it in shared memory;
+    /// `None` when `bytes` is not [`std::mem::size_of::<StatusMessage>()`]
+    /// long. Nothing is validated: see [`crate::publish::SampleCheck`].
+    pub fn from_bytes(bytes: &[u8]) -> Option<Self> {
+        from_wire_bytes(bytes)
+    }
+
+    /// The message's bytes exactly as they lie in shared memory.
+    pub fn as_bytes(&self) -> &[u8] {
+        // SAFETY: StatusMessage is repr(C), Copy, and has no padding (the
+        // layout test checks that the field sizes add up to its size), so
+        // every byte is initialised.
+        unsafe {
+            std::slice::from_raw_parts(
+                (self as *const Self).cast::<u8>(),
+                std::mem::size_of::<Self>(),
+            )
+        }
+    }
+}
+
 impl QueueFill {
     /// An entry with `name` cut to 16 bytes (NUL-padded).
     pub fn new(name: &str, len: u32, capacity: u32) -> Self {
@@ -390,6 +424,13 @@ impl PoseMessage {
     /// The tracking state, `None` for a code this build does not know.
     pub fn state(&self) -> Option<TrackingState> {
         tracking_state_from_code(self.tracking_state)
+    }
+
+    /// The message in `bytes` as a reader finds it in shared memory;
+    /// `None` when `bytes` is not [`std::mem::size_of::<PoseMessage>()`]
+    /// long. Nothing is validated: see [`crate::publish::SampleCheck`].
+    pub fn from_bytes(bytes: &[u8]) -> Option<Self> {
+        from_wire_bytes(bytes)
     }
 
     /// The message's bytes exactly as they lie in shared memory (what a C

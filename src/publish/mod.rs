@@ -29,4 +29,6 @@ pub use service::{
     cleanup_dead_nodes, Ipc, IpcConfig, IpcError, Message, Stream, DEFAULT_SERVICE_PREFIX,
     MAX_SUBSCRIBER_BUFFER,
 };
-pub use subscriber::{PoseSubscriber, StatusSubscriber, Subscription, DEFAULT_SUBSCRIBER_BUFFER};
+pub use subscriber::{
+    PoseSubscriber, SampleCheck, StatusSubscriber, Subscription, DEFAULT_SUBSCRIBER_BUFFER,
+};

@@ -22,8 +22,7 @@ pub struct Subscription<T: Message> {
     service: String,
     subscriber: Subscriber<Ipc, T, ()>,
     listener: Listener<Ipc>,
-    last_sequence: Option<u64>,
-    missed: u64,
+    check: SampleCheck,
     access: Access,
     next_narrowing: Instant,
     membership_warned: bool,
@@ -68,6 +67,46 @@ impl StatusSubscriber {
     }
 }
 
+/// What a subscriber checks of every sample it takes, whatever bytes the
+/// publisher put in shared memory: the layout version, and the sequence
+/// number against the previous sample's (a gap counts as missed samples).
+#[derive(Debug, Clone, Default)]
+pub struct SampleCheck {
+    last_sequence: Option<u64>,
+    missed: u64,
+}
+
+impl SampleCheck {
+    /// Checks `message`, taken from `service` (named in the error).
+    pub fn accept<T: Message>(&mut self, service: &str, message: &T) -> Result<(), IpcError> {
+        if message.layout_version() != T::LAYOUT_VERSION {
+            return Err(IpcError::LayoutVersion {
+                service: service.to_string(),
+                found: message.layout_version(),
+                expected: T::LAYOUT_VERSION,
+            });
+        }
+        // The publisher writes the sequence; it may be anything (a
+        // restart, u64::MAX), so no step here may overflow.
+        if let Some(last) = self.last_sequence {
+            if let Some(gap) = message
+                .sequence()
+                .checked_sub(last)
+                .and_then(|d| d.checked_sub(1))
+            {
+                self.missed = self.missed.saturating_add(gap);
+            }
+        }
+        self.last_sequence = Some(message.sequence());
+        Ok(())
+    }
+
+    /// Samples skipped between the ones accepted (sequence gaps).
+    pub fn missed(&self) -> u64 {
+        self.missed
+    }
+}
+
 impl<T: Message> Subscription<T> {
     /// Subscribes to the service with the full name `service` (e.g.
     /// `rigslam/pose`). When the daemon runs as another user, the service
@@ -94,8 +133,7 @@ impl<T: Message> Subscription<T> {
             service: service.to_string(),
             subscriber,
             listener,
-            last_sequence: None,
-            missed: 0,
+            check: SampleCheck::default(),
             access,
             next_narrowing: Instant::now() + NARROWING_PERIOD,
             membership_warned: false,
@@ -157,19 +195,7 @@ impl<T: Message> Subscription<T> {
         };
         let message: T = *sample.payload();
         drop(sample);
-        if message.layout_version() != T::LAYOUT_VERSION {
-            return Err(IpcError::LayoutVersion {
-                service: self.service.clone(),
-                found: message.layout_version(),
-                expected: T::LAYOUT_VERSION,
-            });
-        }
-        if let Some(last) = self.last_sequence {
-            if message.sequence() > last + 1 {
-                self.missed += message.sequence() - last - 1;
-            }
-        }
-        self.last_sequence = Some(message.sequence());
+        self.check.accept(&self.service, &message)?;
         Ok(Some(message))
     }
 
@@ -206,11 +232,62 @@ impl<T: Message> Subscription<T> {
     /// dropped because the buffer overflowed, or before this subscriber
     /// connected after the first taken one.
     pub fn missed(&self) -> u64 {
-        self.missed
+        self.check.missed()
     }
 
     /// The full service name.
     pub fn service_name(&self) -> &str {
         &self.service
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pose(sequence: u64) -> PoseMessage {
+        let mut m = PoseMessage::new(
+            0,
+            crate::relative::types::TrackingState::Tracking,
+            &nalgebra::Isometry3::identity(),
+        );
+        m.sequence = sequence;
+        m
+    }
+
+    #[test]
+    fn gaps_count_as_missed_and_restarts_do_not() {
+        let mut check = SampleCheck::default();
+        for s in [0, 1, 5, 6, 2, 3] {
+            check
+                .accept("rigslam/pose", &pose(s))
+                .expect("current layout");
+        }
+        assert_eq!(check.missed(), 3);
+    }
+
+    /// Found by fuzzing: a sample with sequence u64::MAX made the next
+    /// one overflow `last + 1` (a panic with overflow checks, a wrapped
+    /// count without), and huge gaps could overflow the count.
+    #[test]
+    fn any_sequence_a_publisher_writes_is_taken() {
+        let mut check = SampleCheck::default();
+        for s in [u64::MAX, 0, u64::MAX, 0, 5] {
+            check
+                .accept("rigslam/pose", &pose(s))
+                .expect("current layout");
+        }
+        assert_eq!(check.missed(), u64::MAX);
+    }
+
+    #[test]
+    fn a_foreign_layout_is_refused_by_name() {
+        let mut m = pose(0);
+        m.layout_version = 99;
+        let e = SampleCheck::default()
+            .accept("rigslam/pose", &m)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("rigslam/pose") && e.contains("99"), "{e}");
     }
 }

@@ -15,12 +15,13 @@ use std::path::{Path, PathBuf};
 use rigslam_drivers::ImuSample;
 use thiserror::Error;
 
+mod mcap_bounds;
 mod sensor_replay;
 /// Files carried in a recording: (attachment name, bytes).
 pub type Attachments = Vec<(String, Vec<u8>)>;
 pub use sensor_replay::{
-    calibration_attachment_name, calibration_attachments, for_each_sensor_event, is_mcap,
-    rig_of_recording, SensorTopics,
+    calibration_attachment_name, calibration_attachments, for_each_sensor_event,
+    for_each_sensor_event_in, is_mcap, rig_of_recording, rig_of_recording_in, SensorTopics,
 };
 
 /// Schema name of IMU messages.
@@ -53,6 +54,15 @@ pub enum RecordingError {
         topic: String,
         sequence: u32,
         source: serde_json::Error,
+    },
+    /// A length field that does not fit the file (a string, map, chunk
+    /// or attachment longer than what holds it); `offset` is the byte it
+    /// is at.
+    #[error("{path}: malformed MCAP: {reason}")]
+    Malformed {
+        path: PathBuf,
+        offset: u64,
+        reason: String,
     },
     #[error("{path} has no channel {topic}")]
     NoChannel { path: PathBuf, topic: String },
@@ -429,9 +439,36 @@ impl McapRecorder {
     }
 }
 
+/// Refuses a file whose length fields do not fit its bytes, before the
+/// `mcap` crate trusts them (see `mcap_bounds.rs`).
+fn check_bounds(bytes: &[u8], path: &Path) -> Result<(), RecordingError> {
+    mcap_bounds::check(bytes).map_err(|(offset, reason)| RecordingError::Malformed {
+        path: path.to_path_buf(),
+        offset,
+        reason,
+    })
+}
+
+/// The whole file, naming it in the error.
+fn read_bytes(path: &Path) -> Result<Vec<u8>, RecordingError> {
+    std::fs::read(path).map_err(|source| RecordingError::Read {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
 /// Reads back every IMU sample of `topic`, in file order.
 pub fn read_imu_channel(path: &Path, topic: &str) -> Result<Vec<ImuSample>, RecordingError> {
-    read_channel(path, topic, |m: ImuMessage| ImuSample {
+    read_imu_channel_in(&read_bytes(path)?, path, topic)
+}
+
+/// [`read_imu_channel`] of a recording's bytes; `path` names it in errors.
+pub fn read_imu_channel_in(
+    bytes: &[u8],
+    path: &Path,
+    topic: &str,
+) -> Result<Vec<ImuSample>, RecordingError> {
+    read_channel(bytes, path, topic, |m: ImuMessage| ImuSample {
         t_ns: m.t_ns,
         gyro_rad_s: m.gyro_rad_s,
         accel_m_s2: m.accel_m_s2,
@@ -439,17 +476,15 @@ pub fn read_imu_channel(path: &Path, topic: &str) -> Result<Vec<ImuSample>, Reco
 }
 
 fn read_channel<M: serde::de::DeserializeOwned, T>(
+    bytes: &[u8],
     path: &Path,
     topic: &str,
     convert: impl Fn(M) -> T,
 ) -> Result<Vec<T>, RecordingError> {
-    let bytes = std::fs::read(path).map_err(|source| RecordingError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    check_bounds(bytes, path)?;
     let mut out = Vec::new();
     let mut seen = false;
-    let stream = mcap::MessageStream::new(&bytes).map_err(|source| RecordingError::Mcap {
+    let stream = mcap::MessageStream::new(bytes).map_err(|source| RecordingError::Mcap {
         path: path.to_path_buf(),
         source,
     })?;
@@ -482,7 +517,16 @@ fn read_channel<M: serde::de::DeserializeOwned, T>(
 
 /// Reads back every pose of `topic`, in file order.
 pub fn read_pose_channel(path: &Path, topic: &str) -> Result<Vec<RecordedPose>, RecordingError> {
-    read_channel(path, topic, |m: PoseJson| RecordedPose {
+    read_pose_channel_in(&read_bytes(path)?, path, topic)
+}
+
+/// [`read_pose_channel`] of a recording's bytes; `path` names it in errors.
+pub fn read_pose_channel_in(
+    bytes: &[u8],
+    path: &Path,
+    topic: &str,
+) -> Result<Vec<RecordedPose>, RecordingError> {
+    read_channel(bytes, path, topic, |m: PoseJson| RecordedPose {
         t_ns: m.t_ns,
         tracking_state: m.tracking_state,
         position_world_m: [m.pose.position.x, m.pose.position.y, m.pose.position.z],
@@ -502,22 +546,34 @@ pub fn read_pose_channel(path: &Path, topic: &str) -> Result<Vec<RecordedPose>, 
 
 /// The attachments of a complete recording (from its summary), by name.
 pub fn read_attachments(path: &Path) -> Result<BTreeMap<String, Vec<u8>>, RecordingError> {
-    let bytes = std::fs::read(path).map_err(|source| RecordingError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    read_attachments_in(&read_bytes(path)?, path)
+}
+
+/// [`read_attachments`] of a recording's bytes; `path` names it in errors.
+pub fn read_attachments_in(
+    bytes: &[u8],
+    path: &Path,
+) -> Result<BTreeMap<String, Vec<u8>>, RecordingError> {
+    check_bounds(bytes, path)?;
     let mcap_err = |source| RecordingError::Mcap {
         path: path.to_path_buf(),
         source,
     };
-    let summary = mcap::Summary::read(&bytes)
+    let summary = mcap::Summary::read(bytes)
         .map_err(mcap_err)?
         .ok_or_else(|| RecordingError::NoSummary {
             path: path.to_path_buf(),
         })?;
     let mut out = BTreeMap::new();
     for index in &summary.attachment_indexes {
-        let a = mcap::read::attachment(&bytes, index).map_err(mcap_err)?;
+        mcap_bounds::check_attachment(bytes, index.offset, index.length).map_err(
+            |(offset, reason)| RecordingError::Malformed {
+                path: path.to_path_buf(),
+                offset,
+                reason,
+            },
+        )?;
+        let a = mcap::read::attachment(bytes, index).map_err(mcap_err)?;
         out.insert(a.name, a.data.into_owned());
     }
     Ok(out)
@@ -526,11 +582,16 @@ pub fn read_attachments(path: &Path) -> Result<BTreeMap<String, Vec<u8>>, Record
 /// The topics of a recording and their message counts (from its summary,
 /// so only a completely written file answers).
 pub fn channel_counts(path: &Path) -> Result<BTreeMap<String, u64>, RecordingError> {
-    let bytes = std::fs::read(path).map_err(|source| RecordingError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    let summary = mcap::Summary::read(&bytes)
+    channel_counts_in(&read_bytes(path)?, path)
+}
+
+/// [`channel_counts`] of a recording's bytes; `path` names it in errors.
+pub fn channel_counts_in(
+    bytes: &[u8],
+    path: &Path,
+) -> Result<BTreeMap<String, u64>, RecordingError> {
+    check_bounds(bytes, path)?;
+    let summary = mcap::Summary::read(bytes)
         .map_err(|source| RecordingError::Mcap {
             path: path.to_path_buf(),
             source,

@@ -73,7 +73,12 @@ const CALIBRATION_PREFIX: &str = "calibration/";
 /// The rig a recording was made with, from its calibration attachments;
 /// `None` when it has none (a recording made without them).
 pub fn rig_of_recording(path: &Path) -> Result<Option<RigModel>, RecordingError> {
-    let attachments = super::read_attachments(path)?;
+    rig_of_recording_in(&super::read_bytes(path)?, path)
+}
+
+/// [`rig_of_recording`] of a recording's bytes; `path` names it in errors.
+pub fn rig_of_recording_in(bytes: &[u8], path: &Path) -> Result<Option<RigModel>, RecordingError> {
+    let attachments = super::read_attachments_in(bytes, path)?;
     let text = |name: &str| -> Result<Option<(String, std::path::PathBuf)>, RecordingError> {
         let key = format!("{CALIBRATION_PREFIX}{name}");
         attachments
@@ -126,17 +131,25 @@ pub fn rig_of_recording(path: &Path) -> Result<Option<RigModel>, RecordingError>
 pub fn for_each_sensor_event(
     path: &Path,
     topics: SensorTopics,
+    f: impl FnMut(SensorEvent) -> ControlFlow<()>,
+) -> Result<u64, RecordingError> {
+    for_each_sensor_event_in(&super::read_bytes(path)?, path, topics, f)
+}
+
+/// [`for_each_sensor_event`] over a recording's bytes; `path` names it in
+/// errors.
+pub fn for_each_sensor_event_in(
+    bytes: &[u8],
+    path: &Path,
+    topics: SensorTopics,
     mut f: impl FnMut(SensorEvent) -> ControlFlow<()>,
 ) -> Result<u64, RecordingError> {
-    let bytes = std::fs::read(path).map_err(|source| RecordingError::Read {
-        path: path.to_path_buf(),
-        source,
-    })?;
     let mcap_err = |source| RecordingError::Mcap {
         path: path.to_path_buf(),
         source,
     };
-    let stream = mcap::MessageStream::new(&bytes).map_err(mcap_err)?;
+    super::check_bounds(bytes, path)?;
+    let stream = mcap::MessageStream::new(bytes).map_err(mcap_err)?;
     let mut left: Option<Frame> = None;
     let mut count = 0u64;
     for message in stream {

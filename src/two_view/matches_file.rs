@@ -121,8 +121,10 @@ pub fn parse_matches(path: &Path, text: &str) -> Result<MatchesFile, DatasetErro
         }
         let k = parse_count(path, line_no, tokens[0], "frame index k")?;
         let n = parse_count(path, line_no, tokens[1], "match count n")?;
-        let mut px1 = Vec::with_capacity(n);
-        let mut px2 = Vec::with_capacity(n);
+        // `n` is the file's word: reserve for no more matches than the
+        // text can hold (one takes at least 8 bytes), whatever it says.
+        let mut px1 = Vec::with_capacity(n.min(text.len() / 8));
+        let mut px2 = Vec::with_capacity(n.min(text.len() / 8));
         let mut push = |line_no: usize, quad: &[&str]| -> Result<(), DatasetError> {
             let v: Vec<f64> = quad
                 .iter()
@@ -157,13 +159,14 @@ pub fn parse_matches(path: &Path, text: &str) -> Result<MatchesFile, DatasetErro
                 push(qline_no, &quad)?;
             }
         } else {
-            if tokens.len() != 2 + 4 * n {
+            // In u128: `4 n` of a huge count must not overflow.
+            let numbers = 4 * n as u128;
+            if (tokens.len() - 2) as u128 != numbers {
                 return Err(DatasetError::malformed(
                     path,
                     line_no,
                     format!(
-                        "pair {k} announces {n} matches ({} numbers) but the line has {} after `k n`",
-                        4 * n,
+                        "pair {k} announces {n} matches ({numbers} numbers) but the line has {} after `k n`",
                         tokens.len() - 2
                     ),
                 ));
@@ -188,8 +191,17 @@ pub struct RelativeMotion {
 /// Reads a relative ground-truth file (format in the module documentation).
 pub fn read_relative_motions(path: &Path) -> Result<Vec<RelativeMotion>, DatasetError> {
     let text = std::fs::read_to_string(path).map_err(|e| DatasetError::io(path, e))?;
+    parse_relative_motions(path, &text)
+}
+
+/// Parses the text of a relative ground-truth file; `path` only names it
+/// in errors.
+pub fn parse_relative_motions(
+    path: &Path,
+    text: &str,
+) -> Result<Vec<RelativeMotion>, DatasetError> {
     let mut out = Vec::new();
-    for (line_no, line) in data_lines(&text) {
+    for (line_no, line) in data_lines(text) {
         let tokens: Vec<&str> = line.split_whitespace().collect();
         if tokens.len() != 13 {
             return Err(DatasetError::malformed(
@@ -286,6 +298,32 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("K fx fy cx cy"), "{e}");
+    }
+
+    /// Found by reading, confirmed on the fuzz target: a huge match count
+    /// reserved room for it (a capacity-overflow panic at 2^60) and
+    /// overflowed `2 + 4 n` when the matches were on its line.
+    #[test]
+    fn a_huge_match_count_is_an_error() {
+        for (text, at) in [
+            (
+                format!("{HEADER}0 1152921504606846976\n1 2 3 4\n"),
+                "m.txt:3:",
+            ),
+            (
+                format!("{HEADER}0 4611686018427387904 1 2 3 4\n"),
+                "m.txt:3:",
+            ),
+            (
+                format!("{HEADER}0 18446744073709551615 1 2 3 4\n"),
+                "m.txt:3:",
+            ),
+        ] {
+            let e = parse_matches(Path::new("m.txt"), &text)
+                .unwrap_err()
+                .to_string();
+            assert!(e.starts_with(at) && e.contains("announces"), "{e}");
+        }
     }
 
     #[test]

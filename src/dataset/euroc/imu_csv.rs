@@ -29,16 +29,20 @@ pub struct ImuCsv {
 /// errors naming the line; stamps must increase. A `#` header, when
 /// there is one, must have 7 columns.
 pub fn read_euroc_imu_csv(path: &Path) -> Result<ImuCsv, DatasetError> {
-    let text = read_text(path)?;
+    parse_euroc_imu_csv(&read_text(path)?, path)
+}
+
+/// Parses the text of an IMU CSV; `path` names it in errors.
+pub fn parse_euroc_imu_csv(text: &str, path: &Path) -> Result<ImuCsv, DatasetError> {
     check_euroc_header(
         path,
-        &text,
+        text,
         &[7],
         "7 columns (t_ns, gyro xyz, accel xyz) for an IMU csv",
     )?;
     let mut out = ImuCsv::default();
     let mut stamps = Vec::new();
-    for (line_no, line) in data_lines(&text) {
+    for (line_no, line) in data_lines(text) {
         let (t_ns, f) = parse_stamped_row::<6>(path, line_no, line, ',')?;
         stamps.push((line_no, t_ns));
         let sample = ImuSample {

@@ -1,0 +1,7 @@
+//! `map_file`: see `entry_points::map_file`.
+#![no_main]
+
+#[path = "../entry_points.rs"]
+mod entry_points;
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| entry_points::map_file(data));
