@@ -121,7 +121,8 @@ impl KittiSequence {
                 .zip(files)
                 .map(|(t_ns, p)| ImageEntry {
                     t_ns,
-                    path: Some(p),
+                    path: Some(p.clone()),
+                    listed_path: p,
                 })
                 .collect(),
             groundtruth,

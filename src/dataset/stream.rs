@@ -104,6 +104,16 @@ impl<'a> SensorStream<'a> {
                 } else {
                     &[]
                 };
+                // Frames listed without their image are skipped (left) or
+                // sent as left only (right), and counted; say so once, here.
+                warn_missing(cam0, options.start_ns, "their frames are skipped");
+                if let Some(cam1) = right {
+                    warn_missing(
+                        cam1,
+                        options.start_ns,
+                        "those frames go out as left images only",
+                    );
+                }
                 (&cam0.frames, Box::new(move |i| cam0.load(i)), right, imu)
             }
             Dataset::Kitti(k) => {
@@ -158,6 +168,27 @@ impl<'a> SensorStream<'a> {
             _ => Ok(None),
         }
     }
+}
+
+/// Warns once that `camera`'s listing (from `start_ns` on) names image
+/// files that are absent: how many, and the first; returns how many.
+fn warn_missing(camera: &EurocCamera, start_ns: Option<i64>, consequence: &str) -> usize {
+    let mut missing = camera
+        .frames
+        .iter()
+        .filter(|e| e.path.is_none() && start_ns.map_or(true, |t| e.t_ns >= t));
+    let Some(first) = missing.next() else {
+        return 0;
+    };
+    let n = 1 + missing.count();
+    tracing::warn!(
+        "{}: {n} listed image{} missing, the first {} (t = {} ns); {consequence}",
+        camera.csv_path.display(),
+        if n == 1 { " is" } else { "s are" },
+        first.listed_path.display(),
+        first.t_ns
+    );
+    n
 }
 
 impl Iterator for SensorStream<'_> {
@@ -262,56 +293,72 @@ mod tests {
         assert!(stereo >= 19, "{stereo}");
     }
 
+    /// An in-memory EuRoC dataset: cameras listing (stamp, image file)
+    /// with no file there, and IMU samples at the given stamps.
+    fn dataset(cameras: &[&[(i64, &str)]], imu: &[i64]) -> Dataset {
+        use crate::camera::{CameraModel, PinholeRadtan};
+        use crate::dataset::euroc::{EurocDataset, EurocImu};
+        use crate::rig::{CameraCalibration, ImuCalibration, ImuNoise};
+        use nalgebra::Isometry3;
+
+        let camera = |i: usize, listing: &[(i64, &str)]| EurocCamera {
+            name: format!("cam{i}"),
+            camera_index: i as u8,
+            calibration: CameraCalibration {
+                model: CameraModel::PinholeRadtan(
+                    PinholeRadtan::new(8, 6, [10.0, 10.0, 4.0, 3.0], [0.0; 5]).expect("camera"),
+                ),
+                T_body_cam: Isometry3::identity(),
+                rate_hz: 20.0,
+            },
+            frames: listing
+                .iter()
+                .map(|&(t_ns, file)| ImageEntry {
+                    t_ns,
+                    path: None,
+                    listed_path: format!("mav0/cam{i}/data/{file}").into(),
+                })
+                .collect(),
+            csv_path: format!("mav0/cam{i}/data.csv").into(),
+        };
+        Dataset::Euroc(EurocDataset {
+            root: "mav0".into(),
+            cameras: cameras
+                .iter()
+                .enumerate()
+                .map(|(i, l)| camera(i, l))
+                .collect(),
+            imu: Some(EurocImu {
+                calibration: ImuCalibration {
+                    T_body_imu: Isometry3::identity(),
+                    rate_hz: 200.0,
+                    noise: ImuNoise {
+                        gyroscope_noise_density: 1e-4,
+                        gyroscope_random_walk: 1e-5,
+                        accelerometer_noise_density: 1e-3,
+                        accelerometer_random_walk: 1e-4,
+                    },
+                },
+                samples: imu
+                    .iter()
+                    .map(|&t_ns| ImuSample {
+                        t_ns,
+                        gyro_rad_s: [0.0; 3],
+                        accel_m_s2: [0.0, 0.0, 9.8],
+                    })
+                    .collect(),
+                dropped_nonfinite: 0,
+            }),
+            groundtruth: None,
+        })
+    }
+
     /// Found by fuzzing: a listing starting at i64::MIN overflowed the
     /// stream's 2 s look-back for IMU samples (a panic with overflow
     /// checks; without, every sample was skipped).
     #[test]
     fn a_listing_may_start_at_any_stamp() {
-        use crate::camera::{CameraModel, PinholeRadtan};
-        use crate::dataset::euroc::{EurocCamera, EurocDataset, EurocImu};
-        use crate::rig::{CameraCalibration, ImuCalibration, ImuNoise};
-        use nalgebra::Isometry3;
-
-        let noise = ImuNoise {
-            gyroscope_noise_density: 1e-4,
-            gyroscope_random_walk: 1e-5,
-            accelerometer_noise_density: 1e-3,
-            accelerometer_random_walk: 1e-4,
-        };
-        let sample = |t_ns| ImuSample {
-            t_ns,
-            gyro_rad_s: [0.0; 3],
-            accel_m_s2: [0.0, 0.0, 9.8],
-        };
-        let dataset = Dataset::Euroc(EurocDataset {
-            root: "mav0".into(),
-            cameras: vec![EurocCamera {
-                name: "cam0".into(),
-                camera_index: 0,
-                calibration: CameraCalibration {
-                    model: CameraModel::PinholeRadtan(
-                        PinholeRadtan::new(8, 6, [10.0, 10.0, 4.0, 3.0], [0.0; 5]).expect("camera"),
-                    ),
-                    T_body_cam: Isometry3::identity(),
-                    rate_hz: 20.0,
-                },
-                frames: vec![ImageEntry {
-                    t_ns: i64::MIN,
-                    path: None,
-                }],
-                csv_path: "mav0/cam0/data.csv".into(),
-            }],
-            imu: Some(EurocImu {
-                calibration: ImuCalibration {
-                    T_body_imu: Isometry3::identity(),
-                    rate_hz: 200.0,
-                    noise,
-                },
-                samples: vec![sample(i64::MIN), sample(0)],
-                dropped_nonfinite: 0,
-            }),
-            groundtruth: None,
-        });
+        let dataset = dataset(&[&[(i64::MIN, "0.png")]], &[i64::MIN, 0]);
         let options = StreamOptions {
             stereo: false,
             imu: true,
@@ -324,6 +371,66 @@ mod tests {
             .count();
         // The sample at the frame's stamp and the one after it.
         assert_eq!(imu, 2);
+    }
+
+    /// Writes what a `tracing` subscriber prints into a shared buffer.
+    #[derive(Clone, Default)]
+    struct Captured(std::sync::Arc<std::sync::Mutex<Vec<u8>>>);
+
+    impl std::io::Write for Captured {
+        fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().expect("log buffer").extend_from_slice(bytes);
+            Ok(bytes.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    /// A listed image whose file is missing used to be skipped without a
+    /// word (only counted): now each camera says once how many, naming
+    /// the first.
+    #[test]
+    fn missing_images_are_counted_and_named_once() {
+        let dataset = dataset(
+            &[
+                &[(1000, "1000.png"), (2000, "2000.png"), (3000, "3000.png")],
+                &[(2000, "2000.png")],
+            ],
+            &[],
+        );
+        let options = StreamOptions {
+            stereo: true,
+            imu: false,
+            start_ns: Some(2000),
+            max_frames: None,
+        };
+        let captured = Captured::default();
+        let writer = captured.clone();
+        let subscriber = tracing_subscriber::fmt()
+            .with_writer(move || writer.clone())
+            .with_ansi(false)
+            .finish();
+        let counts = tracing::subscriber::with_default(subscriber, || {
+            let mut stream = SensorStream::new(&dataset, options).expect("stream");
+            assert_eq!(stream.by_ref().count(), 0);
+            stream.counts()
+        });
+        assert_eq!(counts.frames_missing_image, 2);
+        let log = String::from_utf8(captured.0.lock().expect("log").clone()).expect("text");
+        let lines: Vec<&str> = log.lines().collect();
+        assert_eq!(lines.len(), 2, "{log}");
+        assert!(
+            lines[0].contains(
+                "mav0/cam0/data.csv: 2 listed images are missing, the first \
+                 mav0/cam0/data/2000.png (t = 2000 ns); their frames are skipped"
+            ),
+            "{log}"
+        );
+        assert!(
+            lines[1].contains("mav0/cam1/data.csv: 1 listed image is missing"),
+            "{log}"
+        );
     }
 
     #[test]

@@ -102,21 +102,21 @@ impl<'a> Body<'a> {
         Ok(self.prefixed(4, what)?.map(drop))
     }
 
-    /// A map of strings to strings: its byte length, then each string's.
+    /// A map of strings to strings: its byte length, then key and value
+    /// strings. The crate reads pairs while it has read fewer bytes than
+    /// the map's length, the last pair past the map's end if need be: each
+    /// string's length is checked against the record, as the crate reads.
     fn string_map(&mut self, what: &str) -> Field<()> {
         let Some(map) = self.prefixed(4, what)? else {
             return Ok(None);
         };
-        let mut entries = Body {
-            bytes: map,
-            pos: 0,
-            at: self.at + self.pos - map.len(),
-            record_at: self.record_at,
-            opcode: self.opcode,
-        };
-        while entries.pos < map.len() {
-            if entries.string(what)?.is_none() {
-                return Ok(None);
+        let (start, len) = (self.pos - map.len(), map.len());
+        self.pos = start;
+        while self.pos - start < len {
+            for _ in 0..2 {
+                if self.string(what)?.is_none() {
+                    return Ok(None);
+                }
             }
         }
         Ok(Some(()))
@@ -492,6 +492,34 @@ mod tests {
             reason.contains("chunk header of 1744830500 bytes in a record of 0"),
             "{reason}"
         );
+    }
+
+    /// Found by fuzzing: the crate reads a metadata map's last pair past
+    /// the map's end (it reads while it has read less than the map's
+    /// length), so a string length there was trusted too.
+    #[test]
+    fn a_map_entry_past_the_map_is_checked_against_the_record() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let path = dir.path().join("m.mcap");
+        let mut rec = McapRecorder::create(&path).expect("create");
+        let meta = BTreeMap::from([
+            ("a".to_string(), "b".to_string()),
+            ("k".to_string(), "v".to_string()),
+        ]);
+        rec.add_imu_channel("/imu0", &meta).expect("channel");
+        rec.finish().expect("finish");
+        let mut bytes = std::fs::read(&path).expect("bytes");
+        // A map of two pairs, 20 bytes, made 11: the crate reads the first
+        // pair (10 bytes), then, being short of 11, the second key, which
+        // now runs past the map's end; its length is made huge.
+        let at = find(&bytes, b"\x14\x00\x00\x00\x01\x00\x00\x00a");
+        bytes[at] = 11;
+        let after = at + 4 + 10;
+        bytes[after..after + 4].copy_from_slice(&0xf000_0000u32.to_le_bytes());
+        let e = read_imu_channel_in(&bytes, Path::new("m.mcap"), "/imu0").unwrap_err();
+        let (offset, reason) = malformed(e);
+        assert_eq!(offset, after as u64);
+        assert!(reason.contains("metadata of 4026531840 bytes"), "{reason}");
     }
 
     /// Found by fuzzing: the summary reader goes straight to the footer,

@@ -22,6 +22,8 @@ pub struct ImageEntry {
     /// The image file; `None` when the stamp is listed but the file is
     /// absent (EuRoC's V1_01 cam1 lists stamps whose PNGs were dropped).
     pub path: Option<PathBuf>,
+    /// The image file the listing names, there or not (for messages).
+    pub listed_path: PathBuf,
 }
 
 /// One camera: calibration and the stamps of its images.
@@ -186,7 +188,8 @@ fn read_camera(dir: &Path, number: u8) -> Result<EurocCamera, DatasetError> {
         let image_path = image_dir.join(file_name);
         frames.push(ImageEntry {
             t_ns,
-            path: image_path.is_file().then_some(image_path),
+            path: image_path.is_file().then(|| image_path.clone()),
+            listed_path: image_path,
         });
         stamps.push((line_no, t_ns));
     }
