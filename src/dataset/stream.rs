@@ -31,6 +31,16 @@ pub struct StreamCounts {
     pub frames_missing_image: u64,
     /// Stereo frames whose right image is absent (sent as left only).
     pub frames_missing_right: u64,
+    /// IMU rows with NaN or infinite values, left out when the dataset
+    /// was read (the whole file's, whatever part is streamed).
+    pub imu_samples_nonfinite: u64,
+}
+
+impl StreamCounts {
+    /// Whether any input was left out.
+    pub fn any_skipped(&self) -> bool {
+        self.frames_missing_image + self.frames_missing_right + self.imu_samples_nonfinite > 0
+    }
 }
 
 /// Decodes listed image `index` of a camera.
@@ -126,6 +136,12 @@ impl<'a> SensorStream<'a> {
                 (&k.frames, Box::new(move |i| k.load(i)), None, &[])
             }
         };
+        let imu_samples_nonfinite = match dataset {
+            Dataset::Euroc(d) if options.imu => {
+                d.imu.as_ref().map_or(0, |i| i.dropped_nonfinite as u64)
+            }
+            _ => 0,
+        };
         let next_frame = options
             .start_ns
             .map_or(0, |t| left.partition_point(|e| e.t_ns < t));
@@ -142,7 +158,10 @@ impl<'a> SensorStream<'a> {
             next_imu,
             right_cursor: 0,
             max_frames: options.max_frames.unwrap_or(usize::MAX),
-            counts: StreamCounts::default(),
+            counts: StreamCounts {
+                imu_samples_nonfinite,
+                ..StreamCounts::default()
+            },
         })
     }
 

@@ -393,6 +393,13 @@ pub fn summary_line(r: &RunReport) -> String {
         None => line += "never initialised, ",
     }
     line += &format!("lost {}x, {} poses", r.lost_count, r.poses_written);
+    if r.stream.any_skipped() {
+        let s = &r.stream;
+        line += &format!(
+            "; input left out: {} listed images missing, {} right images missing, {} non-finite IMU samples",
+            s.frames_missing_image, s.frames_missing_right, s.imu_samples_nonfinite
+        );
+    }
     if let Some(l) = &r.localise {
         line += &format!(
             "; localised in the map {} of {} frames ({} relocalisations)",

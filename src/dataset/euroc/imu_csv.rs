@@ -23,6 +23,8 @@ pub struct ImuCsv {
     /// reading is missing, and one bad packet should not lose a dataset.
     /// Their stamps still had to increase.
     pub dropped_nonfinite: usize,
+    /// The line of the first such row (1-based).
+    pub first_nonfinite_line: Option<usize>,
 }
 
 /// Reads an IMU CSV. Rows with the wrong field count or non-numbers are
@@ -54,6 +56,7 @@ pub fn parse_euroc_imu_csv(text: &str, path: &Path) -> Result<ImuCsv, DatasetErr
             out.samples.push(sample);
         } else {
             out.dropped_nonfinite += 1;
+            out.first_nonfinite_line.get_or_insert(line_no);
         }
     }
     check_increasing(path, stamps)?;

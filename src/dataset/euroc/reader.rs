@@ -91,7 +91,16 @@ impl EurocDataset {
         }
         let imu_dir = root.join(IMU_DIR);
         let imu = if imu_dir.is_dir() {
-            let csv = read_euroc_imu_csv(&imu_dir.join("data.csv"))?;
+            let csv_path = imu_dir.join("data.csv");
+            let csv = read_euroc_imu_csv(&csv_path)?;
+            if let Some(line) = csv.first_nonfinite_line {
+                tracing::warn!(
+                    "{}: {} sample{} with NaN or infinite values left out, the first on line {line}",
+                    csv_path.display(),
+                    csv.dropped_nonfinite,
+                    if csv.dropped_nonfinite == 1 { "" } else { "s" }
+                );
+            }
             Some(EurocImu {
                 calibration: read_imu_yaml(&imu_dir.join("sensor.yaml"))?,
                 samples: csv.samples,
