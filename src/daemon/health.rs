@@ -25,9 +25,15 @@ pub struct Health {
     pub pose_fast_out: AtomicU64,
     /// Poses the publisher failed to send.
     pub pose_drops: AtomicU64,
-    /// Frames and samples the SLAM stage refused (stamps going back).
+    /// Frames and samples the SLAM stage refused (stamps going back,
+    /// non-finite values).
     pub frames_rejected: AtomicU64,
     pub imu_rejected: AtomicU64,
+    /// Images and samples a source left out as unreadable: a recording's
+    /// message that does not decode, a stereo half without its partner, a
+    /// listed image whose file is missing, a non-finite row of a dataset.
+    pub frames_skipped: AtomicU64,
+    pub imu_skipped: AtomicU64,
     /// Stamps going back, or forward by more than a second.
     pub timestamp_jumps: AtomicU64,
     /// Host time of the last frame / sample handed to the queue, ns (0: none yet).
@@ -127,6 +133,51 @@ impl LatencyHistogram {
     }
 }
 
+/// Logs input left out without flooding the journal: the first one in
+/// full, then at most one line a second saying how many more and the
+/// latest.
+#[derive(Debug)]
+pub struct SkipLog {
+    what: &'static str,
+    last: Option<std::time::Instant>,
+    since: u64,
+}
+
+impl SkipLog {
+    /// `what` names the kind of input ("IMU sample", "image").
+    pub fn new(what: &'static str) -> Self {
+        Self {
+            what,
+            last: None,
+            since: 0,
+        }
+    }
+
+    /// One more left out; `detail` says which and why (called only when
+    /// a line is written); `total` is the count since start.
+    pub fn skipped(&mut self, detail: impl FnOnce() -> String, total: u64) {
+        self.since += 1;
+        let due = self
+            .last
+            .map_or(true, |t| t.elapsed() >= std::time::Duration::from_secs(1));
+        if !due {
+            return;
+        }
+        if self.last.is_none() {
+            tracing::warn!("{} left out: {}", self.what, detail());
+        } else {
+            tracing::warn!(
+                "{} more {}(s) left out ({total} since start), the latest: {}",
+                self.since,
+                self.what,
+                detail()
+            );
+        }
+        self.last = Some(std::time::Instant::now());
+        self.since = 0;
+    }
+}
+
 /// The counts at the previous status, for rates.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct RateBase {
@@ -152,6 +203,17 @@ impl Health {
         h.stage_heartbeat_ns
             .store(host_monotonic_ns(), Ordering::Relaxed);
         h
+    }
+
+    /// Frames and samples left out as bad input (refused by the stage or
+    /// skipped by the source), not counting queue overflows.
+    pub fn input_drops(&self) -> (u64, u64) {
+        let n =
+            |a: &AtomicU64, b: &AtomicU64| a.load(Ordering::Relaxed) + b.load(Ordering::Relaxed);
+        (
+            n(&self.frames_rejected, &self.frames_skipped),
+            n(&self.imu_rejected, &self.imu_skipped),
+        )
     }
 
     /// What the estimator weighs its measurements with now (None: it
@@ -220,8 +282,8 @@ impl Health {
             camera_rate_hz: rate(frames, base.frames),
             imu_rate_hz: rate(imu, base.imu),
             pose_rate_hz: rate(poses, base.poses),
-            camera_drops: drops.0 + self.frames_rejected.load(Ordering::Relaxed),
-            imu_drops: drops.1 + self.imu_rejected.load(Ordering::Relaxed),
+            camera_drops: drops.0 + self.input_drops().0,
+            imu_drops: drops.1 + self.input_drops().1,
             pose_drops: self.pose_drops.load(Ordering::Relaxed),
             ..StatusMessage::default()
         };

@@ -86,8 +86,14 @@ pub struct PipelineReport {
     pub imu_samples: u64,
     pub poses: u64,
     pub poses_fast: u64,
+    /// Every frame and sample lost, whatever the cause: queue overflows,
+    /// refused by the stage, skipped by the source.
     pub frame_drops: u64,
     pub imu_drops: u64,
+    /// Of those, the ones a source left out as unreadable
+    /// ([`super::health::Health::frames_skipped`]).
+    pub frames_skipped: u64,
+    pub imu_skipped: u64,
     pub pose_drops: u64,
     pub timestamp_jumps: u64,
     pub recording_drops: u64,
@@ -314,8 +320,10 @@ impl Pipeline {
             imu_samples: h.imu_in.load(Ordering::Relaxed),
             poses: h.poses_out.load(Ordering::Relaxed),
             poses_fast: h.pose_fast_out.load(Ordering::Relaxed),
-            frame_drops: self.frames.dropped() + h.frames_rejected.load(Ordering::Relaxed),
-            imu_drops: self.imu.dropped() + h.imu_rejected.load(Ordering::Relaxed),
+            frame_drops: self.frames.dropped() + h.input_drops().0,
+            imu_drops: self.imu.dropped() + h.input_drops().1,
+            frames_skipped: h.frames_skipped.load(Ordering::Relaxed),
+            imu_skipped: h.imu_skipped.load(Ordering::Relaxed),
             pose_drops: h.pose_drops.load(Ordering::Relaxed),
             timestamp_jumps: h.timestamp_jumps.load(Ordering::Relaxed),
             recording_drops,

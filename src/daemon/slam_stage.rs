@@ -23,7 +23,7 @@ use crate::sensors::yei::device::host_monotonic_ns;
 use crate::sensors::{Frame, ImuSample};
 
 use super::fast_pose::FastPropagator;
-use super::health::Health;
+use super::health::{Health, SkipLog};
 use super::queue::BoundedQueue;
 
 /// One exposure on its way to the SLAM stage.
@@ -90,6 +90,13 @@ struct Stage {
     fast: FastPropagator,
     last_imu_t_ns: Option<i64>,
     last_frame_t_ns: Option<i64>,
+    refused_imu: SkipLog,
+    refused_frames: SkipLog,
+    /// A sample / frame whose stamp jumped more than [`JUMP_FORWARD_NS`]
+    /// ahead, held until the next one tells a clock that moved (the
+    /// stream carries on from it) from a damaged stamp (it does not).
+    held_imu: Option<ImuSample>,
+    held_frame: Option<FrameItem>,
 }
 
 impl Stage {
@@ -109,6 +116,10 @@ impl Stage {
             fast,
             last_imu_t_ns: None,
             last_frame_t_ns: None,
+            refused_imu: SkipLog::new("IMU sample"),
+            refused_frames: SkipLog::new("frame"),
+            held_imu: None,
+            held_frame: None,
         })
     }
 
@@ -137,6 +148,7 @@ impl Stage {
                 // Closed and drained (a frame or sample pushed before the
                 // close was taken above).
                 if self.inputs.frames.is_empty() && self.inputs.imu.is_empty() {
+                    self.refuse_held_frame("the stream ended before another frame followed it");
                     return Ok(());
                 }
                 continue;
@@ -181,30 +193,70 @@ impl Stage {
     }
 
     fn accept_imu(&mut self, sample: ImuSample, sink: &mut dyn PoseSink) {
-        let health = &self.inputs.health;
-        if let Some(last) = self.last_imu_t_ns {
-            if sample.t_ns <= last {
-                health.imu_rejected.fetch_add(1, Ordering::Relaxed);
+        let health = Arc::clone(&self.inputs.health);
+        if !sample.is_finite() {
+            let total = health.imu_rejected.fetch_add(1, Ordering::Relaxed) + 1;
+            self.refused_imu.skipped(
+                || {
+                    format!(
+                        "the sample at {} ns has NaN or infinite values",
+                        sample.t_ns
+                    )
+                },
+                total,
+            );
+            return;
+        }
+        if let Some(held) = self.held_imu.take() {
+            if sample.t_ns > held.t_ns {
                 health.timestamp_jumps.fetch_add(1, Ordering::Relaxed);
                 tracing::warn!(
-                    "IMU sample at {} ns does not come after {} ns: dropped",
-                    sample.t_ns,
-                    last
+                    "IMU stamps jumped forward {} ms",
+                    (held.t_ns - self.last_imu_t_ns.unwrap_or(held.t_ns)) / 1_000_000
+                );
+                self.take_imu(held, sink);
+            } else {
+                let total = health.imu_rejected.fetch_add(1, Ordering::Relaxed) + 1;
+                let last = self.last_imu_t_ns.unwrap_or(held.t_ns);
+                self.refused_imu.skipped(
+                    || {
+                        format!(
+                            "the sample at {} ns jumped {} ms ahead and the stream did not follow it (a damaged stamp)",
+                            held.t_ns,
+                            (held.t_ns - last) / 1_000_000
+                        )
+                    },
+                    total,
+                );
+            }
+        }
+        if let Some(last) = self.last_imu_t_ns {
+            if sample.t_ns <= last {
+                let total = health.imu_rejected.fetch_add(1, Ordering::Relaxed) + 1;
+                health.timestamp_jumps.fetch_add(1, Ordering::Relaxed);
+                self.refused_imu.skipped(
+                    || {
+                        format!(
+                            "the sample at {} ns does not come after {last} ns",
+                            sample.t_ns
+                        )
+                    },
+                    total,
                 );
                 return;
             }
             if sample.t_ns - last > JUMP_FORWARD_NS {
-                health.timestamp_jumps.fetch_add(1, Ordering::Relaxed);
-                tracing::warn!(
-                    "IMU stamps jumped forward {} ms",
-                    (sample.t_ns - last) / 1_000_000
-                );
+                self.held_imu = Some(sample);
+                return;
             }
         }
-        if !sample.is_finite() {
-            health.imu_rejected.fetch_add(1, Ordering::Relaxed);
-            return;
-        }
+        self.take_imu(sample, sink);
+    }
+
+    /// An accepted sample: published as `pose_fast` and queued for the
+    /// estimator.
+    fn take_imu(&mut self, sample: ImuSample, sink: &mut dyn PoseSink) {
+        let health = &self.inputs.health;
         self.last_imu_t_ns = Some(sample.t_ns);
         if self.settings.mode.uses_imu() {
             let message = self.fast.on_imu(&sample);
@@ -245,26 +297,66 @@ impl Stage {
     }
 
     fn process_frame(&mut self, frame: FrameItem, sink: &mut dyn PoseSink) {
-        let health = &self.inputs.health;
-        if let Some(last) = self.last_frame_t_ns {
-            if frame.t_ns <= last {
-                health.frames_rejected.fetch_add(1, Ordering::Relaxed);
+        let health = Arc::clone(&self.inputs.health);
+        if let Some(held) = self.held_frame.take() {
+            if frame.t_ns > held.t_ns {
                 health.timestamp_jumps.fetch_add(1, Ordering::Relaxed);
                 tracing::warn!(
-                    "frame at {} ns does not come after {} ns: dropped",
-                    frame.t_ns,
-                    last
+                    "frame stamps jumped forward {} ms",
+                    (held.t_ns - self.last_frame_t_ns.unwrap_or(held.t_ns)) / 1_000_000
+                );
+                self.track_frame(held, sink);
+            } else {
+                self.held_frame = Some(held);
+                self.refuse_held_frame("the next frame did not follow it (a damaged stamp)");
+            }
+        }
+        if let Some(last) = self.last_frame_t_ns {
+            if frame.t_ns <= last {
+                let total = health.frames_rejected.fetch_add(1, Ordering::Relaxed) + 1;
+                health.timestamp_jumps.fetch_add(1, Ordering::Relaxed);
+                self.refused_frames.skipped(
+                    || {
+                        format!(
+                            "the frame at {} ns does not come after {last} ns",
+                            frame.t_ns
+                        )
+                    },
+                    total,
                 );
                 return;
             }
             if frame.t_ns - last > JUMP_FORWARD_NS {
-                health.timestamp_jumps.fetch_add(1, Ordering::Relaxed);
-                tracing::warn!(
-                    "frame stamps jumped forward {} ms",
-                    (frame.t_ns - last) / 1_000_000
-                );
+                self.held_frame = Some(frame);
+                return;
             }
         }
+        self.track_frame(frame, sink);
+    }
+
+    /// Drops the frame held for its jump forward, counted, saying `why`.
+    fn refuse_held_frame(&mut self, why: &str) {
+        let Some(held) = self.held_frame.take() else {
+            return;
+        };
+        let health = &self.inputs.health;
+        let total = health.frames_rejected.fetch_add(1, Ordering::Relaxed) + 1;
+        let last = self.last_frame_t_ns.unwrap_or(held.t_ns);
+        self.refused_frames.skipped(
+            || {
+                format!(
+                    "the frame at {} ns jumped {} ms ahead and {why}",
+                    held.t_ns,
+                    (held.t_ns - last) / 1_000_000
+                )
+            },
+            total,
+        );
+    }
+
+    /// An accepted frame through the estimator; its pose published.
+    fn track_frame(&mut self, frame: FrameItem, sink: &mut dyn PoseSink) {
+        let health = Arc::clone(&self.inputs.health);
         self.last_frame_t_ns = Some(frame.t_ns);
         // The samples up to the frame and the first one past it.
         while let Some(s) = self.pending.front() {

@@ -10,15 +10,15 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use crate::dataset::{open_dataset, SensorEvent, SensorStream, StreamOptions};
-use crate::recording::{for_each_sensor_event, is_mcap, SensorTopics};
+use crate::dataset::{open_dataset, SensorEvent, SensorStream, StreamCounts, StreamOptions};
+use crate::recording::{for_each_sensor_event, is_mcap, ReplayItem, SensorTopics, SkippedMessage};
 use crate::relative::SensorMode;
 use crate::sensors::camera::{CameraError, FrameSource};
 use crate::sensors::yei::device::{host_monotonic_ns, YeiConfig, YeiDevice};
 use crate::sensors::ImuSample;
 
 use super::config::{CameraConfig, CameraSource, ImuConfig, ReplayConfig, ReplayPace};
-use super::health::Health;
+use super::health::{Health, SkipLog};
 use super::queue::{BoundedQueue, Pushed};
 use super::slam_stage::FrameItem;
 use super::Doorbell;
@@ -134,6 +134,8 @@ struct Player<'a> {
     start: Instant,
     first_ns: Option<i64>,
     log: DropLog,
+    skipped_images: SkipLog,
+    skipped_imu: SkipLog,
     /// Offset of the loop being played, ns.
     offset_ns: i64,
     /// Earliest and latest recorded stamp of the loop.
@@ -179,6 +181,33 @@ impl Player<'_> {
         }
         ControlFlow::Continue(())
     }
+
+    /// Counts and logs a recording's message the replay leaves out.
+    fn skip(&mut self, message: SkippedMessage) {
+        let health = &self.links.health;
+        let (counter, log) = if message.is_image() {
+            (&health.frames_skipped, &mut self.skipped_images)
+        } else {
+            (&health.imu_skipped, &mut self.skipped_imu)
+        };
+        let total = counter.fetch_add(1, Ordering::Relaxed) + 1;
+        log.skipped(|| message.to_string(), total);
+    }
+
+    /// Brings the health's skip counts up to a dataset stream's (what the
+    /// stream left out since `seen`; the stream logged it already).
+    fn count_stream_skips(&mut self, counts: StreamCounts, seen: &mut StreamCounts) {
+        let health = &self.links.health;
+        let images = |c: &StreamCounts| c.frames_missing_image + c.frames_missing_right;
+        health
+            .frames_skipped
+            .fetch_add(images(&counts) - images(seen), Ordering::Relaxed);
+        health.imu_skipped.fetch_add(
+            counts.imu_samples_nonfinite - seen.imu_samples_nonfinite,
+            Ordering::Relaxed,
+        );
+        *seen = counts;
+    }
 }
 
 fn replay_loop(replay: &ReplayConfig, mode: SensorMode, links: &SourceLinks) -> anyhow::Result<()> {
@@ -194,6 +223,8 @@ fn replay_loop(replay: &ReplayConfig, mode: SensorMode, links: &SourceLinks) -> 
         start: Instant::now(),
         first_ns: None,
         log: DropLog::new(),
+        skipped_images: SkipLog::new("image"),
+        skipped_imu: SkipLog::new("IMU sample"),
         offset_ns: 0,
         recorded: (i64::MAX, i64::MIN),
     };
@@ -204,7 +235,7 @@ fn replay_loop(replay: &ReplayConfig, mode: SensorMode, links: &SourceLinks) -> 
         player.recorded = (i64::MAX, i64::MIN);
         let stopped = match &dataset {
             Some(dataset) => {
-                let stream = SensorStream::new(
+                let mut stream = SensorStream::new(
                     dataset,
                     StreamOptions {
                         stereo: mode.uses_stereo(),
@@ -214,12 +245,15 @@ fn replay_loop(replay: &ReplayConfig, mode: SensorMode, links: &SourceLinks) -> 
                     },
                 )?;
                 let mut stopped = false;
-                for event in stream {
+                let mut seen = StreamCounts::default();
+                while let Some(event) = stream.next() {
+                    player.count_stream_skips(stream.counts(), &mut seen);
                     if player.play(event?).is_break() {
                         stopped = true;
                         break;
                     }
                 }
+                player.count_stream_skips(stream.counts(), &mut seen);
                 stopped
             }
             None => {
@@ -229,7 +263,14 @@ fn replay_loop(replay: &ReplayConfig, mode: SensorMode, links: &SourceLinks) -> 
                     stereo: mode.uses_stereo(),
                     imu: mode.uses_imu(),
                 };
-                for_each_sensor_event(path, topics, |event| {
+                for_each_sensor_event(path, topics, |item| {
+                    let event = match item {
+                        ReplayItem::Event(e) => e,
+                        ReplayItem::Skipped(m) => {
+                            player.skip(m);
+                            return ControlFlow::Continue(());
+                        }
+                    };
                     if let SensorEvent::Frame { .. } = event {
                         if replay.max_frames.is_some_and(|m| frames >= m) {
                             return ControlFlow::Break(());

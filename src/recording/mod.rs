@@ -21,7 +21,8 @@ mod sensor_replay;
 pub type Attachments = Vec<(String, Vec<u8>)>;
 pub use sensor_replay::{
     calibration_attachment_name, calibration_attachments, for_each_sensor_event,
-    for_each_sensor_event_in, is_mcap, rig_of_recording, rig_of_recording_in, SensorTopics,
+    for_each_sensor_event_in, is_mcap, rig_of_recording, rig_of_recording_in, ReplayItem,
+    SensorTopics, SkippedMessage,
 };
 
 /// Schema name of IMU messages.

@@ -121,9 +121,60 @@ pub fn rig_of_recording_in(bytes: &[u8], path: &Path) -> Result<Option<RigModel>
     Ok(Some(RigModel { cameras, imu }))
 }
 
+/// What a replay reads from a recording, in file order.
+#[derive(Debug)]
+pub enum ReplayItem {
+    Event(SensorEvent),
+    /// A sensor message the replay leaves out (the robot's data may be
+    /// damaged; the rest of the file still plays).
+    Skipped(SkippedMessage),
+}
+
+/// A sensor message left out of a replay, and why.
+#[derive(Debug)]
+pub enum SkippedMessage {
+    /// Its bytes do not decode (the error names the file, topic and
+    /// sequence number).
+    Unreadable { image: bool, error: RecordingError },
+    /// A stereo half whose partner is missing or has another stamp.
+    Unpaired {
+        topic: String,
+        sequence: u32,
+        t_ns: i64,
+    },
+}
+
+impl SkippedMessage {
+    /// An image (else an IMU sample).
+    pub fn is_image(&self) -> bool {
+        match self {
+            SkippedMessage::Unreadable { image, .. } => *image,
+            SkippedMessage::Unpaired { .. } => true,
+        }
+    }
+}
+
+impl std::fmt::Display for SkippedMessage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SkippedMessage::Unreadable { error, .. } => write!(f, "{error}"),
+            SkippedMessage::Unpaired {
+                topic,
+                sequence,
+                t_ns,
+            } => write!(
+                f,
+                "message {sequence} on {topic} (t = {t_ns} ns) has no stereo partner with its stamp"
+            ),
+        }
+    }
+}
+
 /// Calls `f` with every IMU sample and frame of the recording at `path`,
-/// in file order, until the file ends or `f` breaks. A `/cam0` image
-/// without its `/cam1` partner (stereo) is skipped. Returns the number of
+/// in file order, until the file ends or `f` breaks. A message that does
+/// not decode, and a stereo half without its partner, reach `f` as
+/// [`ReplayItem::Skipped`] and the replay goes on; an error is returned
+/// only when the file itself cannot be read on. Returns the number of
 /// events handed over.
 ///
 /// The file is read into memory whole (the recorder rotates its files at
@@ -131,7 +182,7 @@ pub fn rig_of_recording_in(bytes: &[u8], path: &Path) -> Result<Option<RigModel>
 pub fn for_each_sensor_event(
     path: &Path,
     topics: SensorTopics,
-    f: impl FnMut(SensorEvent) -> ControlFlow<()>,
+    f: impl FnMut(ReplayItem) -> ControlFlow<()>,
 ) -> Result<u64, RecordingError> {
     for_each_sensor_event_in(&super::read_bytes(path)?, path, topics, f)
 }
@@ -142,7 +193,7 @@ pub fn for_each_sensor_event_in(
     bytes: &[u8],
     path: &Path,
     topics: SensorTopics,
-    mut f: impl FnMut(SensorEvent) -> ControlFlow<()>,
+    mut f: impl FnMut(ReplayItem) -> ControlFlow<()>,
 ) -> Result<u64, RecordingError> {
     let mcap_err = |source| RecordingError::Mcap {
         path: path.to_path_buf(),
@@ -150,8 +201,16 @@ pub fn for_each_sensor_event_in(
     };
     super::check_bounds(bytes, path)?;
     let stream = mcap::MessageStream::new(bytes).map_err(mcap_err)?;
-    let mut left: Option<Frame> = None;
+    // The left image waiting for its right one: (frame, sequence).
+    let mut left: Option<(Frame, u32)> = None;
     let mut count = 0u64;
+    let unpaired = |topic: &str, (frame, sequence): (Frame, u32)| {
+        ReplayItem::Skipped(SkippedMessage::Unpaired {
+            topic: topic.to_string(),
+            sequence,
+            t_ns: frame.t_ns,
+        })
+    };
     for message in stream {
         let message = message.map_err(mcap_err)?;
         let topic = message.channel.topic.as_str();
@@ -161,55 +220,105 @@ pub fn for_each_sensor_event_in(
             sequence: message.sequence,
             source,
         };
-        let event = match topic {
+        let unreadable = |image, error| {
+            Some(ReplayItem::Skipped(SkippedMessage::Unreadable {
+                image,
+                error,
+            }))
+        };
+        let mut items: [Option<ReplayItem>; 2] = [None, None];
+        match topic {
             "/imu0" if topics.imu => {
-                let m: ImuMessage = serde_json::from_slice(&message.data).map_err(bad)?;
-                Some(SensorEvent::Imu(ImuSample {
-                    t_ns: m.t_ns,
-                    gyro_rad_s: m.gyro_rad_s,
-                    accel_m_s2: m.accel_m_s2,
-                }))
+                items[0] = match serde_json::from_slice::<ImuMessage>(&message.data) {
+                    Ok(m) => Some(ReplayItem::Event(SensorEvent::Imu(ImuSample {
+                        t_ns: m.t_ns,
+                        gyro_rad_s: m.gyro_rad_s,
+                        accel_m_s2: m.accel_m_s2,
+                    }))),
+                    Err(e) => unreadable(false, bad(e)),
+                };
             }
-            "/cam0" | "/cam1" => {
-                let m: ImageJson = serde_json::from_slice(&message.data).map_err(bad)?;
+            "/cam0" | "/cam1" if topic == "/cam0" || topics.stereo => {
                 let index = u8::from(topic == "/cam1");
-                let frame = decode_frame(&m, index).map_err(|reason| RecordingError::BadImage {
-                    path: path.to_path_buf(),
-                    topic: topic.to_string(),
-                    sequence: message.sequence,
-                    reason,
-                })?;
-                match (index, topics.stereo) {
-                    (0, false) => Some(SensorEvent::Frame {
-                        t_ns: frame.t_ns,
-                        left: frame,
-                        right: None,
-                    }),
-                    (0, true) => {
-                        left = Some(frame);
-                        None
+                let frame = serde_json::from_slice::<ImageJson>(&message.data)
+                    .map_err(bad)
+                    .and_then(|m| {
+                        decode_frame(&m, index).map_err(|reason| RecordingError::BadImage {
+                            path: path.to_path_buf(),
+                            topic: topic.to_string(),
+                            sequence: message.sequence,
+                            reason,
+                        })
+                    });
+                let frame = match frame {
+                    Ok(frame) => frame,
+                    Err(error) => {
+                        items[0] = unreadable(true, error);
+                        // A right image that does not decode leaves its
+                        // left one waiting (counted when the next left
+                        // one replaces it).
+                        if emit(&mut f, items, &mut count).is_break() {
+                            return Ok(count);
+                        }
+                        continue;
                     }
-                    (_, true) => match left.take() {
-                        Some(l) if l.t_ns == frame.t_ns => Some(SensorEvent::Frame {
-                            t_ns: l.t_ns,
-                            left: l,
-                            right: Some(frame),
-                        }),
-                        _ => None,
-                    },
-                    _ => None,
+                };
+                match (index, topics.stereo) {
+                    (0, false) => {
+                        items[0] = Some(ReplayItem::Event(SensorEvent::Frame {
+                            t_ns: frame.t_ns,
+                            left: frame,
+                            right: None,
+                        }))
+                    }
+                    (0, true) => {
+                        items[0] = left.take().map(|l| unpaired("/cam0", l));
+                        left = Some((frame, message.sequence));
+                    }
+                    (_, true) => {
+                        items[0] = match left.take() {
+                            Some((l, _)) if l.t_ns == frame.t_ns => {
+                                Some(ReplayItem::Event(SensorEvent::Frame {
+                                    t_ns: l.t_ns,
+                                    left: l,
+                                    right: Some(frame),
+                                }))
+                            }
+                            Some(l) => {
+                                items[1] = Some(unpaired("/cam1", (frame, message.sequence)));
+                                Some(unpaired("/cam0", l))
+                            }
+                            None => Some(unpaired("/cam1", (frame, message.sequence))),
+                        }
+                    }
+                    _ => {}
                 }
             }
-            _ => None,
-        };
-        if let Some(event) = event {
-            count += 1;
-            if f(event).is_break() {
-                break;
-            }
+            _ => {}
+        }
+        if emit(&mut f, items, &mut count).is_break() {
+            return Ok(count);
         }
     }
+    if let Some(l) = left.take() {
+        let _ = emit(&mut f, [Some(unpaired("/cam0", l)), None], &mut count);
+    }
     Ok(count)
+}
+
+/// Hands `items` to `f` in order, counting events; stops when `f` breaks.
+fn emit(
+    f: &mut impl FnMut(ReplayItem) -> ControlFlow<()>,
+    items: [Option<ReplayItem>; 2],
+    count: &mut u64,
+) -> ControlFlow<()> {
+    for item in items.into_iter().flatten() {
+        if matches!(item, ReplayItem::Event(_)) {
+            *count += 1;
+        }
+        f(item)?;
+    }
+    ControlFlow::Continue(())
 }
 
 /// A `foxglove.RawImage` as the recorder writes it (mono8, base64).
