@@ -318,11 +318,18 @@ fn a_loss_in_flight_continues_the_trajectory() {
             _ => None,
         })
         .expect("frames");
-    let gap = (first_frame_ns + 5_000_000_000, first_frame_ns + 7_500_000_000);
+    let gap = (
+        first_frame_ns + 5_000_000_000,
+        first_frame_ns + 7_500_000_000,
+    );
     for mode in [SensorMode::StereoInertial, SensorMode::MonoInertial] {
-        let mut estimator =
-            build_estimator(EstimatorKind::Window, mode, &rig, &RelativeConfig::default())
-                .expect("estimator");
+        let mut estimator = build_estimator(
+            EstimatorKind::Window,
+            mode,
+            &rig,
+            &RelativeConfig::default(),
+        )
+        .expect("estimator");
         let mut tracked: Vec<(i64, nalgebra::Vector3<f64>)> = Vec::new();
         for event in &events {
             match event {
@@ -343,8 +350,7 @@ fn a_loss_in_flight_continues_the_trajectory() {
                 }
             }
         }
-        let counters: std::collections::HashMap<_, _> =
-            estimator.counters().into_iter().collect();
+        let counters: std::collections::HashMap<_, _> = estimator.counters().into_iter().collect();
         assert!(counters["resets"] >= 1, "{mode}: {counters:?}");
         assert!(counters["resumed"] >= 1, "{mode}: {counters:?}");
         let before = *tracked.iter().rfind(|p| p.0 < gap.0).expect("before");
