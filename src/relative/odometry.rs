@@ -85,6 +85,10 @@ struct Counters {
     frames_without_imu: u64,
     /// Vision restarts placed where the trajectory before the loss went.
     resumed: u64,
+    /// Left images identical to the previous one, bit for bit (a camera
+    /// or driver handing the last buffer again), not used to place the
+    /// frame.
+    frames_repeated: u64,
 }
 
 /// Median image motion between frames under which the images agree that
@@ -141,8 +145,29 @@ pub struct WindowOdometry {
     /// Where the first keyframe of a vision restart is taken to be, with
     /// the covariance the way there adds: stamp, pose, covariance.
     resume: Option<(i64, Isometry3<f64>, Matrix6<f64>)>,
+    /// A digest of the previous left image, and whether the newest frame's
+    /// is the same (see [`image_digest`]).
+    previous_left_digest: Option<u64>,
+    repeated_frame: bool,
     timings: FrameTimings,
     counters: Counters,
+}
+
+/// A 64-bit digest of an image's bytes, to notice a frame handed over
+/// again: a real sensor's noise makes two exposures differ somewhere, so
+/// equal digests mean the same buffer (a collision is a 2^-64 chance).
+fn image_digest(image: &crate::sensors::Image) -> u64 {
+    let data = image.data();
+    let mut h: u64 = 0x9e37_79b9_7f4a_7c15 ^ data.len() as u64;
+    let mut chunks = data.chunks_exact(8);
+    for c in &mut chunks {
+        let x = u64::from_le_bytes(c.try_into().expect("8 bytes"));
+        h = (h.rotate_left(23) ^ x).wrapping_mul(0x2127_599b_f432_5c37);
+    }
+    for &b in chunks.remainder() {
+        h = (h.rotate_left(23) ^ u64::from(b)).wrapping_mul(0x2127_599b_f432_5c37);
+    }
+    h ^ (h >> 29)
 }
 
 /// Why the stage could not be set up.
@@ -244,6 +269,8 @@ impl WindowOdometry {
             last_covariance: None,
             resume_from: None,
             resume: None,
+            previous_left_digest: None,
+            repeated_frame: false,
             timings: FrameTimings::default(),
             counters: Counters::default(),
         })
@@ -559,6 +586,10 @@ impl WindowOdometry {
     fn track(&mut self, frame: TrackedFrame, tracking: TrackingState) -> RelativeOutput {
         let t_ns = frame.t_ns;
         let (guess, pre) = self.predict(t_ns);
+        // A repeated image says nothing of where the rig went: where the
+        // IMU can carry the state, it does (images that stopped while the
+        // rig moves would otherwise hold the pose, then jump).
+        let carried_over_repeat = self.repeated_frame && pre.is_some();
         let placed = {
             let window = &mut self.window;
             let pre_ref = pre.as_ref();
@@ -566,7 +597,15 @@ impl WindowOdometry {
             self.timings
                 .time("pose", || window.track_frame(guess, frame_ref, pre_ref))
         };
-        let mut state = if placed.good {
+        if !placed.good {
+            tracing::debug!(
+                "frame at {t_ns} ns not placed by the images: {} of {} matched observations kept (the IMU {})",
+                placed.inliers,
+                placed.matched,
+                if pre.is_some() { "spans the frame" } else { "does not reach it" }
+            );
+        }
+        let mut state = if placed.good && !carried_over_repeat {
             self.last_vision_ns = Some(t_ns);
             self.bad_frames = 0;
             self.frame_marginal = placed.pose_marginal;
@@ -576,7 +615,7 @@ impl WindowOdometry {
                 .last_vision_ns
                 .map_or(f64::INFINITY, |v| (t_ns - v) as f64 * 1e-9);
             // At rest (the images too): hold the pose, as at a static start.
-            if self.mode.uses_imu() && self.window.imu_enabled() {
+            if self.mode.uses_imu() && self.window.imu_enabled() && !carried_over_repeat {
                 let flow = self.last_flow_px;
                 if let Some(mut rest) = self.rest_state(&frame, flow) {
                     rest.T_world_body.rotation = guess.T_world_body.rotation;
@@ -619,7 +658,9 @@ impl WindowOdometry {
             }
         }
         let kf_gap = self.window.latest().map_or(i64::MAX, |k| t_ns - k.t_ns);
-        let keyframe = frame.is_keyframe || kf_gap >= MAX_KEYFRAME_GAP_NS;
+        // A repeated image's observations are the previous frame's: no
+        // keyframe from them.
+        let keyframe = !carried_over_repeat && (frame.is_keyframe || kf_gap >= MAX_KEYFRAME_GAP_NS);
         if keyframe && self.add_keyframe(state, &frame, pre) {
             if let Some(latest) = self.window.latest() {
                 let velocity = state.velocity_world_m_s;
@@ -1100,6 +1141,12 @@ impl RelativeEstimator for WindowOdometry {
             }
         }
         self.counters.frames += 1;
+        let digest = image_digest(frame.left);
+        self.repeated_frame = self.previous_left_digest == Some(digest);
+        self.previous_left_digest = Some(digest);
+        if self.repeated_frame {
+            self.counters.frames_repeated += 1;
+        }
         let prediction = self.predicted_camera_rotation(t_ns);
         let tracker = &mut self.tracker;
         let tracked = self
@@ -1141,6 +1188,7 @@ impl RelativeEstimator for WindowOdometry {
         vec![
             ("frames", c.frames),
             ("frames_out_of_order", c.frames_out_of_order),
+            ("frames_repeated", c.frames_repeated),
             ("tracker_errors", c.tracker_errors),
             ("keyframes", c.keyframes),
             ("window_errors", c.window_errors),
@@ -1156,5 +1204,29 @@ impl RelativeEstimator for WindowOdometry {
                 self.imu.as_ref().map_or(0, ImuBuffer::dropped),
             ),
         ]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::image_digest;
+    use crate::sensors::Image;
+
+    /// The same bytes give the same digest; one bit anywhere (the tail
+    /// past the last whole 8-byte word included) or another size, another.
+    #[test]
+    fn a_digest_tells_a_repeated_image_from_a_new_one() {
+        let (w, h) = (13u32, 7u32);
+        let pixels: Vec<u8> = (0..w * h).map(|i| (i * 31 % 251) as u8).collect();
+        let image = |p: Vec<u8>| Image::mono8(w, h, p).expect("image");
+        let d = image_digest(&image(pixels.clone()));
+        assert_eq!(d, image_digest(&image(pixels.clone())));
+        for i in [0, 40, pixels.len() - 1] {
+            let mut changed = pixels.clone();
+            changed[i] ^= 1;
+            assert_ne!(d, image_digest(&image(changed)), "byte {i}");
+        }
+        let black = |w, h| Image::mono8(w, h, vec![0; (w * h) as usize]).expect("image");
+        assert_ne!(image_digest(&black(4, 4)), image_digest(&black(4, 5)));
     }
 }

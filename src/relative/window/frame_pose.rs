@@ -47,6 +47,13 @@ pub struct FramePose {
 /// inertial residual's square-root information.
 struct Weights {
     inv_sigma: f64,
+    /// What the image term is multiplied by: 1 / (estimated pixel noise
+    /// scale)^2. A factor on the whole term rather than a smaller sigma,
+    /// so that the robust kernel's threshold and the gate
+    /// ([`super::reprojection::GATE_SQ`]) keep their size in pixels: with
+    /// the sigma shrunk, a far guess put every observation past the gate
+    /// and the pose went astray.
+    vision_weight: f64,
     imu_sqrt_info: Option<Matrix9>,
 }
 
@@ -141,12 +148,18 @@ impl Window {
             state.biases = l.biases;
         }
         let dim = if imu.is_some() { 9 } else { 6 };
-        let declared = Weights {
-            inv_sigma: 1.0 / self.config.pixel_sigma,
-            imu_sqrt_info: imu.map(|(pre, _)| whitening(&pre.covariance)),
-        };
-        let inv_sigma = declared.inv_sigma;
+        // Weighed with the noise the window estimated
+        // ([`super::NoiseScale`]), as the window weighs the keyframes; the
+        // robust kernel and the outlier gate keep their size in pixels.
+        let scale = self.noise.scale();
+        let inv_sigma = 1.0 / self.config.pixel_sigma;
         let k = self.config.huber_px / self.config.pixel_sigma;
+        let estimated = Weights {
+            inv_sigma,
+            vision_weight: 1.0 / (scale.pixel * scale.pixel),
+            imu_sqrt_info: imu
+                .map(|(pre, _)| whitening(&pre.scaled_covariance(scale.gyro, scale.accel))),
+        };
         let kernel = self.config.robust_kernel;
         let cameras = &self.cameras;
 
@@ -157,6 +170,7 @@ impl Window {
                         weights: &Weights|
          -> f64 {
             let inv_sigma = weights.inv_sigma;
+            let vw = weights.vision_weight;
             let mut cost = 0.0;
             let mut h = Matrix9x9::zeros();
             let mut b = Vector9::zeros();
@@ -167,23 +181,23 @@ impl Window {
                     let Some(p) = reproject(camera, &s.T_world_body, &r.point_world_m, &r.pixel)
                         .filter(|p| p.depth_m > 0.0)
                     else {
-                        cost += 0.5 * kernel.evaluate(GATE_SQ, k).0;
+                        cost += 0.5 * vw * kernel.evaluate(GATE_SQ, k).0;
                         continue;
                     };
                     let e = p.error_px * inv_sigma;
                     let j = p.d_pose * inv_sigma;
                     let (rho, w) = kernel.evaluate(e.norm_squared(), k);
-                    cost += 0.5 * rho;
+                    cost += 0.5 * vw * rho;
                     let mut hp = h.fixed_view_mut::<6, 6>(0, 0);
-                    hp += j.transpose() * j * w;
+                    hp += j.transpose() * j * (w * vw);
                     let mut bp = b.fixed_rows_mut::<6>(0);
-                    bp -= j.transpose() * e * w;
+                    bp -= j.transpose() * e * (w * vw);
                 } else {
                     match reprojection_error(camera, &s.T_world_body, &r.point_world_m, &r.pixel) {
                         Some((e, depth)) if depth > 0.0 => {
-                            cost += 0.5 * kernel.evaluate((e * inv_sigma).norm_squared(), k).0
+                            cost += 0.5 * vw * kernel.evaluate((e * inv_sigma).norm_squared(), k).0
                         }
-                        _ => cost += 0.5 * kernel.evaluate(GATE_SQ, k).0,
+                        _ => cost += 0.5 * vw * kernel.evaluate(GATE_SQ, k).0,
                     }
                 }
             }
@@ -218,7 +232,7 @@ impl Window {
             let mut lambda = 1e-4;
             let mut h = Matrix9x9::zeros();
             let mut b = Vector9::zeros();
-            cost = evaluate(&state, rows, Some((&mut h, &mut b)), &declared);
+            cost = evaluate(&state, rows, Some((&mut h, &mut b)), &estimated);
             for _ in 0..self.config.track_max_iterations {
                 iterations += 1;
                 let mut accepted = false;
@@ -241,7 +255,7 @@ impl Window {
                     let mut full = [0.0; FULL_DIM];
                     full[..dim].copy_from_slice(&delta.as_slice()[..dim]);
                     apply_update(&mut candidate, &full[..if dim == 9 { FULL_DIM } else { 6 }]);
-                    let new_cost = evaluate(&candidate, rows, None, &declared);
+                    let new_cost = evaluate(&candidate, rows, None, &estimated);
                     if new_cost.is_finite() && new_cost <= cost {
                         converged = cost - new_cost <= 1e-6 * cost || delta.amax() < 1e-12;
                         state = candidate;
@@ -255,7 +269,7 @@ impl Window {
                 if !accepted || converged {
                     break;
                 }
-                cost = evaluate(&state, rows, Some((&mut h, &mut b)), &declared);
+                cost = evaluate(&state, rows, Some((&mut h, &mut b)), &estimated);
             }
             // Drop the outliers and refine once.
             let chi2 = self.config.outlier_chi2;
@@ -280,14 +294,7 @@ impl Window {
         out.final_cost = cost;
         out.good = state_is_finite(&state) && out.inliers >= self.config.min_track_inliers;
         if out.good {
-            // The information at the answer, weighed with the noise the
-            // window estimated (the solve itself uses the declared one).
-            let scale = self.noise.scale();
-            let estimated = Weights {
-                inv_sigma: inv_sigma / scale.pixel,
-                imu_sqrt_info: imu
-                    .map(|(pre, _)| whitening(&pre.scaled_covariance(scale.gyro, scale.accel))),
-            };
+            // The information at the answer.
             let mut h = Matrix9x9::zeros();
             let mut b = Vector9::zeros();
             evaluate(&state, rows, Some((&mut h, &mut b)), &estimated);
