@@ -384,7 +384,6 @@ fn missing_images_and_nan_samples_are_counted_and_named_once() {
         .arg(&holes)
         .arg("--report")
         .arg(&report_path)
-        .env("NO_COLOR", "1")
         .output()
         .expect("run rigslam");
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -403,6 +402,10 @@ fn missing_images_and_nan_samples_are_counted_and_named_once() {
             "input left out: 2 listed images missing, 1 right images missing, 1 non-finite IMU samples"
         ),
         "{stdout}"
+    );
+    assert!(
+        !stderr.contains('\x1b'),
+        "colour codes in a log that is not a terminal"
     );
     let log = format!("{stdout}{stderr}");
     for file in ["cam0/data.csv", "cam1/data.csv", "imu0/data.csv"] {

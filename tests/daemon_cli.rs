@@ -540,4 +540,40 @@ fn a_recording_replays_with_the_shorthand() {
     assert_eq!(report["frames"], 95, "{report}");
     assert_eq!(report["poses"], 95, "{report}");
     assert_eq!(report["imu_samples"], 942, "{report}");
+    // No colour codes where stderr is not a terminal (the journal).
+    assert!(!second.log().contains('\x1b'), "{}", second.log());
+
+    // A recording whose middle chunk is corrupt (its CRC no longer
+    // matches): --check-config cannot see it without reading every chunk,
+    // so the replay starts, stops there with the error said once, and
+    // the daemon exits with a failure status, not 0.
+    let bytes = std::fs::read(&files[0].0).expect("read");
+    let needle = b"\"data\":\"";
+    let images: Vec<usize> = bytes
+        .windows(needle.len())
+        .enumerate()
+        .filter(|(_, w)| *w == needle)
+        .map(|(i, _)| i)
+        .collect();
+    let at = images[images.len() / 2] + needle.len() + 1000;
+    let mut damaged = bytes.clone();
+    damaged[at] = if damaged[at] == b'A' { b'B' } else { b'A' };
+    let damaged_path = dir.path().join("damaged.mcap");
+    std::fs::write(&damaged_path, &damaged).expect("write");
+    let mut replay = replay_command(&damaged_path, &ipc);
+    replay.arg("--as-fast-as-possible");
+    let mut third = Daemon::start(replay);
+    let status = third.wait_exit(Duration::from_secs(60));
+    let log = third.log();
+    assert!(!status.success(), "{log}");
+    let said = log.matches("damaged.mcap").count();
+    assert!(
+        log.contains("replay stopped") && log.contains("CRC"),
+        "{log}"
+    );
+    assert_eq!(said, 1, "the error is said once:\n{log}");
+    assert!(
+        log.contains("rigslamd: the replay stopped on an error"),
+        "{log}"
+    );
 }

@@ -519,6 +519,8 @@ fn a_recording_replays_to_the_poses_of_the_run_that_made_it() {
     let mut config = replay_config();
     config.replay.as_mut().expect("replay").dataset = cut;
     let problems = check(&config, std::path::Path::new("rig.toml")).expect_err("cut file");
+    // Said once, though several checks read the file.
+    assert_eq!(problems.len(), 1, "{problems:?}");
     assert!(
         problems
             .iter()

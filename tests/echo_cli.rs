@@ -11,12 +11,14 @@ use rigslam::publish::{IpcConfig, PoseMessage, PosePublisher};
 use rigslam::relative::types::TrackingState;
 use rigslam::sensors::yei::device::host_monotonic_ns;
 
-#[test]
-fn echo_json_reports_the_samples_of_a_short_run() {
+/// `rigslam echo --json --count COUNT` on poses published at about 1 kHz
+/// with `t_ns = host clock + offset_ns`; its JSON report and how many were
+/// sent.
+fn echo_json(name: &str, offset_ns: i64) -> (serde_json::Value, u64) {
     const COUNT: u64 = 50;
     let root = tempfile::tempdir().expect("temp dir for the iceoryx2 root");
     let config = IpcConfig {
-        service_prefix: format!("rigslam_echo_{}", std::process::id()),
+        service_prefix: format!("rigslam_echo_{name}_{}", std::process::id()),
         root_path: Some(root.path().to_path_buf()),
         group: None,
     };
@@ -31,7 +33,7 @@ fn echo_json_reports_the_samples_of_a_short_run() {
             // keeps the CPU free; nothing below depends on it).
             while !stop.load(Ordering::Relaxed) {
                 let msg = PoseMessage::new(
-                    host_monotonic_ns(),
+                    host_monotonic_ns() + offset_ns,
                     TrackingState::Tracking,
                     &Isometry3::identity(),
                 );
@@ -62,6 +64,12 @@ fn echo_json_reports_the_samples_of_a_short_run() {
     assert_eq!(report["received"], COUNT);
     assert!(sent >= COUNT, "echo received {COUNT} of {sent} sent");
     assert_eq!(report["service"], format!("{}/pose", config.service_prefix));
+    (report, sent)
+}
+
+#[test]
+fn echo_json_reports_the_samples_of_a_short_run() {
+    let (report, _) = echo_json("host", 0);
     let number = |key: &str| {
         report[key]
             .as_f64()
@@ -83,6 +91,19 @@ fn echo_json_reports_the_samples_of_a_short_run() {
         "latency {p50}/{p99} < transport {t50}/{t99}"
     );
     assert!(report["missed"].as_u64().is_some());
+}
+
+/// Poses stamped on another clock (a replay publishes the dataset's
+/// stamps, 2014 in EuRoC): the latency is null, not a huge number; the
+/// transport latency is still measured.
+#[test]
+fn echo_json_gives_null_for_a_latency_on_another_clock() {
+    let dataset_clock_ns = 1_403_715_273_262_142_976 - host_monotonic_ns();
+    let (report, _) = echo_json("other_clock", dataset_clock_ns);
+    assert!(report["latency_p50_us"].is_null(), "{report}");
+    assert!(report["latency_p99_us"].is_null(), "{report}");
+    let t50 = report["transport_latency_p50_us"].as_f64().expect("number");
+    assert!(t50 > 0.0 && t50 < 60e6, "{report}");
 }
 
 #[test]

@@ -389,13 +389,16 @@ impl DaemonConfig {
 /// returns the rig on success, every problem found otherwise. `file` is
 /// the config's path, for the messages.
 pub fn check(config: &DaemonConfig, file: &Path) -> Result<RigModel, Vec<Problem>> {
-    let mut problems = Vec::new();
+    let mut problems: Vec<Problem> = Vec::new();
+    // Several checks read the same file; its problem is said once.
     let mut bad = |key: &str, why: String| {
-        problems.push(Problem {
-            file: file.to_path_buf(),
-            key: key.to_string(),
-            why,
-        })
+        if !problems.iter().any(|p| p.key == key && p.why == why) {
+            problems.push(Problem {
+                file: file.to_path_buf(),
+                key: key.to_string(),
+                why,
+            })
+        }
     };
     let mode = config.slam.mode;
     if config.camera.source == CameraSource::V4l2 && config.camera.device.is_none() {

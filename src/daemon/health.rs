@@ -48,6 +48,9 @@ pub struct Health {
     pub tracking_state: AtomicU32,
     /// Set by a replay source when the recording has been played out.
     pub source_finished: AtomicBool,
+    /// Set by a replay source that stopped on an error (the file could
+    /// not be read on): the daemon then exits with a failure status.
+    pub source_failed: AtomicBool,
     /// The estimator's noise scales (gyro, accel, pixel) as f64 bits,
     /// valid when `noise_known`; `noise_at_bound` when one hit a bound.
     noise_scale_bits: [AtomicU64; 3],
@@ -186,6 +189,17 @@ pub struct RateBase {
     imu: u64,
     poses: u64,
     jumps: u64,
+}
+
+impl RateBase {
+    /// Counting from now, with nothing counted yet: the first status then
+    /// has rates over the time since the start, not zeros.
+    pub fn starting_now() -> Self {
+        Self {
+            t_ns: host_monotonic_ns(),
+            ..Self::default()
+        }
+    }
 }
 
 /// Rules for the health bits.
@@ -379,6 +393,29 @@ pub fn health_words(health: u32) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The first status after the start gives the rates since the start:
+    /// it once said 0 Hz while frames flowed (no previous status to count
+    /// from).
+    #[test]
+    fn the_first_status_has_rates_not_zeros() {
+        let health = Health::new();
+        let rules = HealthRules {
+            camera_stall_ns: 1_000_000_000,
+            imu_stall_ns: 1_000_000_000,
+            stuck_ns: 10_000_000_000,
+            uses_imu: true,
+        };
+        let mut base = RateBase::starting_now();
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        health.frames_in.fetch_add(4, Ordering::Relaxed);
+        health.imu_in.fetch_add(40, Ordering::Relaxed);
+        let m = health.status(&rules, &mut base, &[], (0, 0));
+        assert!(
+            m.camera_rate_hz > 0.0 && m.imu_rate_hz > m.camera_rate_hz,
+            "{m:?}"
+        );
+    }
 
     #[test]
     fn status_says_what_noise_the_estimator_weighs_with() {

@@ -98,6 +98,8 @@ pub struct PipelineReport {
     pub timestamp_jumps: u64,
     pub recording_drops: u64,
     pub recordings: Vec<PathBuf>,
+    /// A replay stopped on an error before its end.
+    pub source_failed: bool,
     /// Frame arrival to pose published, every frame of the run (within
     /// 1 %, see [`super::health::LatencyHistogram`]).
     pub latency_p50_us: f64,
@@ -244,7 +246,7 @@ impl Pipeline {
                 stuck_ns: (p.stuck_after_s * 1e9) as i64,
                 uses_imu: mode.uses_imu(),
             },
-            base: RateBase::default(),
+            base: RateBase::starting_now(),
         })
     }
 
@@ -281,6 +283,12 @@ impl Pipeline {
     /// The SLAM stage has ended (a replay played out, or a setup error).
     pub fn finished(&self) -> bool {
         self.stage.as_ref().map_or(true, |s| s.is_finished())
+    }
+
+    /// Whether a replay stopped on an error before its end (the file
+    /// could not be read on).
+    pub fn source_failed(&self) -> bool {
+        self.health.source_failed.load(Ordering::Relaxed)
     }
 
     /// Rebuilds the relative stage with a new rig at its next loop.
@@ -328,6 +336,7 @@ impl Pipeline {
             timestamp_jumps: h.timestamp_jumps.load(Ordering::Relaxed),
             recording_drops,
             recordings,
+            source_failed: h.source_failed.load(Ordering::Relaxed),
             latency_p50_us: latencies.quantile_us(0.5).unwrap_or(0.0),
             latency_p99_us: latencies.quantile_us(0.99).unwrap_or(0.0),
             latency_max_us: latencies.max_us(),

@@ -120,7 +120,9 @@ pub fn spawn_replay(
 ) -> std::io::Result<JoinHandle<()>> {
     spawn("replay", move || {
         if let Err(e) = replay_loop(&replay, mode, &links) {
-            tracing::error!("replay of {} stopped: {e}", replay.dataset.display());
+            // The errors name the file (and where in it) themselves.
+            tracing::error!("replay stopped: {e}");
+            links.health.source_failed.store(true, Ordering::Relaxed);
         }
         links.health.source_finished.store(true, Ordering::Relaxed);
         links.close();

@@ -9,6 +9,7 @@ pub mod image_file;
 pub mod kitti;
 pub mod stream;
 pub mod text;
+pub mod trajectory_out;
 pub mod tum;
 
 pub use detect::{open_dataset, read_trajectory_any, Dataset};
@@ -24,4 +25,5 @@ pub use groundtruth::{
 pub use image_file::{read_png, write_png};
 pub use kitti::{read_kitti_poses, KittiSequence};
 pub use stream::{SensorEvent, SensorStream, StreamCounts, StreamOptions};
+pub use trajectory_out::{write_trajectory, TrajectoryFormat};
 pub use tum::{read_tum, write_tum};

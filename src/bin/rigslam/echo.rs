@@ -35,7 +35,8 @@ pub struct EchoArgs {
     root_path: Option<PathBuf>,
     /// Print one JSON object at the end and nothing per sample: received,
     /// rate_hz, latency_p50_us, latency_p99_us (now - the message's t_ns on
-    /// CLOCK_MONOTONIC), transport_latency_p50_us, transport_latency_p99_us
+    /// CLOCK_MONOTONIC; null when the stamps are not on this host's clock,
+    /// as in a replay), transport_latency_p50_us, transport_latency_p99_us
     /// (now - the publisher's send time), missed (sequence gaps), service.
     #[arg(long)]
     json: bool,
@@ -63,8 +64,10 @@ struct EchoReport {
     received: u64,
     missed: u64,
     rate_hz: f64,
-    latency_p50_us: f64,
-    latency_p99_us: f64,
+    /// None (null) when the stamps are not on this host's clock (a
+    /// replay's dataset stamps): that "latency" would be a clock offset.
+    latency_p50_us: Option<f64>,
+    latency_p99_us: Option<f64>,
     transport_latency_p50_us: f64,
     transport_latency_p99_us: f64,
 }
@@ -145,8 +148,8 @@ pub fn run(args: EchoArgs) -> anyhow::Result<()> {
         received,
         missed,
         rate_hz: rate_hz(&measured.receive_t_ns),
-        latency_p50_us: percentile(&measured.latency_us, 0.50),
-        latency_p99_us: percentile(&measured.latency_us, 0.99),
+        latency_p50_us: plausible(percentile(&measured.latency_us, 0.50)),
+        latency_p99_us: plausible(percentile(&measured.latency_us, 0.99)),
         transport_latency_p50_us: percentile(&measured.transport_latency_us, 0.50),
         transport_latency_p99_us: percentile(&measured.transport_latency_us, 0.99),
     };
@@ -157,14 +160,11 @@ pub fn run(args: EchoArgs) -> anyhow::Result<()> {
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
-        let latency = if (0.0..PLAUSIBLE_LATENCY_US).contains(&report.latency_p50_us) {
-            format!(
-                "p50 {} p99 {}",
-                latency_text(report.latency_p50_us),
-                latency_text(report.latency_p99_us)
-            )
-        } else {
-            latency_text(report.latency_p50_us)
+        let latency = match (report.latency_p50_us, report.latency_p99_us) {
+            (Some(p50), Some(p99)) => {
+                format!("p50 {} p99 {}", latency_text(p50), latency_text(p99))
+            }
+            _ => latency_text(f64::NAN),
         };
         println!(
             "{}: {} received, {} missed, {:.1} Hz, latency {latency}, transport p50 {:.1} us p99 {:.1} us",
@@ -252,6 +252,13 @@ fn print_pose(m: &PoseMessage, latency_us: f64) {
 /// A sensor-to-here latency for people: stamps that are not on this
 /// host's monotonic clock (a replay keeps the recording's time) give
 /// numbers of days or negative ones, which say nothing.
+/// A latency, or None when it is a clock mismatch.
+fn plausible(latency_us: f64) -> Option<f64> {
+    (0.0..PLAUSIBLE_LATENCY_US)
+        .contains(&latency_us)
+        .then_some(latency_us)
+}
+
 fn latency_text(latency_us: f64) -> String {
     if (0.0..PLAUSIBLE_LATENCY_US).contains(&latency_us) {
         format!("{latency_us:.1} us")

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
-use rigslam::dataset::{read_trajectory_any, write_tum};
+use rigslam::dataset::{read_trajectory_any, write_trajectory, TrajectoryFormat};
 use rigslam::edge_map::map_file::SavedMap;
 use rigslam::eval::plot::write_plot;
 use rigslam::eval::Alignment;
@@ -29,10 +29,16 @@ pub struct RunArgs {
     /// optimisation) or `ekf` (the paper's EKF baseline).
     #[arg(long, value_enum, default_value_t = EstimatorKind::Window)]
     estimator: EstimatorKind,
-    /// Write the body trajectory here (TUM: t[s] tx ty tz qx qy qz qw);
-    /// with --absolute, the corrected one.
+    /// Write the body trajectory here; with --absolute, the corrected one.
+    /// The format follows the extension (`.csv` EuRoC: t[ns],p,q wxyz;
+    /// `.kitti` KITTI: a 3x4 [R|t] per line; anything else TUM: t[s] tx
+    /// ty tz qx qy qz qw) unless --trajectory-format says.
     #[arg(long)]
     trajectory: Option<PathBuf>,
+    /// The format of --trajectory and --trajectory-relative, whatever
+    /// their extension.
+    #[arg(long, value_enum)]
+    trajectory_format: Option<TrajectoryFormat>,
     /// Also run the absolute stage (the linear edge map and the Kalman
     /// position filter) on the relative stage's output.
     #[arg(long)]
@@ -189,14 +195,20 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         }
-        write_tum(path, &result.outcome.trajectory)?;
+        let format = args
+            .trajectory_format
+            .unwrap_or_else(|| TrajectoryFormat::of_path(path));
+        write_trajectory(path, &result.outcome.trajectory, format)?;
     }
     if let Some(path) = &args.states {
         std::fs::write(path, &states_csv)
             .with_context(|| format!("writing the states {}", path.display()))?;
     }
     if let (Some(path), Some(relative)) = (&args.trajectory_relative, &result.trajectory_relative) {
-        write_tum(path, relative)?;
+        let format = args
+            .trajectory_format
+            .unwrap_or_else(|| TrajectoryFormat::of_path(path));
+        write_trajectory(path, relative, format)?;
     }
     if let Some(path) = &args.plot {
         match &result.evaluation {

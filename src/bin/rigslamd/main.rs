@@ -66,6 +66,7 @@ fn main() -> std::process::ExitCode {
                 .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
         )
         .with_writer(std::io::stderr)
+        .with_ansi(colour_wanted())
         .init();
     let args = Args::parse();
     match run(args) {
@@ -75,6 +76,13 @@ fn main() -> std::process::ExitCode {
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+/// Colour codes only for a terminal, and not with NO_COLOR set: under
+/// systemd the journal would keep them as text.
+fn colour_wanted() -> bool {
+    use std::io::IsTerminal;
+    std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").map_or(true, |v| v.is_empty())
 }
 
 fn load(args: &Args) -> anyhow::Result<(DaemonConfig, PathBuf)> {
@@ -294,6 +302,11 @@ fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
     }
     if let Some(path) = &args.report {
         report::write(path, &report, wall_s, cpu_s)?;
+    }
+    if report.source_failed {
+        // The error itself was logged where it happened.
+        eprintln!("rigslamd: the replay stopped on an error before the end of its input");
+        return Ok(std::process::ExitCode::FAILURE);
     }
     Ok(std::process::ExitCode::SUCCESS)
 }
