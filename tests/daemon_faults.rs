@@ -144,5 +144,9 @@ fn garbage_on_the_serial_line_does_not_stop_the_stream() {
     let rate = (pipeline.health().imu_in.load(Ordering::Relaxed) - imu_before) as f64 / dt;
     assert!(rate > 180.0, "IMU at {rate:.0} Hz with garbage on the line");
     assert!(sim.stats().garbage_bytes >= 2430);
+    // The five packets with a bad checksum are counted as lost samples.
+    let s = pipeline.status();
+    assert!(s.imu_drops >= 5, "{s:?}");
+    assert!(pipeline.health().imu_skipped.load(Ordering::Relaxed) >= 5);
     pipeline.stop().expect("stop");
 }

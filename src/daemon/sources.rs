@@ -329,11 +329,23 @@ pub fn spawn_yei(imu: ImuConfig, links: SourceLinks) -> std::io::Result<JoinHand
                 device.identity().firmware
             );
             let mut seen_disconnects = 0;
+            // Samples the driver lost (damaged or missing packets, found
+            // from gaps in the sensor's stamps; its own queue overflowing)
+            // count in the status; the driver logs them.
+            let mut seen_lost = 0;
             while !links.stopping() {
                 if let Some(s) = device.recv_timeout(Duration::from_millis(50)) {
                     links.offer_imu(s.imu, &mut log);
                 }
                 let stats = device.stats();
+                let lost = stats.drops + stats.queue_overflows;
+                if lost > seen_lost {
+                    links
+                        .health
+                        .imu_skipped
+                        .fetch_add(lost - seen_lost, Ordering::Relaxed);
+                    seen_lost = lost;
+                }
                 let reconnecting = stats.disconnects > stats.reconnects;
                 links
                     .health
