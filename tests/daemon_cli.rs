@@ -543,26 +543,21 @@ fn a_recording_replays_with_the_shorthand() {
     // No colour codes where stderr is not a terminal (the journal).
     assert!(!second.log().contains('\x1b'), "{}", second.log());
 
-    // A recording whose middle chunk is corrupt (a byte of its compressed
-    // records changed): --check-config does not see it (the records
-    // decompress to something whose CRC does not match, or not at all),
-    // so the replay starts, stops there with the error said once, and the
-    // daemon exits with a failure status, not 0.
+    // A recording whose middle chunk is corrupt (its CRC no longer
+    // matches): --check-config cannot see it without reading every chunk,
+    // so the replay starts, stops there with the error said once, and
+    // the daemon exits with a failure status, not 0.
     let bytes = std::fs::read(&files[0].0).expect("read");
-    // The records after the magic: (opcode, body offset, body length).
-    let mut records = vec![];
-    let mut pos = 8;
-    while pos + 9 <= bytes.len() {
-        let len = u64::from_le_bytes(bytes[pos + 1..pos + 9].try_into().expect("8")) as usize;
-        records.push((bytes[pos], pos + 9, len));
-        pos += 9 + len;
-    }
-    let chunks: Vec<&(u8, usize, usize)> = records.iter().filter(|r| r.0 == 0x06).collect();
-    assert!(chunks.len() > 4, "{} chunks", chunks.len());
-    let (_, body, len) = *chunks[chunks.len() / 2];
-    let at = body + len * 3 / 4;
+    let needle = b"\"data\":\"";
+    let images: Vec<usize> = bytes
+        .windows(needle.len())
+        .enumerate()
+        .filter(|(_, w)| *w == needle)
+        .map(|(i, _)| i)
+        .collect();
+    let at = images[images.len() / 2] + needle.len() + 1000;
     let mut damaged = bytes.clone();
-    damaged[at] ^= 0x5a;
+    damaged[at] = if damaged[at] == b'A' { b'B' } else { b'A' };
     let damaged_path = dir.path().join("damaged.mcap");
     std::fs::write(&damaged_path, &damaged).expect("write");
     let mut replay = replay_command(&damaged_path, &ipc);
@@ -572,7 +567,10 @@ fn a_recording_replays_with_the_shorthand() {
     let log = third.log();
     assert!(!status.success(), "{log}");
     let said = log.matches("damaged.mcap").count();
-    assert!(log.contains("replay stopped"), "{log}");
+    assert!(
+        log.contains("replay stopped") && log.contains("CRC"),
+        "{log}"
+    );
     assert_eq!(said, 1, "the error is said once:\n{log}");
     assert!(
         log.contains("rigslamd: the replay stopped on an error"),

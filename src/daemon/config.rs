@@ -179,11 +179,8 @@ pub struct RecordingConfig {
     /// Total size the recordings may take; the oldest files are deleted
     /// to stay under it, MiB.
     pub budget_mib: u64,
-    /// A file is closed and a new one started once this much has been
-    /// recorded (message bytes before compression), MiB.
+    /// A file is closed and a new one started at this size, MiB.
     pub rotate_mib: u64,
-    /// Chunk compression: "zstd" (default), "lz4" or "none".
-    pub compression: crate::recording::ChunkCompression,
 }
 
 impl Default for RecordingConfig {
@@ -193,7 +190,6 @@ impl Default for RecordingConfig {
             dir: PathBuf::from("/var/lib/rigslam/recordings"),
             budget_mib: 4096,
             rotate_mib: 256,
-            compression: crate::recording::ChunkCompression::Zstd,
         }
     }
 }

@@ -12,7 +12,7 @@ use std::sync::mpsc::{self, Receiver, SyncSender, TrySendError};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 
-use crate::recording::{ChannelId, ChunkCompression, McapRecorder, RecordedPose, RecordingError};
+use crate::recording::{ChannelId, McapRecorder, RecordedPose, RecordingError};
 use crate::sensors::yei::device::host_monotonic_ns;
 use crate::sensors::ImuSample;
 
@@ -101,11 +101,7 @@ struct OpenFile {
     pose: ChannelId,
 }
 
-fn open_file(
-    dir: &Path,
-    compression: ChunkCompression,
-    attachments: &[(String, Vec<u8>)],
-) -> Result<OpenFile, RecordingError> {
+fn open_file(dir: &Path, attachments: &[(String, Vec<u8>)]) -> Result<OpenFile, RecordingError> {
     // Wall-clock-free name: the next free number, so files sort by age.
     let next = list_recordings(dir)
         .iter()
@@ -113,7 +109,7 @@ fn open_file(
         .max()
         .map_or(0, |n| n + 1);
     let path = dir.join(format!("rigslam-{next:06}.mcap"));
-    let mut recorder = McapRecorder::create_with(&path, compression)?;
+    let mut recorder = McapRecorder::create(&path)?;
     let imu = recorder.add_imu_channel("/imu0", &Default::default())?;
     let cam0 = recorder.add_image_channel("/cam0")?;
     let cam1 = recorder.add_image_channel("/cam1")?;
@@ -183,7 +179,7 @@ fn record_loop(
     let rotate = config.rotate_mib.max(1) << 20;
     let budget = config.budget_mib << 20;
     enforce_budget(&config.dir, budget, rotate);
-    let mut file = open_file(&config.dir, config.compression, attachments)?;
+    let mut file = open_file(&config.dir, attachments)?;
     let mut closed = Vec::new();
     for record in rx {
         match record {
@@ -199,7 +195,7 @@ fn record_loop(
             Record::Pose(p, receipt) => file.recorder.write_pose(file.pose, &p, receipt)?,
         }
         if file.recorder.message_bytes() >= rotate {
-            let next = open_file(&config.dir, config.compression, attachments)?;
+            let next = open_file(&config.dir, attachments)?;
             let done = std::mem::replace(&mut file, next);
             closed.push(done.recorder.finish()?);
             enforce_budget(&config.dir, budget, rotate);
@@ -242,8 +238,6 @@ mod tests {
             dir: dir.path().to_path_buf(),
             budget_mib: 3,
             rotate_mib: 1,
-            // Uncompressed: the sizes below are the message bytes.
-            compression: ChunkCompression::None,
         };
         let (tx, handle) = spawn_recorder(config, vec![]).expect("recorder");
         for i in 0..12 {

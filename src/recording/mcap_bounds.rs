@@ -9,16 +9,8 @@
 //! slice. Fuzzing found all three. [`check`] walks every record the crate
 //! will parse, from the start, in chunks (also one cut off with the file)
 //! and from the footer's summary start, and refuses a file whose lengths
-//! do not fit, naming the byte where the field is. A compressed chunk
-//! (zstd, lz4) is decompressed here, no larger than it says and at most
-//! [`MAX_CHUNK_BYTES`] (the crate allocates what it says), and its records
-//! are walked the same way. Whatever else is wrong (a bad magic, a
-//! cut-off file, unknown channels, a chunk that does not decompress) the
-//! crate still reports.
-
-/// The most a chunk may hold decompressed: the crate allocates a chunk's
-/// `uncompressed_size` at once (the recorder writes chunks of about 1 MiB).
-pub(super) const MAX_CHUNK_BYTES: u64 = 256 << 20;
+//! do not fit, naming the byte where the field is. Whatever else is wrong (a bad magic,
+//! a cut-off file, unknown channels) the crate still reports.
 
 /// MCAP's magic, at both ends of the file.
 const MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
@@ -110,11 +102,6 @@ impl<'a> Body<'a> {
         Ok(self.prefixed(4, what)?.map(drop))
     }
 
-    /// A u64 at `offset` in the body (checked to be there).
-    fn u64_at(&self, offset: usize) -> u64 {
-        u64::from_le_bytes(self.bytes[offset..offset + 8].try_into().expect("8 bytes"))
-    }
-
     /// A map of strings to strings: its byte length, then key and value
     /// strings. The crate reads pairs while it has read fewer bytes than
     /// the map's length, the last pair past the map's end if need be: each
@@ -174,43 +161,7 @@ fn check_record(opcode: u8, body: &[u8], at: usize, cut: bool) -> Result<(), Ref
         }
         CHUNK => {
             field!(b.fixed(28));
-            let uncompressed = b.u64_at(16);
-            let crc = u32::from_le_bytes(body[24..28].try_into().expect("4 bytes"));
-            let compression = field!(b.prefixed(4, "compression"));
-            if !compression.is_empty() {
-                if uncompressed > MAX_CHUNK_BYTES {
-                    return Err((
-                        b.record_at as u64,
-                        format!(
-                            "record 0x06 at byte {}: a chunk of {uncompressed} bytes decompressed, more than the {} MiB a chunk may hold",
-                            b.record_at,
-                            MAX_CHUNK_BYTES >> 20
-                        ),
-                    ));
-                }
-                // A cut-off compressed chunk does not decompress: the
-                // crate reports it.
-                if cut {
-                    return Ok(());
-                }
-                let records = field!(b.prefixed(8, "chunk records"));
-                return match decompress(compression, records, uncompressed) {
-                    // Records whose CRC does not match are the crate's
-                    // to refuse, before it parses them.
-                    Some(plain) if crc != 0 && crc32fast::hash(&plain) != crc => Ok(()),
-                    Some(plain) => walk(&plain, 0, true, true).map_err(|(_, why)| {
-                        (
-                            b.record_at as u64,
-                            format!(
-                                "in the {} chunk at byte {} (bytes counted in its decompressed records): {why}",
-                                String::from_utf8_lossy(compression),
-                                b.record_at
-                            ),
-                        )
-                    }),
-                    None => Ok(()),
-                };
-            }
+            field!(b.string("compression"));
             // The crate streams a chunk's records as they come, so those of
             // a chunk cut off with its file are parsed too.
             // A record may only run past the chunk's end where the file
@@ -263,27 +214,6 @@ fn check_record(opcode: u8, body: &[u8], at: usize, cut: bool) -> Result<(), Ref
         _ => {}
     }
     Ok(())
-}
-
-/// A chunk's records decompressed, if they decompress to exactly
-/// `size` bytes with a codec the crate knows; `None` otherwise (the crate
-/// then refuses the chunk itself).
-fn decompress(compression: &[u8], records: &[u8], size: u64) -> Option<Vec<u8>> {
-    use std::io::Read as _;
-    let plain = match compression {
-        b"zstd" => zstd::bulk::decompress(records, size as usize).ok()?,
-        b"lz4" => {
-            let mut out = Vec::new();
-            lz4::Decoder::new(records)
-                .ok()?
-                .take(size + 1)
-                .read_to_end(&mut out)
-                .ok()?;
-            out
-        }
-        _ => return None,
-    };
-    (plain.len() as u64 == size).then_some(plain)
 }
 
 /// The crate reads a chunk's header (36 bytes and the compression
@@ -418,22 +348,15 @@ mod tests {
     use std::collections::BTreeMap;
     use std::path::Path;
 
-    use super::super::{
-        read_attachments_in, read_imu_channel_in, ChunkCompression, McapRecorder, RecordingError,
-    };
+    use super::super::{read_attachments_in, read_imu_channel_in, McapRecorder, RecordingError};
     use crate::sensors::ImuSample;
 
     /// A small closed recording: an IMU channel with three samples and an
-    /// attachment, its chunk uncompressed (the tests below change bytes
-    /// in it).
+    /// attachment.
     fn recording() -> Vec<u8> {
-        recording_with(ChunkCompression::None)
-    }
-
-    fn recording_with(compression: ChunkCompression) -> Vec<u8> {
         let dir = tempfile::tempdir().expect("temp dir");
         let path = dir.path().join("r.mcap");
-        let mut rec = McapRecorder::create_with(&path, compression).expect("create");
+        let mut rec = McapRecorder::create(&path).expect("create");
         let imu = rec
             .add_imu_channel("/imu0", &BTreeMap::new())
             .expect("channel");
@@ -481,74 +404,6 @@ mod tests {
             3
         );
         assert_eq!(read_attachments_in(&bytes, path).expect("read").len(), 1);
-    }
-
-    #[test]
-    fn compressed_recordings_pass_and_read_back() {
-        for compression in [ChunkCompression::Zstd, ChunkCompression::Lz4] {
-            let bytes = recording_with(compression);
-            let name = format!("{compression:?}").to_lowercase();
-            assert!(
-                bytes.windows(name.len()).any(|w| w == name.as_bytes()),
-                "{name} chunks"
-            );
-            assert_eq!(super::check(&bytes), Ok(()), "{name}");
-            let samples = read_imu_channel_in(&bytes, Path::new("r.mcap"), "/imu0").expect("read");
-            assert_eq!(samples.len(), 3, "{name}");
-        }
-    }
-
-    /// The uncompressed recording's first chunk rebuilt with its records
-    /// compressed by zstd (`size` as the uncompressed size it declares);
-    /// the rest of the file as it was (its summary offsets then point
-    /// elsewhere, which the walk from the start does not reach first).
-    fn with_zstd_chunk(bytes: &[u8], declared_size: Option<u64>) -> Vec<u8> {
-        let chunk = find(bytes, b"\x06");
-        let len = u64::from_le_bytes(bytes[chunk + 1..chunk + 9].try_into().expect("8")) as usize;
-        let body = &bytes[chunk + 9..chunk + 9 + len];
-        let records_at = 28 + 4; // fixed fields, empty compression string
-        let records = &body[records_at + 8..];
-        let packed = zstd::bulk::compress(records, 3).expect("compress");
-        let mut new_body = body[..16].to_vec();
-        new_body.extend_from_slice(&declared_size.unwrap_or(records.len() as u64).to_le_bytes());
-        new_body.extend_from_slice(&crc32fast::hash(records).to_le_bytes());
-        new_body.extend_from_slice(&4u32.to_le_bytes());
-        new_body.extend_from_slice(b"zstd");
-        new_body.extend_from_slice(&(packed.len() as u64).to_le_bytes());
-        new_body.extend_from_slice(&packed);
-        let mut out = bytes[..chunk + 1].to_vec();
-        out.extend_from_slice(&(new_body.len() as u64).to_le_bytes());
-        out.extend_from_slice(&new_body);
-        out.extend_from_slice(&bytes[chunk + 9 + len..]);
-        out
-    }
-
-    /// The length fields inside a compressed chunk are checked as those
-    /// of an uncompressed one: the crate would parse them the same way.
-    #[test]
-    fn a_compressed_chunk_is_checked_inside() {
-        let mut bytes = recording();
-        assert_eq!(super::check(&with_zstd_chunk(&bytes, None)), Ok(()));
-        let at = find(&bytes, b"\x05\x00\x00\x00/imu0");
-        bytes[at..at + 4].copy_from_slice(&u32::MAX.to_le_bytes());
-        let (offset, reason) = super::check(&with_zstd_chunk(&bytes, None)).unwrap_err();
-        let chunk = find(&bytes, b"\x06");
-        assert_eq!(offset, chunk as u64);
-        assert!(
-            reason.contains("in the zstd chunk at byte") && reason.contains("topic of 4294967295"),
-            "{reason}"
-        );
-    }
-
-    /// The crate allocates a chunk's declared uncompressed size at once.
-    #[test]
-    fn a_compressed_chunk_declaring_too_much_is_refused() {
-        let bytes = with_zstd_chunk(&recording(), Some(1 << 40));
-        let (_, reason) = super::check(&bytes).unwrap_err();
-        assert!(
-            reason.contains("chunk of 1099511627776 bytes decompressed"),
-            "{reason}"
-        );
     }
 
     /// Found by fuzzing: a string's u32 length was reserved in full by the

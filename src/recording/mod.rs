@@ -247,40 +247,15 @@ pub struct McapRecorder {
     approx_bytes: u64,
 }
 
-/// How a recording's chunks are compressed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Deserialize, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ChunkCompression {
-    /// Uncompressed chunks.
-    None,
-    /// zstd at its default level: the smallest files.
-    #[default]
-    Zstd,
-    /// lz4: faster, larger.
-    Lz4,
-}
-
 impl McapRecorder {
-    /// A recording with zstd-compressed chunks.
     pub fn create(path: impl AsRef<Path>) -> Result<McapRecorder, RecordingError> {
-        Self::create_with(path, ChunkCompression::Zstd)
-    }
-
-    pub fn create_with(
-        path: impl AsRef<Path>,
-        compression: ChunkCompression,
-    ) -> Result<McapRecorder, RecordingError> {
         let path = path.as_ref().to_path_buf();
         let file = File::create(&path).map_err(|source| RecordingError::Create {
             path: path.clone(),
             source,
         })?;
         let writer = mcap::WriteOptions::new()
-            .compression(match compression {
-                ChunkCompression::None => None,
-                ChunkCompression::Zstd => Some(mcap::Compression::Zstd),
-                ChunkCompression::Lz4 => Some(mcap::Compression::Lz4),
-            })
+            .compression(None)
             .profile("")
             .create(BufWriter::new(file))
             .map_err(|source| RecordingError::Mcap {
