@@ -113,6 +113,17 @@ fn start_watchdog() {
             if started != 0 && now_ms() - started > HANG_LIMIT.as_millis() as u64 {
                 let current = CURRENT.lock().map(|c| c.clone()).unwrap_or_default();
                 eprintln!("\nno answer after {HANG_LIMIT:?} (a hang?) on input: {current}");
+                let (ptr, len) = (
+                    CURRENT_DATA.load(Ordering::Relaxed),
+                    CURRENT_LEN.load(Ordering::Relaxed),
+                );
+                if ptr != 0 {
+                    // SAFETY: run_one stores the slice it runs and clears
+                    // it after; the input is still running.
+                    let data = unsafe { std::slice::from_raw_parts(ptr as *const u8, len) };
+                    let hex: String = data.iter().map(|b| format!("{b:02x}")).collect();
+                    eprintln!("{len} bytes: {hex}");
+                }
                 std::process::abort();
             }
         });
