@@ -15,33 +15,19 @@
 use std::collections::BTreeMap;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rigslam::daemon::config::{DaemonConfig, ReplayPace};
-use rigslam::daemon::{check, Pipeline, PipelineReport, PoseSink};
+use rigslam::daemon::{check, Pipeline, PipelineReport};
 use rigslam::publish::{PoseMessage, StatusMessage, TRACKING_STATE_TRACKING};
-use rigslam::relative::{RelativeOutput, SensorMode};
+use rigslam::relative::SensorMode;
 use rigslam::shared_data;
 
-#[derive(Clone, Default)]
-struct Collect {
-    poses: Arc<Mutex<Vec<PoseMessage>>>,
-    fast: Arc<Mutex<Vec<PoseMessage>>>,
-}
-
-impl PoseSink for Collect {
-    fn pose(&mut self, m: &PoseMessage, _: &RelativeOutput) -> bool {
-        self.poses.lock().expect("lock").push(*m);
-        true
-    }
-    fn pose_fast(&mut self, m: &PoseMessage) -> bool {
-        self.fast.lock().expect("lock").push(*m);
-        true
-    }
-}
+#[path = "common/collect.rs"]
+mod collect;
+use collect::Collect;
 
 struct Replayed {
     poses: Vec<PoseMessage>,

@@ -21,22 +21,9 @@ use rigslam::relative::{RelativeOutput, SensorMode};
 use rigslam::sensors::ImuSample;
 use rigslam::shared_data;
 
-#[derive(Clone, Default)]
-struct Collect {
-    poses: Arc<Mutex<Vec<PoseMessage>>>,
-    fast: Arc<Mutex<Vec<PoseMessage>>>,
-}
-
-impl PoseSink for Collect {
-    fn pose(&mut self, m: &PoseMessage, _: &RelativeOutput) -> bool {
-        self.poses.lock().expect("lock").push(*m);
-        true
-    }
-    fn pose_fast(&mut self, m: &PoseMessage) -> bool {
-        self.fast.lock().expect("lock").push(*m);
-        true
-    }
-}
+#[path = "common/collect.rs"]
+mod collect;
+use collect::Collect;
 
 fn bits(m: &PoseMessage) -> Vec<u64> {
     let mut v = vec![m.t_ns as u64, m.tracking_state as u64, m.flags as u64];

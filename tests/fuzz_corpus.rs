@@ -138,7 +138,7 @@ fn every_corpus_file_and_mutation_parses_without_a_crash() {
 /// Rewrites the binary seeds of `tests/fuzz/corpus/` with the project's
 /// writers (run by hand; see the top of this file).
 #[test]
-#[ignore]
+#[ignore = "rewrites the committed seed corpora; run by hand"]
 fn write_seed_corpora() {
     seeds::write(&Path::new(env!("CARGO_MANIFEST_DIR")).join(CORPUS_FROM_MANIFEST));
 }

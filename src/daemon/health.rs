@@ -136,14 +136,39 @@ impl LatencyHistogram {
     }
 }
 
-/// Logs input left out without flooding the journal: the first one in
-/// full, then at most one line a second saying how many more and the
-/// latest.
+/// Counts events and says when a log line about them is due: at the
+/// first, then at most once a second, so that a flood of them does not
+/// flood the journal.
+#[derive(Debug, Default)]
+pub struct LogThrottle {
+    last: Option<std::time::Instant>,
+    since: u64,
+}
+
+impl LogThrottle {
+    /// One more event; when a line is due, how many events it covers
+    /// (this one included) and whether it is the first line.
+    pub fn count(&mut self) -> Option<(u64, bool)> {
+        self.since += 1;
+        let due = self
+            .last
+            .map_or(true, |t| t.elapsed() >= std::time::Duration::from_secs(1));
+        if !due {
+            return None;
+        }
+        let first = self.last.is_none();
+        let since = std::mem::take(&mut self.since);
+        self.last = Some(std::time::Instant::now());
+        Some((since, first))
+    }
+}
+
+/// Logs input left out: the first one in full, then at most one line a
+/// second saying how many more and the latest.
 #[derive(Debug)]
 pub struct SkipLog {
     what: &'static str,
-    last: Option<std::time::Instant>,
-    since: u64,
+    throttle: LogThrottle,
 }
 
 impl SkipLog {
@@ -151,33 +176,22 @@ impl SkipLog {
     pub fn new(what: &'static str) -> Self {
         Self {
             what,
-            last: None,
-            since: 0,
+            throttle: LogThrottle::default(),
         }
     }
 
     /// One more left out; `detail` says which and why (called only when
     /// a line is written); `total` is the count since start.
     pub fn skipped(&mut self, detail: impl FnOnce() -> String, total: u64) {
-        self.since += 1;
-        let due = self
-            .last
-            .map_or(true, |t| t.elapsed() >= std::time::Duration::from_secs(1));
-        if !due {
-            return;
-        }
-        if self.last.is_none() {
-            tracing::warn!("{} left out: {}", self.what, detail());
-        } else {
-            tracing::warn!(
-                "{} more {}(s) left out ({total} since start), the latest: {}",
-                self.since,
+        match self.throttle.count() {
+            Some((_, true)) => tracing::warn!("{} left out: {}", self.what, detail()),
+            Some((since, false)) => tracing::warn!(
+                "{since} more {}(s) left out ({total} since start), the latest: {}",
                 self.what,
                 detail()
-            );
+            ),
+            None => {}
         }
-        self.last = Some(std::time::Instant::now());
-        self.since = 0;
     }
 }
 
@@ -394,18 +408,22 @@ pub fn health_words(health: u32) -> String {
 mod tests {
     use super::*;
 
+    fn rules() -> HealthRules {
+        HealthRules {
+            camera_stall_ns: 1_000_000_000,
+            imu_stall_ns: 1_000_000_000,
+            stuck_ns: 10_000_000_000,
+            uses_imu: true,
+        }
+    }
+
     /// The first status after the start gives the rates since the start:
     /// it once said 0 Hz while frames flowed (no previous status to count
     /// from).
     #[test]
     fn the_first_status_has_rates_not_zeros() {
         let health = Health::new();
-        let rules = HealthRules {
-            camera_stall_ns: 1_000_000_000,
-            imu_stall_ns: 1_000_000_000,
-            stuck_ns: 10_000_000_000,
-            uses_imu: true,
-        };
+        let rules = rules();
         let mut base = RateBase::starting_now();
         std::thread::sleep(std::time::Duration::from_millis(20));
         health.frames_in.fetch_add(4, Ordering::Relaxed);
@@ -420,12 +438,7 @@ mod tests {
     #[test]
     fn status_says_what_noise_the_estimator_weighs_with() {
         let health = Health::new();
-        let rules = HealthRules {
-            camera_stall_ns: 1_000_000_000,
-            imu_stall_ns: 1_000_000_000,
-            stuck_ns: 10_000_000_000,
-            uses_imu: true,
-        };
+        let rules = rules();
         let mut base = RateBase::default();
         let before = health.status(&rules, &mut base, &[], (0, 0));
         assert!(before.imu_noise_scale_gyro.is_nan() && before.pixel_noise_scale.is_nan());

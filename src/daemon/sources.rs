@@ -18,7 +18,7 @@ use crate::sensors::yei::device::{host_monotonic_ns, YeiConfig, YeiDevice};
 use crate::sensors::ImuSample;
 
 use super::config::{CameraConfig, CameraSource, ImuConfig, ReplayConfig, ReplayPace};
-use super::health::{Health, SkipLog};
+use super::health::{Health, LogThrottle, SkipLog};
 use super::queue::{BoundedQueue, Pushed};
 use super::slam_stage::FrameItem;
 use super::Doorbell;
@@ -36,31 +36,19 @@ pub struct SourceLinks {
 }
 
 /// Logs drops at most once a second per queue.
-struct DropLog {
-    last: Option<Instant>,
-    since: u64,
-}
+#[derive(Default)]
+struct DropLog(LogThrottle);
 
 impl DropLog {
     fn new() -> Self {
-        Self {
-            last: None,
-            since: 0,
-        }
+        Self::default()
     }
 
     fn dropped(&mut self, queue: &str, total: u64) {
-        self.since += 1;
-        if self
-            .last
-            .map_or(true, |t| t.elapsed() >= Duration::from_secs(1))
-        {
+        if let Some((since, _)) = self.0.count() {
             tracing::warn!(
-                "{queue} queue full: dropped {} oldest item(s) ({total} since start); the SLAM stage is behind",
-                self.since
+                "{queue} queue full: dropped {since} oldest item(s) ({total} since start); the SLAM stage is behind"
             );
-            self.last = Some(Instant::now());
-            self.since = 0;
         }
     }
 }
