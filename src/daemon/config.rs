@@ -97,17 +97,57 @@ pub enum ImuSource {
     Replay,
 }
 
-/// `[calibration]`: Kalibr/EuRoC `sensor.yaml` files (`T_BS` maps the
-/// sensor into the body = IMU frame; intrinsics and distortion; noise
-/// densities and random walks in continuous time).
+/// `[calibration]`: the rig's calibration, either the folder
+/// `rigslam-calibrate --out` writes (`folder = "..."`, see
+/// [`crate::rig::folder`]) or the files one by one: Kalibr's
+/// `camchain-imucam.yaml` and `imu.yaml`, or EuRoC `sensor.yaml` files
+/// (`T_BS` maps the sensor into the body = IMU frame), and optionally the
+/// IMU intrinsics `imu_intrinsics.yaml`.
 #[derive(Debug, Clone, PartialEq, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CalibrationConfig {
-    /// cam0 (left) first, then cam1 (right) for the stereo modes.
+    /// The calibration folder (instead of the files below).
+    #[serde(default)]
+    pub folder: Option<PathBuf>,
+    /// cam0 (left) first, then cam1 (right) for the stereo modes; or one
+    /// Kalibr camera chain holding both.
+    #[serde(default)]
     pub cameras: Vec<PathBuf>,
-    /// The IMU's `sensor.yaml` (inertial modes).
+    /// The IMU's noise: Kalibr `imu.yaml` or EuRoC `sensor.yaml`
+    /// (inertial modes).
     #[serde(default)]
     pub imu: Option<PathBuf>,
+    /// The IMU's scale, misalignment and offset (`rigslam-calibrate imu`);
+    /// identity when absent.
+    #[serde(default)]
+    pub imu_intrinsics: Option<PathBuf>,
+}
+
+impl CalibrationConfig {
+    /// The files this table names, under their canonical names.
+    pub fn files(
+        &self,
+    ) -> Result<Vec<crate::rig::folder::CalibrationFile>, crate::dataset::DatasetError> {
+        match &self.folder {
+            Some(dir) => crate::rig::folder::read_folder(dir),
+            None => crate::rig::folder::name_files(
+                &self.cameras,
+                self.imu.as_deref(),
+                self.imu_intrinsics.as_deref(),
+            ),
+        }
+    }
+
+    /// Where missing files are looked for, for the messages.
+    pub fn origin(&self) -> PathBuf {
+        self.folder.clone().unwrap_or_else(|| {
+            self.cameras
+                .first()
+                .and_then(|p| p.parent())
+                .map(Path::to_path_buf)
+                .unwrap_or_default()
+        })
+    }
 }
 
 /// `[replay]`: a recorded sequence fed through the live pipeline.
@@ -318,8 +358,11 @@ impl DaemonConfig {
         };
         if let Some(c) = self.calibration.as_mut() {
             c.cameras.iter_mut().for_each(fix);
-            if let Some(i) = c.imu.as_mut() {
-                fix(i);
+            for p in [&mut c.imu, &mut c.imu_intrinsics, &mut c.folder]
+                .into_iter()
+                .flatten()
+            {
+                fix(p);
             }
         }
         if let Some(r) = self.replay.as_mut() {
@@ -341,14 +384,14 @@ impl DaemonConfig {
         };
         let name = crate::recording::calibration_attachment_name;
         if let Some(c) = &self.calibration {
-            let mut out = Vec::new();
-            for (i, path) in c.cameras.iter().take(cameras).enumerate() {
-                out.push((name(&format!("cam{i}.yaml")), read(path)?));
-            }
-            if let (Some(path), true) = (&c.imu, mode.uses_imu()) {
-                out.push((name("imu0.yaml"), read(path)?));
-            }
-            return Ok(Some(out));
+            let files = c.files().map_err(|e| e.to_string())?;
+            return Ok(Some(
+                files
+                    .into_iter()
+                    .filter(|f| !f.name.starts_with("cam1") || cameras > 1)
+                    .map(|f| (name(&f.name), f.bytes))
+                    .collect(),
+            ));
         }
         let Some(replay) = self.replay.as_ref().filter(|_| self.replays()) else {
             return Ok(None);
@@ -653,44 +696,94 @@ pub fn rig_from_files(
     mode: SensorMode,
     bad: &mut impl FnMut(&str, String),
 ) -> Option<RigModel> {
-    let mut ok = true;
-    let mut cameras = Vec::new();
-    if calibration.cameras.is_empty() {
-        bad(
-            "calibration.cameras",
-            "empty: list cam0's sensor.yaml (and cam1's for stereo)".into(),
-        );
-        ok = false;
+    let key = if calibration.folder.is_some() {
+        "calibration.folder"
+    } else {
+        "calibration"
+    };
+    match (&calibration.folder, calibration.cameras.is_empty()) {
+        (Some(_), false) => {
+            bad(
+                "calibration",
+                "give either folder = \"...\" or the files (cameras = [...], imu = ...), not both"
+                    .into(),
+            );
+            return None;
+        }
+        (None, true) => {
+            bad(
+                "calibration.cameras",
+                "empty: give folder = \"...\" (what rigslam-calibrate --out wrote), or list cam0's file (and cam1's for stereo, or one Kalibr camchain)".into(),
+            );
+            return None;
+        }
+        _ => {}
     }
-    for (i, path) in calibration.cameras.iter().enumerate() {
-        match crate::dataset::read_camera_yaml(path) {
-            Ok(c) => cameras.push(c),
-            Err(e) => {
-                bad(&format!("calibration.cameras[{i}]"), e.to_string());
+    if calibration.folder.is_none() {
+        // Every file that cannot be opened is its own problem.
+        let mut ok = true;
+        let keyed = calibration
+            .cameras
+            .iter()
+            .enumerate()
+            .map(|(i, p)| (format!("calibration.cameras[{i}]"), p))
+            .chain(
+                calibration
+                    .imu
+                    .iter()
+                    .map(|p| ("calibration.imu".to_owned(), p)),
+            )
+            .chain(
+                calibration
+                    .imu_intrinsics
+                    .iter()
+                    .map(|p| ("calibration.imu_intrinsics".to_owned(), p)),
+            );
+        for (key, path) in keyed {
+            if let Err(e) = std::fs::File::open(path) {
+                bad(&key, crate::dataset::DatasetError::io(path, e).to_string());
                 ok = false;
             }
         }
-    }
-    let imu = match &calibration.imu {
-        Some(path) => match crate::dataset::read_imu_yaml(path) {
-            Ok(i) => Some(i),
-            Err(e) => {
-                bad("calibration.imu", e.to_string());
-                ok = false;
-                None
-            }
-        },
-        None if mode.uses_imu() => {
+        if mode.uses_imu() && calibration.imu.is_none() {
             bad(
                 "calibration.imu",
-                format!("missing: mode {mode} needs the IMU's sensor.yaml"),
+                format!("missing: mode {mode} needs the IMU's noise (Kalibr imu.yaml or EuRoC sensor.yaml)"),
             );
             ok = false;
+        }
+        if !ok {
+            return None;
+        }
+    }
+    let rig = calibration.files().and_then(|files| {
+        crate::rig::folder::rig_from_files(&files, &calibration.origin(), mode.uses_imu())
+    });
+    match rig {
+        Ok(rig) => Some(rig),
+        Err(e) => {
+            // Name the key whose file the reader objected to.
+            let message = e.to_string();
+            let named = |p: &Path| message.contains(&p.display().to_string());
+            let key = calibration
+                .cameras
+                .iter()
+                .position(|p| named(p))
+                .map(|i| format!("calibration.cameras[{i}]"))
+                .or_else(|| {
+                    [
+                        ("calibration.imu", &calibration.imu),
+                        ("calibration.imu_intrinsics", &calibration.imu_intrinsics),
+                    ]
+                    .into_iter()
+                    .find(|(_, p)| p.as_deref().is_some_and(named))
+                    .map(|(k, _)| k.to_owned())
+                })
+                .unwrap_or_else(|| key.to_owned());
+            bad(&key, message);
             None
         }
-        None => None,
-    };
-    ok.then_some(RigModel { cameras, imu })
+    }
 }
 
 /// Reads the calibration again (SIGHUP): the rig, or every problem.

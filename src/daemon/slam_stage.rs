@@ -82,9 +82,34 @@ pub fn run_stage(
     stage.run(sink.as_mut())
 }
 
+/// What the stage applies to raw input from the rig's calibration.
+struct RigClocks {
+    /// Corrects raw IMU samples (`imu_intrinsics.yaml`).
+    intrinsics: crate::imu::ImuIntrinsics,
+    /// Camera 0's `timeshift_cam_imu`, ns: a frame stamped `t` on the
+    /// camera clock was taken at `t + shift` on the IMU clock.
+    frame_shift_ns: i64,
+}
+
+impl RigClocks {
+    fn of(rig: &RigModel) -> Self {
+        Self {
+            intrinsics: rig
+                .imu
+                .as_ref()
+                .map_or_else(Default::default, |i| i.intrinsics),
+            frame_shift_ns: rig
+                .cameras
+                .first()
+                .map_or(0, |c| (c.time_shift_cam_imu_s * 1e9).round() as i64),
+        }
+    }
+}
+
 struct Stage {
     settings: StageSettings,
     estimator: Box<dyn RelativeEstimator>,
+    clocks: RigClocks,
     inputs: StageInputs,
     pending: VecDeque<ImuSample>,
     fast: FastPropagator,
@@ -111,6 +136,7 @@ impl Stage {
         Ok(Self {
             settings,
             estimator,
+            clocks: RigClocks::of(rig),
             inputs,
             pending: VecDeque::new(),
             fast,
@@ -137,7 +163,7 @@ impl Stage {
             let seen = self.inputs.doorbell.rung();
             let took_imu = self.drain_imu(sink);
             if let Some(frame) = self.inputs.frames.try_pop() {
-                self.wait_for_imu_past(frame.t_ns, sink);
+                self.wait_for_imu_past(frame.t_ns.saturating_add(self.clocks.frame_shift_ns), sink);
                 self.process_frame(frame, sink);
                 continue;
             }
@@ -173,6 +199,7 @@ impl Stage {
             ) {
                 Ok(e) => {
                     self.estimator = e;
+                    self.clocks = RigClocks::of(&rig);
                     tracing::info!("calibration reloaded; the relative stage starts again");
                 }
                 Err(e) => tracing::error!("reloaded calibration refused, keeping the old one: {e}"),
@@ -259,7 +286,9 @@ impl Stage {
         let health = &self.inputs.health;
         self.last_imu_t_ns = Some(sample.t_ns);
         if self.settings.mode.uses_imu() {
-            let message = self.fast.on_imu(&sample);
+            // The estimator corrects the raw sample itself; the fast pose
+            // integrates the same corrected values.
+            let message = self.fast.on_imu(&self.clocks.intrinsics.correct(&sample));
             if sink.pose_fast(&message) {
                 health.pose_fast_out.fetch_add(1, Ordering::Relaxed);
             }

@@ -92,6 +92,7 @@ impl KittiSequence {
         let calib_path = path.join("calib.txt");
         let p = read_projection(&calib_path, projection)?;
         let camera = CameraCalibration {
+            time_shift_cam_imu_s: 0.0,
             model: CameraModel::PinholeRadtan(PinholeRadtan {
                 width,
                 height,

@@ -324,6 +324,7 @@ mod tests {
             name: format!("cam{i}"),
             camera_index: i as u8,
             calibration: CameraCalibration {
+                time_shift_cam_imu_s: 0.0,
                 model: CameraModel::PinholeRadtan(
                     PinholeRadtan::new(8, 6, [10.0, 10.0, 4.0, 3.0], [0.0; 5]).expect("camera"),
                 ),
@@ -349,6 +350,7 @@ mod tests {
                 .collect(),
             imu: Some(EurocImu {
                 calibration: ImuCalibration {
+                    intrinsics: crate::imu::ImuIntrinsics::IDENTITY,
                     T_body_imu: Isometry3::identity(),
                     rate_hz: 200.0,
                     noise: ImuNoise {

@@ -10,8 +10,9 @@ use rigslam_drivers::{Frame, Image, ImuSample};
 
 use super::{ImageJson, ImuMessage, RecordingError};
 use crate::dataset::euroc::sensor_yaml::{camera_yaml, imu_yaml};
-use crate::dataset::{parse_camera_yaml, parse_imu_yaml, SensorEvent};
+use crate::dataset::SensorEvent;
 use crate::relative::{RigModel, SensorMode};
+use crate::rig::folder::CalibrationFile;
 
 /// Which streams to read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -64,6 +65,12 @@ pub fn calibration_attachments(rig: &RigModel, mode: SensorMode) -> super::Attac
             format!("{CALIBRATION_PREFIX}imu0.yaml"),
             imu_yaml(imu).into_bytes(),
         ));
+        if !imu.intrinsics.is_identity() {
+            out.push((
+                format!("{CALIBRATION_PREFIX}{}", crate::rig::folder::IMU_INTRINSICS),
+                crate::rig::imu_intrinsics_file::intrinsics_yaml(&imu.intrinsics).into_bytes(),
+            ));
+        }
     }
     out
 }
@@ -79,46 +86,28 @@ pub fn rig_of_recording(path: &Path) -> Result<Option<RigModel>, RecordingError>
 /// [`rig_of_recording`] of a recording's bytes; `path` names it in errors.
 pub fn rig_of_recording_in(bytes: &[u8], path: &Path) -> Result<Option<RigModel>, RecordingError> {
     let attachments = super::read_attachments_in(bytes, path)?;
-    let text = |name: &str| -> Result<Option<(String, std::path::PathBuf)>, RecordingError> {
-        let key = format!("{CALIBRATION_PREFIX}{name}");
-        attachments
-            .get(&key)
-            .map(|bytes| {
-                let text = String::from_utf8(bytes.clone()).map_err(|_| {
-                    RecordingError::BadAttachment {
-                        path: path.to_path_buf(),
-                        name: key.clone(),
-                        reason: "not UTF-8 text".into(),
-                    }
-                })?;
-                // Errors name the attachment as if it were a file in the recording.
-                Ok((text, path.join(&key)))
+    // Errors name an attachment as if it were a file in the recording.
+    let files: Vec<CalibrationFile> = attachments
+        .iter()
+        .filter_map(|(key, bytes)| {
+            let name = key.strip_prefix(CALIBRATION_PREFIX)?;
+            Some(CalibrationFile {
+                name: name.to_owned(),
+                origin: path.join(key),
+                bytes: bytes.clone(),
             })
-            .transpose()
-    };
-    let bad = |name: &str, e: crate::dataset::DatasetError| RecordingError::BadAttachment {
-        path: path.to_path_buf(),
-        name: format!("{CALIBRATION_PREFIX}{name}"),
-        reason: e.to_string(),
-    };
-    let mut cameras = Vec::new();
-    for i in 0.. {
-        let name = format!("cam{i}.yaml");
-        match text(&name)? {
-            Some((t, origin)) => {
-                cameras.push(parse_camera_yaml(&t, &origin).map_err(|e| bad(&name, e))?)
-            }
-            None => break,
-        }
-    }
-    if cameras.is_empty() {
+        })
+        .collect();
+    if files.is_empty() {
         return Ok(None);
     }
-    let imu = match text("imu0.yaml")? {
-        Some((t, origin)) => Some(parse_imu_yaml(&t, &origin).map_err(|e| bad("imu0.yaml", e))?),
-        None => None,
-    };
-    Ok(Some(RigModel { cameras, imu }))
+    let rig = crate::rig::folder::rig_from_files(&files, &path.join(CALIBRATION_PREFIX), false)
+        .map_err(|e| RecordingError::BadAttachment {
+            path: path.to_path_buf(),
+            name: CALIBRATION_PREFIX.trim_end_matches('/').to_owned(),
+            reason: e.to_string(),
+        })?;
+    Ok(Some(rig))
 }
 
 /// What a replay reads from a recording, in file order.

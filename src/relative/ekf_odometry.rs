@@ -71,12 +71,13 @@ impl EkfOdometry {
             &used,
         )
         .map_err(|e| OdometryError::Setup(e.to_string()))?;
-        let noise = used.imu.as_ref().expect("checked: inertial mode").noise;
+        let imu = used.imu.as_ref().expect("checked: inertial mode");
+        let (noise, intrinsics) = (imu.noise, imu.intrinsics);
         Ok(Self {
             rig: used,
             tracker,
             filter,
-            imu: ImuBuffer::new(noise),
+            imu: ImuBuffer::new(noise, intrinsics),
             pending: VecDeque::new(),
             last_output: None,
             previous_position: None,
@@ -172,7 +173,13 @@ impl EkfOdometry {
 impl RelativeEstimator for EkfOdometry {
     fn push_imu(&mut self, sample: &ImuSample) {
         self.imu.push(sample);
-        self.pending.push_back(*sample);
+        // The filter propagates with corrected samples, as the buffer keeps them.
+        let corrected = self
+            .rig
+            .imu
+            .as_ref()
+            .map_or(*sample, |imu| imu.intrinsics.correct(sample));
+        self.pending.push_back(corrected);
     }
 
     fn push_frame(&mut self, frame: &FrameInput<'_>) -> RelativeOutput {

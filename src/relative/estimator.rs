@@ -7,7 +7,7 @@
 use std::fmt;
 use std::str::FromStr;
 
-use crate::rig::{CameraCalibration, ImuCalibration};
+pub use crate::rig::RigModel;
 use crate::sensors::{Image, ImuSample};
 
 use super::types::RelativeOutput;
@@ -73,14 +73,6 @@ impl FromStr for SensorMode {
                 )
             })
     }
-}
-
-/// The rig as the relative stage needs it: camera 0 (left), camera 1
-/// (right, stereo modes only) and the IMU (inertial modes only).
-#[derive(Debug, Clone, PartialEq)]
-pub struct RigModel {
-    pub cameras: Vec<CameraCalibration>,
-    pub imu: Option<ImuCalibration>,
 }
 
 /// Why a rig cannot serve a mode.

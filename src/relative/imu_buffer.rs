@@ -22,9 +22,11 @@ pub struct ImuBuffer {
 }
 
 impl ImuBuffer {
-    pub fn new(noise: ImuNoise) -> Self {
+    /// A buffer that corrects every raw sample by `intrinsics` (the
+    /// rig's `imu_intrinsics.yaml`) and weighs it by `noise`.
+    pub fn new(noise: ImuNoise, intrinsics: ImuIntrinsics) -> Self {
         Self {
-            stream: ImuStream::new(ImuIntrinsics::default()),
+            stream: ImuStream::new(intrinsics),
             preintegrator: Preintegrator::new(IntegrationScheme::Quadratic, noise),
             interval: IntervalConfig::default(),
             dropped: 0,
@@ -161,7 +163,7 @@ mod tests {
 
     #[test]
     fn rotation_about_z_integrates_the_rate() {
-        let mut buf = ImuBuffer::new(ImuNoise::EUROC_ADIS16448);
+        let mut buf = ImuBuffer::new(ImuNoise::EUROC_ADIS16448, ImuIntrinsics::IDENTITY);
         for k in 0..=200 {
             buf.push(&sample(k * 5_000_000, 0.5));
         }
@@ -180,7 +182,7 @@ mod tests {
 
     #[test]
     fn bad_samples_are_counted_and_gaps_refused() {
-        let mut buf = ImuBuffer::new(ImuNoise::EUROC_ADIS16448);
+        let mut buf = ImuBuffer::new(ImuNoise::EUROC_ADIS16448, ImuIntrinsics::IDENTITY);
         buf.push(&sample(0, 0.0));
         buf.push(&sample(5_000_000, f64::NAN));
         buf.push(&sample(5_000_000, 0.0));

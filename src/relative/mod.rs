@@ -11,6 +11,7 @@
 //! the [`estimator::RelativeEstimator`] interface, and every frame leaves
 //! as a [`types::RelativeOutput`] for the publisher and the absolute stage.
 
+pub mod camera_clock;
 pub mod config;
 pub mod ekf;
 pub mod ekf_odometry;

@@ -188,12 +188,11 @@ pub fn build_estimator(
     rig: &RigModel,
     config: &RelativeConfig,
 ) -> Result<Box<dyn RelativeEstimator>, OdometryError> {
-    match kind {
-        EstimatorKind::Window => Ok(Box::new(WindowOdometry::new(mode, rig, config)?)),
-        EstimatorKind::Ekf => Ok(Box::new(super::ekf_odometry::EkfOdometry::new(
-            mode, rig, config,
-        )?)),
-    }
+    let estimator: Box<dyn RelativeEstimator> = match kind {
+        EstimatorKind::Window => Box::new(WindowOdometry::new(mode, rig, config)?),
+        EstimatorKind::Ekf => Box::new(super::ekf_odometry::EkfOdometry::new(mode, rig, config)?),
+    };
+    Ok(super::camera_clock::on_imu_clock(estimator, rig))
 }
 
 /// What both estimators start from: the rig and config checked for
@@ -245,7 +244,10 @@ impl WindowOdometry {
         };
         let window = Window::new(window_config.clone(), &used)
             .map_err(|e| OdometryError::Setup(e.to_string()))?;
-        let imu = used.imu.as_ref().map(|imu| ImuBuffer::new(imu.noise));
+        let imu = used
+            .imu
+            .as_ref()
+            .map(|imu| ImuBuffer::new(imu.noise, imu.intrinsics));
         Ok(Self {
             mode,
             rig: used,

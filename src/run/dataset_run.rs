@@ -50,6 +50,9 @@ pub struct DatasetRun {
     /// trajectory is the localised one, in the map's frame, from the
     /// first frame the map was recognised.
     pub load_map: Option<std::sync::Arc<SavedMap>>,
+    /// The rig's calibration instead of the dataset's own (a calibration
+    /// folder, `rigslam run --calibration`).
+    pub rig: Option<RigModel>,
 }
 
 impl Default for DatasetRun {
@@ -66,6 +69,7 @@ impl Default for DatasetRun {
             absolute: false,
             save_map: None,
             load_map: None,
+            rig: None,
         }
     }
 }
@@ -127,7 +131,7 @@ pub fn run_dataset(
         return Err(RunError::LoadMapAndAbsolute);
     }
     let dataset = open_dataset(path)?;
-    let rig = rig_of(&dataset);
+    let rig = run.rig.clone().unwrap_or_else(|| rig_of(&dataset));
     let mode = run.mode.unwrap_or_else(|| default_mode(&rig));
     let mut estimator = build_estimator(run.estimator, mode, &rig, &run.config)?;
     let first_ns =

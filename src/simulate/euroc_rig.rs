@@ -22,6 +22,7 @@ fn rigid(T: [f64; 12]) -> Isometry3<f64> {
 /// EuRoC cam0 (left).
 pub fn euroc_cam0() -> CameraCalibration {
     CameraCalibration {
+        time_shift_cam_imu_s: 0.0,
         model: CameraModel::PinholeRadtan(PinholeRadtan {
             width: 752,
             height: 480,
@@ -52,6 +53,7 @@ pub fn euroc_cam0() -> CameraCalibration {
 /// EuRoC cam1 (right).
 pub fn euroc_cam1() -> CameraCalibration {
     CameraCalibration {
+        time_shift_cam_imu_s: 0.0,
         model: CameraModel::PinholeRadtan(PinholeRadtan {
             width: 752,
             height: 480,
@@ -82,6 +84,7 @@ pub fn euroc_cam1() -> CameraCalibration {
 /// EuRoC imu0: the body frame itself, 200 Hz, ADIS16448 noise.
 pub fn euroc_imu0() -> ImuCalibration {
     ImuCalibration {
+        intrinsics: crate::imu::ImuIntrinsics::IDENTITY,
         T_body_imu: Isometry3::identity(),
         rate_hz: 200.0,
         noise: ImuNoise::EUROC_ADIS16448,

@@ -56,6 +56,11 @@ pub struct RunArgs {
     /// was recognised (relocalisation by descriptor matching + RANSAC).
     #[arg(long, conflicts_with = "absolute")]
     load_map: Option<PathBuf>,
+    /// The rig's calibration folder (what `rigslam-calibrate --out`
+    /// writes: camchain-imucam.yaml, imu.yaml, imu_intrinsics.yaml)
+    /// instead of the dataset's own sensor.yaml files.
+    #[arg(long, value_name = "DIR")]
+    calibration: Option<PathBuf>,
     /// Estimator settings (TOML; see `rigslam run --print-config`).
     #[arg(long)]
     config: Option<PathBuf>,
@@ -117,6 +122,15 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         )),
         None => None,
     };
+    let rig = match &args.calibration {
+        // Whether the mode needs the IMU is known once the dataset is open;
+        // a folder without imu.yaml is refused there by the rig check.
+        Some(dir) => Some(
+            rigslam::rig::folder::load_folder(dir, false)
+                .with_context(|| format!("reading the calibration folder {}", dir.display()))?,
+        ),
+        None => None,
+    };
     let groundtruth = match &args.groundtruth {
         Some(path) => Some(
             read_trajectory_any(path)
@@ -151,6 +165,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         absolute: args.absolute,
         save_map: args.save_map.clone(),
         load_map,
+        rig,
     };
     let mut states_csv = String::new();
     if args.states.is_some() {

@@ -249,6 +249,7 @@ mod tests {
 
     fn calibration(cx: f64) -> CameraCalibration {
         CameraCalibration {
+            time_shift_cam_imu_s: 0.0,
             model: CameraModel::PinholeRadtan(PinholeRadtan {
                 width: 32,
                 height: 24,
@@ -329,6 +330,7 @@ mod tests {
             w.add_image("cam1", *t_ns, right).expect("cam1 image");
         }
         let imu = ImuCalibration {
+            intrinsics: crate::imu::ImuIntrinsics::IDENTITY,
             T_body_imu: Isometry3::identity(),
             rate_hz: 200.0,
             noise: ImuNoise::EUROC_ADIS16448,

@@ -59,7 +59,19 @@ pub fn parse_camera_yaml(text: &str, path: &Path) -> Result<CameraCalibration, D
     Ok(CameraCalibration {
         model,
         T_body_cam: f.transform("T_BS")?,
-        rate_hz: f.positive("rate_hz")?,
+        // Optional: the camera's rate is the driver's business; a file
+        // without it reads as 0 (unknown).
+        rate_hz: if f.doc.get("rate_hz").is_some() {
+            f.positive("rate_hz")?
+        } else {
+            0.0
+        },
+        // Not part of EuRoC's layout; rigslam writes it when not zero.
+        time_shift_cam_imu_s: if f.doc.get("timeshift_cam_imu").is_some() {
+            f.number("timeshift_cam_imu")?
+        } else {
+            0.0
+        },
     })
 }
 
@@ -73,6 +85,7 @@ pub fn parse_imu_yaml(text: &str, path: &Path) -> Result<ImuCalibration, Dataset
     let doc = parse_doc(text, path)?;
     let f = Fields { path, doc: &doc };
     Ok(ImuCalibration {
+        intrinsics: crate::imu::ImuIntrinsics::IDENTITY,
         T_body_imu: f.transform("T_BS")?,
         rate_hz: f.positive("rate_hz")?,
         noise: ImuNoise {
@@ -116,7 +129,12 @@ pub fn camera_yaml(name: &str, calib: &CameraCalibration) -> String {
     s.push_str("# Sensor extrinsics wrt. the body-frame.\n");
     s.push_str(&transform_yaml("T_BS", &calib.T_body_cam));
     s.push_str("\n# Camera specific definitions.\n");
-    let _ = writeln!(s, "rate_hz: {}", calib.rate_hz);
+    if calib.rate_hz > 0.0 {
+        let _ = writeln!(s, "rate_hz: {}", calib.rate_hz);
+    }
+    if calib.time_shift_cam_imu_s != 0.0 {
+        let _ = writeln!(s, "timeshift_cam_imu: {}", calib.time_shift_cam_imu_s);
+    }
     let _ = writeln!(s, "resolution: [{}, {}]", model.width(), model.height());
     s.push_str("camera_model: pinhole\n");
     let _ = writeln!(s, "intrinsics: [{fx}, {fy}, {cx}, {cy}] #fu, fv, cu, cv");
@@ -273,18 +291,7 @@ impl Fields<'_> {
     /// part's value, for the message.
     fn plausible_noise(&self, field: &str, max: f64, typical: f64) -> Result<f64, DatasetError> {
         let v = self.positive(field)?;
-        if v <= max {
-            Ok(v)
-        } else {
-            Err(self.bad(
-                field,
-                format!(
-                    "{v} is not a plausible noise figure (at most {max}; a consumer MEMS IMU has about {typical}): \
-                     give it in SI units per sqrt(Hz), as a continuous-time density (Kalibr's convention), \
-                     not in degrees, per sample or as a variance"
-                ),
-            ))
-        }
+        plausible_noise(v, max, typical).map_err(|m| self.bad(field, m))
     }
 
     fn numbers(&self, field: &str) -> Result<Vec<f64>, DatasetError> {
@@ -317,6 +324,23 @@ impl Fields<'_> {
         }
         .ok_or_else(|| self.bad(field, "expected a 4x4 matrix (rows, cols, data)"))?;
         rigid_from_row_major(&data).map_err(|m| self.bad(field, m))
+    }
+}
+
+/// A noise figure checked as [`Fields::plausible_noise`] does, for
+/// readers of other layouts (Kalibr's `imu.yaml`).
+pub fn plausible_noise(v: f64, max: f64, typical: f64) -> Result<f64, String> {
+    if !(v.is_finite() && v > 0.0) {
+        return Err(format!("expected a positive finite number, found {v}"));
+    }
+    if v <= max {
+        Ok(v)
+    } else {
+        Err(format!(
+            "{v} is not a plausible noise figure (at most {max}; a consumer MEMS IMU has about {typical}): \
+             give it in SI units per sqrt(Hz), as a continuous-time density (Kalibr's convention), \
+             not in degrees, per sample or as a variance"
+        ))
     }
 }
 
@@ -450,6 +474,7 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
         c.distortion[4] = -0.0123;
         // Kalibr's calibration of the TUM-VI fisheye cam0.
         let fisheye = CameraCalibration {
+            time_shift_cam_imu_s: 0.0,
             model: CameraModel::from_kalibr(
                 512,
                 512,
@@ -512,6 +537,7 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
     fn imu_yaml_round_trips() {
         let dir = tempfile::tempdir().expect("temp dir");
         let calib = ImuCalibration {
+            intrinsics: crate::imu::ImuIntrinsics::IDENTITY,
             T_body_imu: Isometry3::from_parts(
                 Translation3::new(0.01, -0.02, 0.3),
                 UnitQuaternion::from_euler_angles(0.1, 0.2, -0.3),
@@ -537,6 +563,7 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
     fn implausible_or_missing_imu_noise_is_refused_by_name() {
         let dir = tempfile::tempdir().expect("temp dir");
         let calib = ImuCalibration {
+            intrinsics: crate::imu::ImuIntrinsics::IDENTITY,
             T_body_imu: Isometry3::identity(),
             rate_hz: 200.0,
             noise: ImuNoise::EUROC_ADIS16448,
@@ -656,7 +683,6 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
         // Missing fields: cut the field's text (for T_BS its whole block).
         for (field, from, to) in [
             ("T_BS", "T_BS:", "rate_hz:"),
-            ("rate_hz", "rate_hz:", "resolution:"),
             ("intrinsics", "intrinsics:", "distortion_model:"),
             ("resolution", "resolution:", "camera_model:"),
         ] {

@@ -1,10 +1,19 @@
 //! The rig's calibration as the rest of the core sees it: each camera's
-//! model and mounting, the IMU's mounting and noise. Readers fill these
-//! from Kalibr/EuRoC YAML; the simulator writes them back out.
+//! model, mounting and clock offset, the IMU's mounting, noise and
+//! intrinsic correction. Readers fill these from EuRoC `sensor.yaml`
+//! files ([`crate::dataset::read_camera_yaml`]), from Kalibr's
+//! `camchain-imucam.yaml` and `imu.yaml` ([`kalibr`]) or from a whole
+//! calibration folder as `rigslam-calibrate` writes it ([`folder`]); the
+//! simulator writes them back out.
 
 use nalgebra::Isometry3;
 
 use crate::camera::CameraModel;
+use crate::imu::ImuIntrinsics;
+
+pub mod folder;
+pub mod imu_intrinsics_file;
+pub mod kalibr;
 
 /// One camera of the rig.
 #[allow(non_snake_case)]
@@ -13,7 +22,12 @@ pub struct CameraCalibration {
     pub model: CameraModel,
     /// Maps camera coordinates into the body (IMU) frame (EuRoC's `T_BS`).
     pub T_body_cam: Isometry3<f64>,
+    /// Nominal frame rate, Hz; 0 when the file does not say (Kalibr's
+    /// camchain has no rate).
     pub rate_hz: f64,
+    /// Kalibr's `timeshift_cam_imu`: the IMU clock reads
+    /// `t_imu = t_cam + shift` at the instant a frame is stamped `t_cam`, s.
+    pub time_shift_cam_imu_s: f64,
 }
 
 /// Continuous-time IMU noise, Kalibr convention, SI units.
@@ -47,4 +61,17 @@ pub struct ImuCalibration {
     pub T_body_imu: Isometry3<f64>,
     pub rate_hz: f64,
     pub noise: ImuNoise,
+    /// Scale, misalignment and offset applied to every raw sample before
+    /// it is used (`rigslam-calibrate imu`; identity for a sensor
+    /// calibrated at the factory).
+    pub intrinsics: ImuIntrinsics,
+}
+
+/// The whole rig: camera 0 (left), camera 1 (right, stereo modes only)
+/// and the IMU (inertial modes only). `crate::relative::RigModel::check`
+/// says whether it serves a mode.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RigModel {
+    pub cameras: Vec<CameraCalibration>,
+    pub imu: Option<ImuCalibration>,
 }
