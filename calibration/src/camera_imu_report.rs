@@ -66,7 +66,8 @@ fn camera_verdict(r: &CameraImuResult) -> Vec<String> {
     problems
 }
 
-/// Writes `time_offset_<cam>.png` per camera and `report.md`; returns the verdict.
+/// Writes `time_offset_<cam>.png` per camera and `camera_imu_report.md`;
+/// returns the verdict.
 pub fn write_camera_imu_report(dir: &Path, results: &[CameraImuResult]) -> anyhow::Result<String> {
     let mut problems = Vec::new();
     let mut md = String::from("# Camera-IMU calibration report\n\n");
@@ -130,7 +131,7 @@ pub fn write_camera_imu_report(dir: &Path, results: &[CameraImuResult]) -> anyho
         format!("CHECK: {}", problems.join("; "))
     };
     md.insert_str(0, &format!("**Verdict:** {verdict}\n\n"));
-    std::fs::write(dir.join("report.md"), md)?;
+    std::fs::write(dir.join("camera_imu_report.md"), md)?;
     Ok(verdict)
 }
 

@@ -80,7 +80,9 @@ pub fn verdict(cal: &IntrinsicsCalibration, coverage: f64) -> String {
     parts.join("; ")
 }
 
-/// Writes `coverage.png`, `per_view_rms.png` and `report.md` into `dir`.
+/// Writes `<prefix>_coverage.png`, `<prefix>_per_view_rms.png` and
+/// `<prefix>_report.md` into `dir` (the prefix names the camera, so both
+/// cameras of a rig report into one calibration folder).
 pub fn write_camera_report(
     dir: &Path,
     cal: &IntrinsicsCalibration,
@@ -88,9 +90,12 @@ pub fn write_camera_report(
     views_px: &[Vec<nalgebra::Vector2<f64>>],
     missing: &[String],
     verdict: &str,
+    prefix: &str,
 ) -> anyhow::Result<()> {
-    draw_coverage(&dir.join("coverage.png"), cal, views_px)?;
-    draw_per_view(&dir.join("per_view_rms.png"), cal, names)?;
+    let coverage_png = format!("{prefix}_coverage.png");
+    let per_view_png = format!("{prefix}_per_view_rms.png");
+    draw_coverage(&dir.join(&coverage_png), cal, views_px)?;
+    draw_per_view(&dir.join(&per_view_png), cal, names)?;
     let c = &cal.camera;
     let mut md = String::new();
     md.push_str("# Camera calibration report\n\n");
@@ -109,7 +114,7 @@ pub fn write_camera_report(
         "| Zhang closed form fx fy cx cy | {:.2} {:.2} {:.2} {:.2} |\n\n",
         cal.zhang_pinhole[0], cal.zhang_pinhole[1], cal.zhang_pinhole[2], cal.zhang_pinhole[3]
     ));
-    md.push_str("## Per-view errors\n\n![per-view RMS](per_view_rms.png)\n\n| view | RMS (px) | max (px) | board distance (m) | status |\n|---|---|---|---|---|\n");
+    md.push_str(&format!("## Per-view errors\n\n![per-view RMS]({per_view_png})\n\n| view | RMS (px) | max (px) | board distance (m) | status |\n|---|---|---|---|---|\n"));
     for (fit, name) in cal.views.iter().zip(names) {
         let max = fit
             .residuals_px
@@ -132,9 +137,9 @@ pub fn write_camera_report(
         md.push_str(&format!("| {name} | - | - | - | board not found |\n"));
     }
     md.push_str(&format!(
-        "\n## Coverage\n\nEach dot is a detected corner (one colour per view); the lines are the residuals magnified {RESIDUAL_MAGNIFICATION}x.\n\n![coverage](coverage.png)\n"
+        "\n## Coverage\n\nEach dot is a detected corner (one colour per view); the lines are the residuals magnified {RESIDUAL_MAGNIFICATION}x.\n\n![coverage]({coverage_png})\n"
     ));
-    std::fs::write(dir.join("report.md"), md)?;
+    std::fs::write(dir.join(format!("{prefix}_report.md")), md)?;
     Ok(())
 }
 

@@ -246,7 +246,7 @@ fn the_cli_holds_the_aspect_ratio_when_asked_and_refuses_a_bad_one() {
             .output()
             .expect("runs")
     };
-    let held = run(&["--fix-aspect-ratio", "--fix-k3"]);
+    let held = run(&["--fix-aspect-ratio"]);
     assert!(
         held.status.success(),
         "{}",
@@ -257,8 +257,41 @@ fn the_cli_holds_the_aspect_ratio_when_asked_and_refuses_a_bad_one() {
     assert_eq!(json["distortion"][4].as_f64(), Some(0.0));
     assert_eq!(json["fix_aspect_ratio"].as_f64(), Some(1.0));
     println!(
-        "--fix-aspect-ratio --fix-k3: fx = fy {} rms {}",
+        "--fix-aspect-ratio (k3 held at 0 by default): fx = fy {} rms {}",
         json["fx"], json["rms_px"]
+    );
+    // The camera's entry of the rig's Kalibr chain, valid by Kalibr's rules.
+    let chain = std::fs::read_to_string(out.path().join("camchain.yaml")).expect("written");
+    assert_eq!(
+        rigslam::rig::kalibr::kalibr_problems(&chain, "camchain"),
+        Vec::<String>::new()
+    );
+    let cam = rigslam_calibration::camchain_yaml::parse_intrinsics(
+        &chain,
+        &out.path().join("camchain.yaml"),
+        "cam0",
+    )
+    .expect("reads back");
+    assert_eq!(Some(cam.fx), json["fx"].as_f64());
+    assert!(out.path().join("cam0_camera_report.md").exists());
+    // With k3 estimated the chain is left alone (Kalibr has no k3) and
+    // the output says so.
+    let free = Command::new(BIN)
+        .args(["camera", "--images"])
+        .arg(&dir)
+        .args(["--board", "9x6", "--square", "0.025", "--free-k3", "--out"])
+        .arg(out.path())
+        .output()
+        .expect("runs");
+    assert!(free.status.success());
+    let said = String::from_utf8_lossy(&free.stdout);
+    assert!(
+        said.contains("not written") && said.contains("k3"),
+        "{said}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(out.path().join("camchain.yaml")).expect("still there"),
+        chain
     );
     let bad = run(&["--fix-aspect-ratio=0"]);
     assert!(!bad.status.success());

@@ -64,12 +64,13 @@ fn imu_prints_the_promised_keys_and_writes_the_report() {
     let s = Matrix3::new(1.015, 0.01, -0.006, 0.0, 0.99, 0.012, 0.0, 0.0, 1.005);
     let b = Vector3::new(0.2, -0.1, 0.25);
     write_session(&input, &s, &b, 16);
-    let yaml = dir.path().join("intr.yaml");
+    let folder = dir.path().join("rig");
+    let yaml = folder.join("imu_intrinsics.yaml");
     let out = Command::new(BIN)
         .args(["imu", "--json", "--input"])
         .arg(&input)
-        .arg("--output")
-        .arg(&yaml)
+        .arg("--out")
+        .arg(&folder)
         .output()
         .expect("runs");
     assert!(
@@ -89,12 +90,12 @@ fn imu_prints_the_promised_keys_and_writes_the_report() {
     let back = rigslam_calibration::calibration_files::read_intrinsics_yaml(&yaml)
         .expect("the YAML reads back");
     assert!((back.accel_scale - scale).amax() < 1e-12);
-    let report =
-        std::fs::read_to_string(dir.path().join("intr_report.md")).expect("report beside the YAML");
-    assert!(report.contains("intr_residuals.png") && report.contains("Nelder-Mead"));
+    let report = std::fs::read_to_string(folder.join("imu_intrinsics_report.md"))
+        .expect("report beside the YAML");
+    assert!(report.contains("imu_intrinsics_residuals.png") && report.contains("Nelder-Mead"));
     assert!(
-        dir.path()
-            .join("intr_residuals.png")
+        folder
+            .join("imu_intrinsics_residuals.png")
             .metadata()
             .expect("plot written")
             .len()
@@ -110,8 +111,8 @@ fn too_few_poses_and_garbled_files_say_what_to_do() {
     let out = Command::new(BIN)
         .args(["imu", "--input"])
         .arg(&input)
-        .arg("--output")
-        .arg(dir.path().join("x.yaml"))
+        .arg("--out")
+        .arg(dir.path().join("x"))
         .output()
         .expect("runs");
     assert!(!out.status.success());
@@ -130,8 +131,8 @@ fn too_few_poses_and_garbled_files_say_what_to_do() {
     let out = Command::new(BIN)
         .args(["noise", "--input"])
         .arg(&garbled)
-        .arg("--output")
-        .arg(dir.path().join("y.yaml"))
+        .arg("--out")
+        .arg(dir.path().join("y"))
         .output()
         .expect("runs");
     assert!(!out.status.success());
@@ -170,8 +171,8 @@ fn noise_refuses_a_moving_log_and_measures_a_still_one() {
     let out = Command::new(BIN)
         .args(["noise", "--input"])
         .arg(&p_moving)
-        .arg("--output")
-        .arg(dir.path().join("m.yaml"))
+        .arg("--out")
+        .arg(dir.path().join("m"))
         .output()
         .expect("runs");
     assert!(!out.status.success());
@@ -185,8 +186,8 @@ fn noise_refuses_a_moving_log_and_measures_a_still_one() {
     let out = Command::new(BIN)
         .args(["noise", "--json", "--input"])
         .arg(&p_still)
-        .arg("--output")
-        .arg(&yaml)
+        .arg("--out")
+        .arg(dir.path())
         .output()
         .expect("runs");
     assert!(

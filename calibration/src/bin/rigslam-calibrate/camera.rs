@@ -1,5 +1,7 @@
 //! `rigslam-calibrate camera`: intrinsics (pinhole + radtan) from chessboard
-//! images; writes `camera.yaml` (Kalibr `cam0` layout) and a report beside it.
+//! images; writes the camera's entry of `camchain.yaml` (Kalibr's camera
+//! chain, intrinsics only; the other cameras' entries are kept) in the
+//! calibration folder, and a report beside it.
 
 use std::path::{Path, PathBuf};
 
@@ -20,20 +22,69 @@ pub struct CameraArgs {
     /// Square edge length, m.
     #[arg(long)]
     square: f64,
-    /// Folder for camera.yaml, report.md and the plots.
-    #[arg(long, default_value = "camera_calibration")]
+    /// The rig's calibration folder (created if need be): this camera's
+    /// entry goes into camchain.yaml there, with <camera>_report.md and the
+    /// plots beside it.
+    #[arg(long, value_name = "DIR", default_value = "calibration")]
     out: PathBuf,
+    /// Which camera of the rig the images are from: cam0 (left) or cam1
+    /// (right).
+    #[arg(long, default_value = "cam0")]
+    camera: String,
     /// Hold fx / fy at this ratio (1 when given without a value): OpenCV's
     /// CALIB_FIX_ASPECT_RATIO, for square pixels or to compare with a
     /// calibration made that way.
     #[arg(long, value_name = "FX_OVER_FY", num_args = 0..=1, default_missing_value = "1")]
     fix_aspect_ratio: Option<f64>,
-    /// Hold k3 at zero (OpenCV's CALIB_FIX_K3; Kalibr's four-coefficient radtan).
+    /// Estimate k3 too (OpenCV's five-coefficient radtan). By default k3
+    /// is held at zero: Kalibr's radtan has four coefficients, and Kalibr,
+    /// OpenVINS and Basalt refuse or drop a fifth, so a k3 that is not
+    /// zero is reported but not written to camchain.yaml.
     #[arg(long)]
-    fix_k3: bool,
+    free_k3: bool,
     /// Print one JSON object on stdout.
     #[arg(long)]
     json: bool,
+}
+
+/// Puts `camera` into the chain at `path` under `name`, keeping the other
+/// cameras' entries; atomically. `Err(why)` (not an error of the command)
+/// when the model has no Kalibr form (a k3 that is not zero).
+fn write_chain_entry(
+    path: &Path,
+    name: &str,
+    camera: &rigslam::camera::PinholeRadtan,
+) -> anyhow::Result<Result<(), String>> {
+    use rigslam::rig::kalibr;
+    if !(name.starts_with("cam") && name[3..].parse::<u32>().is_ok()) {
+        bail!("--camera {name:?}: name it cam0 (left), cam1 (right), ...");
+    }
+    let mut chain = match std::fs::read_to_string(path) {
+        Ok(text) => kalibr::parse_camchain(&text, path)?,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Default::default(),
+        Err(e) => return Err(e).with_context(|| format!("reading {}", path.display())),
+    };
+    let calibration = rigslam::rig::CameraCalibration {
+        model: camera.clone().into(),
+        T_body_cam: nalgebra::Isometry3::identity(),
+        rate_hz: 0.0,
+        time_shift_cam_imu_s: 0.0,
+    };
+    let entry = match kalibr::kalibr_camera(
+        &calibration,
+        None,
+        &format!("/{name}/image_raw"),
+        Vec::new(),
+        false,
+    ) {
+        Ok(e) => e,
+        Err(why) => return Ok(Err(why)),
+    };
+    chain.insert(name.to_owned(), entry);
+    let text = serde_yaml::to_string(&chain)?;
+    rigslam::rig::folder::write_atomically(path, text.as_bytes())
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(Ok(()))
 }
 
 fn parse_board(text: &str) -> anyhow::Result<(usize, usize)> {
@@ -126,7 +177,7 @@ pub fn run(args: CameraArgs) -> anyhow::Result<()> {
         .collect();
     let options = IntrinsicsOptions {
         fix_aspect_ratio: args.fix_aspect_ratio,
-        fix_k3: args.fix_k3,
+        fix_k3: !args.free_k3,
         ..IntrinsicsOptions::default()
     };
     let cal = calibrate_intrinsics_with(width, height, &board, &views, &options)?;
@@ -141,16 +192,18 @@ pub fn run(args: CameraArgs) -> anyhow::Result<()> {
             "CHECK --square: the board would be {median_distance_m:.2} m away, so the square edge is probably not in metres (e.g. 0.025 for 25 mm); the intrinsics do not depend on it ({text})"
         );
     }
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
+    let chain_path = crate::output_file(&args.out, rigslam::rig::folder::CAMCHAIN_INTRINSICS)?;
     let c = &cal.camera;
-    let yaml = format!(
-        "cam0:\n  camera_model: pinhole\n  intrinsics: [{}, {}, {}, {}]\n  distortion_model: radtan\n  # k1 k2 p1 p2 k3 (OpenCV order; k3 beyond Kalibr's four)\n  distortion_coeffs: [{}, {}, {}, {}, {}]\n  resolution: [{width}, {height}]\n  reprojection_rms_px: {}\n",
-        c.fx, c.fy, c.cx, c.cy, c.distortion[0], c.distortion[1], c.distortion[2], c.distortion[3], c.distortion[4], cal.rms_px
-    );
-    let yaml_path = args.out.join("camera.yaml");
-    std::fs::write(&yaml_path, yaml).with_context(|| format!("writing {}", yaml_path.display()))?;
-    write_camera_report(&args.out, &cal, &names, &views, &missing, &text)?;
+    let written = write_chain_entry(&chain_path, &args.camera, c)?;
+    write_camera_report(
+        &args.out,
+        &cal,
+        &names,
+        &views,
+        &missing,
+        &text,
+        &format!("{}_camera", args.camera),
+    )?;
     if args.json {
         let per_view: Vec<_> = cal
             .views
@@ -168,7 +221,7 @@ pub fn run(args: CameraArgs) -> anyhow::Result<()> {
             "per_view": per_view,
             "boards_not_found": missing,
             "fix_aspect_ratio": args.fix_aspect_ratio,
-            "fix_k3": args.fix_k3,
+            "free_k3": args.free_k3,
             "verdict": text,
         });
         println!("{json}");
@@ -190,7 +243,15 @@ pub fn run(args: CameraArgs) -> anyhow::Result<()> {
             );
         }
         println!("{text}");
-        println!("wrote {} and report.md", yaml_path.display());
+        match &written {
+            Ok(()) => println!(
+                "wrote {}'s entry of {} and {}_camera_report.md",
+                args.camera,
+                chain_path.display(),
+                args.camera
+            ),
+            Err(why) => println!("{} not written: {why}", chain_path.display()),
+        }
     }
     Ok(())
 }

@@ -1,6 +1,10 @@
 //! `rigslam-calibrate camera-imu`: camera-IMU rotation, translation and time
 //! offset from per-frame target detections and the IMU log; writes
-//! `camchain-imucam.yaml` (Kalibr layout) and a report beside it.
+//! `camchain-imucam.yaml` (Kalibr's layout) into the calibration folder and
+//! a report beside it. What earlier steps left in the folder is used: the
+//! intrinsics from `camchain.yaml`, the IMU intrinsics from
+//! `imu_intrinsics.yaml` (applied to the log) and the accelerometer random
+//! walk from `imu.yaml`.
 
 use std::path::PathBuf;
 
@@ -8,9 +12,10 @@ use anyhow::{bail, Context};
 use nalgebra::Matrix4;
 use rigslam::dataset::read_euroc_imu_csv;
 use rigslam_calibration::aprilgrid_detections::{read_detection_dir, target_poses};
-use rigslam_calibration::camchain_yaml::{read_intrinsics, write_camchain, CamchainEntry};
+use rigslam_calibration::camchain_yaml::{read_intrinsics, CamchainEntry};
 use rigslam_calibration::camera_imu_batch::{refine_camera_imu, BatchInput};
 use rigslam_calibration::camera_imu_report::{write_camera_imu_report, CameraImuResult};
+use rigslam_calibration::stereo_extrinsic::{refine_stereo, stereo_extrinsic, StereoInstant};
 use rigslam_calibration::time_offset::{camera_rates, estimate_time_offset, GyroSeries};
 
 #[derive(clap::Args)]
@@ -22,7 +27,9 @@ pub struct CameraImuArgs {
     /// IMU log, EuRoC layout (t_ns, gyro xyz rad/s, accel xyz m/s^2).
     #[arg(long)]
     imu: PathBuf,
-    /// Intrinsics file (default: sequence.yaml in the detections folder).
+    /// Intrinsics file (default: camchain.yaml in the --out folder when
+    /// `rigslam-calibrate camera` wrote one, else sequence.yaml in the
+    /// detections folder).
     #[arg(long)]
     intrinsics: Option<PathBuf>,
     /// Largest time offset searched, s.
@@ -32,12 +39,15 @@ pub struct CameraImuArgs {
     /// does the same); without it the batch estimates it.
     #[arg(long)]
     gravity: Option<f64>,
-    /// Accelerometer bias random walk, m/s^3/sqrt(Hz) (imu.yaml
-    /// `accelerometer_random_walk`; default: EuRoC's ADIS16448 value).
-    #[arg(long, default_value_t = 3e-3)]
-    accel_random_walk: f64,
-    /// Folder for camchain-imucam.yaml, report.md and the plots.
-    #[arg(long, default_value = "camera_imu_calibration")]
+    /// Accelerometer bias random walk, m/s^3/sqrt(Hz) (default: imu.yaml's
+    /// `accelerometer_random_walk` in the --out folder, else EuRoC's
+    /// ADIS16448 value 3e-3).
+    #[arg(long)]
+    accel_random_walk: Option<f64>,
+    /// The rig's calibration folder (created if need be):
+    /// camchain-imucam.yaml goes there, with camera_imu_report.md and the
+    /// plots beside it.
+    #[arg(long, value_name = "DIR", default_value = "calibration")]
     out: PathBuf,
     /// Print one JSON object on stdout.
     #[arg(long)]
@@ -45,22 +55,44 @@ pub struct CameraImuArgs {
 }
 
 pub fn run(args: CameraImuArgs) -> anyhow::Result<()> {
-    let intrinsics_path = args
-        .intrinsics
-        .clone()
-        .unwrap_or_else(|| args.detections.join("sequence.yaml"));
+    use rigslam::rig::folder::{CAMCHAIN, CAMCHAIN_INTRINSICS, IMU_INTRINSICS, IMU_NOISE};
+    let folder_chain = args.out.join(CAMCHAIN_INTRINSICS);
+    let intrinsics_path = args.intrinsics.clone().unwrap_or_else(|| {
+        if folder_chain.exists() {
+            folder_chain.clone()
+        } else {
+            args.detections.join("sequence.yaml")
+        }
+    });
+    let accel_random_walk = match (args.accel_random_walk, args.out.join(IMU_NOISE)) {
+        (Some(v), _) => v,
+        (None, p) if p.exists() => {
+            rigslam::rig::kalibr::imu_from_kalibr(&std::fs::read_to_string(&p)?, &p)?
+                .noise
+                .accelerometer_random_walk
+        }
+        (None, _) => 3e-3,
+    };
+    let imu_intrinsics = match args.out.join(IMU_INTRINSICS) {
+        p if p.exists() => Some(rigslam::rig::imu_intrinsics_file::read_intrinsics_yaml(&p)?),
+        _ => None,
+    };
     if let Some(g) = args.gravity {
         if !(5.0..=15.0).contains(&g) {
             bail!("--gravity {g}: give the local gravity magnitude in m/s^2 (about 9.78-9.83 on Earth)");
         }
     }
-    if !(args.accel_random_walk.is_finite() && args.accel_random_walk > 0.0) {
+    if !(accel_random_walk.is_finite() && accel_random_walk > 0.0) {
         bail!(
-            "--accel-random-walk {}: give the accelerometer bias random walk in m/s^3/sqrt(Hz), a positive number (imu.yaml accelerometer_random_walk)",
-            args.accel_random_walk
+            "--accel-random-walk {accel_random_walk}: give the accelerometer bias random walk in m/s^3/sqrt(Hz), a positive number (imu.yaml accelerometer_random_walk)"
         );
     }
-    let imu = read_euroc_imu_csv(&args.imu)?;
+    let mut imu = read_euroc_imu_csv(&args.imu)?;
+    if let Some(i) = &imu_intrinsics {
+        for s in imu.samples.iter_mut() {
+            *s = i.correct(s);
+        }
+    }
     if imu.samples.len() < 100 {
         bail!(
             "{}: only {} IMU samples; record at least a minute of IMU with the target in view",
@@ -92,10 +124,11 @@ pub fn run(args: CameraImuArgs) -> anyhow::Result<()> {
             args.detections.display()
         );
     }
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
+    let yaml_path = crate::output_file(&args.out, CAMCHAIN)?;
     let mut entries = Vec::new();
     let mut results = Vec::new();
+    let mut all_poses = Vec::new();
+    let mut all_detections = Vec::new();
     for cam in &cams {
         let camera = read_intrinsics(&intrinsics_path, cam)?;
         let detections = read_detection_dir(&args.detections.join(cam))?;
@@ -135,7 +168,7 @@ pub fn run(args: CameraImuArgs) -> anyhow::Result<()> {
             gyro_bias_rad_s: offset.hand_eye.gyro_bias_rad_s,
             timeshift_cam_imu_s: offset.timeshift_cam_imu_s,
             gravity_m_s2: args.gravity,
-            accel_random_walk: args.accel_random_walk,
+            accel_random_walk,
         })
         .with_context(|| format!("{cam}: batch refinement"))?;
         let t_cam_imu: Matrix4<f64> = batch.T_cam_imu();
@@ -152,9 +185,100 @@ pub fn run(args: CameraImuArgs) -> anyhow::Result<()> {
             offset,
             batch,
         });
+        all_poses.push(poses);
+        all_detections.push(detections);
     }
-    let yaml_path = args.out.join("camchain-imucam.yaml");
-    write_camchain(&yaml_path, &entries)?;
+    // Cameras after the first: placed by the stereo extrinsic the target
+    // measures directly, composed with cam0's camera-IMU result, on
+    // cam0's clock (one exposure trigger).
+    let mut stereo_notes = Vec::new();
+    for k in 1..entries.len() {
+        let Some(stereo) = stereo_extrinsic(&all_poses[0], &all_poses[k]) else {
+            stereo_notes.push(format!(
+                "{}: fewer than 10 instants with the target seen by both cameras; placed by its own camera-IMU estimate",
+                entries[k].name
+            ));
+            continue;
+        };
+        // The target as declared: the IMU's view of its scale (the batch's
+        // `target_scale`) is reported, not applied; on the EuRoC recording
+        // it is 1.8 % small and would shrink the baseline by as much.
+        let scale = 1.0;
+        let instants: Vec<StereoInstant<'_>> = all_poses[0]
+            .iter()
+            .filter_map(|p0| {
+                all_poses[k].iter().find(|p| p.t_ns == p0.t_ns)?;
+                let cam0 = all_detections[0].iter().find(|d| d.t_ns == p0.t_ns)?;
+                let cam1 = all_detections[k].iter().find(|d| d.t_ns == p0.t_ns)?;
+                let t_target_cam0 = nalgebra::Isometry3::from_parts(
+                    nalgebra::Translation3::from(p0.p_target_cam * scale),
+                    nalgebra::UnitQuaternion::from_matrix(&p0.R_target_cam),
+                );
+                Some(StereoInstant {
+                    cam0,
+                    cam1,
+                    T_cam0_target: t_target_cam0.inverse(),
+                })
+            })
+            .collect();
+        let mut initial = stereo.T_cam0_cam1;
+        initial.translation.vector *= scale;
+        let t_cam0_cam = match refine_stereo(
+            &entries[0].camera,
+            &entries[k].camera,
+            &instants,
+            &initial,
+            scale,
+        ) {
+            Some(r) => {
+                stereo_notes.push(format!(
+                    "{}: stereo refined on {} instants to {:.3} px RMS",
+                    entries[k].name, r.instants, r.rms_px
+                ));
+                r.T_cam0_cam1
+            }
+            None => initial,
+        };
+        let independent = entries[k].T_cam_imu;
+        let composed = t_cam0_cam.inverse().to_homogeneous() * entries[0].T_cam_imu;
+        let d = independent.try_inverse().unwrap_or_else(Matrix4::identity) * composed;
+        let angle_deg = nalgebra::Rotation3::from_matrix(&d.fixed_view::<3, 3>(0, 0).into_owned())
+            .angle()
+            .to_degrees();
+        stereo_notes.push(format!(
+            "{}: stereo extrinsic from {} of {} common instants (spread {:.3} deg, {:.2} mm); its own camera-IMU estimate differs by {:.3} deg, {:.1} mm",
+            entries[k].name,
+            stereo.pairs_used,
+            stereo.pairs,
+            stereo.rotation_rms_deg,
+            stereo.translation_rms_m * 1e3,
+            angle_deg,
+            d.fixed_view::<3, 1>(0, 3).norm() * 1e3
+        ));
+        entries[k].T_cam_imu = composed;
+        entries[k].timeshift_cam_imu_s = entries[0].timeshift_cam_imu_s;
+    }
+    let rig_cameras: Vec<rigslam::rig::CameraCalibration> = entries
+        .iter()
+        .map(|e| {
+            let t_cam_imu = nalgebra::Isometry3::from_parts(
+                nalgebra::Translation3::from(e.T_cam_imu.fixed_view::<3, 1>(0, 3).into_owned()),
+                nalgebra::UnitQuaternion::from_matrix(
+                    &e.T_cam_imu.fixed_view::<3, 3>(0, 0).into_owned(),
+                ),
+            );
+            rigslam::rig::CameraCalibration {
+                model: e.camera.clone().into(),
+                T_body_cam: t_cam_imu.inverse(),
+                rate_hz: 0.0,
+                time_shift_cam_imu_s: e.timeshift_cam_imu_s,
+            }
+        })
+        .collect();
+    let chain = rigslam::rig::kalibr::camchain_yaml(&rig_cameras, true)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", intrinsics_path.display()))?;
+    rigslam::rig::folder::write_atomically(&yaml_path, chain.as_bytes())
+        .with_context(|| format!("writing {}", yaml_path.display()))?;
     let verdict = write_camera_imu_report(&args.out, &results)?;
     if args.json {
         let first = &entries[0];
@@ -185,6 +309,7 @@ pub fn run(args: CameraImuArgs) -> anyhow::Result<()> {
                 "T_cam_imu": rows,
                 "timeshift_cam_imu_s": first.timeshift_cam_imu_s,
                 "cameras": per_camera,
+                "stereo": stereo_notes,
                 "verdict": verdict,
             })
         );
@@ -200,8 +325,11 @@ pub fn run(args: CameraImuArgs) -> anyhow::Result<()> {
             );
             println!("T_cam_imu =\n{:.6}", e.T_cam_imu);
         }
+        for note in &stereo_notes {
+            println!("{note}");
+        }
         println!("{verdict}");
-        println!("wrote {} and report.md", yaml_path.display());
+        println!("wrote {} and camera_imu_report.md", yaml_path.display());
     }
     Ok(())
 }

@@ -8,7 +8,6 @@ use std::time::Instant;
 
 use anyhow::Context;
 use nalgebra::{Matrix3, Vector3};
-use rigslam_calibration::calibration_files::IntrinsicsFile;
 use rigslam_calibration::gyro_calibration::{read_section_list, rotations_from_sections};
 use rigslam_calibration::imu_calibration::{
     calibrate_imu_session, imu_verdict, ImuCalibrationOptions,
@@ -30,9 +29,10 @@ pub struct ImuArgs {
     /// y_rot, z_rot sections are the turns; without it they are found.
     #[arg(long)]
     sections: Option<PathBuf>,
-    /// Where to write the intrinsics; the report goes beside it.
-    #[arg(long, default_value = "imu_intrinsics.yaml")]
-    output: PathBuf,
+    /// The rig's calibration folder (created if need be): the intrinsics (imu_intrinsics.yaml) goes
+    /// there, with its report and plot beside it.
+    #[arg(long, value_name = "DIR", default_value = "calibration")]
+    out: PathBuf,
     /// Local gravity magnitude.
     #[arg(long, default_value_t = rigslam::imu::GRAVITY_M_S2)]
     gravity_m_s2: f64,
@@ -66,6 +66,7 @@ fn beside(output: &Path, suffix: &str) -> PathBuf {
 }
 
 pub fn run(args: ImuArgs) -> anyhow::Result<()> {
+    let output = crate::output_file(&args.out, rigslam::rig::folder::IMU_INTRINSICS)?;
     let start = Instant::now();
     let layout = args.layout.layout().map_err(anyhow::Error::msg)?;
     let log = read_imu_log(&args.input, &layout)?;
@@ -86,22 +87,23 @@ pub fn run(args: ImuArgs) -> anyhow::Result<()> {
         .with_context(|| format!("calibrating {}", args.input.display()))?;
     let verdict = imu_verdict(&cal);
 
-    let yaml = serde_yaml::to_string(&IntrinsicsFile::from_intrinsics(&cal.intrinsics))?;
-    std::fs::write(
-        &args.output,
+    let yaml = rigslam::rig::imu_intrinsics_file::intrinsics_yaml(&cal.intrinsics);
+    rigslam::rig::folder::write_atomically(
+        &output,
         format!(
             "# rigslam-calibrate imu --input {}\n{yaml}",
             args.input.display()
-        ),
+        )
+        .as_bytes(),
     )
-    .with_context(|| format!("writing {}", args.output.display()))?;
-    let png = beside(&args.output, "_residuals.png");
+    .with_context(|| format!("writing {}", output.display()))?;
+    let png = beside(&output, "_residuals.png");
     plot_static_residuals(
         &png,
         &cal.accel.residuals_before_m_s2,
         &cal.accel.levenberg_marquardt.residuals_m_s2,
     )?;
-    let report_path = beside(&args.output, "_report.md");
+    let report_path = beside(&output, "_report.md");
     let file_name = |p: &Path| {
         p.file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -110,7 +112,7 @@ pub fn run(args: ImuArgs) -> anyhow::Result<()> {
     let report = imu_report(
         &cal,
         &args.input.display().to_string(),
-        &file_name(&args.output),
+        &file_name(&output),
         &file_name(&png),
         &verdict,
     );
@@ -152,7 +154,7 @@ pub fn run(args: ImuArgs) -> anyhow::Result<()> {
         }
         println!(
             "wrote {}, {} and {}",
-            args.output.display(),
+            output.display(),
             report_path.display(),
             png.display()
         );

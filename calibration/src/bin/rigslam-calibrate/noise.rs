@@ -23,9 +23,10 @@ pub struct NoiseArgs {
     input: PathBuf,
     #[command(flatten)]
     layout: LayoutArgs,
-    /// Where to write Kalibr's imu.yaml; the report goes beside it.
-    #[arg(long, default_value = "imu.yaml")]
-    output: PathBuf,
+    /// The rig's calibration folder (created if need be): Kalibr's imu.yaml goes
+    /// there, with its report and plot beside it.
+    #[arg(long, value_name = "DIR", default_value = "calibration")]
+    out: PathBuf,
     /// Cluster times per decade.
     #[arg(long, default_value_t = 10)]
     points_per_decade: usize,
@@ -40,6 +41,7 @@ fn beside(output: &Path, suffix: &str) -> PathBuf {
 }
 
 pub fn run(args: NoiseArgs) -> anyhow::Result<()> {
+    let output = crate::output_file(&args.out, rigslam::rig::folder::IMU_NOISE)?;
     let start = Instant::now();
     let layout = args.layout.layout().map_err(anyhow::Error::msg)?;
     let log = read_imu_log(&args.input, &layout)?;
@@ -58,14 +60,14 @@ pub fn run(args: NoiseArgs) -> anyhow::Result<()> {
         cal.samples,
         cal.rate_hz
     );
-    std::fs::write(
-        &args.output,
-        kalibr_imu_yaml(&cal.noise, cal.rate_hz, &comment),
+    rigslam::rig::folder::write_atomically(
+        &output,
+        kalibr_imu_yaml(&cal.noise, cal.rate_hz, &comment).as_bytes(),
     )
-    .with_context(|| format!("writing {}", args.output.display()))?;
-    let png = beside(&args.output, "_allan.png");
+    .with_context(|| format!("writing {}", output.display()))?;
+    let png = beside(&output, "_allan.png");
     plot_allan(&png, &cal.curves, &cal.axes)?;
-    let report_path = beside(&args.output, "_report.md");
+    let report_path = beside(&output, "_report.md");
     let file_name = |p: &Path| {
         p.file_name()
             .map(|n| n.to_string_lossy().into_owned())
@@ -74,7 +76,7 @@ pub fn run(args: NoiseArgs) -> anyhow::Result<()> {
     let report = noise_report(
         &cal,
         &args.input.display().to_string(),
-        &file_name(&args.output),
+        &file_name(&output),
         &file_name(&png),
         &warnings,
     );
@@ -124,7 +126,7 @@ pub fn run(args: NoiseArgs) -> anyhow::Result<()> {
         }
         println!(
             "wrote {}, {} and {}",
-            args.output.display(),
+            output.display(),
             report_path.display(),
             png.display()
         );
