@@ -16,11 +16,14 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 //!
-//! Steps, one file each: `threshold` (adaptive threshold, erosion that cuts
-//! tags from the corner squares they touch), `quads` (dark components that
-//! are quadrilaterals), `refine` (x-junction subpixel corners), `decode`
-//! (cell sampling through a homography, nearest tag36h11 codeword in
-//! `tag36h11` under rotation), `target` (the `target.yaml` and the target
+//! Steps, one file each: `threshold` (adaptive threshold; saddles
+//! cleared and the mask eroded, which parts tags from the corner squares
+//! they touch), `quads` (dark components that are quadrilaterals),
+//! `refine` (subpixel corners: an x-junction window, then the two edges
+//! through the junction as lines), `decode` (cells sampled through a
+//! homography and sharpened against their neighbours, the nearest
+//! tag36h11 codeword of `tag36h11` under rotation, wrong cells weighed by
+//! how clearly they are wrong), `target` (the `target.yaml` and the target
 //! frame), `csv` (the detection file) and `render` (a synthetic image of a
 //! grid, for tests and benchmarks).
 //!
