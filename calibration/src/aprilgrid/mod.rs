@@ -40,8 +40,6 @@ pub mod tag36h11;
 pub mod target;
 pub mod threshold;
 
-use nalgebra::Vector2;
-
 pub use csv::write_detection_csv;
 pub use decode::DecodedTag;
 pub use target::AprilGridTarget;
@@ -115,7 +113,7 @@ pub fn detect_aprilgrid(image: &image::GrayImage, target: &AprilGridTarget) -> G
     let mask = threshold::erode(&threshold::threshold(&smoothed));
     let mut tags: Vec<DecodedTag> = Vec::new();
     for quad in quads::find_quads(&mask, GROW_PX) {
-        let Some(refined) = refine::refine_quad(&smoothed, &quad) else {
+        let Some(refined) = refine::refine_quad(&smoothed, &quad, target.tag_spacing_ratio) else {
             continue;
         };
         if let Some(tag) = decode::decode_quad(&grey, &refined, target, MAX_HAMMING) {
@@ -126,9 +124,4 @@ pub fn detect_aprilgrid(image: &image::GrayImage, target: &AprilGridTarget) -> G
     tags.sort_by_key(|t| (t.id, t.hamming));
     tags.dedup_by_key(|t| t.id);
     GridDetection { tags }
-}
-
-/// Mean of a tag's corners, px.
-pub fn tag_centre(tag: &DecodedTag) -> Vector2<f64> {
-    tag.corners_px.iter().fold(Vector2::zeros(), |s, p| s + p) / 4.0
 }

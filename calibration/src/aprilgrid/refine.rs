@@ -8,7 +8,8 @@
 //!    least squares gives `q = (sum w g g^T)^-1 sum w g g^T p` (Förstner
 //!    and Gülch 1987, the equation of OpenCV's `cornerSubPix`), iterated
 //!    with the window recentred. The window is a parallelogram along the
-//!    tag's two sides reaching [`REACH_CELLS`] tag cells each way, inside
+//!    tag's two sides reaching [`REACH_CELLS`] tag cells each way (less
+//!    for gaps under 2.3 cells), inside
 //!    the tag's 2-cell border and the 3-cell gaps, so no other edge is in
 //!    it however obliquely the tag is seen. Pulls a corner that is a pixel
 //!    or two off onto the junction.
@@ -16,7 +17,9 @@
 //!    stretch from 1 to 2.5 cells either side of the junction, and the
 //!    corner put where they meet. Several times the pixels of the window,
 //!    so a half to a third of its noise; lines this short are straight in
-//!    a distorted lens too.
+//!    a distorted lens too. Grids with gaps under 2.5 cells (spacing under
+//!    0.25) leave too short a stretch of the corner square's side, and
+//!    keep the window's corner.
 //!
 //! Pixels: centres at integer coordinates; sums run over whole pixels with
 //! central-difference gradients, as values interpolated between pixels
@@ -30,7 +33,7 @@ use crate::chessboard::GreyImage;
 /// Window half-width along each side, tag cells (a tag is 10 cells).
 pub const REACH_CELLS: f64 = 1.4;
 /// Gaussian weight of the window, cells.
-const WEIGHT_SIGMA_CELLS: f64 = 0.6 * REACH_CELLS;
+const WEIGHT_SIGMA_SHARE: f64 = 0.6;
 /// Stretch of each edge used by [`refine_by_edges`], cells from the
 /// junction: clear of the junction's core, within the tag's side (10
 /// cells) and the corner square's (3 cells).
@@ -55,11 +58,14 @@ pub fn refine_junction(
     start: Vector2<f64>,
     along_a: Vector2<f64>,
     along_b: Vector2<f64>,
+    gap_cells: f64,
 ) -> Option<Vector2<f64>> {
+    // Inside the corner square and the gaps when they are narrow.
+    let reach_cells = REACH_CELLS.min(0.6 * gap_cells);
     // Pixel offset -> (s, t) in cells along the two sides.
     let to_cells = Matrix2::from_columns(&[along_a, along_b]).try_inverse()?;
-    let reach_px = REACH_CELLS * along_a.norm().max(along_b.norm()) + 1.0;
-    let sigma = WEIGHT_SIGMA_CELLS;
+    let reach_px = reach_cells * along_a.norm().max(along_b.norm()) + 1.0;
+    let sigma = WEIGHT_SIGMA_SHARE * reach_cells;
     let max_shift = MAX_SHIFT_CELLS * along_a.norm().min(along_b.norm());
     let (w, h) = (image.width as i64, image.height as i64);
     let mut q = start;
@@ -81,7 +87,7 @@ pub fn refine_junction(
             for x in x0..=x1 {
                 let p = Vector2::new(x as f64, y as f64);
                 let st = to_cells * (p - q);
-                if st.x.abs() > REACH_CELLS || st.y.abs() > REACH_CELLS {
+                if st.x.abs() > reach_cells || st.y.abs() > reach_cells {
                     continue;
                 }
                 let at = |xx: i64, yy: i64| f64::from(image.pixels[(yy * w + xx) as usize]);
@@ -191,7 +197,14 @@ pub fn refine_by_edges(
     q: Vector2<f64>,
     along_a: Vector2<f64>,
     along_b: Vector2<f64>,
+    gap_cells: f64,
 ) -> Option<Vector2<f64>> {
+    // Short of the corner square's far corner when the gaps are narrow;
+    // too short a stretch is left to the junction window.
+    let to_cells = EDGE_TO_CELLS.min(gap_cells - 0.5);
+    if to_cells < EDGE_FROM_CELLS + 1.0 {
+        return Some(q);
+    }
     let cell = along_a.norm().min(along_b.norm());
     let mut corner = q;
     for _ in 0..EDGE_ITERATIONS {
@@ -203,7 +216,7 @@ pub fn refine_by_edges(
                 corner,
                 along.normalize(),
                 EDGE_FROM_CELLS * along.norm(),
-                EDGE_TO_CELLS * along.norm(),
+                to_cells * along.norm(),
                 EDGE_BAND_CELLS * other.norm(),
             )
         };
@@ -214,13 +227,20 @@ pub fn refine_by_edges(
 
 /// The four corners of `quad` (clockwise as seen) refined, or `None` if
 /// any one does not settle (off the image, occluded, not a junction).
-pub fn refine_quad(image: &GreyImage, quad: &[Vector2<f64>; 4]) -> Option<[Vector2<f64>; 4]> {
+/// `spacing_ratio` is the target's gap over tag size (the corner squares
+/// are that wide).
+pub fn refine_quad(
+    image: &GreyImage,
+    quad: &[Vector2<f64>; 4],
+    spacing_ratio: f64,
+) -> Option<[Vector2<f64>; 4]> {
+    let gap_cells = 10.0 * spacing_ratio;
     let mut out = *quad;
     for k in 0..4 {
         let next = (quad[(k + 1) % 4] - quad[k]) / 10.0;
         let previous = (quad[(k + 3) % 4] - quad[k]) / 10.0;
-        let junction = refine_junction(image, quad[k], next, previous)?;
-        out[k] = refine_by_edges(image, junction, next, previous)?;
+        let junction = refine_junction(image, quad[k], next, previous, gap_cells)?;
+        out[k] = refine_by_edges(image, junction, next, previous, gap_cells)?;
     }
     Some(out)
 }
