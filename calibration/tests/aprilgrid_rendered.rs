@@ -221,7 +221,7 @@ fn a_narrower_spaced_grid_of_another_shape() {
         )
     };
     let v = View {
-        p_target_cam: v.p_target_cam + centre(&target) - centre(&super_target()),
+        p_target_cam: v.p_target_cam + centre(&target) - centre(&self::target()),
         ..v
     };
     let clean = render_aprilgrid(
@@ -243,8 +243,4 @@ fn a_narrower_spaced_grid_of_another_shape() {
     );
     assert_eq!(ids, (0..35).collect::<Vec<_>>());
     assert!(rms < 0.1, "rms {rms} px");
-}
-
-fn super_target() -> AprilGridTarget {
-    target()
 }
