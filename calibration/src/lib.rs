@@ -6,6 +6,7 @@ pub use rigslam::camera;
 
 pub mod accel_calibration;
 pub mod allan;
+pub mod aprilgrid;
 pub mod aprilgrid_detections;
 pub mod banded_cholesky;
 pub mod calibration_files;
