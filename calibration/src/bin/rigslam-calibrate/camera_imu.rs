@@ -11,7 +11,10 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 use nalgebra::Matrix4;
 use rigslam::dataset::read_euroc_imu_csv;
-use rigslam_calibration::aprilgrid_detections::{read_detection_dir, target_poses};
+use rigslam_calibration::aprilgrid::AprilGridTarget;
+use rigslam_calibration::aprilgrid_detections::target_poses;
+
+use crate::target_input;
 use rigslam_calibration::camchain_yaml::{read_intrinsics, CamchainEntry};
 use rigslam_calibration::camera_imu_batch::{refine_camera_imu, BatchInput};
 use rigslam_calibration::camera_imu_report::{write_camera_imu_report, CameraImuResult};
@@ -21,12 +24,26 @@ use rigslam_calibration::time_offset::{camera_rates, estimate_time_offset, GyroS
 #[derive(clap::Args)]
 pub struct CameraImuArgs {
     /// Folder with one sub-folder of detections per camera (cam0/<t_ns>.csv,
-    /// cam1/...) and sequence.yaml with the intrinsics.
+    /// cam1/...), as Kalibr-style tools export them.
+    #[arg(long, conflicts_with_all = ["images", "recording"], required_unless_present_any = ["images", "recording"])]
+    detections: Option<PathBuf>,
+    /// Folder of images of the AprilGrid: camN/<t_ns>.png (or a EuRoC
+    /// folder, mav0/camN/data/); needs --target.
+    #[arg(long, conflicts_with = "recording", requires = "target")]
+    images: Option<PathBuf>,
+    /// A recording rigslamd made while the target was waved in front of the
+    /// rig: its frames are searched for the target and its IMU is used
+    /// (no --imu); needs --target.
+    #[arg(long, requires = "target")]
+    recording: Option<PathBuf>,
+    /// The AprilGrid's description, Kalibr's target.yaml (aprilgrid,
+    /// tagRows, tagCols, tagSize, tagSpacing).
     #[arg(long)]
-    detections: PathBuf,
-    /// IMU log, EuRoC layout (t_ns, gyro xyz rad/s, accel xyz m/s^2).
-    #[arg(long)]
-    imu: PathBuf,
+    target: Option<PathBuf>,
+    /// IMU log, EuRoC layout (t_ns, gyro xyz rad/s, accel xyz m/s^2);
+    /// taken from the recording with --recording.
+    #[arg(long, required_unless_present = "recording")]
+    imu: Option<PathBuf>,
     /// Intrinsics file (default: camchain.yaml in the --out folder when
     /// `rigslam-calibrate camera` wrote one, else sequence.yaml in the
     /// detections folder).
@@ -57,13 +74,15 @@ pub struct CameraImuArgs {
 pub fn run(args: CameraImuArgs) -> anyhow::Result<()> {
     use rigslam::rig::folder::{CAMCHAIN, CAMCHAIN_INTRINSICS, IMU_INTRINSICS, IMU_NOISE};
     let folder_chain = args.out.join(CAMCHAIN_INTRINSICS);
-    let intrinsics_path = args.intrinsics.clone().unwrap_or_else(|| {
-        if folder_chain.exists() {
-            folder_chain.clone()
-        } else {
-            args.detections.join("sequence.yaml")
-        }
-    });
+    let intrinsics_path = match (&args.intrinsics, &args.detections) {
+        (Some(p), _) => p.clone(),
+        (None, _) if folder_chain.exists() => folder_chain.clone(),
+        (None, Some(d)) => d.join("sequence.yaml"),
+        (None, None) => bail!(
+            "no intrinsics: run `rigslam-calibrate camera --out {}` first, or give --intrinsics",
+            args.out.display()
+        ),
+    };
     let accel_random_walk = match (args.accel_random_walk, args.out.join(IMU_NOISE)) {
         (Some(v), _) => v,
         (None, p) if p.exists() => {
@@ -87,7 +106,36 @@ pub fn run(args: CameraImuArgs) -> anyhow::Result<()> {
             "--accel-random-walk {accel_random_walk}: give the accelerometer bias random walk in m/s^3/sqrt(Hz), a positive number (imu.yaml accelerometer_random_walk)"
         );
     }
-    let mut imu = read_euroc_imu_csv(&args.imu)?;
+    let save = args.out.join("detections");
+    let observations = match (&args.detections, &args.images, &args.recording) {
+        (Some(d), _, _) => target_input::from_detections(d)?,
+        (None, images, recording) => {
+            let target_path = args
+                .target
+                .as_ref()
+                .context("--target is needed with --images or --recording")?;
+            let target = AprilGridTarget::from_yaml_file(target_path)?;
+            match (images, recording) {
+                (Some(i), _) => target_input::from_images(i, &target, &save)?,
+                (None, Some(r)) => target_input::from_recording(r, &target, &save)?,
+                (None, None) => bail!("give --detections, --images or --recording"),
+            }
+        }
+    };
+    let imu_source = args
+        .imu
+        .clone()
+        .or_else(|| args.recording.clone())
+        .unwrap_or_default();
+    let mut imu = match (&args.imu, observations.imu.clone()) {
+        (Some(path), _) => read_euroc_imu_csv(path)?,
+        (None, Some(samples)) => rigslam::dataset::ImuCsv {
+            samples,
+            dropped_nonfinite: 0,
+            first_nonfinite_line: None,
+        },
+        (None, None) => bail!("--imu is needed (the IMU log recorded with the target)"),
+    };
     if let Some(i) = &imu_intrinsics {
         for s in imu.samples.iter_mut() {
             *s = i.correct(s);
@@ -96,7 +144,7 @@ pub fn run(args: CameraImuArgs) -> anyhow::Result<()> {
     if imu.samples.len() < 100 {
         bail!(
             "{}: only {} IMU samples; record at least a minute of IMU with the target in view",
-            args.imu.display(),
+            imu_source.display(),
             imu.samples.len()
         );
     }
@@ -110,28 +158,14 @@ pub fn run(args: CameraImuArgs) -> anyhow::Result<()> {
             .collect(),
         w_rad_s: imu.samples.iter().map(|s| s.gyro_rad_s.into()).collect(),
     };
-    let mut cams: Vec<String> = std::fs::read_dir(&args.detections)
-        .with_context(|| format!("reading {}", args.detections.display()))?
-        .filter_map(|e| e.ok())
-        .filter(|e| e.path().is_dir())
-        .map(|e| e.file_name().to_string_lossy().into_owned())
-        .filter(|n| n.starts_with("cam"))
-        .collect();
-    cams.sort();
-    if cams.is_empty() {
-        bail!(
-            "{}: no cam0/, cam1/ ... folders of detections",
-            args.detections.display()
-        );
-    }
     let yaml_path = crate::output_file(&args.out, CAMCHAIN)?;
     let mut entries = Vec::new();
     let mut results = Vec::new();
     let mut all_poses = Vec::new();
     let mut all_detections = Vec::new();
-    for cam in &cams {
+    for (cam, detections) in observations.cameras {
+        let cam = &cam;
         let camera = read_intrinsics(&intrinsics_path, cam)?;
-        let detections = read_detection_dir(&args.detections.join(cam))?;
         let poses = target_poses(&camera, &detections);
         let (first, last) = match (poses.first(), poses.last()) {
             (Some(a), Some(b)) if poses.len() >= 50 => (a.t_ns, b.t_ns),

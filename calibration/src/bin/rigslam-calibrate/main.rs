@@ -11,6 +11,7 @@ mod check;
 mod export;
 mod imu;
 mod noise;
+mod target_input;
 
 #[derive(Parser)]
 #[command(
