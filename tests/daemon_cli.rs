@@ -213,13 +213,43 @@ fn check_config_names_file_key_and_why() {
         "{out}"
     );
     // The same with the field back is valid.
-    std::fs::write(dir.path().join("cam0.yaml"), cam).expect("write");
+    std::fs::write(dir.path().join("cam0.yaml"), &cam).expect("write");
     let (ok, out) = check_config(
         "[camera]\nsource = \"v4l2\"\ndevice = \"/dev/video0\"\n[imu]\nsource = \"yei\"\nport = \"/dev/ttyACM0\"\n\
          [calibration]\ncameras = [\"cam0.yaml\"]\nimu = \"imu0.yaml\"\n[slam]\nmode = \"mono-inertial\"\n",
         dir.path(),
     );
     assert!(ok, "{out}");
+    // A calibration from another camera: the size asked for, and a
+    // replayed folder's images, against the calibrated resolution.
+    let (ok, out) = check_config(
+        "[camera]\nsource = \"v4l2\"\ndevice = \"/dev/video0\"\nwidth = 640\nheight = 480\n[imu]\nsource = \"yei\"\nport = \"/dev/ttyACM0\"\n\
+         [calibration]\ncameras = [\"cam0.yaml\"]\nimu = \"imu0.yaml\"\n[slam]\nmode = \"mono-inertial\"\n",
+        dir.path(),
+    );
+    assert!(!ok);
+    assert!(out.contains("camera.width") && out.contains("640x480") && out.contains("752x480"), "{out}");
+    let replay = |camera_file: &str| {
+        format!(
+            "[camera]\nsource = \"replay\"\n[imu]\nsource = \"replay\"\n[replay]\ndataset = \"{}\"\n\
+             [calibration]\ncameras = [\"{camera_file}\"]\nimu = \"imu0.yaml\"\n[slam]\nmode = \"mono\"\n",
+            euroc.display()
+        )
+    };
+    let (ok, out) = check_config(&replay("cam0.yaml"), dir.path());
+    assert!(ok, "the EuRoC folder matches its own calibration: {out}");
+    assert!(cam.contains("resolution: [752, 480]"), "{cam}");
+    std::fs::write(
+        dir.path().join("small.yaml"),
+        cam.replace("resolution: [752, 480]", "resolution: [640, 480]"),
+    )
+    .expect("write");
+    let (ok, out) = check_config(&replay("small.yaml"), dir.path());
+    assert!(!ok);
+    assert!(
+        out.contains("has 752x480 images") && out.contains("640x480 camera"),
+        "{out}"
+    );
 }
 
 #[test]

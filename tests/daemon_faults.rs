@@ -42,6 +42,8 @@ fn live_config(euroc: &std::path::Path, port: PathBuf) -> DaemonConfig {
     config.calibration = Some(CalibrationConfig {
         cameras: vec![euroc.join("mav0/cam0/sensor.yaml")],
         imu: Some(euroc.join("mav0/imu0/sensor.yaml")),
+        folder: None,
+        imu_intrinsics: None,
     });
     config
 }

@@ -446,6 +446,8 @@ fn a_recording_replays_to_the_poses_of_the_run_that_made_it() {
         config.calibration = Some(rigslam::daemon::config::CalibrationConfig {
             cameras: vec![cal("cam0"), cal("cam1")],
             imu: Some(cal("imu0")),
+            folder: None,
+            imu_intrinsics: None,
         });
         config
     };

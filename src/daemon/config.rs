@@ -655,10 +655,64 @@ pub fn check(config: &DaemonConfig, file: &Path) -> Result<RigModel, Vec<Problem
         if let Err(e) = rig.check(mode) {
             bad("slam.mode", e.to_string());
         }
+        check_resolution(config, rig, &mut bad);
     }
     match (rig, problems.is_empty()) {
         (Some(rig), true) => Ok(rig),
         _ => Err(problems),
+    }
+}
+
+/// A calibration made for another camera or another resolution: the size
+/// the live camera is asked for, or a replayed EuRoC folder's images,
+/// against camera 0's calibrated resolution.
+fn check_resolution(config: &DaemonConfig, rig: &RigModel, bad: &mut impl FnMut(&str, String)) {
+    let Some(cam0) = rig.cameras.first() else {
+        return;
+    };
+    let calibrated = (cam0.model.width(), cam0.model.height());
+    let from = if config.calibration.is_some() {
+        "the [calibration] files"
+    } else {
+        "the replayed recording's calibration"
+    };
+    if let (Some(w), Some(h)) = (config.camera.width, config.camera.height) {
+        if config.camera.source != CameraSource::Replay && (w, h) != calibrated {
+            bad(
+                "camera.width",
+                format!(
+                    "{w}x{h} asked for, but {from} describe a {}x{} camera: calibrate at the resolution the robot runs, or ask for that one",
+                    calibrated.0, calibrated.1
+                ),
+            );
+        }
+    }
+    let Some(replay) = config.replay.as_ref().filter(|_| config.replays()) else {
+        return;
+    };
+    if crate::recording::is_mcap(&replay.dataset) {
+        return;
+    }
+    if let Ok(crate::dataset::Dataset::Euroc(d)) = crate::dataset::open_dataset(&replay.dataset) {
+        let first = d
+            .cameras
+            .first()
+            .and_then(|c| c.frames.iter().find_map(|f| f.path.clone()));
+        if let Some(Ok(size)) = first.map(|p| crate::dataset::image_file::png_dimensions(&p)) {
+            if size != calibrated {
+                bad(
+                    "calibration",
+                    format!(
+                        "{} has {}x{} images but {from} describe a {}x{} camera: a calibration from another camera",
+                        replay.dataset.display(),
+                        size.0,
+                        size.1,
+                        calibrated.0,
+                        calibrated.1
+                    ),
+                );
+            }
+        }
     }
 }
 
