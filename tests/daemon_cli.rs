@@ -228,7 +228,10 @@ fn check_config_names_file_key_and_why() {
         dir.path(),
     );
     assert!(!ok);
-    assert!(out.contains("camera.width") && out.contains("640x480") && out.contains("752x480"), "{out}");
+    assert!(
+        out.contains("camera.width") && out.contains("640x480") && out.contains("752x480"),
+        "{out}"
+    );
     let replay = |camera_file: &str| {
         format!(
             "[camera]\nsource = \"replay\"\n[imu]\nsource = \"replay\"\n[replay]\ndataset = \"{}\"\n\

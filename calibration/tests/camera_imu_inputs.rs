@@ -178,3 +178,66 @@ fn a_recording_of_the_grid_gives_frames_and_imu() {
             == 4
     );
 }
+
+#[test]
+fn check_holds_a_folder_against_a_recording_of_another_camera() {
+    let Some(april) = april() else { return };
+    let dir = tempfile::tempdir().expect("temp dir");
+    // The folder: EuRoC's rig (752x480).
+    let folder = dir.path().join("rig");
+    std::fs::create_dir(&folder).expect("mkdir");
+    let cams = [
+        rigslam::simulate::euroc_rig::euroc_cam0(),
+        rigslam::simulate::euroc_rig::euroc_cam1(),
+    ];
+    std::fs::write(
+        folder.join("camchain-imucam.yaml"),
+        rigslam::rig::kalibr::camchain_yaml(&cams, true).expect("writes"),
+    )
+    .expect("write");
+    // A recording whose camera gives 640x480 images.
+    let path = dir.path().join("other.mcap");
+    let mut recorder = McapRecorder::create(&path).expect("create");
+    let cam0 = recorder.add_image_channel("/cam0").expect("channel");
+    let imu = recorder
+        .add_imu_channel("/imu0", &BTreeMap::new())
+        .expect("channel");
+    let g = image::open(april.join("cam0_1403709395937837056.png"))
+        .expect("png")
+        .to_luma8();
+    let small = image::imageops::crop_imm(&g, 0, 0, 640, 480).to_image();
+    let frame = Image::new(
+        640,
+        480,
+        640,
+        PixelFormat::Mono8,
+        Arc::from(small.into_raw()),
+    )
+    .expect("image");
+    for i in 0..100i64 {
+        let t = 1_000_000_000 + i * 5_000_000;
+        let sample = ImuSample {
+            t_ns: t,
+            gyro_rad_s: [0.0; 3],
+            accel_m_s2: [0.0, 0.0, 9.81],
+        };
+        recorder.write_imu(imu, &sample, t).expect("imu");
+        if i % 10 == 0 {
+            recorder
+                .write_image(cam0, t, &frame, "cam0", t)
+                .expect("image");
+        }
+    }
+    recorder.finish().expect("finish");
+    let (ok, text) = run(&[
+        "check".as_ref(),
+        folder.as_os_str(),
+        "--dataset".as_ref(),
+        path.as_os_str(),
+    ]);
+    assert!(!ok, "{text}");
+    assert!(
+        text.contains("PROBLEM") && text.contains("640x480") && text.contains("752x480"),
+        "{text}"
+    );
+}

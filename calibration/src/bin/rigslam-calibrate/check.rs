@@ -13,13 +13,73 @@ use rigslam_calibration::folder_check::{check_folder, Observed};
 pub struct CheckArgs {
     /// The calibration folder (what `--out` of the other steps wrote).
     dir: PathBuf,
-    /// A EuRoC-layout recording of this rig (the folder holding mav0/):
-    /// its image sizes and IMU rate are held against the files.
+    /// A recording of this rig, a EuRoC-layout folder (holding mav0/) or
+    /// a rigslamd MCAP file: its image sizes and IMU rate are held against
+    /// the files.
     #[arg(long)]
     dataset: Option<PathBuf>,
 }
 
+/// Image sizes and IMU rate of a rigslamd recording: both cameras' sizes
+/// from a stereo recording, cam0's from a mono one.
+fn observed_in_recording(path: &std::path::Path) -> anyhow::Result<Observed> {
+    let stereo = observed_with(path, true)?;
+    if stereo.image_sizes.is_empty() {
+        return observed_with(path, false);
+    }
+    Ok(stereo)
+}
+
+fn observed_with(path: &std::path::Path, stereo: bool) -> anyhow::Result<Observed> {
+    use std::ops::ControlFlow;
+    let mut sizes: Vec<(u32, u32)> = Vec::new();
+    let mut stamps = Vec::new();
+    rigslam::recording::for_each_sensor_event(
+        path,
+        rigslam::recording::SensorTopics { stereo, imu: true },
+        |item| {
+            match item {
+                rigslam::recording::ReplayItem::Event(rigslam::dataset::SensorEvent::Imu(s)) => {
+                    stamps.push(s.t_ns)
+                }
+                rigslam::recording::ReplayItem::Event(rigslam::dataset::SensorEvent::Frame {
+                    left,
+                    right,
+                    ..
+                }) if sizes.is_empty() => {
+                    sizes = std::iter::once(left)
+                        .chain(right)
+                        .map(|f| (f.image.width(), f.image.height()))
+                        .collect();
+                }
+                _ => {}
+            }
+            // The rate needs a few seconds of samples, not the whole file.
+            if stamps.len() > 2000 && !sizes.is_empty() {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            }
+        },
+    )?;
+    Ok(Observed {
+        image_sizes: sizes,
+        imu_rate_hz: median_rate(&stamps),
+    })
+}
+
+fn median_rate(stamps: &[i64]) -> Option<f64> {
+    let mut dts: Vec<i64> = stamps.windows(2).map(|w| w[1] - w[0]).collect();
+    dts.sort_unstable();
+    dts.get(dts.len() / 2)
+        .filter(|dt| **dt > 0)
+        .map(|dt| 1e9 / *dt as f64)
+}
+
 fn observed(path: &std::path::Path) -> anyhow::Result<Observed> {
+    if rigslam::recording::is_mcap(path) {
+        return observed_in_recording(path);
+    }
     let Dataset::Euroc(d) = open_dataset(path)? else {
         bail!(
             "{}: give a EuRoC-layout recording (mav0/ with camN/ and imu0/)",
