@@ -817,8 +817,7 @@ pub fn rig_from_files(
         Ok(rig) => Some(rig),
         Err(e) => {
             // Name the key whose file the reader objected to.
-            let message = e.to_string();
-            let named = |p: &Path| message.contains(&p.display().to_string());
+            let named = |p: &Path| e.path() == p;
             let key = calibration
                 .cameras
                 .iter()
@@ -834,7 +833,7 @@ pub fn rig_from_files(
                     .map(|(k, _)| k.to_owned())
                 })
                 .unwrap_or_else(|| key.to_owned());
-            bad(&key, message);
+            bad(&key, e.to_string());
             None
         }
     }

@@ -98,10 +98,7 @@ impl RigClocks {
                 .imu
                 .as_ref()
                 .map_or_else(Default::default, |i| i.intrinsics),
-            frame_shift_ns: rig
-                .cameras
-                .first()
-                .map_or(0, |c| (c.time_shift_cam_imu_s * 1e9).round() as i64),
+            frame_shift_ns: rig.frame_shift_ns(),
         }
     }
 }

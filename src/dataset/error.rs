@@ -33,6 +33,16 @@ pub enum DatasetError {
 }
 
 impl DatasetError {
+    /// The file (or folder) the error is about.
+    pub fn path(&self) -> &std::path::Path {
+        match self {
+            Self::Io { path, .. }
+            | Self::Malformed { path, .. }
+            | Self::BadField { path, .. }
+            | Self::Image { path, .. }
+            | Self::Layout { path, .. } => path,
+        }
+    }
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         Self::Io {
             path: path.into(),

@@ -15,10 +15,7 @@ pub fn on_imu_clock(
     estimator: Box<dyn RelativeEstimator>,
     rig: &RigModel,
 ) -> Box<dyn RelativeEstimator> {
-    let shift_ns = rig
-        .cameras
-        .first()
-        .map_or(0, |c| (c.time_shift_cam_imu_s * 1e9).round() as i64);
+    let shift_ns = rig.frame_shift_ns();
     if shift_ns == 0 {
         estimator
     } else {

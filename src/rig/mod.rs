@@ -30,6 +30,13 @@ pub struct CameraCalibration {
     pub time_shift_cam_imu_s: f64,
 }
 
+impl CameraCalibration {
+    /// [`Self::time_shift_cam_imu_s`] in whole nanoseconds.
+    pub fn time_shift_ns(&self) -> i64 {
+        (self.time_shift_cam_imu_s * 1e9).round() as i64
+    }
+}
+
 /// Continuous-time IMU noise, Kalibr convention, SI units.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ImuNoise {
@@ -74,4 +81,13 @@ pub struct ImuCalibration {
 pub struct RigModel {
     pub cameras: Vec<CameraCalibration>,
     pub imu: Option<ImuCalibration>,
+}
+
+impl RigModel {
+    /// Camera 0's time shift, ns: frames are moved onto the IMU's clock by it.
+    pub fn frame_shift_ns(&self) -> i64 {
+        self.cameras
+            .first()
+            .map_or(0, CameraCalibration::time_shift_ns)
+    }
 }
