@@ -127,6 +127,9 @@ fn rust_layout() -> Vec<(&'static str, usize, usize, Vec<Field>)> {
                 imu_noise_scale_gyro,
                 imu_noise_scale_accel,
                 pixel_noise_scale,
+                camera_imu_rotation_deg,
+                camera_imu_translation_m,
+                camera_imu_time_offset_s,
             ),
         ),
     ]

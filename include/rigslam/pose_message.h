@@ -12,7 +12,7 @@
  *
  * iceoryx2 type names (what a C binding passes as the payload type name
  * when it opens the service): "rigslam_pose_message_v1" and
- * "rigslam_status_message_v1"; type variant FIXED_SIZE; size and alignment
+ * "rigslam_status_message_v3"; type variant FIXED_SIZE; size and alignment
  * as asserted here. Each service is paired with an event service of the
  * same name, notified after every sample.
  *
@@ -31,9 +31,9 @@ extern "C" {
 #endif
 
 #define RIGSLAM_POSE_LAYOUT_VERSION 1u
-#define RIGSLAM_STATUS_LAYOUT_VERSION 2u
+#define RIGSLAM_STATUS_LAYOUT_VERSION 3u
 #define RIGSLAM_POSE_TYPE_NAME "rigslam_pose_message_v1"
-#define RIGSLAM_STATUS_TYPE_NAME "rigslam_status_message_v2"
+#define RIGSLAM_STATUS_TYPE_NAME "rigslam_status_message_v3"
 
 /* tracking_state values */
 #define RIGSLAM_TRACKING_STATE_INITIALIZING 0u /* no metric pose yet */
@@ -73,6 +73,8 @@ typedef struct rigslam_pose_message {
 #define RIGSLAM_HEALTH_STAGE_STUCK (1u << 5)
 /* the estimated noise sits at a bound: the declared noise is far off */
 #define RIGSLAM_HEALTH_NOISE_AT_BOUND (1u << 6)
+/* the online camera-IMU estimate is far from the calibration file */
+#define RIGSLAM_HEALTH_CALIBRATION_DRIFT (1u << 7)
 
 #define RIGSLAM_STATUS_MAX_QUEUES 8
 
@@ -106,6 +108,12 @@ typedef struct rigslam_status_message {
     double imu_noise_scale_gyro;
     double imu_noise_scale_accel;
     double pixel_noise_scale;
+    /* the online camera-IMU refinement: distance of camera 0's pose from
+     * the calibration file (deg, m) and the frames' time offset beyond the
+     * file's time shift (s); NaN: not refined */
+    double camera_imu_rotation_deg;
+    double camera_imu_translation_m;
+    double camera_imu_time_offset_s;
 } rigslam_status_message_t;
 
 #if defined(__cplusplus)
@@ -137,7 +145,7 @@ RIGSLAM_STATIC_ASSERT(offsetof(rigslam_queue_fill_t, name) == 0, "queue fill nam
 RIGSLAM_STATIC_ASSERT(offsetof(rigslam_queue_fill_t, len) == 16, "queue fill len");
 RIGSLAM_STATIC_ASSERT(offsetof(rigslam_queue_fill_t, capacity) == 20, "queue fill capacity");
 
-RIGSLAM_STATIC_ASSERT(sizeof(rigslam_status_message_t) == 320, "status size");
+RIGSLAM_STATIC_ASSERT(sizeof(rigslam_status_message_t) == 344, "status size");
 RIGSLAM_STATIC_ASSERT(RIGSLAM_ALIGNOF(rigslam_status_message_t) == 8, "status alignment");
 RIGSLAM_STATIC_ASSERT(offsetof(rigslam_status_message_t, layout_version) == 0, "status layout_version");
 RIGSLAM_STATIC_ASSERT(offsetof(rigslam_status_message_t, sensor_health) == 4, "status sensor_health");
@@ -158,6 +166,9 @@ RIGSLAM_STATIC_ASSERT(offsetof(rigslam_status_message_t, queues) == 104, "status
 RIGSLAM_STATIC_ASSERT(offsetof(rigslam_status_message_t, imu_noise_scale_gyro) == 296, "status imu_noise_scale_gyro");
 RIGSLAM_STATIC_ASSERT(offsetof(rigslam_status_message_t, imu_noise_scale_accel) == 304, "status imu_noise_scale_accel");
 RIGSLAM_STATIC_ASSERT(offsetof(rigslam_status_message_t, pixel_noise_scale) == 312, "status pixel_noise_scale");
+RIGSLAM_STATIC_ASSERT(offsetof(rigslam_status_message_t, camera_imu_rotation_deg) == 320, "status camera_imu_rotation_deg");
+RIGSLAM_STATIC_ASSERT(offsetof(rigslam_status_message_t, camera_imu_translation_m) == 328, "status camera_imu_translation_m");
+RIGSLAM_STATIC_ASSERT(offsetof(rigslam_status_message_t, camera_imu_time_offset_s) == 336, "status camera_imu_time_offset_s");
 
 #ifdef __cplusplus
 } /* extern "C" */

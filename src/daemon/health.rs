@@ -8,11 +8,11 @@ use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU32, AtomicU64, Ordering};
 use std::sync::Mutex;
 
 use crate::publish::{
-    QueueFill, StatusMessage, HEALTH_CAMERA_STALLED, HEALTH_CAMERA_STREAMING,
-    HEALTH_IMU_RECONNECTING, HEALTH_IMU_STREAMING, HEALTH_NOISE_AT_BOUND, HEALTH_STAGE_STUCK,
-    HEALTH_TIMESTAMP_JUMP,
+    QueueFill, StatusMessage, HEALTH_CALIBRATION_DRIFT, HEALTH_CAMERA_STALLED,
+    HEALTH_CAMERA_STREAMING, HEALTH_IMU_RECONNECTING, HEALTH_IMU_STREAMING, HEALTH_NOISE_AT_BOUND,
+    HEALTH_STAGE_STUCK, HEALTH_TIMESTAMP_JUMP,
 };
-use crate::relative::window::NoiseScale;
+use crate::relative::window::{CameraImuEstimate, NoiseScale};
 use crate::run::TimingStats;
 use crate::sensors::yei::device::host_monotonic_ns;
 
@@ -56,6 +56,12 @@ pub struct Health {
     noise_scale_bits: [AtomicU64; 3],
     noise_known: AtomicBool,
     noise_at_bound: AtomicBool,
+    /// The online camera-IMU estimate (rotation deg, translation m, time
+    /// offset s from the file) as f64 bits, valid when `camera_imu_known`;
+    /// `camera_imu_far` when it wandered beyond the warning distance.
+    camera_imu_bits: [AtomicU64; 3],
+    camera_imu_known: AtomicBool,
+    camera_imu_far: AtomicBool,
     /// Frame arrival to pose published, us, since the last status.
     latency_window_us: Mutex<Vec<f64>>,
     /// Every latency of the run (the exit report), in fixed memory.
@@ -256,6 +262,24 @@ impl Health {
         self.noise_at_bound.store(at_bound, Ordering::Relaxed);
     }
 
+    /// The camera-IMU calibration as the estimator refines it (None: not
+    /// refined), for the status.
+    pub fn record_camera_imu(&self, estimate: Option<CameraImuEstimate>) {
+        if let Some(e) = estimate {
+            for (bits, v) in self.camera_imu_bits.iter().zip([
+                e.rotation_from_file_deg,
+                e.translation_from_file_m,
+                e.time_offset_s,
+            ]) {
+                bits.store(v.to_bits(), Ordering::Relaxed);
+            }
+        }
+        self.camera_imu_known
+            .store(estimate.is_some(), Ordering::Relaxed);
+        self.camera_imu_far
+            .store(estimate.is_some_and(|e| e.far_from_file), Ordering::Relaxed);
+    }
+
     pub fn record_latency_us(&self, us: f64) {
         self.latency_window_us
             .lock()
@@ -357,6 +381,18 @@ impl Health {
         if self.noise_at_bound.load(Ordering::Relaxed) {
             m.sensor_health |= HEALTH_NOISE_AT_BOUND;
         }
+        if self.camera_imu_known.load(Ordering::Relaxed) {
+            let [r, t, td] = self
+                .camera_imu_bits
+                .each_ref()
+                .map(|b| f64::from_bits(b.load(Ordering::Relaxed)));
+            m.camera_imu_rotation_deg = r;
+            m.camera_imu_translation_m = t;
+            m.camera_imu_time_offset_s = td;
+        }
+        if self.camera_imu_far.load(Ordering::Relaxed) {
+            m.sensor_health |= HEALTH_CALIBRATION_DRIFT;
+        }
         m.set_queues(queues);
         *base = RateBase {
             t_ns: now,
@@ -390,6 +426,10 @@ pub fn health_words(health: u32) -> String {
         (
             HEALTH_NOISE_AT_BOUND,
             "noise estimate at its bound: check the sensor file",
+        ),
+        (
+            HEALTH_CALIBRATION_DRIFT,
+            "camera-imu estimate far from the calibration file: recalibrate",
         ),
     ];
     let words: Vec<&str> = names
@@ -433,6 +473,48 @@ mod tests {
             m.camera_rate_hz > 0.0 && m.imu_rate_hz > m.camera_rate_hz,
             "{m:?}"
         );
+    }
+
+    #[test]
+    fn status_says_where_the_camera_imu_estimate_is_and_warns_when_far() {
+        let health = Health::new();
+        let rules = rules();
+        let mut base = RateBase::default();
+        let before = health.status(&rules, &mut base, &[], (0, 0));
+        assert!(
+            before.camera_imu_rotation_deg.is_nan() && before.camera_imu_time_offset_s.is_nan()
+        );
+        let mut estimate = CameraImuEstimate {
+            T_body_cam0: nalgebra::Isometry3::identity(),
+            time_offset_s: -0.005,
+            rotation_from_file_deg: 0.8,
+            translation_from_file_m: 0.004,
+            rotation_sigma_deg: 0.02,
+            translation_sigma_m: 0.001,
+            time_offset_sigma_s: 0.0001,
+            far_from_file: false,
+            solves: 10,
+        };
+        health.record_camera_imu(Some(estimate));
+        let m = health.status(&rules, &mut base, &[], (0, 0));
+        assert_eq!(
+            (
+                m.camera_imu_rotation_deg,
+                m.camera_imu_translation_m,
+                m.camera_imu_time_offset_s
+            ),
+            (0.8, 0.004, -0.005)
+        );
+        assert_eq!(m.sensor_health & HEALTH_CALIBRATION_DRIFT, 0);
+        estimate.far_from_file = true;
+        health.record_camera_imu(Some(estimate));
+        let m = health.status(&rules, &mut base, &[], (0, 0));
+        assert_ne!(m.sensor_health & HEALTH_CALIBRATION_DRIFT, 0);
+        assert!(health_words(m.sensor_health).contains("recalibrate"));
+        health.record_camera_imu(None);
+        let m = health.status(&rules, &mut base, &[], (0, 0));
+        assert!(m.camera_imu_rotation_deg.is_nan());
+        assert_eq!(m.sensor_health & HEALTH_CALIBRATION_DRIFT, 0);
     }
 
     #[test]

@@ -404,6 +404,7 @@ impl Stage {
             self.estimator.imu_noise_scale(),
             self.estimator.noise_at_bound(),
         );
+        health.record_camera_imu(self.estimator.camera_imu());
         self.fast.on_frame(&output);
         health
             .tracking_state

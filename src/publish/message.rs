@@ -22,7 +22,7 @@ use crate::relative::types::{RelativeOutput, TrackingState};
 /// Layout version of [`PoseMessage`]; bump it on any change of the layout.
 pub const POSE_LAYOUT_VERSION: u32 = 1;
 /// Layout version of [`StatusMessage`]; bump it on any change of the layout.
-pub const STATUS_LAYOUT_VERSION: u32 = 2;
+pub const STATUS_LAYOUT_VERSION: u32 = 3;
 
 /// [`PoseMessage::tracking_state`]: collecting frames, no metric pose yet.
 pub const TRACKING_STATE_INITIALIZING: u32 = 0;
@@ -133,13 +133,18 @@ pub const HEALTH_STAGE_STUCK: u32 = 1 << 5;
 /// of its range: the noise in the rig's sensor file is far from what the
 /// sensors show (a unit mistake, or a much noisier IMU than declared).
 pub const HEALTH_NOISE_AT_BOUND: u32 = 1 << 6;
+/// [`StatusMessage::sensor_health`]: the camera-IMU calibration the
+/// estimator refines online has wandered far from the calibration file
+/// (the camera moved on its mount, or the file belongs to another rig):
+/// recalibrate.
+pub const HEALTH_CALIBRATION_DRIFT: u32 = 1 << 7;
 
 /// How many queues [`StatusMessage::queues`] has room for.
 pub const STATUS_MAX_QUEUES: usize = 8;
 
 /// The daemon's health, published on `rigslam/status` about once a second.
 ///
-/// Byte layout (size 320, alignment 8, no padding):
+/// Byte layout (size 344, alignment 8, no padding):
 ///
 /// | offset | field | type |
 /// |---|---|---|
@@ -162,8 +167,11 @@ pub const STATUS_MAX_QUEUES: usize = 8;
 /// | 296 | `imu_noise_scale_gyro` | f64 |
 /// | 304 | `imu_noise_scale_accel` | f64 |
 /// | 312 | `pixel_noise_scale` | f64 |
+/// | 320 | `camera_imu_rotation_deg` | f64 |
+/// | 328 | `camera_imu_translation_m` | f64 |
+/// | 336 | `camera_imu_time_offset_s` | f64 |
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("rigslam_status_message_v2")]
+#[type_name("rigslam_status_message_v3")]
 #[repr(C)]
 pub struct StatusMessage {
     /// [`STATUS_LAYOUT_VERSION`] of the writer.
@@ -207,6 +215,14 @@ pub struct StatusMessage {
     pub imu_noise_scale_gyro: f64,
     pub imu_noise_scale_accel: f64,
     pub pixel_noise_scale: f64,
+    /// How far the online estimate of camera 0's pose in the IMU frame
+    /// is from the calibration file (rotation angle, deg; translation,
+    /// m), and the frames' time offset it found beyond the file's time
+    /// shift (s; positive: the images were taken after their stamps).
+    /// NaN when the calibration is not refined (off, or no IMU).
+    pub camera_imu_rotation_deg: f64,
+    pub camera_imu_translation_m: f64,
+    pub camera_imu_time_offset_s: f64,
 }
 
 /// A message of `size_of::<T>()` bytes as they lie in shared memory;
@@ -295,6 +311,9 @@ impl Default for StatusMessage {
             imu_noise_scale_gyro: f64::NAN,
             imu_noise_scale_accel: f64::NAN,
             pixel_noise_scale: f64::NAN,
+            camera_imu_rotation_deg: f64::NAN,
+            camera_imu_translation_m: f64::NAN,
+            camera_imu_time_offset_s: f64::NAN,
         }
     }
 }

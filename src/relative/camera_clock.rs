@@ -58,4 +58,8 @@ impl RelativeEstimator for ShiftedFrames {
     fn noise_at_bound(&self) -> bool {
         self.inner.noise_at_bound()
     }
+
+    fn camera_imu(&self) -> Option<crate::relative::window::CameraImuEstimate> {
+        self.inner.camera_imu()
+    }
 }

@@ -5,7 +5,7 @@
 use std::path::Path;
 
 use crate::edge_map::settings::AbsoluteSettings;
-use crate::relative::window::{NoiseAdaptationConfig, NoiseScale};
+use crate::relative::window::{CameraImuRefinementConfig, NoiseAdaptationConfig, NoiseScale};
 
 /// Which estimator runs the relative stage.
 #[derive(
@@ -24,6 +24,33 @@ impl EstimatorKind {
         match self {
             EstimatorKind::Window => "window",
             EstimatorKind::Ekf => "ekf",
+        }
+    }
+}
+
+/// Where the window refines the camera-IMU calibration online.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize,
+)]
+#[serde(rename_all = "kebab-case")]
+pub enum CameraImuRefinement {
+    /// Stereo-inertial only: measured not to hurt there on a correct
+    /// calibration file, while in mono-inertial it did (see
+    /// `bench/README.md`).
+    Auto,
+    /// Both inertial modes.
+    On,
+    Off,
+}
+
+impl CameraImuRefinement {
+    /// Whether the window refines the calibration in `mode`.
+    pub fn enabled_in(self, mode: crate::relative::SensorMode) -> bool {
+        use crate::relative::SensorMode;
+        match self {
+            CameraImuRefinement::Off => false,
+            CameraImuRefinement::On => mode.uses_imu(),
+            CameraImuRefinement::Auto => mode == SensorMode::StereoInertial,
         }
     }
 }
@@ -69,6 +96,19 @@ pub struct RelativeConfig {
     /// Estimate the bias random walks' scales too (off: measured worse
     /// in mono-inertial, see the adaptation's module doc).
     pub imu_walk_adaptation: bool,
+    /// Refine camera 0's pose in the IMU frame and the frames' time
+    /// offset online, starting from the calibration file
+    /// (`relative/window/camera_imu.rs`): "auto" (stereo-inertial), "on"
+    /// (both inertial modes) or "off".
+    pub camera_imu_refinement: CameraImuRefinement,
+    /// How far the file may be off, one sigma: rotation (deg),
+    /// translation (m), time offset (s).
+    pub camera_imu_rotation_sigma_deg: f64,
+    pub camera_imu_translation_sigma_m: f64,
+    pub camera_imu_time_offset_sigma_s: f64,
+    /// Share of a solve's information about the calibration carried to
+    /// the next one, in [0, 1).
+    pub camera_imu_carry_weight: f64,
     /// The absolute stage's settings (`[absolute]`; used with `--absolute`).
     pub absolute: AbsoluteSettings,
 }
@@ -92,6 +132,11 @@ impl Default for RelativeConfig {
             imu_noise_scale_min: 0.1,
             imu_noise_scale_max: 100.0,
             imu_walk_adaptation: false,
+            camera_imu_refinement: CameraImuRefinement::Auto,
+            camera_imu_rotation_sigma_deg: 2.0,
+            camera_imu_translation_sigma_m: 0.03,
+            camera_imu_time_offset_sigma_s: 0.01,
+            camera_imu_carry_weight: 0.9,
             absolute: AbsoluteSettings::default(),
         }
     }
@@ -215,8 +260,29 @@ impl RelativeConfig {
         if let Err(message) = self.noise_adaptation().validate() {
             return Err(ConfigError::Invalid(message));
         }
+        if let Err(message) = self
+            .camera_imu_refinement(crate::relative::SensorMode::StereoInertial)
+            .validate()
+        {
+            return Err(ConfigError::Invalid(message));
+        }
         self.absolute.to_config()?;
         Ok(())
+    }
+
+    /// The window's camera-IMU refinement from these settings, in `mode`.
+    pub fn camera_imu_refinement(
+        &self,
+        mode: crate::relative::SensorMode,
+    ) -> CameraImuRefinementConfig {
+        CameraImuRefinementConfig {
+            enabled: self.camera_imu_refinement.enabled_in(mode),
+            rotation_sigma_deg: self.camera_imu_rotation_sigma_deg,
+            translation_sigma_m: self.camera_imu_translation_sigma_m,
+            time_offset_sigma_s: self.camera_imu_time_offset_sigma_s,
+            carry_weight: self.camera_imu_carry_weight,
+            ..CameraImuRefinementConfig::default()
+        }
     }
 
     /// The window's IMU noise adaptation from these settings.

@@ -172,6 +172,11 @@ pub trait RelativeEstimator {
     fn noise_at_bound(&self) -> bool {
         false
     }
+
+    /// The camera-IMU calibration as refined online (None: not refined).
+    fn camera_imu(&self) -> Option<crate::relative::window::CameraImuEstimate> {
+        None
+    }
 }
 
 #[cfg(test)]

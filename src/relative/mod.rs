@@ -23,7 +23,7 @@ pub mod tracker;
 pub mod types;
 pub mod window;
 
-pub use config::{ConfigError, EstimatorKind, RelativeConfig};
+pub use config::{CameraImuRefinement, ConfigError, EstimatorKind, RelativeConfig};
 pub use estimator::{FrameInput, FrameTimings, RelativeEstimator, RigError, RigModel, SensorMode};
 pub use odometry::{build_estimator, OdometryError, WindowOdometry};
 pub use types::{

@@ -240,6 +240,7 @@ impl WindowOdometry {
             pixel_sigma: config.pixel_sigma_px,
             use_imu: false,
             noise_adaptation: config.noise_adaptation(),
+            camera_imu: config.camera_imu_refinement(mode),
             ..WindowConfig::default()
         };
         let window = Window::new(window_config.clone(), &used)
@@ -286,9 +287,13 @@ impl WindowOdometry {
     /// An empty window that keeps what the IMU's noise was found to be.
     fn new_window(&mut self) {
         let noise = self.window.noise_adaptation().clone();
-        self.window = Window::new(self.window_config.clone(), &self.rig)
-            .expect("the same config and rig were accepted at start");
+        let previous = std::mem::replace(
+            &mut self.window,
+            Window::new(self.window_config.clone(), &self.rig)
+                .expect("the same config and rig were accepted at start"),
+        );
         self.window.keep_noise_adaptation(noise);
+        self.window.keep_camera_imu_from(&previous);
     }
 
     /// Gyro-predicted rotation of the current left camera in the previous
@@ -592,6 +597,10 @@ impl WindowOdometry {
         // IMU can carry the state, it does (images that stopped while the
         // rig moves would otherwise hold the pose, then jump).
         let carried_over_repeat = self.repeated_frame && pre.is_some();
+        let omega = self
+            .angular_rate_at(t_ns, &guess)
+            .unwrap_or_else(Vector3::zeros);
+        self.window.set_frame_angular_rate(omega);
         let placed = {
             let window = &mut self.window;
             let pre_ref = pre.as_ref();
@@ -689,9 +698,13 @@ impl WindowOdometry {
         frame: &TrackedFrame,
         pre: Option<Preintegrated>,
     ) -> bool {
+        let omega = self.angular_rate_at(frame.t_ns, &state);
         let window = &mut self.window;
         let pushed = self.timings.time("window", || {
             window.push_keyframe(state, frame, pre)?;
+            if let Some(omega) = omega {
+                window.set_newest_angular_rate(omega);
+            }
             window.optimize();
             Ok::<(), super::window::WindowError>(())
         });
@@ -709,6 +722,22 @@ impl WindowOdometry {
             imu.discard_before(oldest.min(frame.t_ns - 1_000_000_000));
         }
         true
+    }
+
+    /// The body's angular rate at `t_ns`: the gyroscope's mean over the
+    /// samples within 5 ms, less the state's bias (None without samples).
+    fn angular_rate_at(&self, t_ns: i64, state: &KeyframeState) -> Option<Vector3<f64>> {
+        let samples = self
+            .imu
+            .as_ref()?
+            .between(t_ns - 5_000_000, t_ns + 5_000_000);
+        if samples.is_empty() {
+            return None;
+        }
+        let sum = samples
+            .iter()
+            .fold(Vector3::zeros(), |acc, s| acc + Vector3::from(s.gyro_rad_s));
+        Some(sum / samples.len() as f64 - state.biases.gyro_rad_s)
     }
 
     fn set_rest_anchor(&mut self, frame: &TrackedFrame) {
@@ -1179,6 +1208,11 @@ impl RelativeEstimator for WindowOdometry {
         self.imu
             .is_some()
             .then(|| self.window.noise_adaptation().scale())
+    }
+
+    fn camera_imu(&self) -> Option<crate::relative::window::CameraImuEstimate> {
+        self.imu.as_ref()?;
+        self.window.camera_imu()
     }
 
     fn noise_at_bound(&self) -> bool {

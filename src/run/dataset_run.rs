@@ -320,6 +320,7 @@ pub fn run_dataset(
         stream: stream_counts,
         counters,
         imu_noise_scale: estimator.imu_noise_scale(),
+        camera_imu: estimator.camera_imu().map(Into::into),
         nees: ground_truth
             .as_ref()
             .and_then(|gt| pose_nees(&covariance_poses, gt)),
@@ -432,6 +433,19 @@ pub fn summary_line(r: &RunReport) -> String {
         line += &format!(
             "; noise weighed as {:.1}x the declared gyroscope, {:.1}x the accelerometer, {:.2}x the pixel sigma",
             s.gyro, s.accel, s.pixel
+        );
+    }
+    if let Some(c) = &r.camera_imu {
+        line += &format!(
+            "; camera-IMU refined to {:.3} deg, {:.1} mm and {:+.2} ms from the file{}",
+            c.rotation_from_file_deg,
+            c.translation_from_file_mm,
+            c.time_offset_ms,
+            if c.far_from_file {
+                " (far from it: check the calibration)"
+            } else {
+                ""
+            }
         );
     }
     if let Some(n) = &r.nees {

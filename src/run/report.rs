@@ -75,6 +75,10 @@ pub struct RunReport {
     /// accelerometer noise densities the estimator weighed the IMU with
     /// (estimated online unless `imu_noise_adaptation = false`).
     pub imu_noise_scale: Option<crate::relative::window::NoiseScale>,
+    /// At the end: camera 0's pose in the IMU frame and the frames' time
+    /// offset as refined online (`camera_imu_refinement`), against the
+    /// calibration file.
+    pub camera_imu: Option<CameraImuReport>,
     /// Consistency of the published pose covariance against the ground
     /// truth (NEES per degree of freedom; 1 is consistent).
     pub nees: Option<crate::eval::consistency::NeesReport>,
@@ -139,6 +143,44 @@ mod tests {
         if cfg!(target_os = "linux") {
             let (now, peak) = (now.expect("VmRSS"), peak.expect("VmHWM"));
             assert!(now > 0.0 && peak >= now, "{now} {peak}");
+        }
+    }
+}
+
+/// The online camera-IMU refinement's answer, in a user's units.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CameraImuReport {
+    /// Camera 0 in the body (IMU) frame: translation, m, and rotation as a
+    /// quaternion `[w, x, y, z]`.
+    pub translation_body_cam0_m: [f64; 3],
+    pub rotation_body_cam0_wxyz: [f64; 4],
+    /// The frames' lag behind the IMU beyond the file's time shift, ms.
+    pub time_offset_ms: f64,
+    /// Distance from the file.
+    pub rotation_from_file_deg: f64,
+    pub translation_from_file_mm: f64,
+    /// One sigma of the last solve.
+    pub rotation_sigma_deg: f64,
+    pub translation_sigma_mm: f64,
+    pub time_offset_sigma_ms: f64,
+    /// Farther from the file than the warning distance.
+    pub far_from_file: bool,
+}
+
+impl From<crate::relative::window::CameraImuEstimate> for CameraImuReport {
+    fn from(e: crate::relative::window::CameraImuEstimate) -> Self {
+        let t = e.T_body_cam0.translation.vector;
+        let q = e.T_body_cam0.rotation;
+        Self {
+            translation_body_cam0_m: [t.x, t.y, t.z],
+            rotation_body_cam0_wxyz: [q.w, q.i, q.j, q.k],
+            time_offset_ms: e.time_offset_s * 1e3,
+            rotation_from_file_deg: e.rotation_from_file_deg,
+            translation_from_file_mm: e.translation_from_file_m * 1e3,
+            rotation_sigma_deg: e.rotation_sigma_deg,
+            translation_sigma_mm: e.translation_sigma_m * 1e3,
+            time_offset_sigma_ms: e.time_offset_sigma_s * 1e3,
+            far_from_file: e.far_from_file,
         }
     }
 }

@@ -277,7 +277,7 @@ fn print_status(m: &StatusMessage, _latency_us: f64) {
         .map(|q| format!("{} {}/{}", q.name_str(), q.len, q.capacity))
         .collect();
     println!(
-        "#{} camera {:.1} Hz imu {:.1} Hz pose {:.1} Hz, drops camera {} imu {} pose {}, latency p50 {:.0} us p99 {:.0} us, health 0x{:x}, noise scale gyro {:.2} accel {:.2} pixel {:.2}, queues [{}]",
+        "#{} camera {:.1} Hz imu {:.1} Hz pose {:.1} Hz, drops camera {} imu {} pose {}, latency p50 {:.0} us p99 {:.0} us, health 0x{:x}, noise scale gyro {:.2} accel {:.2} pixel {:.2}, camera-imu {:.3} deg {:.4} m {:+.5} s from the file, queues [{}]",
         m.sequence,
         m.camera_rate_hz,
         m.imu_rate_hz,
@@ -291,6 +291,9 @@ fn print_status(m: &StatusMessage, _latency_us: f64) {
         m.imu_noise_scale_gyro,
         m.imu_noise_scale_accel,
         m.pixel_noise_scale,
+        m.camera_imu_rotation_deg,
+        m.camera_imu_translation_m,
+        m.camera_imu_time_offset_s,
         queues.join(", ")
     );
 }

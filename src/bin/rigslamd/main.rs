@@ -253,6 +253,14 @@ fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
                     status.pixel_noise_scale
                 );
             }
+            if status.camera_imu_rotation_deg.is_finite() {
+                line += &format!(
+                    "; camera-imu {:.2} deg, {:.1} mm, {:+.2} ms from the calibration file",
+                    status.camera_imu_rotation_deg,
+                    status.camera_imu_translation_m * 1e3,
+                    status.camera_imu_time_offset_s * 1e3
+                );
+            }
             if let Err(e) = status_publisher.publish(&status) {
                 tracing::warn!("{e}");
             }

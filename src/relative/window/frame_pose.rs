@@ -14,6 +14,7 @@ use std::time::Instant;
 
 use nalgebra::{Matrix6, SMatrix, SVector, Vector2, Vector3};
 
+use super::camera_imu::{reproject_refined, reprojection_error_refined, BodyMotion};
 use super::inertial::{whitening, Matrix9};
 use super::reprojection::{reproject, reprojection_error, GATE_SQ};
 use super::state::{apply_update, nav_state, state_is_finite, FULL_DIM, POS, ROT, VEL};
@@ -162,6 +163,61 @@ impl Window {
         };
         let kernel = self.config.robust_kernel;
         let cameras = &self.cameras;
+        // With the time offset refined, the images were taken `td` after
+        // their stamps: project through the pose at exposure, as the
+        // keyframes do ([`super::camera_imu`]); the state stays the body's
+        // at the stamp.
+        let exposure = self
+            .camera_imu
+            .as_ref()
+            .filter(|_| self.use_imu && imu.is_some())
+            .map(|c| (c.time_offset_s, &c.T_cam0_cam, self.frame_omega_body_rad_s));
+        let project = |s: &KeyframeState, r: &TrackRow| match &exposure {
+            Some((td, t_c0c, omega)) => {
+                let motion = BodyMotion {
+                    omega_body_rad_s: *omega,
+                    velocity_world_m_s: s.velocity_world_m_s,
+                };
+                reproject_refined(
+                    &cameras[r.camera as usize],
+                    &t_c0c[r.camera as usize],
+                    &s.T_world_body,
+                    &motion,
+                    *td,
+                    &r.point_world_m,
+                    &r.pixel,
+                )
+                .map(|(p, _)| p)
+            }
+            None => reproject(
+                &cameras[r.camera as usize],
+                &s.T_world_body,
+                &r.point_world_m,
+                &r.pixel,
+            ),
+        };
+        let error = |s: &KeyframeState, r: &TrackRow| match &exposure {
+            Some((td, _, omega)) => {
+                let motion = BodyMotion {
+                    omega_body_rad_s: *omega,
+                    velocity_world_m_s: s.velocity_world_m_s,
+                };
+                reprojection_error_refined(
+                    &cameras[r.camera as usize],
+                    &s.T_world_body,
+                    &motion,
+                    *td,
+                    &r.point_world_m,
+                    &r.pixel,
+                )
+            }
+            None => reprojection_error(
+                &cameras[r.camera as usize],
+                &s.T_world_body,
+                &r.point_world_m,
+                &r.pixel,
+            ),
+        };
 
         // Cost and (optionally) normal equations of the frame's pose.
         let evaluate = |s: &KeyframeState,
@@ -176,11 +232,8 @@ impl Window {
             let mut b = Vector9::zeros();
             let build = normal.is_some();
             for r in rows.iter().filter(|r| r.active) {
-                let camera = &cameras[r.camera as usize];
                 if build {
-                    let Some(p) = reproject(camera, &s.T_world_body, &r.point_world_m, &r.pixel)
-                        .filter(|p| p.depth_m > 0.0)
-                    else {
+                    let Some(p) = project(s, r).filter(|p| p.depth_m > 0.0) else {
                         cost += 0.5 * vw * kernel.evaluate(GATE_SQ, k).0;
                         continue;
                     };
@@ -193,7 +246,7 @@ impl Window {
                     let mut bp = b.fixed_rows_mut::<6>(0);
                     bp -= j.transpose() * e * (w * vw);
                 } else {
-                    match reprojection_error(camera, &s.T_world_body, &r.point_world_m, &r.pixel) {
+                    match error(s, r) {
                         Some((e, depth)) if depth > 0.0 => {
                             cost += 0.5 * vw * kernel.evaluate((e * inv_sigma).norm_squared(), k).0
                         }
@@ -275,9 +328,8 @@ impl Window {
             let chi2 = self.config.outlier_chi2;
             let mut dropped = 0;
             for r in rows.iter_mut().filter(|r| r.active) {
-                let camera = &cameras[r.camera as usize];
                 let keep = matches!(
-                    reprojection_error(camera, &state.T_world_body, &r.point_world_m, &r.pixel),
+                    error(&state, r),
                     Some((e, depth)) if depth > 0.0 && (e * inv_sigma).norm_squared() <= chi2
                 );
                 if !keep {

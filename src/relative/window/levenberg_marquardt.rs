@@ -11,6 +11,7 @@ use std::time::Instant;
 
 use nalgebra::{DMatrix, Matrix2, SMatrix, SVector, Vector2, Vector3};
 
+use super::camera_imu::{reproject_refined, reprojection_error_refined, BodyMotion, CALIB_DIM};
 use super::inertial::{
     bias_walk_factor, inertial_factor, tangent_basis, update_direction, GRAVITY_COL,
 };
@@ -179,7 +180,14 @@ impl Window {
         let free = n - n_fixed;
         p.gravity_offset = self.use_imu.then_some(free * sd);
         p.boundary_offset = self.use_imu.then_some(free * sd + 2);
-        let dim = free * sd + if self.use_imu { 2 + BOUNDARY_DIM } else { 0 };
+        let base = free * sd + if self.use_imu { 2 + BOUNDARY_DIM } else { 0 };
+        p.calib_offset = (self.use_imu && self.camera_imu.is_some()).then_some(base);
+        let dim = base
+            + if p.calib_offset.is_some() {
+                CALIB_DIM
+            } else {
+                0
+            };
         p.eq.reset(dim);
         p.rows.clear();
         p.landmarks.clear();
@@ -254,7 +262,7 @@ impl Window {
             for _ in 0..10 {
                 let solved = {
                     let p = &mut self.problem;
-                    schur::solve_step(&mut p.eq, &p.rows, &mut p.landmarks, lambda)
+                    schur::solve_step(&mut p.eq, &p.rows, &mut p.landmarks, lambda, p.calib_offset)
                 };
                 if !solved {
                     lambda *= 10.0;
@@ -316,12 +324,48 @@ impl Window {
             p.gravity_basis = tangent_basis(&self.gravity_dir);
         }
         let mut cost = 0.0;
+        let calib = p.calib_offset.and(self.camera_imu.as_ref());
         for row in p.rows.iter_mut() {
             let kf = &keyframes[row.kf];
             let obs = &kf.observations[row.obs_index];
             let camera = &self.cameras[row.camera as usize];
             let point = p.landmarks[row.landmark].position_world_m;
-            let error = if build {
+            let error = if let Some(c) = calib {
+                let motion = BodyMotion {
+                    omega_body_rad_s: kf.omega_body_rad_s,
+                    velocity_world_m_s: kf.state.velocity_world_m_s,
+                };
+                let td = c.time_offset_s;
+                if build {
+                    reproject_refined(
+                        camera,
+                        &c.T_cam0_cam[row.camera as usize],
+                        &kf.state.T_world_body,
+                        &motion,
+                        td,
+                        &point,
+                        &obs.pixel,
+                    )
+                    .filter(|(r, _)| r.depth_m > 0.0)
+                    .map(|(r, d_calib)| {
+                        row.d_pose = r.d_pose * inv_sigma;
+                        row.d_point = r.d_point * inv_sigma;
+                        row.d_calib = d_calib * inv_sigma;
+                        r.error_px
+                    })
+                } else {
+                    reprojection_error_refined(
+                        camera,
+                        &kf.state.T_world_body,
+                        &motion,
+                        td,
+                        &point,
+                        &obs.pixel,
+                    )
+                    .filter(|(_, depth)| *depth > 0.0)
+                    .map(|(e, _)| e)
+                }
+            } else if build {
                 reproject(camera, &kf.state.T_world_body, &point, &obs.pixel)
                     .filter(|r| r.depth_m > 0.0)
                     .map(|r| {
@@ -353,7 +397,28 @@ impl Window {
             }
         }
         if build {
-            schur::accumulate_observations(&mut p.eq, &mut p.rows, &mut p.landmarks);
+            schur::accumulate_observations(
+                &mut p.eq,
+                &mut p.rows,
+                &mut p.landmarks,
+                p.calib_offset,
+            );
+        }
+        if let (Some(oc), Some(c)) = (p.calib_offset, calib) {
+            for (r, j) in c.prior_factors() {
+                cost += 0.5 * r.norm_squared();
+                if build {
+                    p.eq.add_factor(
+                        &r,
+                        &j,
+                        &[Chunk {
+                            col: 0,
+                            len: CALIB_DIM,
+                            offset: Some(oc),
+                        }],
+                    );
+                }
+            }
         }
 
         let n = keyframes.len();
@@ -506,6 +571,10 @@ impl Window {
         p.backup_landmarks
             .extend(p.landmarks.iter().map(|l| l.position_world_m));
         p.backup_gravity = self.gravity_dir;
+        p.backup_calibration = self
+            .camera_imu
+            .as_ref()
+            .map(|c| (c.T_body_cam0, c.time_offset_s));
     }
 
     pub(super) fn restore_backup(&mut self) {
@@ -517,6 +586,13 @@ impl Window {
             l.position_world_m = *b;
         }
         self.gravity_dir = p.backup_gravity;
+        if let (Some(c), Some((t, td))) = (self.camera_imu.as_mut(), p.backup_calibration) {
+            c.T_body_cam0 = t;
+            c.time_offset_s = td;
+            for (i, cam) in self.cameras.iter_mut().enumerate() {
+                cam.calibration.T_body_cam = c.T_body_cam(i);
+            }
+        }
     }
 
     /// Applies the solved step; returns its largest component.
@@ -535,6 +611,12 @@ impl Window {
         if let Some(og) = p.gravity_offset {
             let d = Vector2::new(delta[og], delta[og + 1]);
             self.gravity_dir = update_direction(&self.gravity_dir, &p.gravity_basis, &d);
+        }
+        if let (Some(oc), Some(c)) = (p.calib_offset, self.camera_imu.as_mut()) {
+            c.apply(&delta[oc..oc + CALIB_DIM]);
+            for (i, cam) in self.cameras.iter_mut().enumerate() {
+                cam.calibration.T_body_cam = c.T_body_cam(i);
+            }
         }
         if let (Some(ob), Some(kf)) = (p.boundary_offset, p.n_fixed.checked_sub(1)) {
             let s = &mut self.keyframes[kf].state;
@@ -572,8 +654,22 @@ impl Window {
         self.linearize(true);
         let cov = {
             let p = &mut self.problem;
-            schur::reduced_inverse(&mut p.eq, &p.rows, &mut p.landmarks)
+            schur::reduced_inverse(&mut p.eq, &p.rows, &mut p.landmarks, p.calib_offset)
         };
+        if let (Some(oc), Some(c)) = (self.problem.calib_offset, self.camera_imu.as_mut()) {
+            c.after_solve(
+                cov.as_ref()
+                    .map(|m| m.fixed_view::<CALIB_DIM, CALIB_DIM>(oc, oc).into_owned()),
+            );
+            let e = c.estimate();
+            tracing::trace!(
+                t_ns = self.keyframes.back().map_or(0, |k| k.state.t_ns),
+                rotation_from_file_deg = e.rotation_from_file_deg,
+                translation_from_file_m = e.translation_from_file_m,
+                time_offset_s = e.time_offset_s,
+                "camera-IMU estimate"
+            );
+        }
         if let Some(cov) = &cov {
             let p = &self.problem;
             for (slot, kf) in self.keyframes.iter_mut().skip(p.n_fixed).enumerate() {
@@ -648,12 +744,19 @@ impl Window {
                             z.gemm(1.0, &s_inv.columns(o, 6), &y, 1.0);
                         }
                     }
+                    let y_calib = p.calib_offset.map(|oc| (oc, lm.w_calib * lm.v_inv));
+                    if let Some((oc, y)) = &y_calib {
+                        z.gemm(1.0, &s_inv.columns(*oc, CALIB_DIM), y, 1.0);
+                    }
                     let mut sigma_ll = lm.v_inv;
                     for r in rows {
                         if let Some(o) = r.offset.filter(|_| r.valid) {
                             let y = r.w_block * lm.v_inv;
                             sigma_ll += y.transpose() * z.fixed_view::<6, 3>(o, 0);
                         }
+                    }
+                    if let Some((oc, y)) = &y_calib {
+                        sigma_ll += y.transpose() * z.fixed_view::<CALIB_DIM, 3>(*oc, 0);
                     }
                     let mut c = r_bw * sigma_ll * r_wb;
                     if let Some(on) = newest_offset {

@@ -25,6 +25,7 @@
 //! gravity-aligned; gravity is a 2-DoF direction state (see [`inertial`])
 //! with the eq. 34 prior.
 
+pub mod camera_imu;
 pub mod frame_pose;
 pub mod inertial;
 pub mod levenberg_marquardt;
@@ -47,11 +48,13 @@ use std::collections::{HashMap, HashSet, VecDeque};
 
 use nalgebra::{DMatrix, Isometry3, Matrix3x2, Matrix6, Vector3};
 
+pub use camera_imu::{CameraImuEstimate, CameraImuRefinementConfig};
 pub use frame_pose::FramePose;
 pub use levenberg_marquardt::WindowReport;
 pub use noise_adaptation::{NoiseAdaptation, NoiseAdaptationConfig, NoiseScale};
 pub use reprojection::RobustKernel;
 
+use camera_imu::CameraImuState;
 use inertial::{bias_walk_sqrt_info, tangent_basis, InertialLink};
 use prior::{GravityPrior, OldestFreePrior, ScaleAnchor};
 use schur::{LandmarkBlock, NormalEquations, ObservationRow};
@@ -135,6 +138,9 @@ pub struct WindowConfig {
     /// densities, estimated online from the inertial residuals
     /// ([`noise_adaptation`]).
     pub noise_adaptation: NoiseAdaptationConfig,
+    /// Camera 0's pose in the body and the frames' time offset, refined
+    /// in the inertial solves from the calibration file ([`camera_imu`]).
+    pub camera_imu: CameraImuRefinementConfig,
 }
 
 impl Default for WindowConfig {
@@ -165,6 +171,7 @@ impl Default for WindowConfig {
             min_track_inliers: 12,
             track_max_iterations: 8,
             noise_adaptation: NoiseAdaptationConfig::default(),
+            camera_imu: CameraImuRefinementConfig::default(),
         }
     }
 }
@@ -179,6 +186,8 @@ pub enum WindowError {
     },
     #[error("IMU noise adaptation: {0}")]
     InvalidNoiseAdaptation(String),
+    #[error("camera-IMU refinement: {0}")]
+    InvalidCameraImu(String),
     #[error("the rig has no camera")]
     NoCamera,
     #[error("use_imu is set but the rig has no IMU")]
@@ -277,6 +286,9 @@ impl WindowConfig {
         if let Err(message) = self.noise_adaptation.validate() {
             return Err(WindowError::InvalidNoiseAdaptation(message));
         }
+        if let Err(message) = self.camera_imu.validate() {
+            return Err(WindowError::InvalidCameraImu(message));
+        }
         if self.max_depth_m <= self.min_depth_m {
             return bad(
                 "max_depth_m",
@@ -340,11 +352,14 @@ pub(crate) struct Problem {
     pub gravity_offset: Option<usize>,
     /// Columns of the newest fixed keyframe's `[v, b_g, b_a]` (IMU on).
     pub boundary_offset: Option<usize>,
+    /// Columns of the camera-IMU calibration (IMU on, refinement on).
+    pub calib_offset: Option<usize>,
     pub gravity_basis: Matrix3x2<f64>,
     pub stereo_rows: usize,
     pub backup_states: Vec<KeyframeState>,
     pub backup_landmarks: Vec<Vector3<f64>>,
     pub backup_gravity: Vector3<f64>,
+    pub backup_calibration: Option<(Isometry3<f64>, f64)>,
     /// `S^-1 Y` of one landmark (body-frame covariances).
     pub z_buffer: DMatrix<f64>,
 }
@@ -357,6 +372,11 @@ pub struct Window {
     imu_noise: Option<ImuNoise>,
     /// The scale on `imu_noise` the inertial terms are weighted with.
     noise: NoiseAdaptation,
+    /// The camera-IMU calibration as refined so far (None: refinement
+    /// off); `cameras` hold its current value.
+    camera_imu: Option<CameraImuState>,
+    /// The angular rate at the frame [`Self::track_frame`] places next.
+    frame_omega_body_rad_s: Vector3<f64>,
     /// Sequence number of the keyframe ending the last link measured.
     last_measured_link: Option<u64>,
     /// Sequence number of the newest keyframe of the last solve whose
@@ -396,12 +416,17 @@ impl Window {
             return Err(WindowError::NoImu);
         }
         let down = Vector3::new(0.0, 0.0, -1.0);
+        let cameras: Vec<RigCamera> = rig.cameras.iter().cloned().map(RigCamera::new).collect();
+        let camera_imu = (config.camera_imu.enabled && imu_noise.is_some())
+            .then(|| CameraImuState::new(config.camera_imu, &cameras));
         Ok(Self {
+            camera_imu,
+            frame_omega_body_rad_s: Vector3::zeros(),
             noise: NoiseAdaptation::new(config.noise_adaptation),
             use_imu: config.use_imu,
             gravity_prior: GravityPrior::isotropic(down, config.gravity_prior_sigma_rad),
             config,
-            cameras: rig.cameras.iter().cloned().map(RigCamera::new).collect(),
+            cameras,
             imu_noise,
             last_measured_link: None,
             last_measured_images: None,
@@ -503,6 +528,7 @@ impl Window {
             state_marginal: None,
             pose_marginal: None,
             pose_covariance: None,
+            omega_body_rad_s: Vector3::zeros(),
         });
         if self.keyframes.len() == 1 {
             self.restart_covariance_chain();
@@ -831,6 +857,46 @@ impl Window {
     /// weighted with now, and the adaptation behind it.
     pub fn noise_adaptation(&self) -> &NoiseAdaptation {
         &self.noise
+    }
+
+    /// The newest keyframe's angular rate in the body frame (gyroscope
+    /// less bias), for the time offset's Jacobian ([`camera_imu`]); zero
+    /// until set.
+    pub fn set_newest_angular_rate(&mut self, omega_body_rad_s: Vector3<f64>) {
+        if let Some(kf) = self.keyframes.back_mut() {
+            if omega_body_rad_s.iter().all(|v| v.is_finite()) {
+                kf.omega_body_rad_s = omega_body_rad_s;
+            }
+        }
+    }
+
+    /// The angular rate at the frame [`Self::track_frame`] places next,
+    /// as [`Self::set_newest_angular_rate`] for keyframes.
+    pub fn set_frame_angular_rate(&mut self, omega_body_rad_s: Vector3<f64>) {
+        self.frame_omega_body_rad_s = if omega_body_rad_s.iter().all(|v| v.is_finite()) {
+            omega_body_rad_s
+        } else {
+            Vector3::zeros()
+        };
+    }
+
+    /// The camera-IMU calibration as the window holds it now (None when
+    /// its refinement is off).
+    pub fn camera_imu(&self) -> Option<CameraImuEstimate> {
+        self.camera_imu.as_ref().map(|c| c.estimate())
+    }
+
+    /// Continues from an earlier window's camera-IMU estimate (a new
+    /// window after a loss of tracking).
+    pub fn keep_camera_imu_from(&mut self, other: &Window) {
+        if let (Some(mine), Some(theirs)) = (self.camera_imu.as_mut(), other.camera_imu.as_ref()) {
+            if mine.T_cam0_cam.len() == theirs.T_cam0_cam.len() {
+                *mine = theirs.clone();
+                for (i, cam) in self.cameras.iter_mut().enumerate() {
+                    cam.calibration.T_body_cam = mine.T_body_cam(i);
+                }
+            }
+        }
     }
 
     /// Continues from an earlier window's estimate of the IMU's noise (a

@@ -15,6 +15,7 @@ use std::ops::Range;
 
 use nalgebra::{DMatrix, DVector, Matrix2x3, Matrix3, SMatrix, SVector, Vector2, Vector3};
 
+use super::camera_imu::{Matrix2x7, Matrix7x3, CALIB_DIM};
 use super::reprojection::Matrix2x6;
 use crate::relative::types::LandmarkId;
 
@@ -47,6 +48,9 @@ pub(crate) struct ObservationRow {
     pub d_point: Matrix2x3<f64>,
     /// `weight * d_pose^T d_point`: the observation's block of `W`.
     pub w_block: Matrix6x3,
+    /// d error / d calibration step (whitened; zero when the camera-IMU
+    /// calibration is not estimated).
+    pub d_calib: Matrix2x7,
 }
 
 impl ObservationRow {
@@ -64,6 +68,7 @@ impl ObservationRow {
             d_pose: Matrix2x6::zeros(),
             d_point: Matrix2x3::zeros(),
             w_block: Matrix6x3::zeros(),
+            d_calib: Matrix2x7::zeros(),
         }
     }
 }
@@ -82,6 +87,9 @@ pub(crate) struct LandmarkBlock {
     pub v_inv: Matrix3<f64>,
     pub delta: Vector3<f64>,
     pub usable: bool,
+    /// The calibration block's part of `W` for this landmark (all its
+    /// observations, fixed keyframes' included).
+    pub w_calib: Matrix7x3,
 }
 
 impl LandmarkBlock {
@@ -95,6 +103,7 @@ impl LandmarkBlock {
             v_inv: Matrix3::zeros(),
             delta: Vector3::zeros(),
             usable: true,
+            w_calib: Matrix7x3::zeros(),
         }
     }
 }
@@ -169,14 +178,18 @@ impl NormalEquations {
 
 /// Adds the observations' pose terms to `U`, `b_c` and forms each
 /// landmark's `V_j`, `b_j` and the `W` blocks (rows already linearised).
+/// `calib`: the column of the camera-IMU calibration block, when it is
+/// estimated.
 pub(crate) fn accumulate_observations(
     eq: &mut NormalEquations,
     rows: &mut [ObservationRow],
     landmarks: &mut [LandmarkBlock],
+    calib: Option<usize>,
 ) {
     for lm in landmarks.iter_mut() {
         lm.v = Matrix3::zeros();
         lm.b = Vector3::zeros();
+        lm.w_calib = Matrix7x3::zeros();
         for row in &mut rows[lm.rows.clone()] {
             if !row.valid || row.weight == 0.0 {
                 row.w_block = Matrix6x3::zeros();
@@ -185,6 +198,22 @@ pub(crate) fn accumulate_observations(
             let w = row.weight;
             lm.v += row.d_point.transpose() * row.d_point * w;
             lm.b -= row.d_point.transpose() * row.residual * w;
+            if let Some(oc) = calib {
+                lm.w_calib += row.d_calib.transpose() * row.d_point * w;
+                let ucc = row.d_calib.transpose() * row.d_calib * w;
+                let mut block = eq.u.fixed_view_mut::<CALIB_DIM, CALIB_DIM>(oc, oc);
+                block += ucc;
+                let g = row.d_calib.transpose() * row.residual * w;
+                let mut bc = eq.bc.fixed_rows_mut::<CALIB_DIM>(oc);
+                bc -= g;
+                if let Some(o) = row.offset {
+                    let upc = row.d_pose.transpose() * row.d_calib * w;
+                    let mut block = eq.u.fixed_view_mut::<6, CALIB_DIM>(o, oc);
+                    block += upc;
+                    let mut mirror = eq.u.fixed_view_mut::<CALIB_DIM, 6>(oc, o);
+                    mirror += upc.transpose();
+                }
+            }
             if let Some(o) = row.offset {
                 row.w_block = row.d_pose.transpose() * row.d_point * w;
                 let upp = row.d_pose.transpose() * row.d_pose * w;
@@ -216,6 +245,7 @@ pub(crate) fn reduce(
     rows: &[ObservationRow],
     landmarks: &mut [LandmarkBlock],
     lambda: f64,
+    calib: Option<usize>,
 ) {
     eq.s.copy_from(&eq.u);
     eq.bs.copy_from(&eq.bc);
@@ -234,6 +264,23 @@ pub(crate) fn reduce(
         lm.usable = true;
         lm.v_inv = v_inv;
         let lm_rows = &rows[lm.rows.clone()];
+        if let Some(oc) = calib {
+            let wcv = lm.w_calib * v_inv;
+            let mut bs = eq.bs.fixed_rows_mut::<CALIB_DIM>(oc);
+            bs -= wcv * lm.b;
+            let mut block = eq.s.fixed_view_mut::<CALIB_DIM, CALIB_DIM>(oc, oc);
+            block -= wcv * lm.w_calib.transpose();
+            for r in lm_rows {
+                let Some(o) = r.offset.filter(|_| r.valid) else {
+                    continue;
+                };
+                let m = wcv * r.w_block.transpose();
+                let mut block = eq.s.fixed_view_mut::<CALIB_DIM, 6>(oc, o);
+                block -= m;
+                let mut mirror = eq.s.fixed_view_mut::<6, CALIB_DIM>(o, oc);
+                mirror -= m.transpose();
+            }
+        }
         for (ia, ra) in lm_rows.iter().enumerate() {
             let Some(oa) = ra.offset.filter(|_| ra.valid) else {
                 continue;
@@ -266,8 +313,9 @@ pub(crate) fn solve_step(
     rows: &[ObservationRow],
     landmarks: &mut [LandmarkBlock],
     lambda: f64,
+    calib: Option<usize>,
 ) -> bool {
-    reduce(eq, rows, landmarks, lambda);
+    reduce(eq, rows, landmarks, lambda, calib);
     let s = std::mem::replace(&mut eq.s, DMatrix::zeros(0, 0));
     let Some(chol) = s.cholesky() else {
         eq.s = DMatrix::zeros(eq.dim, eq.dim);
@@ -285,6 +333,9 @@ pub(crate) fn solve_step(
             continue;
         }
         let mut rhs = lm.b;
+        if let Some(oc) = calib {
+            rhs -= lm.w_calib.transpose() * eq.delta.fixed_rows::<CALIB_DIM>(oc);
+        }
         for r in &rows[lm.rows.clone()] {
             if let Some(o) = r.offset.filter(|_| r.valid) {
                 rhs -= r.w_block.transpose() * eq.delta.fixed_rows::<6>(o);
@@ -301,8 +352,9 @@ pub(crate) fn reduced_inverse(
     eq: &mut NormalEquations,
     rows: &[ObservationRow],
     landmarks: &mut [LandmarkBlock],
+    calib: Option<usize>,
 ) -> Option<DMatrix<f64>> {
-    reduce(eq, rows, landmarks, 1e-9);
+    reduce(eq, rows, landmarks, 1e-9, calib);
     let s = std::mem::replace(&mut eq.s, DMatrix::zeros(0, 0));
     let Some(chol) = s.cholesky() else {
         eq.s = DMatrix::zeros(eq.dim, eq.dim);
@@ -321,6 +373,7 @@ pub(crate) fn dense_step(
     rows: &[ObservationRow],
     landmarks: &[LandmarkBlock],
     lambda: f64,
+    calib: Option<usize>,
 ) -> Option<DVector<f64>> {
     let n = eq.dim + 3 * landmarks.len();
     let mut h = DMatrix::<f64>::zeros(n, n);
@@ -345,6 +398,13 @@ pub(crate) fn dense_step(
                 top += wb;
                 let mut left = h.fixed_view_mut::<3, 6>(c, o);
                 left += wb.transpose();
+            }
+            if let Some(oc) = calib {
+                let wc = r.d_calib.transpose() * r.d_point * w;
+                let mut top = h.fixed_view_mut::<CALIB_DIM, 3>(oc, c);
+                top += wc;
+                let mut left = h.fixed_view_mut::<3, CALIB_DIM>(c, oc);
+                left += wc.transpose();
             }
         }
     }

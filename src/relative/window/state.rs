@@ -55,6 +55,9 @@ pub(crate) struct Keyframe {
     /// Covariance of `[dphi, dp]` relative to the window's origin
     /// ([`super::pose_covariance`]); zero for the origin.
     pub pose_covariance: Option<Matrix6<f64>>,
+    /// Angular rate of the body at the keyframe (gyroscope less bias),
+    /// for the time offset ([`super::camera_imu`]).
+    pub omega_body_rad_s: Vector3<f64>,
 }
 
 pub(crate) fn nav_state(s: &KeyframeState) -> NavState {

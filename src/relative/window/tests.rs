@@ -241,7 +241,9 @@ fn schur_solve_equals_dense_solve() {
     let mut r = rng(5);
     let scene = Scene::new(&mut r, 300, 4.0);
     for use_imu in [false, true] {
-        let mut w = filled_window(&scene, config(use_imu), 4, 1, true, 0.5, 0.0, &mut r);
+        let mut cfg = config(use_imu);
+        cfg.camera_imu.enabled = true;
+        let mut w = filled_window(&scene, cfg, 4, 1, true, 0.5, 0.0, &mut r);
         let n_fixed = w.fixed_count();
         w.build_problem(n_fixed);
         w.refresh_velocity_prior_for_tests(n_fixed);
@@ -249,13 +251,17 @@ fn schur_solve_equals_dense_solve() {
         let p = &mut w.problem;
         assert!(p.landmarks.len() > 20, "{} landmarks", p.landmarks.len());
         let lambda = 1e-3;
+        // With the IMU the camera-IMU calibration block is in the system.
+        assert_eq!(p.calib_offset.is_some(), use_imu);
         assert!(schur::solve_step(
             &mut p.eq,
             &p.rows,
             &mut p.landmarks,
-            lambda
+            lambda,
+            p.calib_offset
         ));
-        let dense = schur::dense_step(&p.eq, &p.rows, &p.landmarks, lambda).expect("PD");
+        let dense =
+            schur::dense_step(&p.eq, &p.rows, &p.landmarks, lambda, p.calib_offset).expect("PD");
         let mut scale = 0.0f64;
         let mut diff = 0.0f64;
         for i in 0..p.eq.dim {

@@ -1,0 +1,539 @@
+//! Online refinement of the camera-IMU calibration: the window estimates
+//! camera 0's pose in the body (IMU) frame and the time offset between the
+//! frames and the IMU, starting from the calibration file.
+//!
+//! Unknowns (7, after the other states in the reduced system):
+//! `[dphi_c, dt_c, d td]` with `R_bc0 <- R_bc0 Exp(dphi_c)`,
+//! `t_bc0 <- t_bc0 + dt_c`, `td <- td + d td`. The other cameras keep their
+//! pose in camera 0 (`T_body_cami = T_body_cam0 T_cam0_cami`): a stereo
+//! pair's baseline comes from the stereo calibration, which is far more
+//! precise than any camera-IMU one.
+//!
+//! Time offset: `td` is what the frames lag behind the IMU clock beyond
+//! the file's `timeshift_cam_imu` (already applied to the stamps by
+//! [`crate::relative::camera_clock`]): an image stamped `t` was taken at
+//! IMU time `t + td`. The body pose then is, to first order in `td`,
+//! `R' = R Exp(omega td)`, `p' = p + v td` with `omega` the body's angular
+//! rate (gyroscope less bias at the keyframe) and `v` its velocity. The
+//! projection goes through that pose:
+//! `p_b = R'^T (p_w - p')`, `d p_b / d td = -[omega]x p_b - R'^T v`.
+//! The pose Jacobian follows `R' = R Exp(dphi) Exp(omega td)
+//! = R Exp(omega td) Exp(Exp(-omega td) dphi)`. The term in the velocity
+//! (`-R'^T td`, a few milliseconds times the body Jacobian) is left out:
+//! it would tie every observation to its keyframe's velocity columns and
+//! moves the step by far less than the noise.
+//!
+//! Priors: the file's values with the configured sigmas (what a
+//! calibration is trusted to), and the estimate of earlier windows: after
+//! each solve the marginal information of the 7 unknowns, less the file's
+//! (counted once), times `carry_weight` is kept as a prior centred on the
+//! estimate. Like gravity, the calibration is a constant of the run, so its
+//! information may accumulate, to about `w / (1 - w)` windows' worth.
+//!
+//! Observability needs motion: rotation about at least two axes for the
+//! extrinsic rotation and translation, and angular or linear velocity for
+//! the time offset. At rest nothing moves the estimate away from its
+//! priors.
+
+use nalgebra::{
+    Isometry3, Matrix3, SMatrix, SVector, Translation3, UnitQuaternion, Vector2, Vector3,
+};
+
+use super::reprojection::{reproject, reprojection_error, Reprojection};
+use super::rig_camera::RigCamera;
+use crate::imu::so3::{exp, hat, log, right_jacobian_inverse};
+
+/// Unknowns of the calibration block.
+pub const CALIB_DIM: usize = 7;
+pub type Matrix2x7 = SMatrix<f64, 2, 7>;
+pub type Matrix7 = SMatrix<f64, 7, 7>;
+pub type Vector7 = SVector<f64, 7>;
+pub type Matrix7x3 = SMatrix<f64, 7, 3>;
+
+/// Settings (defaults in brackets).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraImuRefinementConfig {
+    /// Estimate the calibration in the window's inertial solves [false;
+    /// the relative stage's `camera_imu_refinement` decides per mode].
+    pub enabled: bool,
+    /// How far the file may be off, 1 sigma: rotation deg [2],
+    /// translation m [0.03], time offset s [0.01].
+    pub rotation_sigma_deg: f64,
+    pub translation_sigma_m: f64,
+    pub time_offset_sigma_s: f64,
+    /// Share of the last solve's information carried to the next [0.9].
+    pub carry_weight: f64,
+    /// The estimate is reported as far from the file (status warning)
+    /// beyond: rotation deg [0.5], translation m [0.01], time offset s
+    /// [0.003]; a Kalibr calibration of a rigid rig is good to a tenth of
+    /// that.
+    pub warn_rotation_deg: f64,
+    pub warn_translation_m: f64,
+    pub warn_time_offset_s: f64,
+}
+
+impl Default for CameraImuRefinementConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            rotation_sigma_deg: 2.0,
+            translation_sigma_m: 0.03,
+            time_offset_sigma_s: 0.01,
+            carry_weight: 0.9,
+            warn_rotation_deg: 0.5,
+            warn_translation_m: 0.01,
+            warn_time_offset_s: 0.003,
+        }
+    }
+}
+
+impl CameraImuRefinementConfig {
+    pub fn validate(&self) -> Result<(), String> {
+        for (key, v) in [
+            ("camera_imu_rotation_sigma_deg", self.rotation_sigma_deg),
+            ("camera_imu_translation_sigma_m", self.translation_sigma_m),
+            ("camera_imu_time_offset_sigma_s", self.time_offset_sigma_s),
+            ("camera_imu_warn_rotation_deg", self.warn_rotation_deg),
+            ("camera_imu_warn_translation_m", self.warn_translation_m),
+            ("camera_imu_warn_time_offset_s", self.warn_time_offset_s),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("{key} must be positive and finite, got {v}"));
+            }
+        }
+        if !(self.carry_weight >= 0.0 && self.carry_weight < 1.0) {
+            return Err(format!(
+                "camera_imu_carry_weight must be in [0, 1), got {}",
+                self.carry_weight
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// What the window holds the camera-IMU calibration to be now.
+#[allow(non_snake_case)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraImuEstimate {
+    pub T_body_cam0: Isometry3<f64>,
+    /// The frames' lag behind the IMU clock beyond the file's time shift,
+    /// s (see the module doc).
+    pub time_offset_s: f64,
+    /// Distance from the file.
+    pub rotation_from_file_deg: f64,
+    pub translation_from_file_m: f64,
+    /// One sigma of the last solve (NaN before one).
+    pub rotation_sigma_deg: f64,
+    pub translation_sigma_m: f64,
+    pub time_offset_sigma_s: f64,
+    /// Beyond the configured warning distance in any of the three.
+    pub far_from_file: bool,
+    /// Solves the estimate took part in.
+    pub solves: u64,
+}
+
+/// The calibration block's state, kept across windows.
+#[allow(non_snake_case)]
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraImuState {
+    config: CameraImuRefinementConfig,
+    file_T_body_cam0: Isometry3<f64>,
+    /// Each camera's pose in camera 0 (identity for camera 0).
+    pub(crate) T_cam0_cam: Vec<Isometry3<f64>>,
+    pub(crate) T_body_cam0: Isometry3<f64>,
+    pub(crate) time_offset_s: f64,
+    /// Earlier windows' estimate and the upper factor of its information.
+    carried: Option<(Isometry3<f64>, f64, Matrix7)>,
+    last_covariance: Option<Matrix7>,
+    solves: u64,
+}
+
+/// `[Log(R0^T R), t - t0, td - td0]` and its Jacobian with respect to the
+/// calibration step.
+#[allow(non_snake_case)]
+fn difference(T: &Isometry3<f64>, td: f64, T0: &Isometry3<f64>, td0: f64) -> (Vector7, Matrix7) {
+    let r_rel = (T0.rotation.inverse() * T.rotation)
+        .to_rotation_matrix()
+        .into_inner();
+    let phi = log(&r_rel);
+    let mut e = Vector7::zeros();
+    e.fixed_rows_mut::<3>(0).copy_from(&phi);
+    e.fixed_rows_mut::<3>(3)
+        .copy_from(&(T.translation.vector - T0.translation.vector));
+    e[6] = td - td0;
+    let mut j = Matrix7::identity();
+    j.fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&right_jacobian_inverse(&phi));
+    (e, j)
+}
+
+impl CameraImuState {
+    /// Starts at the calibration of `cameras` (camera 0 first).
+    pub fn new(config: CameraImuRefinementConfig, cameras: &[RigCamera]) -> Self {
+        let t_bc0 = cameras
+            .first()
+            .map_or_else(Isometry3::identity, |c| c.calibration.T_body_cam);
+        Self {
+            config,
+            file_T_body_cam0: t_bc0,
+            T_cam0_cam: cameras
+                .iter()
+                .map(|c| t_bc0.inverse() * c.calibration.T_body_cam)
+                .collect(),
+            T_body_cam0: t_bc0,
+            time_offset_s: 0.0,
+            carried: None,
+            last_covariance: None,
+            solves: 0,
+        }
+    }
+
+    pub fn config(&self) -> &CameraImuRefinementConfig {
+        &self.config
+    }
+
+    /// Camera `i`'s pose in the body at the current estimate.
+    #[allow(non_snake_case)]
+    pub fn T_body_cam(&self, i: usize) -> Isometry3<f64> {
+        self.T_body_cam0 * self.T_cam0_cam[i]
+    }
+
+    /// Applies a step `[dphi_c, dt_c, d td]`.
+    pub fn apply(&mut self, d: &[f64]) {
+        let v3 = |o: usize| Vector3::new(d[o], d[o + 1], d[o + 2]);
+        let q = self.T_body_cam0.rotation * UnitQuaternion::from_scaled_axis(v3(0));
+        self.T_body_cam0.rotation = UnitQuaternion::new_normalize(q.into_inner());
+        self.T_body_cam0.translation.vector += v3(3);
+        self.time_offset_s += d[6];
+    }
+
+    fn file_sqrt_info(&self) -> Vector7 {
+        let c = &self.config;
+        let r = 1.0 / c.rotation_sigma_deg.to_radians();
+        let t = 1.0 / c.translation_sigma_m;
+        Vector7::from_column_slice(&[r, r, r, t, t, t, 1.0 / c.time_offset_sigma_s])
+    }
+
+    /// The whitened prior factors at the current estimate: the file's and
+    /// (after a first solve) the carried one.
+    pub fn prior_factors(&self) -> Vec<(Vector7, Matrix7)> {
+        let (e, j) = difference(
+            &self.T_body_cam0,
+            self.time_offset_s,
+            &self.file_T_body_cam0,
+            0.0,
+        );
+        let w = Matrix7::from_diagonal(&self.file_sqrt_info());
+        let mut out = vec![(w * e, w * j)];
+        if let Some((t0, td0, u)) = &self.carried {
+            let (e, j) = difference(&self.T_body_cam0, self.time_offset_s, t0, *td0);
+            out.push((u * e, u * j));
+        }
+        out
+    }
+
+    /// Takes the solve's marginal covariance of the 7 unknowns: keeps
+    /// `carry_weight` times its information, less the file prior's, as
+    /// the next solve's carried prior.
+    pub fn after_solve(&mut self, covariance: Option<Matrix7>) {
+        self.solves += 1;
+        let Some(cov) = covariance.filter(|c| c.iter().all(|v| v.is_finite())) else {
+            return;
+        };
+        let sym = (cov + cov.transpose()) * 0.5;
+        let Some(info) = sym.cholesky().map(|c| c.inverse()) else {
+            return;
+        };
+        self.last_covariance = Some(sym);
+        let file = self.file_sqrt_info();
+        let data = info - Matrix7::from_diagonal(&file.component_mul(&file));
+        // The data's share, kept positive semi-definite.
+        let eig = ((data + data.transpose()) * 0.5).symmetric_eigen();
+        let clamped = eig
+            .eigenvalues
+            .map(|l| l.max(0.0) * self.config.carry_weight);
+        let carried_info =
+            eig.eigenvectors * Matrix7::from_diagonal(&clamped) * eig.eigenvectors.transpose();
+        // Upper factor U with U^T U = info, through the eigenvectors (the
+        // information may be singular: unobserved directions).
+        let u = Matrix7::from_diagonal(&clamped.map(f64::sqrt)) * eig.eigenvectors.transpose();
+        if u.iter().all(|v| v.is_finite()) && carried_info.iter().all(|v| v.is_finite()) {
+            self.carried = Some((self.T_body_cam0, self.time_offset_s, u));
+        }
+    }
+
+    pub fn estimate(&self) -> CameraImuEstimate {
+        let (e, _) = difference(
+            &self.T_body_cam0,
+            self.time_offset_s,
+            &self.file_T_body_cam0,
+            0.0,
+        );
+        let rotation_from_file_deg = e.fixed_rows::<3>(0).norm().to_degrees();
+        let translation_from_file_m = e.fixed_rows::<3>(3).norm();
+        let sigma = |from: usize| {
+            self.last_covariance.map_or(f64::NAN, |c| {
+                (c[(from, from)] + c[(from + 1, from + 1)] + c[(from + 2, from + 2)])
+                    .max(0.0)
+                    .sqrt()
+            })
+        };
+        let c = &self.config;
+        CameraImuEstimate {
+            T_body_cam0: self.T_body_cam0,
+            time_offset_s: self.time_offset_s,
+            rotation_from_file_deg,
+            translation_from_file_m,
+            rotation_sigma_deg: sigma(0).to_degrees(),
+            translation_sigma_m: sigma(3),
+            time_offset_sigma_s: self
+                .last_covariance
+                .map_or(f64::NAN, |c| c[(6, 6)].max(0.0).sqrt()),
+            far_from_file: rotation_from_file_deg > c.warn_rotation_deg
+                || translation_from_file_m > c.warn_translation_m
+                || self.time_offset_s.abs() > c.warn_time_offset_s,
+            solves: self.solves,
+        }
+    }
+}
+
+/// The body's motion at a keyframe, for the time offset.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct BodyMotion {
+    /// Angular rate in the body frame (gyroscope less bias), rad/s.
+    pub omega_body_rad_s: Vector3<f64>,
+    pub velocity_world_m_s: Vector3<f64>,
+}
+
+/// The body pose when the image was taken, `td` after its stamp.
+#[allow(non_snake_case)]
+pub fn pose_at_exposure(
+    T_world_body: &Isometry3<f64>,
+    motion: &BodyMotion,
+    td: f64,
+) -> Isometry3<f64> {
+    let r = T_world_body.rotation * UnitQuaternion::from_scaled_axis(motion.omega_body_rad_s * td);
+    Isometry3::from_parts(
+        Translation3::from(T_world_body.translation.vector + motion.velocity_world_m_s * td),
+        r,
+    )
+}
+
+/// The reprojection through the pose at exposure, with the body and point
+/// Jacobians ([`reproject`]'s, chained to the keyframe's own pose) and
+/// the Jacobian with respect to the calibration step. `camera` holds the
+/// current estimate (`T_body_cam0 T_cam0_cam`).
+#[allow(non_snake_case)]
+pub fn reproject_refined(
+    camera: &RigCamera,
+    T_cam0_cam: &Isometry3<f64>,
+    T_world_body: &Isometry3<f64>,
+    motion: &BodyMotion,
+    td: f64,
+    point_world_m: &Vector3<f64>,
+    pixel: &Vector2<f64>,
+) -> Option<(Reprojection, Matrix2x7)> {
+    let exposed = pose_at_exposure(T_world_body, motion, td);
+    let mut r = reproject(camera, &exposed, point_world_m, pixel)?;
+    let r_wb: Matrix3<f64> = exposed.rotation.to_rotation_matrix().into_inner();
+    // d error / d p_body = d_point R' (d_point = d_px R_cb R'^T).
+    let d_body = r.d_point * r_wb;
+    let back = exp(&(-motion.omega_body_rad_s * td));
+    let d_rot = r.d_pose.fixed_view::<2, 3>(0, 0) * back;
+    r.d_pose.fixed_view_mut::<2, 3>(0, 0).copy_from(&d_rot);
+    let p_body = r_wb.transpose() * (point_world_m - exposed.translation.vector);
+    let t_bc = &camera.calibration.T_body_cam;
+    let p_cam = t_bc.inverse_transform_point(&p_body.into());
+    let p_cam0 = T_cam0_cam.transform_point(&p_cam).coords;
+    // d p_cam / d dphi_c = R_c0c^T [p_c0]x; d error / d p_cam = d_body R_bc.
+    let r_bc = t_bc.rotation.to_rotation_matrix().into_inner();
+    let r_c0c = T_cam0_cam.rotation.to_rotation_matrix().into_inner();
+    let d_cam = d_body * r_bc;
+    let dpb_dtd =
+        -motion.omega_body_rad_s.cross(&p_body) - r_wb.transpose() * motion.velocity_world_m_s;
+    let mut d_calib = Matrix2x7::zeros();
+    d_calib
+        .fixed_view_mut::<2, 3>(0, 0)
+        .copy_from(&(d_cam * r_c0c.transpose() * hat(&p_cam0)));
+    d_calib.fixed_view_mut::<2, 3>(0, 3).copy_from(&(-d_body));
+    d_calib
+        .fixed_view_mut::<2, 1>(0, 6)
+        .copy_from(&(d_body * dpb_dtd));
+    Some((r, d_calib))
+}
+
+/// The error alone through the pose at exposure, with the depth.
+#[allow(non_snake_case)]
+pub fn reprojection_error_refined(
+    camera: &RigCamera,
+    T_world_body: &Isometry3<f64>,
+    motion: &BodyMotion,
+    td: f64,
+    point_world_m: &Vector3<f64>,
+    pixel: &Vector2<f64>,
+) -> Option<(Vector2<f64>, f64)> {
+    reprojection_error(
+        camera,
+        &pose_at_exposure(T_world_body, motion, td),
+        point_world_m,
+        pixel,
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::simulate::euroc_rig::{euroc_cam0, euroc_cam1};
+
+    #[allow(non_snake_case)]
+    fn perturbed_camera(
+        state: &CameraImuState,
+        i: usize,
+        base: &RigCamera,
+        d: &Vector7,
+    ) -> (RigCamera, f64) {
+        let mut s = state.clone();
+        s.apply(d.as_slice());
+        let mut cal = base.calibration.clone();
+        cal.T_body_cam = s.T_body_cam(i);
+        (RigCamera::new(cal), s.time_offset_s)
+    }
+
+    /// Every column of every Jacobian against central differences, for
+    /// both cameras of a stereo rig, with a time offset and motion.
+    #[test]
+    fn jacobians_match_finite_differences() {
+        let cams = [RigCamera::new(euroc_cam0()), RigCamera::new(euroc_cam1())];
+        let mut state = CameraImuState::new(CameraImuRefinementConfig::default(), &cams);
+        state.apply(&[0.01, -0.02, 0.015, 0.004, -0.006, 0.002, 0.004]);
+        let motion = BodyMotion {
+            omega_body_rad_s: Vector3::new(0.4, -0.7, 0.9),
+            velocity_world_m_s: Vector3::new(0.8, -0.3, 0.5),
+        };
+        let body = Isometry3::new(Vector3::new(0.3, -0.1, 1.2), Vector3::new(0.2, -0.4, 0.1));
+        let h = 1e-6;
+        let mut checked = 0;
+        for i in 0..2 {
+            let (cam, td) = perturbed_camera(&state, i, &cams[i], &Vector7::zeros());
+            // A point in front of camera i, 2.5 m away.
+            let p_cam = Vector3::new(0.3, -0.2, 2.5);
+            let point = body
+                .transform_point(&cam.calibration.T_body_cam.transform_point(&p_cam.into()))
+                .coords;
+            let pixel = cam.project(&p_cam).expect("projects") + Vector2::new(1.5, -0.7);
+            let (r, d_calib) = reproject_refined(
+                &cam,
+                &state.T_cam0_cam[i],
+                &body,
+                &motion,
+                td,
+                &point,
+                &pixel,
+            )
+            .expect("projects");
+            let err = |cam: &RigCamera, td: f64, body: &Isometry3<f64>, point: &Vector3<f64>| {
+                reprojection_error_refined(cam, body, &motion, td, point, &pixel)
+                    .expect("projects")
+                    .0
+            };
+            assert!((err(&cam, td, &body, &point) - r.error_px).norm() < 1e-12);
+            for k in 0..CALIB_DIM {
+                let mut d = Vector7::zeros();
+                d[k] = h;
+                let (cp, tp) = perturbed_camera(&state, i, &cams[i], &d);
+                d[k] = -h;
+                let (cm, tm) = perturbed_camera(&state, i, &cams[i], &d);
+                let fd = (err(&cp, tp, &body, &point) - err(&cm, tm, &body, &point)) / (2.0 * h);
+                let analytic = d_calib.column(k);
+                assert!(
+                    (fd - analytic).norm() < 1e-5 * (1.0 + fd.norm()),
+                    "camera {i} calibration column {k}: {fd} vs {analytic}"
+                );
+                checked += 1;
+            }
+            for k in 0..6 {
+                let mut d = [0.0; 6];
+                let step = |s: f64, d: &mut [f64; 6]| {
+                    d[k] = s;
+                    let mut b = body;
+                    let dv = Vector3::new(d[0], d[1], d[2]);
+                    b.rotation *= UnitQuaternion::from_scaled_axis(dv);
+                    b.translation.vector += Vector3::new(d[3], d[4], d[5]);
+                    b
+                };
+                let bp = step(h, &mut d);
+                let bm = step(-h, &mut d);
+                let fd = (err(&cam, td, &bp, &point) - err(&cam, td, &bm, &point)) / (2.0 * h);
+                let analytic = r.d_pose.column(k);
+                assert!(
+                    (fd - analytic).norm() < 1e-5 * (1.0 + fd.norm()),
+                    "camera {i} pose column {k}: {fd} vs {analytic}"
+                );
+                checked += 1;
+            }
+            for k in 0..3 {
+                let mut dp = Vector3::zeros();
+                dp[k] = h;
+                let fd = (err(&cam, td, &body, &(point + dp))
+                    - err(&cam, td, &body, &(point - dp)))
+                    / (2.0 * h);
+                assert!((fd - r.d_point.column(k)).norm() < 1e-5 * (1.0 + fd.norm()));
+                checked += 1;
+            }
+        }
+        assert_eq!(checked, 2 * (CALIB_DIM + 6 + 3));
+    }
+
+    #[test]
+    fn the_prior_factors_vanish_at_their_means_and_their_jacobians_are_exact() {
+        let cams = [RigCamera::new(euroc_cam0())];
+        let mut state = CameraImuState::new(CameraImuRefinementConfig::default(), &cams);
+        let f = state.prior_factors();
+        assert_eq!(f.len(), 1);
+        assert!(f[0].0.norm() < 1e-12);
+        state.apply(&[0.02, 0.01, -0.03, 0.01, 0.0, -0.01, 0.003]);
+        let (r, j) = state.prior_factors()[0];
+        let h = 1e-6;
+        for k in 0..CALIB_DIM {
+            let mut d = Vector7::zeros();
+            d[k] = h;
+            let mut p = state.clone();
+            p.apply(d.as_slice());
+            d[k] = -2.0 * h;
+            let mut m = p.clone();
+            m.apply(d.as_slice());
+            let fd = (p.prior_factors()[0].0 - m.prior_factors()[0].0) / (2.0 * h);
+            assert!(
+                (fd - j.column(k)).norm() < 1e-4 * (1.0 + fd.norm()),
+                "column {k}"
+            );
+        }
+        // 0.02-0.03 rad against a 2 deg sigma: about one sigma each.
+        assert!(r.norm() > 1.0);
+        let e = state.estimate();
+        assert!((e.time_offset_s - 0.003).abs() < 1e-12);
+        assert!((e.translation_from_file_m - 0.02f64.sqrt() * 0.1).abs() < 1e-9);
+        assert!(e.rotation_sigma_deg.is_nan());
+        assert!(
+            e.far_from_file,
+            "2.1 deg from the file is beyond the 0.5 deg warning"
+        );
+    }
+
+    #[test]
+    fn the_carried_prior_keeps_the_data_share_of_the_information() {
+        let cams = [RigCamera::new(euroc_cam0())];
+        let mut state = CameraImuState::new(CameraImuRefinementConfig::default(), &cams);
+        let file = state.file_sqrt_info();
+        // A solve whose information is the file's plus 1e6 on every unknown.
+        let info = Matrix7::from_diagonal(&file.component_mul(&file)).add_scalar(0.0)
+            + Matrix7::identity() * 1e6;
+        let cov = info.try_inverse().expect("invertible");
+        state.after_solve(Some(cov));
+        let (_, _, u) = state.carried.expect("carried");
+        let carried = u.transpose() * u;
+        assert!((carried - Matrix7::identity() * 0.9e6).norm() < 1e-3 * 0.9e6);
+        assert_eq!(state.prior_factors().len(), 2);
+        assert!(state.estimate().time_offset_sigma_s > 0.0);
+    }
+}
