@@ -197,6 +197,9 @@ fn streams_are_separate_and_status_round_trips() {
         imu_noise_scale_gyro: 4.5,
         imu_noise_scale_accel: 7.25,
         pixel_noise_scale: 0.375,
+        camera_imu_rotation_deg: 0.25,
+        camera_imu_translation_m: 0.004,
+        camera_imu_time_offset_s: -0.002,
         ..StatusMessage::default()
     };
     status.set_queues(&[

@@ -464,8 +464,13 @@ fn datasheet_noise_is_corrected_online() {
     let run = |adapt: bool| {
         let run = DatasetRun {
             mode: Some(SensorMode::StereoInertial),
+            // The noise adaptation alone: the camera-IMU refinement
+            // (on by default in stereo-inertial) changes what the
+            // inertial residuals show. With it on, this sequence gave
+            // ATE 0.0164 m but NEES 5.1 per dof (bench/README.md).
             config: RelativeConfig {
                 imu_noise_adaptation: adapt,
+                camera_imu_refinement: rigslam::relative::CameraImuRefinement::Off,
                 ..RelativeConfig::default()
             },
             ..DatasetRun::default()
