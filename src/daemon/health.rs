@@ -276,8 +276,16 @@ impl Health {
         }
         self.camera_imu_known
             .store(estimate.is_some(), Ordering::Relaxed);
-        self.camera_imu_far
-            .store(estimate.is_some_and(|e| e.far_from_file), Ordering::Relaxed);
+        let far = estimate.filter(|e| e.far_from_file);
+        let was_far = self.camera_imu_far.swap(far.is_some(), Ordering::Relaxed);
+        if let (Some(e), false) = (far, was_far) {
+            tracing::warn!(
+                "the camera-IMU calibration estimated online is {:.2} deg, {:.1} mm and {:+.2} ms from the calibration file: the camera may have moved on its mount, or the file is another rig's; recalibrate (rigslam-calibrate camera-imu)",
+                e.rotation_from_file_deg,
+                e.translation_from_file_m * 1e3,
+                e.time_offset_s * 1e3
+            );
+        }
     }
 
     pub fn record_latency_us(&self, us: f64) {
