@@ -5,19 +5,23 @@
 //!
 //! The sequence is 30 s of EuRoC V1_02's motion rendered with EuRoC's
 //! calibration and an IMU synthesised from the motion with the datasheet's
-//! noise, so the true calibration is exactly the rendering's. Asserted: the
-//! rotation converges to within 0.1 deg and the time offset to within
-//! 0.5 ms of the truth, from the wrong file and from the true one; the
-//! translation gets no worse than the file; the run with refinement tracks
-//! better than without it; the status warning flags the wrong file, not
-//! the right one.
+//! noise, so the true calibration is exactly the rendering's. Runs: no
+//! refinement; the default (rotation, time offset and stereo rotation
+//! refined, the translation held); and the translation freed too.
+//! Asserted: the rotation converges to within 0.1 deg and the time offset
+//! to within 0.5 ms of the truth in every refined run; the freed
+//! translation gets no worse than the file; the default tracks the wrong
+//! file better than no refinement; the status warning flags the wrong
+//! file, not the right one.
 //!
 //! Not met, measured and printed (asserted with
-//! `RIGSLAM_CAMERA_IMU_BARS=1`): the translation within 3 mm (this motion
-//! hardly shows the lever arm in 30 s: from the wrong file it ends 8.5 mm
-//! from the truth, from the true file it wanders 6 mm away), and the wrong
-//! file's ATE within 5 % of the true file's (measured +10 %: the seconds
-//! before the estimate converged leave their error in the trajectory).
+//! `RIGSLAM_CAMERA_IMU_BARS=1`):
+//! - The freed translation within 3 mm. This motion hardly shows the lever
+//!   arm in 30 s: it ends 8 mm from the truth.
+//! - The wrong file's ATE back to the true file's.
+//! - The true file's ATE within 3 %. On this short sequence the default
+//!   tracks the true file 0.0072 -> 0.0100 m. The development and
+//!   evaluation sets gain on average (bench/README.md).
 
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
@@ -31,19 +35,38 @@ fn shared_data() -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data")
 }
 
+/// How a run refines the calibration.
+#[derive(Clone, Copy, PartialEq)]
+enum Refine {
+    Off,
+    /// The default: rotation, time offset and stereo rotation; the
+    /// translation held.
+    Default,
+    /// The translation freed too (its sigma 3 cm).
+    Translation,
+}
+
 /// (ATE, the refinement's final answer).
-fn run(sequence: &std::path::Path, rig: &RigModel, refine: bool) -> (f64, Option<CameraImuReport>) {
+fn run(
+    sequence: &std::path::Path,
+    rig: &RigModel,
+    refine: Refine,
+) -> (f64, Option<CameraImuReport>) {
+    let mut config = RelativeConfig {
+        camera_imu_refinement: if refine == Refine::Off {
+            CameraImuRefinement::Off
+        } else {
+            CameraImuRefinement::On
+        },
+        ..RelativeConfig::default()
+    };
+    if refine == Refine::Translation {
+        config.camera_imu_translation_sigma_m = 0.03;
+    }
     let run = DatasetRun {
         mode: Some(SensorMode::StereoInertial),
         rig: Some(rig.clone()),
-        config: RelativeConfig {
-            camera_imu_refinement: if refine {
-                CameraImuRefinement::On
-            } else {
-                CameraImuRefinement::Off
-            },
-            ..RelativeConfig::default()
-        },
+        config,
         ..DatasetRun::default()
     };
     let result = run_dataset(sequence, &run, |_, _| {}).expect("the run");
@@ -100,41 +123,56 @@ fn a_wrong_calibration_file_is_corrected_online() {
         cam.time_shift_cam_imu_s = 0.005;
     }
 
-    let (ate_true_off, _) = run(&sequence, &truth_rig, false);
-    let (ate_true_on, est_true) = run(&sequence, &truth_rig, true);
-    let (ate_wrong_off, none) = run(&sequence, &wrong_rig, false);
-    let (ate_wrong_on, est_wrong) = run(&sequence, &wrong_rig, true);
+    let (ate_true_off, _) = run(&sequence, &truth_rig, Refine::Off);
+    let (ate_true_on, est_true) = run(&sequence, &truth_rig, Refine::Default);
+    let (ate_wrong_off, none) = run(&sequence, &wrong_rig, Refine::Off);
+    let (ate_wrong_on, est_wrong) = run(&sequence, &wrong_rig, Refine::Default);
+    let (ate_wrong_freed, est_freed) = run(&sequence, &wrong_rig, Refine::Translation);
     assert!(none.is_none(), "refinement off reports no estimate");
     let est_true = est_true.expect("refined");
     let est_wrong = est_wrong.expect("refined");
+    let est_freed = est_freed.expect("refined");
     let (rot_true, trans_true) = from_truth(&est_true, &truth);
     let (rot_wrong, trans_wrong) = from_truth(&est_wrong, &truth);
+    let (rot_freed, trans_freed) = from_truth(&est_freed, &truth);
     println!(
-        "true file: ATE {ate_true_off:.4} m without refinement, {ate_true_on:.4} m with; estimate {rot_true:.3} deg, {:.1} mm, {:+.2} ms from the truth",
+        "true file: ATE {ate_true_off:.4} m without refinement, {ate_true_on:.4} m with; estimate {rot_true:.3} deg, {:.1} mm, {:+.2} ms from the truth, stereo rotation moved {:.3} deg",
         trans_true * 1e3,
-        est_true.time_offset_ms
+        est_true.time_offset_ms,
+        est_true.stereo_rotation_from_file_deg
     );
     println!(
-        "wrong file: ATE {ate_wrong_off:.4} m without refinement, {ate_wrong_on:.4} m with; estimate {rot_wrong:.3} deg, {:.1} mm, {:+.2} ms from the truth (file: 1 deg, 10 mm, -5 ms)",
+        "wrong file (1 deg, 10 mm, -5 ms): ATE {ate_wrong_off:.4} m without refinement, {ate_wrong_on:.4} m with; estimate {rot_wrong:.3} deg, {:.1} mm, {:+.2} ms from the truth",
         trans_wrong * 1e3,
         est_wrong.time_offset_ms + 5.0
     );
+    println!(
+        "wrong file, translation freed: ATE {ate_wrong_freed:.4} m; estimate {rot_freed:.3} deg, {:.1} mm, {:+.2} ms from the truth",
+        trans_freed * 1e3,
+        est_freed.time_offset_ms + 5.0
+    );
 
+    for (what, rot, est) in [
+        ("true file", rot_true, &est_true),
+        ("wrong file", rot_wrong, &est_wrong),
+        ("wrong file, translation freed", rot_freed, &est_freed),
+    ] {
+        assert!(rot < 0.1, "{what}: rotation {rot:.3} deg from the truth");
+        let truth_ms = if std::ptr::eq(est, &est_true) {
+            0.0
+        } else {
+            -5.0
+        };
+        assert!(
+            (est.time_offset_ms - truth_ms).abs() < 0.5,
+            "{what}: time offset {:.3} ms, the truth {truth_ms} ms",
+            est.time_offset_ms
+        );
+    }
     assert!(
-        rot_wrong < 0.1,
-        "rotation {rot_wrong:.3} deg from the truth"
-    );
-    assert!(rot_true < 0.1, "rotation {rot_true:.3} deg from the truth");
-    assert!(
-        (est_wrong.time_offset_ms + 5.0).abs() < 0.5,
-        "time offset {:.3} ms, the truth -5 ms",
-        est_wrong.time_offset_ms
-    );
-    assert!(est_true.time_offset_ms.abs() < 0.5);
-    assert!(
-        trans_wrong < 0.010,
+        trans_freed < 0.010,
         "translation {:.1} mm from the truth, the file 10 mm",
-        trans_wrong * 1e3
+        trans_freed * 1e3
     );
     assert!(
         ate_wrong_on < 0.8 * ate_wrong_off,
@@ -146,7 +184,7 @@ fn a_wrong_calibration_file_is_corrected_online() {
     );
     assert!(!est_true.far_from_file, "the true file is not flagged");
     if std::env::var_os("RIGSLAM_CAMERA_IMU_BARS").is_some() {
-        assert!(trans_wrong < 0.003, "{:.1} mm", trans_wrong * 1e3);
+        assert!(trans_freed < 0.003, "{:.1} mm", trans_freed * 1e3);
         assert!(ate_wrong_on <= 1.05 * ate_true_off);
         assert!(ate_true_on <= 1.03 * ate_true_off);
     }

@@ -11,13 +11,14 @@
 //! IMU (the Ferraris session's), so the sequence's raw samples are made to
 //! carry that IMU's errors (`x_raw = S^-1 (x - b)`): the robot this chain
 //! calibrated. The same run on EuRoC's published calibration files (with
-//! the same intrinsics file) is the reference: mono-inertial must be within
-//! 10 % of it, and leaving the intrinsics out must be worse in both modes.
-//! Stereo-inertial is measured and printed; its 10 % bar is not met (the
-//! stereo pair's 0.02 deg rotation difference from EuRoC's published one
-//! costs that sequence several times its 5 mm ATE) and is asserted only
-//! with `RIGSLAM_CHAIN_STEREO_BAR=1`. The rigslam run uses the library's
-//! `run_dataset`, the estimator `rigslamd` runs.
+//! the same intrinsics file) is the reference: the chain must be within
+//! 10 % of it in both inertial modes, and leaving the intrinsics out must
+//! be worse in both. The stereo pair's 0.02 deg rotation difference from
+//! EuRoC's published one (a fraction of a pixel of disparity) cost
+//! stereo-inertial four times its ATE until the estimator refined the
+//! stereo rotation online with the camera-IMU calibration
+//! (`camera_imu_refinement`, on by default). The rigslam run uses the
+//! library's `run_dataset`, the estimator `rigslamd` runs.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -269,16 +270,10 @@ fn from_three_real_recordings_to_a_tracking_run() {
             "{mode}: without the IMU intrinsics {raw:.4} m, with them {chain:.4} m"
         );
     }
-    // The bar: within 10 % of the published calibration.
-    let (mode, published_ate, chain_ate, _) = measured[0];
-    assert!(
-        chain_ate <= 1.10 * published_ate,
-        "{mode}: the chain's calibration tracks {chain_ate:.4} m against {published_ate:.4} m on the published one"
-    );
-    if std::env::var_os("RIGSLAM_CHAIN_STEREO_BAR").is_some() {
-        let (mode, published_ate, chain_ate, _) = measured[1];
+    // The bar: within 10 % of the published calibration, in both modes.
+    for (mode, published_ate, chain_ate, _) in &measured {
         assert!(
-            chain_ate <= 1.10 * published_ate,
+            *chain_ate <= 1.10 * published_ate,
             "{mode}: the chain's calibration tracks {chain_ate:.4} m against {published_ate:.4} m on the published one"
         );
     }

@@ -494,9 +494,11 @@ mod tests {
         );
         let mut estimate = CameraImuEstimate {
             T_body_cam0: nalgebra::Isometry3::identity(),
+            T_cam0_cam1: nalgebra::Isometry3::identity(),
             time_offset_s: -0.005,
             rotation_from_file_deg: 0.8,
             translation_from_file_m: 0.004,
+            stereo_rotation_from_file_deg: 0.01,
             rotation_sigma_deg: 0.02,
             translation_sigma_m: 0.001,
             time_offset_sigma_s: 0.0001,

@@ -437,10 +437,11 @@ pub fn summary_line(r: &RunReport) -> String {
     }
     if let Some(c) = &r.camera_imu {
         line += &format!(
-            "; camera-IMU refined to {:.3} deg, {:.1} mm and {:+.2} ms from the file{}",
+            "; camera-IMU refined to {:.3} deg, {:.1} mm and {:+.2} ms from the file (stereo rotation {:.3} deg){}",
             c.rotation_from_file_deg,
             c.translation_from_file_mm,
             c.time_offset_ms,
+            c.stereo_rotation_from_file_deg,
             if c.far_from_file {
                 " (far from it: check the calibration)"
             } else {

@@ -159,6 +159,10 @@ pub struct CameraImuReport {
     /// Distance from the file.
     pub rotation_from_file_deg: f64,
     pub translation_from_file_mm: f64,
+    /// Camera 1's rotation in camera 0 against the file's, deg (0 without
+    /// a second camera), and that rotation as a quaternion `[w, x, y, z]`.
+    pub stereo_rotation_from_file_deg: f64,
+    pub rotation_cam0_cam1_wxyz: [f64; 4],
     /// One sigma of the last solve.
     pub rotation_sigma_deg: f64,
     pub translation_sigma_mm: f64,
@@ -176,6 +180,11 @@ impl From<crate::relative::window::CameraImuEstimate> for CameraImuReport {
             rotation_body_cam0_wxyz: [q.w, q.i, q.j, q.k],
             time_offset_ms: e.time_offset_s * 1e3,
             rotation_from_file_deg: e.rotation_from_file_deg,
+            stereo_rotation_from_file_deg: e.stereo_rotation_from_file_deg,
+            rotation_cam0_cam1_wxyz: {
+                let s = e.T_cam0_cam1.rotation;
+                [s.w, s.i, s.j, s.k]
+            },
             translation_from_file_mm: e.translation_from_file_m * 1e3,
             rotation_sigma_deg: e.rotation_sigma_deg,
             translation_sigma_mm: e.translation_sigma_m * 1e3,

@@ -2,12 +2,15 @@
 //! camera 0's pose in the body (IMU) frame and the time offset between the
 //! frames and the IMU, starting from the calibration file.
 //!
-//! Unknowns (7, after the other states in the reduced system):
-//! `[dphi_c, dt_c, d td]` with `R_bc0 <- R_bc0 Exp(dphi_c)`,
-//! `t_bc0 <- t_bc0 + dt_c`, `td <- td + d td`. The other cameras keep their
-//! pose in camera 0 (`T_body_cami = T_body_cam0 T_cam0_cami`): a stereo
-//! pair's baseline comes from the stereo calibration, which is far more
-//! precise than any camera-IMU one.
+//! Unknowns (10, after the other states in the reduced system):
+//! `[dphi_c, dt_c, d td, dpsi_s]` with `R_bc0 <- R_bc0 Exp(dphi_c)`,
+//! `t_bc0 <- t_bc0 + dt_c`, `td <- td + d td`, and camera 1's rotation in
+//! camera 0 `R_c0c1 <- R_c0c1 Exp(dpsi_s)`. The other cameras keep their
+//! pose in camera 0 (`T_body_cami = T_body_cam0 T_cam0_cami`), and the
+//! baseline stays the stereo calibration's (it sets the scale). The stereo
+//! rotation is refined because a few hundredths of a degree of it, a
+//! fraction of a pixel of disparity, bias every stereo depth; without a
+//! second camera `dpsi_s` is held at zero by its prior.
 //!
 //! Time offset: `td` is what the frames lag behind the IMU clock beyond
 //! the file's `timeshift_cam_imu` (already applied to the stamps by
@@ -25,7 +28,7 @@
 //!
 //! Priors: the file's values with the configured sigmas (what a
 //! calibration is trusted to), and the estimate of earlier windows: after
-//! each solve the marginal information of the 7 unknowns, less the file's
+//! each solve the marginal information of the block, less the file's
 //! (counted once), times `carry_weight` is kept as a prior centred on the
 //! estimate. Like gravity, the calibration is a constant of the run, so its
 //! information may accumulate, to about `w / (1 - w)` windows' worth.
@@ -44,11 +47,16 @@ use super::rig_camera::RigCamera;
 use crate::imu::so3::{exp, hat, log, right_jacobian_inverse};
 
 /// Unknowns of the calibration block.
-pub const CALIB_DIM: usize = 7;
-pub type Matrix2x7 = SMatrix<f64, 2, 7>;
-pub type Matrix7 = SMatrix<f64, 7, 7>;
-pub type Vector7 = SVector<f64, 7>;
-pub type Matrix7x3 = SMatrix<f64, 7, 3>;
+pub const CALIB_DIM: usize = 10;
+/// Where each part starts in it.
+pub const CALIB_ROT: usize = 0;
+pub const CALIB_POS: usize = 3;
+pub const CALIB_TIME: usize = 6;
+pub const CALIB_STEREO: usize = 7;
+pub type Matrix2xCalib = SMatrix<f64, 2, CALIB_DIM>;
+pub type MatrixCalib = SMatrix<f64, CALIB_DIM, CALIB_DIM>;
+pub type VectorCalib = SVector<f64, CALIB_DIM>;
+pub type MatrixCalibx3 = SMatrix<f64, CALIB_DIM, 3>;
 
 /// Settings (defaults in brackets).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -57,10 +65,14 @@ pub struct CameraImuRefinementConfig {
     /// the relative stage's `camera_imu_refinement` decides per mode].
     pub enabled: bool,
     /// How far the file may be off, 1 sigma: rotation deg [2],
-    /// translation m [0.03], time offset s [0.01].
+    /// translation m [0.0005: held, see the relative stage's
+    /// `camera_imu_translation_sigma_m`], time offset s [0.01].
     pub rotation_sigma_deg: f64,
     pub translation_sigma_m: f64,
     pub time_offset_sigma_s: f64,
+    /// How far the stereo calibration's rotation between the cameras may
+    /// be off, 1 sigma, deg [0.2].
+    pub stereo_rotation_sigma_deg: f64,
     /// Share of the last solve's information carried to the next [0.9].
     pub carry_weight: f64,
     /// The estimate is reported as far from the file (status warning)
@@ -77,8 +89,9 @@ impl Default for CameraImuRefinementConfig {
         Self {
             enabled: false,
             rotation_sigma_deg: 2.0,
-            translation_sigma_m: 0.03,
+            translation_sigma_m: 0.0005,
             time_offset_sigma_s: 0.01,
+            stereo_rotation_sigma_deg: 0.2,
             carry_weight: 0.9,
             warn_rotation_deg: 0.5,
             warn_translation_m: 0.01,
@@ -93,6 +106,10 @@ impl CameraImuRefinementConfig {
             ("camera_imu_rotation_sigma_deg", self.rotation_sigma_deg),
             ("camera_imu_translation_sigma_m", self.translation_sigma_m),
             ("camera_imu_time_offset_sigma_s", self.time_offset_sigma_s),
+            (
+                "camera_imu_stereo_rotation_sigma_deg",
+                self.stereo_rotation_sigma_deg,
+            ),
             ("camera_imu_warn_rotation_deg", self.warn_rotation_deg),
             ("camera_imu_warn_translation_m", self.warn_translation_m),
             ("camera_imu_warn_time_offset_s", self.warn_time_offset_s),
@@ -119,9 +136,13 @@ pub struct CameraImuEstimate {
     /// The frames' lag behind the IMU clock beyond the file's time shift,
     /// s (see the module doc).
     pub time_offset_s: f64,
+    /// Camera 1's pose in camera 0 (identity without a second camera).
+    pub T_cam0_cam1: Isometry3<f64>,
     /// Distance from the file.
     pub rotation_from_file_deg: f64,
     pub translation_from_file_m: f64,
+    /// Angle between the stereo rotation refined and the file's, deg.
+    pub stereo_rotation_from_file_deg: f64,
     /// One sigma of the last solve (NaN before one).
     pub rotation_sigma_deg: f64,
     pub translation_sigma_m: f64,
@@ -138,32 +159,47 @@ pub struct CameraImuEstimate {
 pub struct CameraImuState {
     config: CameraImuRefinementConfig,
     file_T_body_cam0: Isometry3<f64>,
-    /// Each camera's pose in camera 0 (identity for camera 0).
+    file_T_cam0_cam: Vec<Isometry3<f64>>,
+    /// Each camera's pose in camera 0 (identity for camera 0); camera 1's
+    /// rotation is refined.
     pub(crate) T_cam0_cam: Vec<Isometry3<f64>>,
     pub(crate) T_body_cam0: Isometry3<f64>,
     pub(crate) time_offset_s: f64,
     /// Earlier windows' estimate and the upper factor of its information.
-    carried: Option<(Isometry3<f64>, f64, Matrix7)>,
-    last_covariance: Option<Matrix7>,
+    carried: Option<(Values, MatrixCalib)>,
+    last_covariance: Option<MatrixCalib>,
     solves: u64,
 }
 
-/// `[Log(R0^T R), t - t0, td - td0]` and its Jacobian with respect to the
-/// calibration step.
+/// The calibration's values: camera 0 in the body, the time offset,
+/// camera 1's rotation in camera 0 (identity without one).
 #[allow(non_snake_case)]
-fn difference(T: &Isometry3<f64>, td: f64, T0: &Isometry3<f64>, td0: f64) -> (Vector7, Matrix7) {
-    let r_rel = (T0.rotation.inverse() * T.rotation)
-        .to_rotation_matrix()
-        .into_inner();
-    let phi = log(&r_rel);
-    let mut e = Vector7::zeros();
-    e.fixed_rows_mut::<3>(0).copy_from(&phi);
-    e.fixed_rows_mut::<3>(3)
-        .copy_from(&(T.translation.vector - T0.translation.vector));
-    e[6] = td - td0;
-    let mut j = Matrix7::identity();
-    j.fixed_view_mut::<3, 3>(0, 0)
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Values {
+    T_body_cam0: Isometry3<f64>,
+    td: f64,
+    R_cam0_cam1: UnitQuaternion<f64>,
+}
+
+/// `[Log(R0^T R), t - t0, td - td0, Log(S0^T S)]` and its Jacobian with
+/// respect to the calibration step.
+fn difference(x: &Values, x0: &Values) -> (VectorCalib, MatrixCalib) {
+    let rel = |a: &UnitQuaternion<f64>, b: &UnitQuaternion<f64>| {
+        log(&(b.inverse() * a).to_rotation_matrix().into_inner())
+    };
+    let phi = rel(&x.T_body_cam0.rotation, &x0.T_body_cam0.rotation);
+    let psi = rel(&x.R_cam0_cam1, &x0.R_cam0_cam1);
+    let mut e = VectorCalib::zeros();
+    e.fixed_rows_mut::<3>(CALIB_ROT).copy_from(&phi);
+    e.fixed_rows_mut::<3>(CALIB_POS)
+        .copy_from(&(x.T_body_cam0.translation.vector - x0.T_body_cam0.translation.vector));
+    e[CALIB_TIME] = x.td - x0.td;
+    e.fixed_rows_mut::<3>(CALIB_STEREO).copy_from(&psi);
+    let mut j = MatrixCalib::identity();
+    j.fixed_view_mut::<3, 3>(CALIB_ROT, CALIB_ROT)
         .copy_from(&right_jacobian_inverse(&phi));
+    j.fixed_view_mut::<3, 3>(CALIB_STEREO, CALIB_STEREO)
+        .copy_from(&right_jacobian_inverse(&psi));
     (e, j)
 }
 
@@ -173,13 +209,15 @@ impl CameraImuState {
         let t_bc0 = cameras
             .first()
             .map_or_else(Isometry3::identity, |c| c.calibration.T_body_cam);
+        let t_c0c: Vec<Isometry3<f64>> = cameras
+            .iter()
+            .map(|c| t_bc0.inverse() * c.calibration.T_body_cam)
+            .collect();
         Self {
             config,
             file_T_body_cam0: t_bc0,
-            T_cam0_cam: cameras
-                .iter()
-                .map(|c| t_bc0.inverse() * c.calibration.T_body_cam)
-                .collect(),
+            file_T_cam0_cam: t_c0c.clone(),
+            T_cam0_cam: t_c0c,
             T_body_cam0: t_bc0,
             time_offset_s: 0.0,
             carried: None,
@@ -198,44 +236,67 @@ impl CameraImuState {
         self.T_body_cam0 * self.T_cam0_cam[i]
     }
 
-    /// Applies a step `[dphi_c, dt_c, d td]`.
+    /// Applies a step `[dphi_c, dt_c, d td, dpsi_s]`.
     pub fn apply(&mut self, d: &[f64]) {
         let v3 = |o: usize| Vector3::new(d[o], d[o + 1], d[o + 2]);
-        let q = self.T_body_cam0.rotation * UnitQuaternion::from_scaled_axis(v3(0));
+        let q = self.T_body_cam0.rotation * UnitQuaternion::from_scaled_axis(v3(CALIB_ROT));
         self.T_body_cam0.rotation = UnitQuaternion::new_normalize(q.into_inner());
-        self.T_body_cam0.translation.vector += v3(3);
-        self.time_offset_s += d[6];
+        self.T_body_cam0.translation.vector += v3(CALIB_POS);
+        self.time_offset_s += d[CALIB_TIME];
+        if let Some(t) = self.T_cam0_cam.get_mut(1) {
+            let q = t.rotation * UnitQuaternion::from_scaled_axis(v3(CALIB_STEREO));
+            t.rotation = UnitQuaternion::new_normalize(q.into_inner());
+        }
     }
 
-    fn file_sqrt_info(&self) -> Vector7 {
+    fn values(&self) -> Values {
+        Values {
+            T_body_cam0: self.T_body_cam0,
+            td: self.time_offset_s,
+            R_cam0_cam1: self
+                .T_cam0_cam
+                .get(1)
+                .map_or_else(UnitQuaternion::identity, |t| t.rotation),
+        }
+    }
+
+    fn file_values(&self) -> Values {
+        Values {
+            T_body_cam0: self.file_T_body_cam0,
+            td: 0.0,
+            R_cam0_cam1: self
+                .file_T_cam0_cam
+                .get(1)
+                .map_or_else(UnitQuaternion::identity, |t| t.rotation),
+        }
+    }
+
+    fn file_sqrt_info(&self) -> VectorCalib {
         let c = &self.config;
         let r = 1.0 / c.rotation_sigma_deg.to_radians();
         let t = 1.0 / c.translation_sigma_m;
-        Vector7::from_column_slice(&[r, r, r, t, t, t, 1.0 / c.time_offset_sigma_s])
+        let s = 1.0 / c.stereo_rotation_sigma_deg.to_radians();
+        VectorCalib::from_column_slice(&[r, r, r, t, t, t, 1.0 / c.time_offset_sigma_s, s, s, s])
     }
 
     /// The whitened prior factors at the current estimate: the file's and
     /// (after a first solve) the carried one.
-    pub fn prior_factors(&self) -> Vec<(Vector7, Matrix7)> {
-        let (e, j) = difference(
-            &self.T_body_cam0,
-            self.time_offset_s,
-            &self.file_T_body_cam0,
-            0.0,
-        );
-        let w = Matrix7::from_diagonal(&self.file_sqrt_info());
+    pub fn prior_factors(&self) -> Vec<(VectorCalib, MatrixCalib)> {
+        let x = self.values();
+        let (e, j) = difference(&x, &self.file_values());
+        let w = MatrixCalib::from_diagonal(&self.file_sqrt_info());
         let mut out = vec![(w * e, w * j)];
-        if let Some((t0, td0, u)) = &self.carried {
-            let (e, j) = difference(&self.T_body_cam0, self.time_offset_s, t0, *td0);
+        if let Some((x0, u)) = &self.carried {
+            let (e, j) = difference(&x, x0);
             out.push((u * e, u * j));
         }
         out
     }
 
-    /// Takes the solve's marginal covariance of the 7 unknowns: keeps
+    /// Takes the solve's marginal covariance of the block: keeps
     /// `carry_weight` times its information, less the file prior's, as
     /// the next solve's carried prior.
-    pub fn after_solve(&mut self, covariance: Option<Matrix7>) {
+    pub fn after_solve(&mut self, covariance: Option<MatrixCalib>) {
         self.solves += 1;
         let Some(cov) = covariance.filter(|c| c.iter().all(|v| v.is_finite())) else {
             return;
@@ -246,31 +307,26 @@ impl CameraImuState {
         };
         self.last_covariance = Some(sym);
         let file = self.file_sqrt_info();
-        let data = info - Matrix7::from_diagonal(&file.component_mul(&file));
+        let data = info - MatrixCalib::from_diagonal(&file.component_mul(&file));
         // The data's share, kept positive semi-definite.
         let eig = ((data + data.transpose()) * 0.5).symmetric_eigen();
         let clamped = eig
             .eigenvalues
             .map(|l| l.max(0.0) * self.config.carry_weight);
         let carried_info =
-            eig.eigenvectors * Matrix7::from_diagonal(&clamped) * eig.eigenvectors.transpose();
+            eig.eigenvectors * MatrixCalib::from_diagonal(&clamped) * eig.eigenvectors.transpose();
         // Upper factor U with U^T U = info, through the eigenvectors (the
         // information may be singular: unobserved directions).
-        let u = Matrix7::from_diagonal(&clamped.map(f64::sqrt)) * eig.eigenvectors.transpose();
+        let u = MatrixCalib::from_diagonal(&clamped.map(f64::sqrt)) * eig.eigenvectors.transpose();
         if u.iter().all(|v| v.is_finite()) && carried_info.iter().all(|v| v.is_finite()) {
-            self.carried = Some((self.T_body_cam0, self.time_offset_s, u));
+            self.carried = Some((self.values(), u));
         }
     }
 
     pub fn estimate(&self) -> CameraImuEstimate {
-        let (e, _) = difference(
-            &self.T_body_cam0,
-            self.time_offset_s,
-            &self.file_T_body_cam0,
-            0.0,
-        );
-        let rotation_from_file_deg = e.fixed_rows::<3>(0).norm().to_degrees();
-        let translation_from_file_m = e.fixed_rows::<3>(3).norm();
+        let (e, _) = difference(&self.values(), &self.file_values());
+        let rotation_from_file_deg = e.fixed_rows::<3>(CALIB_ROT).norm().to_degrees();
+        let translation_from_file_m = e.fixed_rows::<3>(CALIB_POS).norm();
         let sigma = |from: usize| {
             self.last_covariance.map_or(f64::NAN, |c| {
                 (c[(from, from)] + c[(from + 1, from + 1)] + c[(from + 2, from + 2)])
@@ -281,14 +337,20 @@ impl CameraImuState {
         let c = &self.config;
         CameraImuEstimate {
             T_body_cam0: self.T_body_cam0,
+            T_cam0_cam1: self
+                .T_cam0_cam
+                .get(1)
+                .copied()
+                .unwrap_or_else(Isometry3::identity),
             time_offset_s: self.time_offset_s,
             rotation_from_file_deg,
             translation_from_file_m,
-            rotation_sigma_deg: sigma(0).to_degrees(),
-            translation_sigma_m: sigma(3),
+            stereo_rotation_from_file_deg: e.fixed_rows::<3>(CALIB_STEREO).norm().to_degrees(),
+            rotation_sigma_deg: sigma(CALIB_ROT).to_degrees(),
+            translation_sigma_m: sigma(CALIB_POS),
             time_offset_sigma_s: self
                 .last_covariance
-                .map_or(f64::NAN, |c| c[(6, 6)].max(0.0).sqrt()),
+                .map_or(f64::NAN, |c| c[(CALIB_TIME, CALIB_TIME)].max(0.0).sqrt()),
             far_from_file: rotation_from_file_deg > c.warn_rotation_deg
                 || translation_from_file_m > c.warn_translation_m
                 || self.time_offset_s.abs() > c.warn_time_offset_s,
@@ -326,13 +388,14 @@ pub fn pose_at_exposure(
 #[allow(non_snake_case)]
 pub fn reproject_refined(
     camera: &RigCamera,
+    camera_index: usize,
     T_cam0_cam: &Isometry3<f64>,
     T_world_body: &Isometry3<f64>,
     motion: &BodyMotion,
     td: f64,
     point_world_m: &Vector3<f64>,
     pixel: &Vector2<f64>,
-) -> Option<(Reprojection, Matrix2x7)> {
+) -> Option<(Reprojection, Matrix2xCalib)> {
     let exposed = pose_at_exposure(T_world_body, motion, td);
     let mut r = reproject(camera, &exposed, point_world_m, pixel)?;
     let r_wb: Matrix3<f64> = exposed.rotation.to_rotation_matrix().into_inner();
@@ -351,14 +414,23 @@ pub fn reproject_refined(
     let d_cam = d_body * r_bc;
     let dpb_dtd =
         -motion.omega_body_rad_s.cross(&p_body) - r_wb.transpose() * motion.velocity_world_m_s;
-    let mut d_calib = Matrix2x7::zeros();
+    let mut d_calib = Matrix2xCalib::zeros();
     d_calib
-        .fixed_view_mut::<2, 3>(0, 0)
+        .fixed_view_mut::<2, 3>(0, CALIB_ROT)
         .copy_from(&(d_cam * r_c0c.transpose() * hat(&p_cam0)));
-    d_calib.fixed_view_mut::<2, 3>(0, 3).copy_from(&(-d_body));
     d_calib
-        .fixed_view_mut::<2, 1>(0, 6)
+        .fixed_view_mut::<2, 3>(0, CALIB_POS)
+        .copy_from(&(-d_body));
+    d_calib
+        .fixed_view_mut::<2, 1>(0, CALIB_TIME)
         .copy_from(&(d_body * dpb_dtd));
+    if camera_index == 1 {
+        // p_c1 = R_c0c1^T (p_c0 - t_c0c1), R_c0c1 <- R_c0c1 Exp(dpsi):
+        // d p_c1 / d dpsi = [p_c1]x.
+        d_calib
+            .fixed_view_mut::<2, 3>(0, CALIB_STEREO)
+            .copy_from(&(d_cam * hat(&p_cam.coords)));
+    }
     Some((r, d_calib))
 }
 
@@ -390,7 +462,7 @@ mod tests {
         state: &CameraImuState,
         i: usize,
         base: &RigCamera,
-        d: &Vector7,
+        d: &VectorCalib,
     ) -> (RigCamera, f64) {
         let mut s = state.clone();
         s.apply(d.as_slice());
@@ -405,7 +477,9 @@ mod tests {
     fn jacobians_match_finite_differences() {
         let cams = [RigCamera::new(euroc_cam0()), RigCamera::new(euroc_cam1())];
         let mut state = CameraImuState::new(CameraImuRefinementConfig::default(), &cams);
-        state.apply(&[0.01, -0.02, 0.015, 0.004, -0.006, 0.002, 0.004]);
+        state.apply(&[
+            0.01, -0.02, 0.015, 0.004, -0.006, 0.002, 0.004, 0.002, -0.001, 0.003,
+        ]);
         let motion = BodyMotion {
             omega_body_rad_s: Vector3::new(0.4, -0.7, 0.9),
             velocity_world_m_s: Vector3::new(0.8, -0.3, 0.5),
@@ -414,7 +488,7 @@ mod tests {
         let h = 1e-6;
         let mut checked = 0;
         for i in 0..2 {
-            let (cam, td) = perturbed_camera(&state, i, &cams[i], &Vector7::zeros());
+            let (cam, td) = perturbed_camera(&state, i, &cams[i], &VectorCalib::zeros());
             // A point in front of camera i, 2.5 m away.
             let p_cam = Vector3::new(0.3, -0.2, 2.5);
             let point = body
@@ -423,6 +497,7 @@ mod tests {
             let pixel = cam.project(&p_cam).expect("projects") + Vector2::new(1.5, -0.7);
             let (r, d_calib) = reproject_refined(
                 &cam,
+                i,
                 &state.T_cam0_cam[i],
                 &body,
                 &motion,
@@ -438,7 +513,7 @@ mod tests {
             };
             assert!((err(&cam, td, &body, &point) - r.error_px).norm() < 1e-12);
             for k in 0..CALIB_DIM {
-                let mut d = Vector7::zeros();
+                let mut d = VectorCalib::zeros();
                 d[k] = h;
                 let (cp, tp) = perturbed_camera(&state, i, &cams[i], &d);
                 d[k] = -h;
@@ -486,16 +561,18 @@ mod tests {
 
     #[test]
     fn the_prior_factors_vanish_at_their_means_and_their_jacobians_are_exact() {
-        let cams = [RigCamera::new(euroc_cam0())];
+        let cams = [RigCamera::new(euroc_cam0()), RigCamera::new(euroc_cam1())];
         let mut state = CameraImuState::new(CameraImuRefinementConfig::default(), &cams);
         let f = state.prior_factors();
         assert_eq!(f.len(), 1);
         assert!(f[0].0.norm() < 1e-12);
-        state.apply(&[0.02, 0.01, -0.03, 0.01, 0.0, -0.01, 0.003]);
+        state.apply(&[
+            0.02, 0.01, -0.03, 0.01, 0.0, -0.01, 0.003, 0.001, 0.0, -0.002,
+        ]);
         let (r, j) = state.prior_factors()[0];
         let h = 1e-6;
         for k in 0..CALIB_DIM {
-            let mut d = Vector7::zeros();
+            let mut d = VectorCalib::zeros();
             d[k] = h;
             let mut p = state.clone();
             p.apply(d.as_slice());
@@ -526,13 +603,13 @@ mod tests {
         let mut state = CameraImuState::new(CameraImuRefinementConfig::default(), &cams);
         let file = state.file_sqrt_info();
         // A solve whose information is the file's plus 1e6 on every unknown.
-        let info = Matrix7::from_diagonal(&file.component_mul(&file)).add_scalar(0.0)
-            + Matrix7::identity() * 1e6;
+        let info = MatrixCalib::from_diagonal(&file.component_mul(&file)).add_scalar(0.0)
+            + MatrixCalib::identity() * 1e6;
         let cov = info.try_inverse().expect("invertible");
         state.after_solve(Some(cov));
-        let (_, _, u) = state.carried.expect("carried");
+        let (_, u) = state.carried.expect("carried");
         let carried = u.transpose() * u;
-        assert!((carried - Matrix7::identity() * 0.9e6).norm() < 1e-3 * 0.9e6);
+        assert!((carried - MatrixCalib::identity() * 0.9e6).norm() < 1e-3 * 0.9e6);
         assert_eq!(state.prior_factors().len(), 2);
         assert!(state.estimate().time_offset_sigma_s > 0.0);
     }

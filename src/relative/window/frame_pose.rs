@@ -180,6 +180,7 @@ impl Window {
                 };
                 reproject_refined(
                     &cameras[r.camera as usize],
+                    r.camera as usize,
                     &t_c0c[r.camera as usize],
                     &s.T_world_body,
                     &motion,

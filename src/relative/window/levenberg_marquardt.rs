@@ -339,6 +339,7 @@ impl Window {
                 if build {
                     reproject_refined(
                         camera,
+                        row.camera as usize,
                         &c.T_cam0_cam[row.camera as usize],
                         &kf.state.T_world_body,
                         &motion,

@@ -15,7 +15,7 @@ use std::ops::Range;
 
 use nalgebra::{DMatrix, DVector, Matrix2x3, Matrix3, SMatrix, SVector, Vector2, Vector3};
 
-use super::camera_imu::{Matrix2x7, Matrix7x3, CALIB_DIM};
+use super::camera_imu::{Matrix2xCalib, MatrixCalibx3, CALIB_DIM};
 use super::reprojection::Matrix2x6;
 use crate::relative::types::LandmarkId;
 
@@ -50,7 +50,7 @@ pub(crate) struct ObservationRow {
     pub w_block: Matrix6x3,
     /// d error / d calibration step (whitened; zero when the camera-IMU
     /// calibration is not estimated).
-    pub d_calib: Matrix2x7,
+    pub d_calib: Matrix2xCalib,
 }
 
 impl ObservationRow {
@@ -68,7 +68,7 @@ impl ObservationRow {
             d_pose: Matrix2x6::zeros(),
             d_point: Matrix2x3::zeros(),
             w_block: Matrix6x3::zeros(),
-            d_calib: Matrix2x7::zeros(),
+            d_calib: Matrix2xCalib::zeros(),
         }
     }
 }
@@ -89,7 +89,7 @@ pub(crate) struct LandmarkBlock {
     pub usable: bool,
     /// The calibration block's part of `W` for this landmark (all its
     /// observations, fixed keyframes' included).
-    pub w_calib: Matrix7x3,
+    pub w_calib: MatrixCalibx3,
 }
 
 impl LandmarkBlock {
@@ -103,7 +103,7 @@ impl LandmarkBlock {
             v_inv: Matrix3::zeros(),
             delta: Vector3::zeros(),
             usable: true,
-            w_calib: Matrix7x3::zeros(),
+            w_calib: MatrixCalibx3::zeros(),
         }
     }
 }
@@ -189,7 +189,7 @@ pub(crate) fn accumulate_observations(
     for lm in landmarks.iter_mut() {
         lm.v = Matrix3::zeros();
         lm.b = Vector3::zeros();
-        lm.w_calib = Matrix7x3::zeros();
+        lm.w_calib = MatrixCalibx3::zeros();
         for row in &mut rows[lm.rows.clone()] {
             if !row.valid || row.weight == 0.0 {
                 row.w_block = Matrix6x3::zeros();
