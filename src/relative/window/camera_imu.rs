@@ -147,11 +147,17 @@ pub struct CameraImuEstimate {
     pub rotation_sigma_deg: f64,
     pub translation_sigma_m: f64,
     pub time_offset_sigma_s: f64,
-    /// Beyond the configured warning distance in any of the three.
+    /// Beyond the configured warning distance in any of the three, once
+    /// the estimate has settled ([`WARN_AFTER_SOLVES`]).
     pub far_from_file: bool,
     /// Solves the estimate took part in.
     pub solves: u64,
 }
+
+/// Solves before the estimate may raise the warning: the first windows'
+/// estimates swing (0.6 deg in the first seconds of a correct EuRoC
+/// calibration) before they settle within a tenth of that.
+pub const WARN_AFTER_SOLVES: u64 = 50;
 
 /// The calibration block's state, kept across windows.
 #[allow(non_snake_case)]
@@ -351,9 +357,10 @@ impl CameraImuState {
             time_offset_sigma_s: self
                 .last_covariance
                 .map_or(f64::NAN, |c| c[(CALIB_TIME, CALIB_TIME)].max(0.0).sqrt()),
-            far_from_file: rotation_from_file_deg > c.warn_rotation_deg
-                || translation_from_file_m > c.warn_translation_m
-                || self.time_offset_s.abs() > c.warn_time_offset_s,
+            far_from_file: self.solves >= WARN_AFTER_SOLVES
+                && (rotation_from_file_deg > c.warn_rotation_deg
+                    || translation_from_file_m > c.warn_translation_m
+                    || self.time_offset_s.abs() > c.warn_time_offset_s),
             solves: self.solves,
         }
     }
@@ -591,8 +598,10 @@ mod tests {
         assert!((e.time_offset_s - 0.003).abs() < 1e-12);
         assert!((e.translation_from_file_m - 0.02f64.sqrt() * 0.1).abs() < 1e-9);
         assert!(e.rotation_sigma_deg.is_nan());
+        assert!(!e.far_from_file, "no warning before the estimate settled");
+        state.solves = WARN_AFTER_SOLVES;
         assert!(
-            e.far_from_file,
+            state.estimate().far_from_file,
             "2.1 deg from the file is beyond the 0.5 deg warning"
         );
     }
