@@ -181,7 +181,7 @@ pub struct CameraImuState {
 /// camera 1's rotation in camera 0 (identity without one).
 #[allow(non_snake_case)]
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct Values {
+pub(crate) struct Values {
     T_body_cam0: Isometry3<f64>,
     td: f64,
     R_cam0_cam1: UnitQuaternion<f64>,
@@ -255,7 +255,9 @@ impl CameraImuState {
         }
     }
 
-    fn values(&self) -> Values {
+    /// The estimate, to put back with [`Self::restore`] (a rejected
+    /// Levenberg-Marquardt step).
+    pub(crate) fn values(&self) -> Values {
         Values {
             T_body_cam0: self.T_body_cam0,
             td: self.time_offset_s,
@@ -263,6 +265,21 @@ impl CameraImuState {
                 .T_cam0_cam
                 .get(1)
                 .map_or_else(UnitQuaternion::identity, |t| t.rotation),
+        }
+    }
+
+    pub(crate) fn restore(&mut self, v: &Values) {
+        self.T_body_cam0 = v.T_body_cam0;
+        self.time_offset_s = v.td;
+        if let Some(t) = self.T_cam0_cam.get_mut(1) {
+            t.rotation = v.R_cam0_cam1;
+        }
+    }
+
+    /// Gives `cameras` (the rig's, in order) the current estimate.
+    pub fn place(&self, cameras: &mut [RigCamera]) {
+        for (i, cam) in cameras.iter_mut().enumerate() {
+            cam.calibration.T_body_cam = self.T_body_cam(i);
         }
     }
 
@@ -319,12 +336,10 @@ impl CameraImuState {
         let clamped = eig
             .eigenvalues
             .map(|l| l.max(0.0) * self.config.carry_weight);
-        let carried_info =
-            eig.eigenvectors * MatrixCalib::from_diagonal(&clamped) * eig.eigenvectors.transpose();
         // Upper factor U with U^T U = info, through the eigenvectors (the
         // information may be singular: unobserved directions).
         let u = MatrixCalib::from_diagonal(&clamped.map(f64::sqrt)) * eig.eigenvectors.transpose();
-        if u.iter().all(|v| v.is_finite()) && carried_info.iter().all(|v| v.is_finite()) {
+        if u.iter().all(|v| v.is_finite()) {
             self.carried = Some((self.values(), u));
         }
     }

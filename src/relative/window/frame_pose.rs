@@ -172,12 +172,13 @@ impl Window {
             .as_ref()
             .filter(|_| self.use_imu && imu.is_some())
             .map(|c| (c.time_offset_s, &c.T_cam0_cam, self.frame_omega_body_rad_s));
+        let motion = |s: &KeyframeState, omega: &Vector3<f64>| BodyMotion {
+            omega_body_rad_s: *omega,
+            velocity_world_m_s: s.velocity_world_m_s,
+        };
         let project = |s: &KeyframeState, r: &TrackRow| match &exposure {
             Some((td, t_c0c, omega)) => {
-                let motion = BodyMotion {
-                    omega_body_rad_s: *omega,
-                    velocity_world_m_s: s.velocity_world_m_s,
-                };
+                let motion = motion(s, omega);
                 reproject_refined(
                     &cameras[r.camera as usize],
                     r.camera as usize,
@@ -199,10 +200,7 @@ impl Window {
         };
         let error = |s: &KeyframeState, r: &TrackRow| match &exposure {
             Some((td, _, omega)) => {
-                let motion = BodyMotion {
-                    omega_body_rad_s: *omega,
-                    velocity_world_m_s: s.velocity_world_m_s,
-                };
+                let motion = motion(s, omega);
                 reprojection_error_refined(
                     &cameras[r.camera as usize],
                     &s.T_world_body,

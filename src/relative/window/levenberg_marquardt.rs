@@ -572,10 +572,7 @@ impl Window {
         p.backup_landmarks
             .extend(p.landmarks.iter().map(|l| l.position_world_m));
         p.backup_gravity = self.gravity_dir;
-        p.backup_calibration = self
-            .camera_imu
-            .as_ref()
-            .map(|c| (c.T_body_cam0, c.time_offset_s));
+        p.backup_calibration = self.camera_imu.as_ref().map(|c| c.values());
     }
 
     pub(super) fn restore_backup(&mut self) {
@@ -587,12 +584,9 @@ impl Window {
             l.position_world_m = *b;
         }
         self.gravity_dir = p.backup_gravity;
-        if let (Some(c), Some((t, td))) = (self.camera_imu.as_mut(), p.backup_calibration) {
-            c.T_body_cam0 = t;
-            c.time_offset_s = td;
-            for (i, cam) in self.cameras.iter_mut().enumerate() {
-                cam.calibration.T_body_cam = c.T_body_cam(i);
-            }
+        if let (Some(c), Some(v)) = (self.camera_imu.as_mut(), &p.backup_calibration) {
+            c.restore(v);
+            c.place(&mut self.cameras);
         }
     }
 
@@ -615,9 +609,7 @@ impl Window {
         }
         if let (Some(oc), Some(c)) = (p.calib_offset, self.camera_imu.as_mut()) {
             c.apply(&delta[oc..oc + CALIB_DIM]);
-            for (i, cam) in self.cameras.iter_mut().enumerate() {
-                cam.calibration.T_body_cam = c.T_body_cam(i);
-            }
+            c.place(&mut self.cameras);
         }
         if let (Some(ob), Some(kf)) = (p.boundary_offset, p.n_fixed.checked_sub(1)) {
             let s = &mut self.keyframes[kf].state;

@@ -359,7 +359,7 @@ pub(crate) struct Problem {
     pub backup_states: Vec<KeyframeState>,
     pub backup_landmarks: Vec<Vector3<f64>>,
     pub backup_gravity: Vector3<f64>,
-    pub backup_calibration: Option<(Isometry3<f64>, f64)>,
+    pub backup_calibration: Option<camera_imu::Values>,
     /// `S^-1 Y` of one landmark (body-frame covariances).
     pub z_buffer: DMatrix<f64>,
 }
@@ -892,9 +892,7 @@ impl Window {
         if let (Some(mine), Some(theirs)) = (self.camera_imu.as_mut(), other.camera_imu.as_ref()) {
             if mine.T_cam0_cam.len() == theirs.T_cam0_cam.len() {
                 *mine = theirs.clone();
-                for (i, cam) in self.cameras.iter_mut().enumerate() {
-                    cam.calibration.T_body_cam = mine.T_body_cam(i);
-                }
+                mine.place(&mut self.cameras);
             }
         }
     }
