@@ -20,7 +20,7 @@ use super::ekf::{EkfConfig, EkfFilter, InitialSigmas};
 use super::estimator::{FrameInput, FrameTimings, RelativeEstimator, RigModel, SensorMode};
 use super::imu_buffer::ImuBuffer;
 use super::initializer::StaticStartConfig;
-use super::odometry::{front_end, OdometryError};
+use super::setup::{front_end, OdometryError};
 use super::tracker::Tracker;
 use super::types::{KeyframeState, RelativeOutput, TrackingState};
 

@@ -16,16 +16,20 @@ pub mod config;
 pub mod ekf;
 pub mod ekf_odometry;
 pub mod estimator;
+pub mod factory;
 pub mod imu_buffer;
 pub mod initializer;
 pub mod odometry;
+pub mod setup;
 pub mod tracker;
 pub mod types;
 pub mod window;
 
 pub use config::{CameraImuRefinement, ConfigError, EstimatorKind, RelativeConfig};
 pub use estimator::{FrameInput, FrameTimings, RelativeEstimator, RigError, RigModel, SensorMode};
-pub use odometry::{build_estimator, OdometryError, WindowOdometry};
+pub use factory::build_estimator;
+pub use odometry::WindowOdometry;
+pub use setup::OdometryError;
 pub use types::{
     BodyLandmark, KeyframeState, LandmarkId, Observation, PoseCovariance, RelativeOutput,
     TrackedFrame, TrackingState,

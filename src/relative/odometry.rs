@@ -35,14 +35,15 @@ use nalgebra::{Isometry3, Matrix6, Rotation3, Translation3, Vector2, Vector3};
 use crate::imu::{ImuBiases, NavState, Preintegrated, GRAVITY_M_S2};
 use crate::sensors::ImuSample;
 
-use super::config::{EstimatorKind, RelativeConfig};
+use super::config::RelativeConfig;
 use super::estimator::{FrameInput, FrameTimings, RelativeEstimator, RigModel, SensorMode};
 use super::imu_buffer::ImuBuffer;
 use super::initializer::{
     align_with_reintegration, bootstrap_two_view, AlignmentConfig, BootstrapConfig,
     BootstrapRefusal, ScaleMode, StaticStartConfig, VisionKeyframe,
 };
-use super::tracker::{Tracker, TrackerConfig};
+use super::setup::{front_end, OdometryError};
+use super::tracker::Tracker;
 use super::types::{
     BodyLandmark, KeyframeState, LandmarkId, PoseCovariance, RelativeOutput, TrackedFrame,
     TrackingState,
@@ -168,63 +169,6 @@ fn image_digest(image: &crate::sensors::Image) -> u64 {
         h = (h.rotate_left(23) ^ u64::from(b)).wrapping_mul(0x2127_599b_f432_5c37);
     }
     h ^ (h >> 29)
-}
-
-/// Why the stage could not be set up.
-#[derive(Debug, thiserror::Error)]
-pub enum OdometryError {
-    #[error(transparent)]
-    Rig(#[from] super::estimator::RigError),
-    #[error(transparent)]
-    Config(#[from] super::config::ConfigError),
-    #[error("setting up the relative stage: {0}")]
-    Setup(String),
-}
-
-/// The estimator `kind` for `mode` on `rig`.
-pub fn build_estimator(
-    kind: EstimatorKind,
-    mode: SensorMode,
-    rig: &RigModel,
-    config: &RelativeConfig,
-) -> Result<Box<dyn RelativeEstimator>, OdometryError> {
-    let estimator: Box<dyn RelativeEstimator> = match kind {
-        EstimatorKind::Window => Box::new(WindowOdometry::new(mode, rig, config)?),
-        EstimatorKind::Ekf => Box::new(super::ekf_odometry::EkfOdometry::new(mode, rig, config)?),
-    };
-    Ok(super::camera_clock::on_imu_clock(estimator, rig))
-}
-
-/// What both estimators start from: the rig and config checked for
-/// `mode`, the rig cut down to the cameras (and IMU) the mode uses, and
-/// the tracker on those cameras.
-pub(super) fn front_end(
-    mode: SensorMode,
-    rig: &RigModel,
-    config: &RelativeConfig,
-) -> Result<(RigModel, Tracker), OdometryError> {
-    rig.check(mode)?;
-    config.validate()?;
-    let cameras = if mode.uses_stereo() {
-        rig.cameras[..2].to_vec()
-    } else {
-        rig.cameras[..1].to_vec()
-    };
-    let tracker_config = TrackerConfig {
-        target_features: config.features,
-        ..TrackerConfig::default()
-    };
-    let tracker = Tracker::new(tracker_config, &cameras, mode.uses_stereo())
-        .map_err(|e| OdometryError::Setup(e.to_string()))?;
-    let used = RigModel {
-        cameras,
-        imu: if mode.uses_imu() {
-            rig.imu.clone()
-        } else {
-            None
-        },
-    };
-    Ok((used, tracker))
 }
 
 impl WindowOdometry {

@@ -15,7 +15,7 @@ use std::time::Instant;
 use nalgebra::{Matrix6, SMatrix, SVector, Vector2, Vector3};
 
 use super::camera_imu::{reproject_refined, reprojection_error_refined, BodyMotion};
-use super::inertial::{whitening, Matrix9};
+use super::inertial_link::{whitening, Matrix9};
 use super::reprojection::{reproject, reprojection_error, GATE_SQ};
 use super::state::{apply_update, nav_state, state_is_finite, FULL_DIM, POS, ROT, VEL};
 use super::Window;

@@ -13,59 +13,17 @@
 
 use nalgebra::{Matrix3x2, SMatrix, SVector, Vector2, Vector3, Vector6};
 
-use super::noise_adaptation::NoiseScale;
+use super::inertial_link::InertialLink;
 use super::state::{nav_state, BA, BG, FULL_DIM, POS, ROT, VEL};
 use crate::imu::so3::{exp, hat};
-use crate::imu::{bias_walk_covariance, imu_residual, Preintegrated, GRAVITY_M_S2};
+use crate::imu::{bias_walk_covariance, imu_residual, GRAVITY_M_S2};
 use crate::relative::types::KeyframeState;
 use crate::rig::ImuNoise;
 
-pub type Matrix9 = SMatrix<f64, 9, 9>;
 /// Columns of an inertial factor's Jacobian: keyframe i (15), keyframe j
 /// (15), gravity direction (2).
 pub const INERTIAL_COLS: usize = 2 * FULL_DIM + 2;
 pub const GRAVITY_COL: usize = 2 * FULL_DIM;
-
-/// A preintegrated interval with its whitening.
-#[derive(Debug, Clone)]
-pub(crate) struct InertialLink {
-    pub pre: Preintegrated,
-    /// `L^-1` with `L L^T` the covariance of `[r_R, r_v, r_p]`.
-    pub sqrt_info: Matrix9,
-}
-
-impl InertialLink {
-    /// Weighted by the noise it was integrated with.
-    #[cfg(test)]
-    pub fn new(pre: Preintegrated) -> Self {
-        Self::scaled(pre, NoiseScale::DECLARED)
-    }
-
-    /// Weighted by that noise times `scale`.
-    pub fn scaled(pre: Preintegrated, scale: NoiseScale) -> Self {
-        let sqrt_info = whitening(&pre.scaled_covariance(scale.gyro, scale.accel));
-        Self { pre, sqrt_info }
-    }
-
-    pub fn rescale(&mut self, scale: NoiseScale) {
-        self.sqrt_info = whitening(&self.pre.scaled_covariance(scale.gyro, scale.accel));
-    }
-}
-
-/// `L^-1` for `L L^T = cov` (symmetrised, with a small floor on the
-/// diagonal so that a noise-free interval still has a finite weight).
-pub(crate) fn whitening(cov: &Matrix9) -> Matrix9 {
-    let mut c = (cov + cov.transpose()) * 0.5;
-    let largest = c.diagonal().max().max(0.0);
-    let floor = 1e-24 + 1e-12 * largest;
-    for i in 0..9 {
-        c[(i, i)] += floor;
-    }
-    match c.cholesky().and_then(|ch| ch.l().try_inverse()) {
-        Some(l_inv) if l_inv.iter().all(|v| v.is_finite()) => l_inv,
-        _ => Matrix9::from_diagonal(&c.diagonal().map(|v| 1.0 / v.abs().max(1e-24).sqrt())),
-    }
-}
 
 /// `1 / sigma` of the bias change over `dt_s` under the random walk.
 pub(crate) fn bias_walk_sqrt_info(noise: &ImuNoise, dt_s: f64) -> Vector6<f64> {

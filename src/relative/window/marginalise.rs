@@ -23,7 +23,8 @@
 
 use nalgebra::{DMatrix, DVector, Matrix2, Matrix3x2, SMatrix, Vector3, Vector6};
 
-use super::inertial::{bias_walk_factor, inertial_factor, InertialLink, GRAVITY_COL};
+use super::inertial::{bias_walk_factor, inertial_factor, GRAVITY_COL};
+use super::inertial_link::InertialLink;
 use super::prior::{GravityPrior, Matrix9, OldestFreePrior, Vector9};
 use super::state::{BG, FULL_DIM, VEL};
 use crate::relative::types::KeyframeState;

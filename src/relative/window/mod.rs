@@ -28,6 +28,7 @@
 pub mod camera_imu;
 pub mod frame_pose;
 pub mod inertial;
+pub mod inertial_link;
 pub mod levenberg_marquardt;
 mod marginalise;
 pub mod new_landmarks;
@@ -55,15 +56,16 @@ pub use noise_adaptation::{NoiseAdaptation, NoiseAdaptationConfig, NoiseScale};
 pub use reprojection::RobustKernel;
 
 use camera_imu::CameraImuState;
-use inertial::{bias_walk_sqrt_info, tangent_basis, InertialLink};
+use inertial::{bias_walk_sqrt_info, tangent_basis};
+use inertial_link::InertialLink;
 use prior::{GravityPrior, OldestFreePrior, ScaleAnchor};
 use schur::{LandmarkBlock, NormalEquations, ObservationRow};
 use state::{state_is_finite, Keyframe, KeyframeObservation};
 
 use crate::imu::{ImuBiases, Preintegrated, GRAVITY_M_S2};
-use crate::relative::estimator::RigModel;
 use crate::relative::types::{BodyLandmark, KeyframeState, LandmarkId, TrackedFrame};
 use crate::rig::ImuNoise;
+use crate::rig::RigModel;
 use rig_camera::RigCamera;
 
 /// Settings of the window (defaults in brackets).

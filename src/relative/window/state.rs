@@ -8,7 +8,7 @@
 
 use nalgebra::{Matrix6, SMatrix, UnitQuaternion, Vector2, Vector3, Vector6};
 
-use super::inertial::InertialLink;
+use super::inertial_link::InertialLink;
 use crate::imu::NavState;
 use crate::relative::types::{KeyframeState, LandmarkId};
 

@@ -9,8 +9,9 @@ use rand_chacha::ChaCha8Rng;
 
 use super::inertial::{
     bias_walk_factor, gravity_jacobian, inertial_factor, tangent_basis, update_direction,
-    InertialLink, GRAVITY_COL,
+    GRAVITY_COL,
 };
+use super::inertial_link::InertialLink;
 use super::prior::{GravityPrior, ScaleAnchor};
 use super::reprojection::reproject;
 use super::schur;

@@ -1,0 +1,49 @@
+//! What both relative estimators (the window's [`super::odometry`] and the
+//! filter's [`super::ekf_odometry`]) start from, and why they may fail to.
+
+use super::config::RelativeConfig;
+use super::estimator::{RigModel, SensorMode};
+use super::tracker::{Tracker, TrackerConfig};
+
+/// Why the stage could not be set up.
+#[derive(Debug, thiserror::Error)]
+pub enum OdometryError {
+    #[error(transparent)]
+    Rig(#[from] super::estimator::RigError),
+    #[error(transparent)]
+    Config(#[from] super::config::ConfigError),
+    #[error("setting up the relative stage: {0}")]
+    Setup(String),
+}
+
+/// What both estimators start from: the rig and config checked for
+/// `mode`, the rig cut down to the cameras (and IMU) the mode uses, and
+/// the tracker on those cameras.
+pub(super) fn front_end(
+    mode: SensorMode,
+    rig: &RigModel,
+    config: &RelativeConfig,
+) -> Result<(RigModel, Tracker), OdometryError> {
+    rig.check(mode)?;
+    config.validate()?;
+    let cameras = if mode.uses_stereo() {
+        rig.cameras[..2].to_vec()
+    } else {
+        rig.cameras[..1].to_vec()
+    };
+    let tracker_config = TrackerConfig {
+        target_features: config.features,
+        ..TrackerConfig::default()
+    };
+    let tracker = Tracker::new(tracker_config, &cameras, mode.uses_stereo())
+        .map_err(|e| OdometryError::Setup(e.to_string()))?;
+    let used = RigModel {
+        cameras,
+        imu: if mode.uses_imu() {
+            rig.imu.clone()
+        } else {
+            None
+        },
+    };
+    Ok((used, tracker))
+}

@@ -1,0 +1,231 @@
+//! The library's module graph has no cycles between sibling modules: in
+//! every folder of `src/`, the files and sub-folders depend on each other
+//! one way only, so each can be read (and tested) with what it depends on
+//! and nothing above it. References are read from the source as `super::`,
+//! `self::` and `crate::` paths outside comments.
+//!
+//! The cycles that remain are listed below (`ALLOWED`), to be removed:
+//! the relative stage's config holds the absolute stage's settings while
+//! the absolute stage reads the relative stage's output; the IMU maths,
+//! the rig model and the simulator read dataset files; and a few pairs of
+//! helpers. A new cycle fails the test; an allowed one that disappears
+//! fails it too, so the list stays true.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+/// Sibling pairs allowed to depend on each other, `(folder, a, b)`.
+const ALLOWED: &[(&str, &str, &str)] = &[
+    ("", "edge_map", "relative"),
+    ("", "dataset", "imu"),
+    ("", "dataset", "rig"),
+    ("", "dataset", "simulate"),
+    ("", "imu", "rig"),
+    ("", "imu", "simulate"),
+    ("", "rig", "simulate"),
+    ("features", "matching", "orb"),
+    ("publish", "access", "service"),
+    ("simulate", "interpolated", "motion"),
+];
+
+/// Module path of a source file: `src/relative/window/mod.rs` ->
+/// `[relative, window]`, `src/relative/odometry.rs` -> `[relative,
+/// odometry]`; the crate roots give `[]`.
+fn module_path(src: &Path, file: &Path) -> Vec<String> {
+    let rel = file.strip_prefix(src).expect("under src");
+    let mut parts: Vec<String> = rel
+        .iter()
+        .map(|p| p.to_string_lossy().into_owned())
+        .collect();
+    let last = parts.pop().expect("a file name");
+    let stem = last.trim_end_matches(".rs");
+    if !matches!(stem, "mod" | "lib" | "main") {
+        parts.push(stem.to_string());
+    }
+    parts
+}
+
+fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    for entry in std::fs::read_dir(dir).expect("readable source folder") {
+        let path = entry.expect("entry").path();
+        if path.is_dir() {
+            // The binaries are crates of their own.
+            if path.file_name().is_some_and(|n| n == "bin") {
+                continue;
+            }
+            rust_files(&path, out);
+        } else if path.extension().is_some_and(|e| e == "rs") {
+            out.push(path);
+        }
+    }
+}
+
+/// The code of a file without its comments (line comments, doc comments
+/// and block comments), so that doc links are not counted as uses.
+fn code_only(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    let mut rest = text;
+    while !rest.is_empty() {
+        if let Some(r) = rest.strip_prefix("//") {
+            rest = r.find('\n').map_or("", |i| &r[i..]);
+        } else if let Some(r) = rest.strip_prefix("/*") {
+            rest = r.find("*/").map_or("", |i| &r[i + 2..]);
+        } else if rest.starts_with('"') {
+            // Skip string literals ("crate::..." in a message is no use).
+            let bytes = rest.as_bytes();
+            let mut i = 1;
+            while i < bytes.len() && bytes[i] != b'"' {
+                i += if bytes[i] == b'\\' { 2 } else { 1 };
+            }
+            rest = &rest[(i + 1).min(rest.len())..];
+            out.push_str("\"\"");
+        } else {
+            let c = rest.chars().next().expect("not empty");
+            out.push(c);
+            rest = &rest[c.len_utf8()..];
+        }
+    }
+    out
+}
+
+/// The module paths a file refers to, as absolute segment lists (the item
+/// name may be the last segment; only prefixes are compared).
+fn references(code: &str, here: &[String]) -> Vec<Vec<String>> {
+    let ident = |c: char| c.is_ascii_alphanumeric() || c == '_';
+    let mut out = Vec::new();
+    let text = code;
+    for start in ["crate::", "super::", "self::"] {
+        let mut from = 0;
+        while let Some(pos) = text[from..].find(start) {
+            let at = from + pos;
+            from = at + start.len();
+            if at > 0 && text[..at].chars().next_back().is_some_and(ident) {
+                continue;
+            }
+            // The path: segments joined by `::`, up to the first non-path
+            // character (`{` of a use group stops it; its parent is enough
+            // to name the module).
+            let tail = &text[at..];
+            let end = tail
+                .find(|c: char| !(ident(c) || c == ':'))
+                .unwrap_or(tail.len());
+            let segments: Vec<&str> = tail[..end].split("::").filter(|s| !s.is_empty()).collect();
+            // `self` is this module, `super` its parent (the module path
+            // of a leaf file ends with its own name, of a `mod.rs` with its
+            // folder's), each further `super` one more up.
+            let mut iter = segments.iter().peekable();
+            let mut path: Vec<String> = match *iter.next().expect("a prefix") {
+                "crate" => Vec::new(),
+                "self" => here.to_vec(),
+                _ => {
+                    let mut up = here.to_vec();
+                    up.pop();
+                    while iter.peek() == Some(&&"super") {
+                        iter.next();
+                        up.pop();
+                    }
+                    up
+                }
+            };
+            path.extend(iter.map(|s| s.to_string()));
+            out.push(path);
+        }
+    }
+    out
+}
+
+#[test]
+fn sibling_modules_do_not_depend_on_each_other_both_ways() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    assert!(files.len() > 50, "{} source files found", files.len());
+    let modules: BTreeSet<Vec<String>> = files.iter().map(|f| module_path(&src, f)).collect();
+
+    // (folder, from child, to child) for siblings in the same folder.
+    let mut edges: BTreeSet<(Vec<String>, String, String)> = BTreeSet::new();
+    for file in &files {
+        let here = module_path(&src, file);
+        let code = code_only(&std::fs::read_to_string(file).expect("readable"));
+        for target in references(&code, &here) {
+            // The deepest module the reference names.
+            let mut t = target.clone();
+            while !t.is_empty() && !modules.contains(&t) {
+                t.pop();
+            }
+            // The folder shared by both and the children of it they sit in.
+            let common = here.iter().zip(&t).take_while(|(a, b)| a == b).count();
+            if common >= here.len() || common >= t.len() {
+                // One contains the other (a module and its own children or
+                // parents): not a sibling dependency.
+                continue;
+            }
+            edges.insert((
+                here[..common].to_vec(),
+                here[common].clone(),
+                t[common].clone(),
+            ));
+        }
+    }
+    assert!(
+        edges
+            .iter()
+            .any(|(f, a, b)| f.is_empty() && a == "daemon" && b == "relative"),
+        "the scan sees the daemon use the relative stage"
+    );
+
+    // Cycles within each folder: strongly connected pairs through paths.
+    let mut by_folder: BTreeMap<Vec<String>, BTreeMap<String, BTreeSet<String>>> = BTreeMap::new();
+    for (folder, a, b) in &edges {
+        by_folder
+            .entry(folder.clone())
+            .or_default()
+            .entry(a.clone())
+            .or_default()
+            .insert(b.clone());
+    }
+    let reaches = |graph: &BTreeMap<String, BTreeSet<String>>, from: &str, to: &str| {
+        let mut seen = BTreeSet::new();
+        let mut stack = vec![from.to_string()];
+        while let Some(n) = stack.pop() {
+            if n == to {
+                return true;
+            }
+            if seen.insert(n.clone()) {
+                if let Some(next) = graph.get(&n) {
+                    stack.extend(next.iter().cloned());
+                }
+            }
+        }
+        false
+    };
+    // Every edge on a cycle, as the sorted pair it joins.
+    let mut cycles = Vec::new();
+    for (folder, graph) in &by_folder {
+        for (a, next) in graph {
+            for b in next {
+                if reaches(graph, b, a) {
+                    let (x, y) = if a < b { (a, b) } else { (b, a) };
+                    cycles.push((folder.join("::"), x.clone(), y.clone()));
+                }
+            }
+        }
+    }
+    cycles.sort();
+    cycles.dedup();
+    let allowed: Vec<(String, String, String)> = ALLOWED
+        .iter()
+        .map(|(f, a, b)| (f.to_string(), a.to_string(), b.to_string()))
+        .collect();
+    let unexpected: Vec<_> = cycles.iter().filter(|c| !allowed.contains(c)).collect();
+    assert!(
+        unexpected.is_empty(),
+        "modules that depend on each other (folder, a, b): {unexpected:?}"
+    );
+    for a in &allowed {
+        assert!(
+            cycles.contains(a),
+            "{a:?} no longer depend on each other: remove them from ALLOWED"
+        );
+    }
+}
