@@ -5,8 +5,9 @@
 //! in docs/design.md): sensor samples come from `rigslam_drivers`
 //! (re-exported as [`sensors`]), live through the [`daemon`]'s source
 //! threads or replayed from a recording by [`dataset`] (EuRoC, KITTI,
-//! TUM) and [`recording`] (MCAP); [`rig`] holds the calibration they come
-//! with and [`camera`] projects and unprojects. The relative stage,
+//! TUM) and [`recording`] (MCAP), whose text files [`text_file`] reads;
+//! [`rig`] holds the calibration they come with (and reads its files) and
+//! [`camera`] projects and unprojects. The relative stage,
 //! [`relative`], tracks the image with [`features`] and [`two_view`],
 //! integrates the IMU between frames with [`imu`] and optimises a window
 //! of keyframes; the absolute stage, [`edge_map`], turns its output into
@@ -16,7 +17,9 @@
 //! memory. Offline, [`trajectory`] holds timestamped poses, [`eval`]
 //! scores an estimate against ground truth, [`simulate`] renders
 //! synthetic sequences, and [`shared_data`] finds the real test
-//! recordings.
+//! recordings. No two sibling modules depend on each other, except the
+//! two stages (the relative stage's config still holds the absolute
+//! stage's settings); `tests/module_boundaries.rs` checks it.
 
 pub use rigslam_drivers as sensors;
 
@@ -34,5 +37,6 @@ pub mod rig;
 pub mod run;
 pub mod shared_data;
 pub mod simulate;
+pub mod text_file;
 pub mod trajectory;
 pub mod two_view;

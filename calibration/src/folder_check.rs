@@ -200,9 +200,9 @@ fn agreement(rig: &RigModel, observed: Option<&Observed>, out: &mut Vec<Finding>
 #[cfg(test)]
 mod tests {
     use super::*;
+    use rigslam::rig::euroc::{euroc_cam0, euroc_cam1, euroc_imu0};
     use rigslam::rig::folder::write_atomically;
     use rigslam::rig::kalibr;
-    use rigslam::simulate::euroc_rig::{euroc_cam0, euroc_cam1, euroc_imu0};
 
     fn folder(cam1: rigslam::rig::CameraCalibration) -> tempfile::TempDir {
         let dir = tempfile::tempdir().expect("temp dir");

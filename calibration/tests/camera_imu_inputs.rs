@@ -187,8 +187,8 @@ fn check_holds_a_folder_against_a_recording_of_another_camera() {
     let folder = dir.path().join("rig");
     std::fs::create_dir(&folder).expect("mkdir");
     let cams = [
-        rigslam::simulate::euroc_rig::euroc_cam0(),
-        rigslam::simulate::euroc_rig::euroc_cam1(),
+        rigslam::rig::euroc::euroc_cam0(),
+        rigslam::rig::euroc::euroc_cam1(),
     ];
     std::fs::write(
         folder.join("camchain-imucam.yaml"),

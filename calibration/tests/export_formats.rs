@@ -9,8 +9,8 @@ use std::process::Command;
 
 use nalgebra::{Matrix3, Matrix4, Vector3};
 use rigslam::imu::ImuIntrinsics;
+use rigslam::rig::euroc::{euroc_cam0, euroc_cam1, euroc_imu0};
 use rigslam::rig::{kalibr, RigModel};
-use rigslam::simulate::euroc_rig::{euroc_cam0, euroc_cam1, euroc_imu0};
 use rigslam_calibration::export::{export, ExportTarget};
 use serde_yaml::Value;
 

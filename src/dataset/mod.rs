@@ -2,13 +2,13 @@
 //! KITTI odometry, TUM trajectories, told apart by their contents.
 
 pub mod detect;
-pub mod error;
+pub use crate::text_file::error;
 pub mod euroc;
 pub mod groundtruth;
 pub mod image_file;
 pub mod kitti;
 pub mod stream;
-pub mod text;
+pub use crate::text_file::text;
 pub mod trajectory_out;
 pub mod tum;
 

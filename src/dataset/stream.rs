@@ -350,7 +350,7 @@ mod tests {
                 .collect(),
             imu: Some(EurocImu {
                 calibration: ImuCalibration {
-                    intrinsics: crate::imu::ImuIntrinsics::IDENTITY,
+                    intrinsics: crate::rig::ImuIntrinsics::IDENTITY,
                     T_body_imu: Isometry3::identity(),
                     rate_hz: 200.0,
                     noise: ImuNoise {

@@ -9,7 +9,7 @@
 //! use the actual stamps. A gap longer than the configured limit, or any
 //! dropped sample inside the interval, marks the interval unreliable.
 
-use super::model::ImuIntrinsics;
+use crate::rig::ImuIntrinsics;
 use crate::sensors::ImuSample;
 
 /// Limits an interval's samples must respect to be called reliable.

@@ -1,5 +1,6 @@
-//! Inertial integration. A raw stream is corrected and cleaned
-//! ([`model`], [`interval`]), cut at frame stamps, and each interval is
+//! Inertial integration. A raw stream is corrected (the rig's
+//! [`crate::rig::ImuIntrinsics`]) and cleaned ([`interval`]), cut at frame
+//! stamps, and each interval is
 //! preintegrated on the manifold with its covariance and bias Jacobians
 //! ([`preintegration`], using the step rules of [`quadrature`] and the
 //! noise of [`noise`]); [`residual`] turns a preintegrated interval into
@@ -8,7 +9,6 @@
 
 pub mod agreement;
 pub mod interval;
-pub mod model;
 pub mod noise;
 pub mod preintegration;
 pub mod quadrature;
@@ -16,11 +16,11 @@ pub mod residual;
 pub mod so3;
 pub mod strapdown;
 
+pub use crate::rig::ImuIntrinsics;
 pub use agreement::{accel_agreement, gyro_agreement, AccelAgreement, GyroAgreement};
 pub use interval::{
     interpolate_sample, ImuInterval, ImuStream, IntervalConfig, IntervalError, IntervalReport,
 };
-pub use model::ImuIntrinsics;
 pub use noise::{bias_walk_covariance, parse_kalibr_imu_yaml, read_kalibr_imu_yaml, DiscreteNoise};
 pub use preintegration::{IntegrationScheme, Preintegrated, PreintegrationError, Preintegrator};
 pub use residual::{imu_residual, ImuResidual};

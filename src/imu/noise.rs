@@ -9,9 +9,9 @@ use std::path::Path;
 use nalgebra::{Matrix6, Vector6};
 use serde_yaml::Value;
 
-use crate::dataset::text::read_text;
-use crate::dataset::DatasetError;
 use crate::rig::ImuNoise;
+use crate::text_file::text::read_text;
+use crate::text_file::DatasetError;
 
 /// Standard deviations of one sample's noise for a spacing of `dt_s`.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -27,7 +27,7 @@ use super::group::{
     effective_gid, effective_uid, group_by_gid, group_by_name, process_has_group,
     user_listed_in_group, user_name, Group,
 };
-use super::service::{IpcConfig, IpcError};
+use super::ipc_config::{IpcConfig, IpcError};
 
 /// Where POSIX shared memory lives on Linux (`shm_open`).
 pub const SHM_DIR: &str = "/dev/shm";

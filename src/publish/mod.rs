@@ -16,6 +16,7 @@
 
 mod access;
 mod group;
+mod ipc_config;
 mod message;
 mod publisher;
 mod service;

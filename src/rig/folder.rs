@@ -18,7 +18,7 @@ use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 use super::{kalibr, RigModel};
-use crate::dataset::DatasetError;
+use crate::text_file::DatasetError;
 
 pub const CAMCHAIN_INTRINSICS: &str = "camchain.yaml";
 pub const CAMCHAIN: &str = "camchain-imucam.yaml";
@@ -155,7 +155,10 @@ pub fn rig_from_files(
         None => {
             let mut cameras = Vec::new();
             while let Some(f) = find(&format!("cam{}.yaml", cameras.len())) {
-                cameras.push(crate::dataset::parse_camera_yaml(&f.text()?, &f.origin)?);
+                cameras.push(super::sensor_yaml::parse_camera_yaml(
+                    &f.text()?,
+                    &f.origin,
+                )?);
             }
             if cameras.is_empty() {
                 return Err(missing(
@@ -168,7 +171,7 @@ pub fn rig_from_files(
     };
     let mut imu = match (find(IMU_NOISE), find("imu0.yaml")) {
         (Some(f), _) => Some(kalibr::imu_from_kalibr(&f.text()?, &f.origin)?),
-        (None, Some(f)) => Some(crate::dataset::parse_imu_yaml(&f.text()?, &f.origin)?),
+        (None, Some(f)) => Some(super::sensor_yaml::parse_imu_yaml(&f.text()?, &f.origin)?),
         (None, None) if needs_imu => {
             return Err(missing(
                 IMU_NOISE,
@@ -224,8 +227,8 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::imu::ImuIntrinsics;
-    use crate::simulate::euroc_rig::{euroc_cam0, euroc_cam1, euroc_imu0};
+    use crate::rig::euroc::{euroc_cam0, euroc_cam1, euroc_imu0};
+    use crate::rig::ImuIntrinsics;
 
     fn write_rig(dir: &Path, intrinsics: Option<&ImuIntrinsics>) {
         let chain = kalibr::camchain_yaml(&[euroc_cam0(), euroc_cam1()], true).expect("writes");
@@ -296,7 +299,7 @@ mod tests {
 #[cfg(test)]
 mod named_file_tests {
     use super::*;
-    use crate::simulate::euroc_rig::{euroc_cam0, euroc_cam1, euroc_imu0};
+    use crate::rig::euroc::{euroc_cam0, euroc_cam1, euroc_imu0};
 
     #[test]
     fn euroc_and_kalibr_files_can_be_mixed_and_each_is_recognised() {
@@ -306,12 +309,12 @@ mod named_file_tests {
         let cam1 = d.join("cam1_sensor.yaml");
         std::fs::write(
             &cam0,
-            crate::dataset::euroc::sensor_yaml::camera_yaml("cam0", &euroc_cam0()),
+            crate::rig::sensor_yaml::camera_yaml("cam0", &euroc_cam0()),
         )
         .expect("write");
         std::fs::write(
             &cam1,
-            crate::dataset::euroc::sensor_yaml::camera_yaml("cam1", &euroc_cam1()),
+            crate::rig::sensor_yaml::camera_yaml("cam1", &euroc_cam1()),
         )
         .expect("write");
         let imu = euroc_imu0();
@@ -328,11 +331,7 @@ mod named_file_tests {
         assert_eq!(rig.imu.expect("imu").noise, imu.noise);
 
         let euroc_imu = d.join("imu_sensor.yaml");
-        std::fs::write(
-            &euroc_imu,
-            crate::dataset::euroc::sensor_yaml::imu_yaml(&imu),
-        )
-        .expect("write");
+        std::fs::write(&euroc_imu, crate::rig::sensor_yaml::imu_yaml(&imu)).expect("write");
         let chain = d.join("chain.yaml");
         std::fs::write(
             &chain,

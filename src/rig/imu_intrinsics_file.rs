@@ -9,9 +9,9 @@ use std::path::Path;
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::dataset::text::read_text;
-use crate::dataset::DatasetError;
-use crate::imu::ImuIntrinsics;
+use crate::rig::ImuIntrinsics;
+use crate::text_file::text::read_text;
+use crate::text_file::DatasetError;
 
 /// The intrinsics file: rows of S, biases in SI (accel m/s^2, gyro rad/s).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

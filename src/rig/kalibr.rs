@@ -21,9 +21,9 @@ use serde::{Deserialize, Serialize};
 
 use super::{CameraCalibration, ImuCalibration, ImuNoise};
 use crate::camera::CameraModel;
-use crate::dataset::euroc::sensor_yaml::{plausible_noise, rigid_from_row_major};
-use crate::dataset::DatasetError;
-use crate::imu::ImuIntrinsics;
+use crate::rig::sensor_yaml::{plausible_noise, rigid_from_row_major};
+use crate::rig::ImuIntrinsics;
+use crate::text_file::DatasetError;
 
 /// One `camN:` entry of a Kalibr camera chain.
 #[allow(non_snake_case)]
@@ -482,7 +482,7 @@ pub fn kalibr_problems(text: &str, kind: &str) -> Vec<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::simulate::euroc_rig::{euroc_cam0, euroc_cam1, euroc_imu0};
+    use crate::rig::euroc::{euroc_cam0, euroc_cam1, euroc_imu0};
 
     fn p() -> &'static Path {
         Path::new("camchain-imucam.yaml")

@@ -1,7 +1,7 @@
 //! The rig's calibration as the rest of the core sees it: each camera's
 //! model, mounting and clock offset, the IMU's mounting, noise and
 //! intrinsic correction. Readers fill these from EuRoC `sensor.yaml`
-//! files ([`crate::dataset::read_camera_yaml`]), from Kalibr's
+//! files ([`crate::rig::sensor_yaml::read_camera_yaml`]), from Kalibr's
 //! `camchain-imucam.yaml` and `imu.yaml` ([`kalibr`]) or from a whole
 //! calibration folder as `rigslam-calibrate` writes it ([`folder`]); the
 //! simulator writes them back out.
@@ -9,11 +9,14 @@
 use nalgebra::Isometry3;
 
 use crate::camera::CameraModel;
-use crate::imu::ImuIntrinsics;
 
+pub mod euroc;
 pub mod folder;
+pub mod imu_intrinsics;
 pub mod imu_intrinsics_file;
+pub use imu_intrinsics::ImuIntrinsics;
 pub mod kalibr;
+pub mod sensor_yaml;
 
 /// One camera of the rig.
 #[allow(non_snake_case)]

@@ -11,7 +11,7 @@
 
 use nalgebra::{Isometry3, Translation3, Vector3};
 
-use super::motion::MotionState;
+use super::motion_state::MotionState;
 use crate::imu::so3::log;
 use crate::trajectory::{StampedPose, Trajectory};
 

@@ -6,10 +6,10 @@
 //! turns the motion into IMU samples; [`sequence`] puts them together and
 //! writes a EuRoC ASL dataset ([`simulate`]).
 
-pub mod euroc_rig;
 pub mod imu_synth;
 pub mod interpolated;
 pub mod motion;
+pub mod motion_state;
 pub mod render;
 pub mod scene;
 pub mod sequence;

@@ -12,18 +12,8 @@
 use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 
 use super::interpolated::InterpolatedMotion;
+pub use super::motion_state::MotionState;
 use crate::trajectory::Trajectory;
-
-/// The body's kinematic state at one instant.
-#[allow(non_snake_case)]
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct MotionState {
-    pub T_world_body: Isometry3<f64>,
-    pub velocity_world_m_s: Vector3<f64>,
-    pub accel_world_m_s2: Vector3<f64>,
-    /// Angular rate expressed in the body frame (what a gyroscope measures).
-    pub omega_body_rad_s: Vector3<f64>,
-}
 
 /// A motion defined on `[start_ns, end_ns]`.
 #[derive(Debug, Clone)]

@@ -318,7 +318,7 @@ pub fn render_supersampled(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::simulate::euroc_rig::euroc_cam0;
+    use crate::rig::euroc::euroc_cam0;
     use crate::simulate::scene::{Aabb, SceneConfig};
     use nalgebra::{Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 

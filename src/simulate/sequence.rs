@@ -7,7 +7,6 @@ use std::time::Instant;
 
 use nalgebra::Vector3;
 
-use super::euroc_rig::{euroc_cam0, euroc_cam1, euroc_imu0};
 use super::imu_synth::{synthesize, ImuSynthConfig};
 use super::interpolated::InterpolatedMotion;
 use super::motion::{BuiltinMotion, Motion, MotionError, SplineMotion};
@@ -20,6 +19,7 @@ use crate::dataset::{
 };
 use crate::imu::ImuBiases;
 use crate::imu::{accel_agreement, gyro_agreement};
+use crate::rig::euroc::{euroc_cam0, euroc_cam1, euroc_imu0};
 use crate::rig::{CameraCalibration, ImuNoise};
 use crate::sensors::{Image, ImuSample};
 use crate::trajectory::Trajectory;

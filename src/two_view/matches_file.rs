@@ -14,8 +14,8 @@ use std::path::Path;
 use nalgebra::{Matrix3, Vector2, Vector3};
 
 use crate::camera::{CameraModel, PinholeRadtan};
-use crate::dataset::text::data_lines;
-use crate::dataset::DatasetError;
+use crate::text_file::text::data_lines;
+use crate::text_file::DatasetError;
 
 /// The correspondences of one image pair, in pixels.
 #[derive(Debug, Clone, PartialEq)]

@@ -5,7 +5,7 @@
 
 pub mod imu_csv;
 pub mod reader;
-pub mod sensor_yaml;
+pub use crate::rig::sensor_yaml;
 pub mod writer;
 
 pub use imu_csv::{read_euroc_imu_csv, write_euroc_imu_csv, ImuCsv};

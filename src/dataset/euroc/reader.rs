@@ -330,7 +330,7 @@ mod tests {
             w.add_image("cam1", *t_ns, right).expect("cam1 image");
         }
         let imu = ImuCalibration {
-            intrinsics: crate::imu::ImuIntrinsics::IDENTITY,
+            intrinsics: crate::rig::ImuIntrinsics::IDENTITY,
             T_body_imu: Isometry3::identity(),
             rate_hz: 200.0,
             noise: ImuNoise::EUROC_ADIS16448,

@@ -857,8 +857,8 @@ mod tests {
     use super::*;
     use crate::imu::so3::exp;
     use crate::imu::IntegrationScheme;
+    use crate::rig::euroc::euroc_cam0;
     use crate::rig::ImuNoise;
-    use crate::simulate::euroc_rig::euroc_cam0;
     use crate::simulate::imu_synth::{synthesize, ImuSynthConfig, SynthImu};
     use crate::simulate::motion::{BuiltinMotion, Motion, Sinusoid};
     use nalgebra::{Translation3, Vector3};

@@ -305,7 +305,7 @@ pub fn pnp_frame(
 mod tests {
     use super::*;
     use crate::relative::types::Observation;
-    use crate::simulate::euroc_rig::euroc_cam0;
+    use crate::rig::euroc::euroc_cam0;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
     use rand_distr::{Distribution, Normal};

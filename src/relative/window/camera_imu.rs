@@ -477,7 +477,7 @@ pub fn reprojection_error_refined(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::simulate::euroc_rig::{euroc_cam0, euroc_cam1};
+    use crate::rig::euroc::{euroc_cam0, euroc_cam1};
 
     #[allow(non_snake_case)]
     fn perturbed_camera(

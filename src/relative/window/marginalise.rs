@@ -161,7 +161,7 @@ mod tests {
     use super::*;
     use crate::relative::window::inertial::{bias_walk_sqrt_info, tangent_basis};
     use crate::relative::window::synthetic::{keyframe_time, Scene};
-    use crate::simulate::euroc_rig::euroc_imu0;
+    use crate::rig::euroc::euroc_imu0;
 
     struct Case {
         old: KeyframeState,

@@ -74,7 +74,7 @@ fn normalise(p_cam: &Vector3<f64>, r_max: f64) -> Option<Vector2<f64>> {
 mod tests {
     use super::*;
     use crate::camera::PinholeRadtan;
-    use crate::simulate::euroc_rig::euroc_cam0;
+    use crate::rig::euroc::euroc_cam0;
 
     #[test]
     fn answers_exactly_as_the_camera_model() {

@@ -11,8 +11,8 @@ use rand_distr::{Distribution, StandardNormal};
 use super::rig_camera::RigCamera;
 use crate::imu::{ImuBiases, IntegrationScheme, Preintegrated, Preintegrator};
 use crate::relative::types::{KeyframeState, Observation, TrackedFrame};
+use crate::rig::euroc::{euroc_cam0, euroc_cam1, euroc_imu0};
 use crate::rig::RigModel;
-use crate::simulate::euroc_rig::{euroc_cam0, euroc_cam1, euroc_imu0};
 use crate::simulate::imu_synth::{synthesize, ImuSynthConfig, SynthImu};
 use crate::simulate::motion::{BuiltinMotion, Motion};
 

@@ -19,7 +19,7 @@ use super::state::{apply_update, FULL_DIM};
 use super::synthetic::{keyframe_time, perturb, pose_error, Scene};
 use super::*;
 use crate::imu::GRAVITY_M_S2;
-use crate::simulate::euroc_rig::euroc_cam0;
+use crate::rig::euroc::euroc_cam0;
 
 fn rng(seed: u64) -> ChaCha8Rng {
     ChaCha8Rng::seed_from_u64(seed)

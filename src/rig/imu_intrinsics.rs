@@ -1,8 +1,9 @@
-//! The IMU measurement model of the paper (eq. 14-16): a raw reading
-//! `x_r` is corrected by the intrinsic calibration `x_c = S x_r + b`
-//! (scale and misalignment `S`, offset `b`, one pair per sensor triad)
-//! before integration; what remains is the slowly varying bias estimated
-//! online ([`super::ImuBiases`]) and white noise ([`super::noise`]).
+//! The IMU's intrinsic calibration, part of the rig, in the measurement
+//! model of the paper (eq. 14-16): a raw reading `x_r` is corrected by
+//! `x_c = S x_r + b` (scale and misalignment `S`, offset `b`, one pair per
+//! sensor triad) before integration; what remains is the slowly varying
+//! bias estimated online ([`crate::imu::ImuBiases`]) and white noise
+//! ([`crate::imu::noise`]).
 
 use nalgebra::{Matrix3, Vector3};
 

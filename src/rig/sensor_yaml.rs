@@ -9,10 +9,10 @@ use std::path::Path;
 use nalgebra::{Isometry3, Matrix3, Matrix4, Rotation3, Translation3, UnitQuaternion};
 use serde_yaml::Value;
 
+use super::{CameraCalibration, ImuCalibration, ImuNoise};
 use crate::camera::{CameraError, CameraModel};
-use crate::dataset::error::DatasetError;
-use crate::dataset::text::read_text;
-use crate::rig::{CameraCalibration, ImuCalibration, ImuNoise};
+use crate::text_file::text::read_text;
+use crate::text_file::DatasetError;
 
 /// How far `R^T R` may be from identity in a file's `T_BS` (EuRoC prints
 /// 12 digits; Kalibr 16).
@@ -85,7 +85,7 @@ pub fn parse_imu_yaml(text: &str, path: &Path) -> Result<ImuCalibration, Dataset
     let doc = parse_doc(text, path)?;
     let f = Fields { path, doc: &doc };
     Ok(ImuCalibration {
-        intrinsics: crate::imu::ImuIntrinsics::IDENTITY,
+        intrinsics: crate::rig::ImuIntrinsics::IDENTITY,
         T_body_imu: f.transform("T_BS")?,
         rate_hz: f.positive("rate_hz")?,
         noise: ImuNoise {
@@ -537,7 +537,7 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
     fn imu_yaml_round_trips() {
         let dir = tempfile::tempdir().expect("temp dir");
         let calib = ImuCalibration {
-            intrinsics: crate::imu::ImuIntrinsics::IDENTITY,
+            intrinsics: crate::rig::ImuIntrinsics::IDENTITY,
             T_body_imu: Isometry3::from_parts(
                 Translation3::new(0.01, -0.02, 0.3),
                 UnitQuaternion::from_euler_angles(0.1, 0.2, -0.3),
@@ -563,7 +563,7 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
     fn implausible_or_missing_imu_noise_is_refused_by_name() {
         let dir = tempfile::tempdir().expect("temp dir");
         let calib = ImuCalibration {
-            intrinsics: crate::imu::ImuIntrinsics::IDENTITY,
+            intrinsics: crate::rig::ImuIntrinsics::IDENTITY,
             T_body_imu: Isometry3::identity(),
             rate_hz: 200.0,
             noise: ImuNoise::EUROC_ADIS16448,

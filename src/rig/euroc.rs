@@ -84,7 +84,7 @@ pub fn euroc_cam1() -> CameraCalibration {
 /// EuRoC imu0: the body frame itself, 200 Hz, ADIS16448 noise.
 pub fn euroc_imu0() -> ImuCalibration {
     ImuCalibration {
-        intrinsics: crate::imu::ImuIntrinsics::IDENTITY,
+        intrinsics: super::ImuIntrinsics::IDENTITY,
         T_body_imu: Isometry3::identity(),
         rate_hz: 200.0,
         noise: ImuNoise::EUROC_ADIS16448,

@@ -1,0 +1,9 @@
+//! Text files as every reader of the crate reads them: line by line, with
+//! stamps and fields checked, and one error type that always names the
+//! file, and the line or field when there is one. Datasets, calibration
+//! files and noise tables all go through here.
+
+pub mod error;
+pub mod text;
+
+pub use error::DatasetError;
