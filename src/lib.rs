@@ -37,6 +37,7 @@ pub mod rig;
 pub mod run;
 pub mod shared_data;
 pub mod simulate;
+pub mod slam_config;
 pub mod text_file;
 pub mod trajectory;
 pub mod two_view;

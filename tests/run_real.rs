@@ -168,7 +168,7 @@ fn bad_requests_say_what_is_wrong() {
     assert!(err.contains("/nonexistent/rigslam"), "{err}");
     let dir = tempfile::tempdir().expect("tempdir");
     let config = dir.path().join("bad.toml");
-    std::fs::write(&config, "window_free = 0\n").expect("write");
+    std::fs::write(&config, "[relative]\nwindow_free = 0\n").expect("write");
     let err = fails(
         rigslam_run()
             .arg("--dataset")

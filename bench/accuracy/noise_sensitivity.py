@@ -56,7 +56,8 @@ def main():
     for mode in a.modes:
         for adapt in (False, True):
             for m in a.multipliers:
-                config = (f"imu_noise_adaptation = {'true' if adapt else 'false'}\n"
+                config = ("[relative]\n"
+                          f"imu_noise_adaptation = {'true' if adapt else 'false'}\n"
                           f"imu_noise_scale_gyro = {m}\nimu_noise_scale_accel = {m}\n")
                 for ds in a.datasets:
                     r = run(a.bin, ds, mode, config, a.start_s, a.max_frames)

@@ -10,6 +10,7 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::edge_map::settings::AbsoluteSettings;
 use crate::publish::IpcConfig;
 use crate::relative::{EstimatorKind, RelativeConfig, RigModel, SensorMode};
 
@@ -187,7 +188,7 @@ pub enum ReplayPace {
     AsFastAsPossible,
 }
 
-/// `[slam]`: the relative stage.
+/// `[slam]`: the mode, the estimator and each stage's table.
 #[derive(Debug, Clone, PartialEq, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SlamConfig {
@@ -195,8 +196,12 @@ pub struct SlamConfig {
     pub mode: SensorMode,
     /// `window` (the paper's method) or `ekf` (the baseline).
     pub estimator: EstimatorKind,
-    /// `[slam.relative]`: the same keys as `rigslam run --config`.
+    /// `[slam.relative]`: the keys of `[relative]` in `rigslam run --config`.
     pub relative: RelativeConfig,
+    /// `[slam.absolute]`: the keys of `[absolute]` in `rigslam run
+    /// --config`. Checked, but the daemon runs the relative stage only:
+    /// the absolute stage runs in `rigslam run --absolute`.
+    pub absolute: AbsoluteSettings,
 }
 
 impl Default for SlamConfig {
@@ -205,6 +210,7 @@ impl Default for SlamConfig {
             mode: SensorMode::StereoInertial,
             estimator: EstimatorKind::Window,
             relative: RelativeConfig::default(),
+            absolute: AbsoluteSettings::default(),
         }
     }
 }
@@ -496,6 +502,14 @@ pub fn check(config: &DaemonConfig, file: &Path) -> Result<RigModel, Vec<Problem
     }
     if let Err(e) = config.slam.relative.validate() {
         bad("slam.relative", e.to_string());
+    }
+    if let Err(e) = config
+        .slam
+        .absolute
+        .to_config()
+        .and(config.slam.absolute.to_localise_config())
+    {
+        bad("slam", crate::relative::ConfigError::from(e).to_string());
     }
     let p = &config.pipeline;
     for (key, value, ok, allowed) in [

@@ -1,10 +1,8 @@
-//! The relative stage's settings as a user writes them (`rigslam run
-//! --config FILE`, the daemon's `[slam]` table): TOML with defaults for
+//! The relative stage's settings as a user writes them (the `[relative]`
+//! table of `rigslam run --config FILE`, the daemon's `[slam.relative]`;
+//! the file itself is [`crate::slam_config`]): TOML with defaults for
 //! every key, checked once into the typed configs of the parts.
 
-use std::path::Path;
-
-use crate::edge_map::settings::AbsoluteSettings;
 use crate::relative::window::{CameraImuRefinementConfig, NoiseAdaptationConfig, NoiseScale};
 
 /// Which estimator runs the relative stage.
@@ -115,8 +113,6 @@ pub struct RelativeConfig {
     /// Share of a solve's information about the calibration carried to
     /// the next one, in [0, 1).
     pub camera_imu_carry_weight: f64,
-    /// The absolute stage's settings (`[absolute]`; used with `--absolute`).
-    pub absolute: AbsoluteSettings,
 }
 
 impl Default for RelativeConfig {
@@ -144,7 +140,6 @@ impl Default for RelativeConfig {
             camera_imu_time_offset_sigma_s: 0.01,
             camera_imu_stereo_rotation_sigma_deg: 0.2,
             camera_imu_carry_weight: 0.9,
-            absolute: AbsoluteSettings::default(),
         }
     }
 }
@@ -166,37 +161,7 @@ pub enum ConfigError {
     },
 }
 
-impl From<crate::edge_map::settings::SettingError> for ConfigError {
-    fn from(e: crate::edge_map::settings::SettingError) -> Self {
-        ConfigError::OutOfRange {
-            key: e.key,
-            value: e.value,
-            allowed: e.allowed,
-        }
-    }
-}
-
 impl RelativeConfig {
-    pub fn from_toml_file(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|e| ConfigError::Read {
-            path: path.display().to_string(),
-            message: e.to_string(),
-        })?;
-        let config: Self = toml::from_str(&text).map_err(|e| ConfigError::Parse {
-            path: path.display().to_string(),
-            message: e.to_string(),
-        })?;
-        config.validate()?;
-        Ok(config)
-    }
-
-    pub fn to_toml(&self) -> Result<String, ConfigError> {
-        toml::to_string(self).map_err(|e| ConfigError::Parse {
-            path: "(defaults)".into(),
-            message: e.to_string(),
-        })
-    }
-
     /// Checks every value against its allowed range.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let range = |key, ok: bool, value: String, allowed| {
@@ -273,7 +238,6 @@ impl RelativeConfig {
         {
             return Err(ConfigError::Invalid(message));
         }
-        self.absolute.to_config()?;
         Ok(())
     }
 
@@ -309,52 +273,6 @@ impl RelativeConfig {
             max_scale: self.imu_noise_scale_max,
             adapt_walk: self.imu_walk_adaptation,
             ..NoiseAdaptationConfig::default()
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn defaults_round_trip_through_toml() {
-        let text = RelativeConfig::default().to_toml().expect("toml");
-        let back: RelativeConfig = toml::from_str(&text).expect("parse");
-        assert_eq!(back, RelativeConfig::default());
-        back.validate().expect("defaults are valid");
-    }
-
-    #[test]
-    fn bad_values_and_typos_name_their_key() {
-        let dir = tempfile::tempdir().expect("tempdir");
-        let path = dir.path().join("bad.toml");
-        std::fs::write(&path, "window_keyframes = 10\nwindow_free = 12\n").expect("write");
-        let err = RelativeConfig::from_toml_file(&path)
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains("window_free") && err.contains("1 to"), "{err}");
-        std::fs::write(&path, "featurs = 100\n").expect("write");
-        let err = RelativeConfig::from_toml_file(&path)
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains("featurs"), "{err}");
-        std::fs::write(&path, "[absolute]\npolicy = \"knn:x\"\n").expect("write");
-        let err = RelativeConfig::from_toml_file(&path)
-            .unwrap_err()
-            .to_string();
-        assert!(err.contains("absolute.policy"), "{err}");
-        for (text, key) in [
-            ("imu_noise_scale_gyro = 0.0\n", "noise_scale_gyro"),
-            ("imu_noise_scale_accel = -2.0\n", "noise_scale_accel"),
-            ("imu_noise_scale_accel = 1000.0\n", "noise_scale_accel"),
-            ("imu_noise_adaptation_memory_s = nan\n", "memory_s"),
-        ] {
-            std::fs::write(&path, text).expect("write");
-            let err = RelativeConfig::from_toml_file(&path)
-                .unwrap_err()
-                .to_string();
-            assert!(err.contains(key), "{text}: {err}");
         }
     }
 }

@@ -24,6 +24,7 @@ use crate::trajectory::{StampedPose, Trajectory};
 
 use super::report::{resident_memory_mib, RunReport};
 use super::{run_stream, RunOptions, RunOutcome};
+use crate::edge_map::settings::AbsoluteSettings;
 
 /// What to run.
 #[derive(Debug, Clone)]
@@ -43,6 +44,8 @@ pub struct DatasetRun {
     /// the relative stage's outputs; the corrected trajectory becomes
     /// the run's trajectory and the relative one is kept beside it.
     pub absolute: bool,
+    /// The absolute stage's settings (with `absolute` or `load_map`).
+    pub absolute_settings: AbsoluteSettings,
     /// With `absolute`: write the final map (landmarks, covariances,
     /// descriptors) here at the end of the run.
     pub save_map: Option<std::path::PathBuf>,
@@ -67,6 +70,7 @@ impl Default for DatasetRun {
             groundtruth: None,
             align: None,
             absolute: false,
+            absolute_settings: AbsoluteSettings::default(),
             save_map: None,
             load_map: None,
             rig: None,
@@ -148,15 +152,14 @@ pub fn run_dataset(
     let listed = stream.frames_listed();
     let mut absolute = run
         .absolute
-        .then(|| run.config.absolute.to_config())
+        .then(|| run.absolute_settings.to_config())
         .transpose()
         .map_err(crate::relative::config::ConfigError::from)?
         .map(AbsoluteStage::new);
     let mut localiser = match &run.load_map {
         Some(map) => {
             let mut config = run
-                .config
-                .absolute
+                .absolute_settings
                 .to_localise_config()
                 .map_err(crate::relative::config::ConfigError::from)?;
             // Inertial runs have gravity along -z; so has a map made by

@@ -10,9 +10,10 @@ use rigslam::dataset::{read_trajectory_any, write_trajectory, TrajectoryFormat};
 use rigslam::edge_map::map_file::SavedMap;
 use rigslam::eval::plot::write_plot;
 use rigslam::eval::Alignment;
-use rigslam::relative::{EstimatorKind, RelativeConfig, SensorMode};
+use rigslam::relative::{EstimatorKind, SensorMode};
 use rigslam::run::dataset_run::{run_dataset, summary_line, DatasetRun};
 use rigslam::run::RunOptions;
+use rigslam::slam_config::SlamSettings;
 
 #[derive(clap::Args)]
 pub struct RunArgs {
@@ -61,10 +62,12 @@ pub struct RunArgs {
     /// instead of the dataset's own sensor.yaml files.
     #[arg(long, value_name = "DIR")]
     calibration: Option<PathBuf>,
-    /// Estimator settings (TOML; see `rigslam run --print-config`).
+    /// Settings (TOML): a `[relative]` table for the relative stage and an
+    /// `[absolute]` one for the absolute stage; every key has a default
+    /// (`rigslam run --print-config` prints them all).
     #[arg(long)]
     config: Option<PathBuf>,
-    /// Print the default settings as TOML and exit.
+    /// Print the default settings of both stages as TOML and exit.
     #[arg(long)]
     print_config: bool,
     /// Write the JSON report (timings per stage, counts, accuracy) here.
@@ -103,15 +106,15 @@ pub struct RunArgs {
 
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
     if args.print_config {
-        print!("{}", RelativeConfig::default().to_toml()?);
+        print!("{}", SlamSettings::default().to_toml()?);
         return Ok(());
     }
     let Some(dataset) = args.dataset.clone() else {
         anyhow::bail!("--dataset is required (the sequence to run)");
     };
-    let config = match &args.config {
-        Some(path) => RelativeConfig::from_toml_file(path)?,
-        None => RelativeConfig::default(),
+    let settings = match &args.config {
+        Some(path) => SlamSettings::from_toml_file(path)?,
+        None => SlamSettings::default(),
     };
     if args.trajectory_relative.is_some() && !args.absolute && args.load_map.is_none() {
         anyhow::bail!("--trajectory-relative needs --absolute or --load-map (otherwise --trajectory is the relative trajectory)");
@@ -154,7 +157,8 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let run = DatasetRun {
         mode: args.mode,
         estimator: args.estimator,
-        config,
+        config: settings.relative,
+        absolute_settings: settings.absolute,
         options: RunOptions {
             realtime: args.realtime,
         },
