@@ -5,7 +5,7 @@
 //! in docs/design.md): sensor samples come from `rigslam_drivers`
 //! (re-exported as [`sensors`]), live through the [`daemon`]'s source
 //! threads or replayed from a recording by [`dataset`] (EuRoC, KITTI,
-//! TUM) and [`recording`] (MCAP), whose text files [`text_file`] reads;
+//! TUM) and [`recording`] (MCAP), every text file through [`text_file`];
 //! [`rig`] holds the calibration they come with (and reads its files) and
 //! [`camera`] projects and unprojects. The relative stage,
 //! [`relative`], tracks the image with [`features`] and [`two_view`],
@@ -17,9 +17,9 @@
 //! memory. Offline, [`trajectory`] holds timestamped poses, [`eval`]
 //! scores an estimate against ground truth, [`simulate`] renders
 //! synthetic sequences, and [`shared_data`] finds the real test
-//! recordings. No two sibling modules depend on each other, except the
-//! two stages (the relative stage's config still holds the absolute
-//! stage's settings); `tests/module_boundaries.rs` checks it.
+//! recordings; [`slam_config`] is the settings file of both stages. No
+//! two sibling modules depend on each other (`tests/module_boundaries.rs`
+//! checks it).
 
 pub use rigslam_drivers as sensors;
 
