@@ -115,7 +115,7 @@ pub fn check_increasing(
 }
 
 /// Errors when a stamp is earlier than the one before; equal stamps pass
-/// (see [`super::tum::read_tum`] for why trajectories allow them).
+/// (see [`crate::dataset::tum::read_tum`] for why trajectories allow them).
 pub fn check_not_decreasing(
     path: &Path,
     stamps: impl IntoIterator<Item = (usize, i64)>,
