@@ -137,27 +137,19 @@ fn without_test_items(code: &str) -> String {
 }
 
 /// The module paths a file refers to, as absolute segment lists (the item
-/// name may be the last segment; only prefixes are compared).
+/// name may be the last segment; only prefixes are compared). A use group
+/// (`super::{a::X, b}`) gives one path per member.
 fn references(code: &str, here: &[String]) -> Vec<Vec<String>> {
-    let ident = |c: char| c.is_ascii_alphanumeric() || c == '_';
     let mut out = Vec::new();
-    let text = code;
     for start in ["crate::", "super::", "self::"] {
         let mut from = 0;
-        while let Some(pos) = text[from..].find(start) {
+        while let Some(pos) = code[from..].find(start) {
             let at = from + pos;
             from = at + start.len();
-            if at > 0 && text[..at].chars().next_back().is_some_and(ident) {
+            if at > 0 && code[..at].chars().next_back().is_some_and(ident) {
                 continue;
             }
-            // The path: segments joined by `::`, up to the first non-path
-            // character (`{` of a use group stops it; its parent is enough
-            // to name the module).
-            let tail = &text[at..];
-            let end = tail
-                .find(|c: char| !(ident(c) || c == ':'))
-                .unwrap_or(tail.len());
-            let segments: Vec<&str> = tail[..end].split("::").filter(|s| !s.is_empty()).collect();
+            let (segments, rest) = path_at(&code[at..]);
             // `self` is this module, `super` its parent (the module path
             // of a leaf file ends with its own name, of a `mod.rs` with its
             // folder's), each further `super` one more up.
@@ -176,10 +168,59 @@ fn references(code: &str, here: &[String]) -> Vec<Vec<String>> {
                 }
             };
             path.extend(iter.map(|s| s.to_string()));
-            out.push(path);
+            expand_group(path, rest, &mut out);
         }
     }
     out
+}
+
+fn ident(c: char) -> bool {
+    c.is_ascii_alphanumeric() || c == '_'
+}
+
+/// The `::`-joined segments at the start of `text` and what follows them.
+fn path_at(text: &str) -> (Vec<&str>, &str) {
+    let end = text
+        .find(|c: char| !(ident(c) || c == ':'))
+        .unwrap_or(text.len());
+    let segments = text[..end].split("::").filter(|s| !s.is_empty()).collect();
+    (segments, &text[end..])
+}
+
+/// Pushes `prefix` and, when `rest` opens a use group, `prefix` joined
+/// with each of its members (nested groups too).
+fn expand_group(prefix: Vec<String>, rest: &str, out: &mut Vec<Vec<String>>) {
+    if let Some(group) = rest.strip_prefix('{') {
+        let mut depth = 0usize;
+        let mut member_start = 0;
+        for (i, c) in group.char_indices() {
+            match c {
+                '{' => depth += 1,
+                '}' if depth == 0 => {
+                    member(&prefix, &group[member_start..i], out);
+                    break;
+                }
+                '}' => depth -= 1,
+                ',' if depth == 0 => {
+                    member(&prefix, &group[member_start..i], out);
+                    member_start = i + 1;
+                }
+                _ => {}
+            }
+        }
+    }
+    out.push(prefix);
+}
+
+fn member(prefix: &[String], text: &str, out: &mut Vec<Vec<String>>) {
+    let text = text.trim_start();
+    let (segments, rest) = path_at(text);
+    if segments.is_empty() || segments[0] == "self" {
+        return;
+    }
+    let mut path = prefix.to_vec();
+    path.extend(segments.iter().map(|s| s.to_string()));
+    expand_group(path, rest, out);
 }
 
 #[test]
@@ -195,9 +236,8 @@ fn sibling_modules_do_not_depend_on_each_other_both_ways() {
     for file in &files {
         let here = module_path(&src, file);
         let code = code_only(&std::fs::read_to_string(file).expect("readable"));
-        for target in references(&code, &here) {
+        for mut t in references(&code, &here) {
             // The deepest module the reference names.
-            let mut t = target.clone();
             while !t.is_empty() && !modules.contains(&t) {
                 t.pop();
             }
