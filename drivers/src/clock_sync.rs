@@ -59,6 +59,7 @@ pub struct ClockEstimate {
 }
 
 impl ClockEstimate {
+    /// `drift` in parts per million.
     pub fn drift_ppm(&self) -> f64 {
         self.drift * 1e6
     }
@@ -96,6 +97,7 @@ pub struct ClockSync {
 }
 
 impl ClockSync {
+    /// An estimator with no observations yet.
     pub fn new(config: ClockSyncConfig) -> ClockSync {
         ClockSync {
             config,
@@ -113,6 +115,8 @@ impl ClockSync {
         *self = ClockSync::new(self.config);
     }
 
+    /// Pairs passed to [`observe`](Self::observe) since creation or the
+    /// last [`reset`](Self::reset).
     pub fn observations(&self) -> u64 {
         self.observations
     }

@@ -9,9 +9,13 @@ use std::sync::Arc;
 /// Colour filter layout of a raw Bayer sensor, named by its top-left 2x2 block.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum BayerPattern {
+    /// Row 0: R G, row 1: G B.
     Rggb,
+    /// Row 0: B G, row 1: G R.
     Bggr,
+    /// Row 0: G R, row 1: B G.
     Grbg,
+    /// Row 0: G B, row 1: R G.
     Gbrg,
 }
 
@@ -22,7 +26,10 @@ pub enum PixelFormat {
     Mono8,
     /// 16-bit grey, little endian; `significant_bits` of each word carry data
     /// (12 for many machine-vision sensors), left in the low bits.
-    Mono16 { significant_bits: u8 },
+    Mono16 {
+        /// Bits of each word that carry data, 1..=16.
+        significant_bits: u8,
+    },
     /// 8-bit raw Bayer.
     Bayer8(BayerPattern),
     /// 16-bit raw Bayer, little endian.
@@ -42,24 +49,43 @@ impl PixelFormat {
 /// Why an image could not be built from a buffer.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum FrameError {
+    /// Width or height is zero.
     #[error("image {width}x{height} has a zero dimension")]
-    Empty { width: u32, height: u32 },
+    Empty {
+        /// Requested width, pixels.
+        width: u32,
+        /// Requested height, pixels.
+        height: u32,
+    },
     #[error(
         "row stride {stride_bytes} B is shorter than a row of {width} px x {bytes_per_pixel} B"
     )]
+    /// The row stride is shorter than one row of pixels.
     StrideTooShort {
+        /// Given row stride, bytes.
         stride_bytes: usize,
+        /// Image width, pixels.
         width: u32,
+        /// Bytes per pixel of the format.
         bytes_per_pixel: usize,
     },
+    /// The buffer ends before the last row does.
     #[error("buffer holds {got} B, a {width}x{height} image with stride {stride_bytes} B needs {needed} B")]
     BufferTooShort {
+        /// Buffer length, bytes.
         got: usize,
+        /// Bytes the image needs: `stride_bytes * (height - 1)` plus one
+        /// row of pixels (the last row needs no padding).
         needed: usize,
+        /// Image width, pixels.
         width: u32,
+        /// Image height, pixels.
         height: u32,
+        /// Row stride, bytes.
         stride_bytes: usize,
     },
+    /// A `Mono16` format whose `significant_bits` (the value carried) is
+    /// outside 1..=16.
     #[error("Mono16 with {0} significant bits: must be 1..=16")]
     BadBitDepth(u8),
 }
@@ -147,15 +173,20 @@ impl Image {
         )
     }
 
+    /// Width in pixels.
     pub fn width(&self) -> u32 {
         self.width
     }
+    /// Height in pixels (number of rows).
     pub fn height(&self) -> u32 {
         self.height
     }
+    /// Bytes from the start of one row to the start of the next; at least
+    /// `width * bytes_per_pixel`, more when rows are padded.
     pub fn stride_bytes(&self) -> usize {
         self.stride_bytes
     }
+    /// How the pixel bytes are laid out.
     pub fn format(&self) -> PixelFormat {
         self.format
     }
@@ -204,18 +235,26 @@ impl Image {
 pub struct Frame {
     /// Exposure time stamp (middle of exposure where the driver knows it), ns.
     pub t_ns: i64,
-    /// Per-camera sequence number from the driver; gaps mean drops.
+    /// Per-camera frame number. The V4L2 source takes the driver's counter,
+    /// so a gap there means dropped frames; the Aravis and pattern sources
+    /// number the frames they hand out and count drops only in
+    /// [`CaptureStats`](crate::camera::CaptureStats).
     pub seq: u64,
     /// Which camera of the rig (0 = left/cam0).
     pub camera_index: u8,
+    /// The pixels; cloning the frame shares them.
     pub image: Image,
 }
 
 /// Left and right frames exposed together.
 #[derive(Debug, Clone)]
 pub struct StereoFrame {
+    /// Stamp of the pair, ns, on the same clock as the frames' own `t_ns`
+    /// (the Bumblebee splitter gives both eyes the captured frame's stamp).
     pub t_ns: i64,
+    /// Left camera (`camera_index` 0).
     pub left: Frame,
+    /// Right camera (`camera_index` 1).
     pub right: Frame,
 }
 

@@ -5,6 +5,8 @@
 //! [`ImuSample`] and [`Frame`]/[`StereoFrame`], all stamped with i64
 //! nanoseconds (host `CLOCK_MONOTONIC` live, dataset time on replay).
 
+#![warn(missing_docs)]
+
 pub mod camera;
 pub mod clock_sync;
 pub mod frame;

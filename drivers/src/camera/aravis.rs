@@ -46,12 +46,18 @@ pub struct AravisConfig {
     pub device: Option<String>,
     /// GenICam `PixelFormat` name ("Mono8", "BayerRG8", ...).
     pub pixel_format: Option<String>,
+    /// Region of interest width, pixels (the region's offset is kept).
     pub width: Option<u32>,
+    /// Region of interest height, pixels (the region's offset is kept).
     pub height: Option<u32>,
+    /// `AcquisitionFrameRate`, frames per second.
     pub rate_hz: Option<f64>,
+    /// `ExposureTime`, microseconds; an error when the camera lacks the
+    /// feature.
     pub exposure_us: Option<f64>,
-    /// Aravis buffers in the acquisition pool.
+    /// Aravis buffers in the acquisition pool (at least 2 are used).
     pub buffers: usize,
+    /// Which camera of the rig the frames are stamped with.
     pub camera_index: u8,
 }
 

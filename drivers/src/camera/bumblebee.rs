@@ -34,9 +34,11 @@ pub enum Output {
 pub struct StereoLayout {
     /// Pixels per row of each eye (= 16-bit pixels per row of the frame).
     pub width: usize,
+    /// Rows of each eye (= rows of the frame).
     pub height: usize,
     /// Bytes from one row of the interleaved frame to the next (>= 2 * width).
     pub stride_bytes: usize,
+    /// Which eye's byte comes first in each 16-bit pixel.
     pub order: ByteOrder,
     /// Colour filter of both sensors; `None` for monochrome.
     pub mosaic: Option<BayerPattern>,
@@ -71,27 +73,51 @@ impl StereoLayout {
 /// Why a frame could not be split.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum BumblebeeError {
+    /// Width or height is zero.
     #[error("stereo frame {width}x{height} has a zero dimension")]
-    Empty { width: usize, height: usize },
-    #[error("row stride {stride_bytes} B is shorter than {width} interleaved 16-bit pixels")]
-    StrideTooShort { stride_bytes: usize, width: usize },
-    #[error("interleaved frame holds {got} B, {width}x{height} stereo needs {needed} B")]
-    ShortInput {
-        got: usize,
-        needed: usize,
+    Empty {
+        /// Pixels per row of each eye.
         width: usize,
+        /// Rows.
         height: usize,
     },
+    /// The row stride is shorter than `2 * width` bytes.
+    #[error("row stride {stride_bytes} B is shorter than {width} interleaved 16-bit pixels")]
+    StrideTooShort {
+        /// Given row stride, bytes.
+        stride_bytes: usize,
+        /// Pixels per row of each eye.
+        width: usize,
+    },
+    /// The interleaved frame ends before its last row does.
+    #[error("interleaved frame holds {got} B, {width}x{height} stereo needs {needed} B")]
+    ShortInput {
+        /// Bytes the input held.
+        got: usize,
+        /// Bytes the layout needs ([`StereoLayout::needed_bytes`]).
+        needed: usize,
+        /// Pixels per row of each eye.
+        width: usize,
+        /// Rows.
+        height: usize,
+    },
+    /// A caller's output buffer is shorter than one eye.
     #[error("output buffers hold {left} B and {right} B, each eye needs {needed} B")]
     ShortOutput {
+        /// Length of the left output, bytes.
         left: usize,
+        /// Length of the right output, bytes.
         right: usize,
+        /// Bytes one eye needs (`width * height`).
         needed: usize,
     },
+    /// The captured frame is not 2 bytes per pixel (the format it has).
     #[error("a Bumblebee frame is 16 bits per pixel (Mono16), got {0:?}")]
     NotSixteenBit(PixelFormat),
+    /// Demosaicing an eye failed.
     #[error(transparent)]
     Demosaic(#[from] DemosaicError),
+    /// An eye did not make a valid [`Image`].
     #[error(transparent)]
     Frame(#[from] FrameError),
 }
@@ -217,6 +243,10 @@ pub struct BumblebeeSplitter {
 }
 
 impl BumblebeeSplitter {
+    /// A splitter for frames of `layout`, handing out `output`.
+    /// [`split_buffers`](Self::split_buffers) uses the whole layout;
+    /// [`split_frame`](Self::split_frame) replaces its size and stride with
+    /// each frame's.
     pub fn new(layout: StereoLayout, output: Output) -> Self {
         Self {
             layout,
@@ -229,6 +259,8 @@ impl BumblebeeSplitter {
         }
     }
 
+    /// The layout in use: as given to [`new`](Self::new), with the size and
+    /// stride of the last frame passed to [`split_frame`](Self::split_frame).
     pub fn layout(&self) -> &StereoLayout {
         &self.layout
     }

@@ -43,18 +43,37 @@ fn site(pattern: BayerPattern, x: usize, y: usize) -> Site {
 /// Why a demosaic call cannot run.
 #[derive(Debug, Clone, thiserror::Error, PartialEq, Eq)]
 pub enum DemosaicError {
+    /// Width or height is below 2: there is no full Bayer cell.
     #[error("Bayer image {width}x{height} is smaller than 2x2")]
-    TooSmall { width: usize, height: usize },
+    TooSmall {
+        /// Image width, pixels.
+        width: usize,
+        /// Image height, pixels.
+        height: usize,
+    },
+    /// The input ends before its last row does, or `stride < width`.
     #[error("Bayer input holds {got} B, {width}x{height} with stride {stride} needs {needed} B")]
     ShortInput {
+        /// Bytes the input held.
         got: usize,
+        /// Bytes the image needs: `stride * (height - 1) + width`.
         needed: usize,
+        /// Image width, pixels.
         width: usize,
+        /// Image height, pixels.
         height: usize,
+        /// Given row stride, bytes.
         stride: usize,
     },
+    /// The output buffer is too short (RGB: `3 * width * height` bytes,
+    /// grey: `width * height`).
     #[error("output holds {got} B, needs {needed} B")]
-    ShortOutput { got: usize, needed: usize },
+    ShortOutput {
+        /// Bytes the output held.
+        got: usize,
+        /// Bytes the output needs.
+        needed: usize,
+    },
 }
 
 fn check(
@@ -107,7 +126,7 @@ pub fn luma(r: u8, g: u8, b: u8) -> u8 {
 
 /// Bilinear demosaic into interleaved RGB8 (`out` holds `3 * width * height`
 /// bytes, tightly packed). The reference implementation: one photosite at
-/// a time, every neighbour through [`mirror`].
+/// a time, every neighbour read through the mirrored border.
 pub fn bilinear_rgb(
     src: &[u8],
     width: usize,
@@ -208,6 +227,7 @@ pub struct GreyDemosaic {
 }
 
 impl GreyDemosaic {
+    /// A demosaicer with empty scratch; the first [`run`](Self::run) sizes it.
     pub fn new() -> Self {
         Self::default()
     }

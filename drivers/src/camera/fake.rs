@@ -22,6 +22,7 @@ pub struct ScriptedV4l2Stream {
 }
 
 impl ScriptedV4l2Stream {
+    /// An empty script.
     pub fn new() -> Self {
         Self::default()
     }
@@ -56,6 +57,10 @@ pub struct PatternCamera {
 }
 
 impl PatternCamera {
+    /// A Mono8 camera of `width` x `height` pixels at `rate_hz` frames per
+    /// second. Frame 0 is stamped with the host `CLOCK_MONOTONIC` time of
+    /// this call, each later frame one period after the previous one;
+    /// [`FrameSource::next_frame`] sleeps until a frame's stamp.
     pub fn new(width: u32, height: u32, rate_hz: f64) -> Self {
         Self {
             info: CameraInfo {

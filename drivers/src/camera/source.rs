@@ -55,7 +55,9 @@ pub struct CameraInfo {
     pub name: String,
     /// Bus or serial number, whatever identifies the unit.
     pub bus: String,
+    /// Frame width the source hands out, pixels.
     pub width: u32,
+    /// Frame height the source hands out, pixels.
     pub height: u32,
     /// Format of the frames the source hands out.
     pub format: PixelFormat,
@@ -121,58 +123,108 @@ impl<S: FrameSource + ?Sized> FrameSource for Box<S> {
 /// and says what was tried; the opening errors also say what to check.
 #[derive(Debug, thiserror::Error)]
 pub enum CameraError {
+    /// The device could not be opened (missing, no permission, busy).
     #[error("cannot open {driver} camera {device}: {source}; check: {hint}")]
     Open {
+        /// Driver family: "v4l2", "aravis".
         driver: &'static str,
+        /// The device as the user named it.
         device: String,
+        /// The OS or library error (Aravis errors are wrapped as `NotFound`).
         source: std::io::Error,
+        /// What to check, for the user.
         hint: &'static str,
     },
+    /// The device opened but cannot stream video (no capture or streaming
+    /// capability, or not a V4L2 node at all).
     #[error("{device} is not a camera we can stream from: {reason}; check: {hint}")]
     NotACamera {
+        /// Device path.
         device: String,
+        /// What the device lacks.
         reason: String,
+        /// What to check, for the user.
         hint: &'static str,
     },
+    /// The device applied a different pixel format or size than was asked.
     #[error("{device} refused format {requested}: it set {got} instead; the device offers {offered}; check: pick one of those with --format/--width/--height")]
     FormatRefused {
+        /// Device path or camera id.
         device: String,
+        /// Format and size asked for, as text ("RGGB 1024x(any)").
         requested: String,
+        /// Format and size the device applied, as text.
         got: String,
+        /// Formats (V4L2) or size bounds / format names (Aravis) the device
+        /// offers, as text.
         offered: String,
     },
+    /// The device streams a format this crate cannot turn into a [`Frame`].
     #[error("{device} streams {wire_format}, which rigslam does not read; it offers {offered}; rigslam reads {supported}")]
     UnsupportedFormat {
+        /// Device path or camera id.
         device: String,
+        /// The device's name for the format it streams (FourCC or GenICam name).
         wire_format: String,
+        /// Formats the device offers, comma-separated.
         offered: String,
+        /// Formats this driver reads, comma-separated.
         supported: String,
     },
+    /// A device call (ioctl, mmap) failed.
     #[error("{device}: {what} failed: {source}")]
     Io {
+        /// Device path.
         device: String,
+        /// The step that failed, naming the ioctl ("dequeueing a buffer (VIDIOC_DQBUF)").
         what: &'static str,
+        /// The OS error.
         source: std::io::Error,
     },
+    /// No frame arrived within the timeout given to
+    /// [`FrameSource::next_frame`].
     #[error("{device}: no frame within {timeout_ms} ms; check: is the camera triggered or streaming, is the cable/link up")]
-    Timeout { device: String, timeout_ms: u64 },
+    Timeout {
+        /// Device path or camera id.
+        device: String,
+        /// The timeout that expired, milliseconds.
+        timeout_ms: u64,
+    },
+    /// Buffers shorter than one frame kept arriving (V4L2: several in a
+    /// row; Aravis: until the timeout).
     #[error("{device}: buffer of {got} B is shorter than a {width}x{height} {wire_format} frame of {needed} B")]
     ShortBuffer {
+        /// Device path or camera id.
         device: String,
+        /// The device's name for the format (FourCC or GenICam name).
         wire_format: String,
+        /// Frame width, pixels.
         width: u32,
+        /// Frame height, pixels.
         height: u32,
+        /// Bytes the buffer held.
         got: usize,
+        /// Bytes one frame needs.
         needed: usize,
     },
+    /// The captured bytes did not make a valid [`Image`](crate::Image).
     #[error("{device}: {source}")]
     Frame {
+        /// Device path or camera id.
         device: String,
+        /// Why the image was rejected.
         #[source]
         source: FrameError,
     },
+    /// Any other driver or library failure (corrupt buffers in a row,
+    /// incomplete frames, a GenICam feature that could not be set).
     #[error("{device}: {message}")]
-    Driver { device: String, message: String },
+    Driver {
+        /// Device path or camera id.
+        device: String,
+        /// What failed, in words.
+        message: String,
+    },
 }
 
 /// Extends a driver's wrapping 32-bit frame counter to 64 bits and counts
@@ -189,6 +241,7 @@ pub struct SequenceCounter {
 }
 
 impl SequenceCounter {
+    /// A counter that has seen no buffer yet.
     pub fn new() -> Self {
         Self::default()
     }

@@ -38,7 +38,9 @@ pub mod buf_flag {
     pub const ERROR: u32 = 0x0000_0040;
     /// Which clock the timestamp is on.
     pub const TIMESTAMP_MASK: u32 = 0x0000_e000;
+    /// Clock not stated: not comparable with host time.
     pub const TIMESTAMP_UNKNOWN: u32 = 0x0000_0000;
+    /// Host `CLOCK_MONOTONIC`, the clock of every live `t_ns`.
     pub const TIMESTAMP_MONOTONIC: u32 = 0x0000_2000;
     /// Copied from an output buffer: not a capture time at all.
     pub const TIMESTAMP_COPY: u32 = 0x0000_4000;
@@ -57,8 +59,9 @@ pub struct BufferMeta {
     pub bytes_used: u32,
     /// `V4L2_BUF_FLAG_*`.
     pub flags: u32,
-    /// Timestamp, `struct timeval`.
+    /// Timestamp, `struct timeval`: whole seconds, on the clock `flags` name.
     pub timestamp_s: i64,
+    /// Timestamp, `struct timeval`: microseconds added to `timestamp_s`.
     pub timestamp_us: i64,
     /// The driver's frame counter; gaps are frames it dropped.
     pub sequence: u32,
@@ -68,6 +71,7 @@ pub struct BufferMeta {
 pub struct RawBuffer<'a> {
     /// The whole mapped buffer; the frame is its first `meta.bytes_used` bytes.
     pub bytes: &'a [u8],
+    /// What the driver says about the buffer.
     pub meta: BufferMeta,
 }
 
@@ -148,6 +152,7 @@ impl<S: V4l2Stream> V4l2Source<S> {
         }
     }
 
+    /// How frames sit in the driver's buffers.
     pub fn layout(&self) -> &FrameLayout {
         &self.layout
     }
@@ -248,11 +253,18 @@ impl<S: V4l2Stream> FrameSource for V4l2Source<S> {
 pub struct V4l2Config {
     /// `/dev/videoN`, or `N` for short.
     pub device: String,
+    /// Wire format to set. `None` keeps the device's, unless it is one we
+    /// do not read (often MJPG): then the first offered format in
+    /// [`SUPPORTED`] order.
     pub format: Option<WireFormat>,
+    /// Frame width to set, pixels.
     pub width: Option<u32>,
+    /// Frame height to set, pixels.
     pub height: Option<u32>,
+    /// Frame rate to set (`VIDIOC_S_PARM`), frames per second.
     pub rate_hz: Option<u32>,
-    /// Manual exposure, where the device has the control.
+    /// Manual exposure time, microseconds, where the device has the
+    /// control (set in its 100 us steps, rounded up).
     pub exposure_us: Option<u32>,
     /// Number of mmap buffers.
     pub buffers: u32,
@@ -261,6 +273,8 @@ pub struct V4l2Config {
 }
 
 impl V4l2Config {
+    /// Opens `device` (a path or an index) with every device setting kept,
+    /// 4 mmap buffers and camera index 0.
     pub fn new(device: &str) -> Self {
         Self {
             device: device.to_string(),
@@ -287,9 +301,14 @@ impl V4l2Config {
 /// The format the device applied, as `VIDIOC_S_FMT`/`G_FMT` report it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct AppliedFormat {
+    /// FourCC of the applied pixel format.
     pub fourcc: [u8; 4],
+    /// Applied frame width, pixels.
     pub width: u32,
+    /// Applied frame height, pixels.
     pub height: u32,
+    /// Row stride of the buffers, bytes (`bytesperline`; 0 when the driver
+    /// leaves it unset).
     pub bytes_per_line: u32,
 }
 

@@ -16,7 +16,11 @@ pub enum WireFormat {
     Grey,
     /// `Y10 `, `Y12 `, `Y16 `: grey in 16-bit little-endian words with this
     /// many significant (low) bits.
-    Grey16 { significant_bits: u8 },
+    Grey16 {
+        /// Data bits per word: 10 (`Y10 `), 12 (`Y12 `) or 16 (`Y16 `; any
+        /// other value also maps to `Y16 `).
+        significant_bits: u8,
+    },
     /// `YUYV`: packed 4:2:2 Y0 U Y1 V; frames carry the luma only.
     Yuyv,
     /// `BA81`/`GBRG`/`GRBG`/`RGGB`: 8-bit raw Bayer.
@@ -131,8 +135,11 @@ pub fn fourcc_name(code: [u8; 4]) -> String {
 /// How a negotiated format lays a frame out in a driver buffer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct FrameLayout {
+    /// Pixel format in the buffer.
     pub format: WireFormat,
+    /// Frame width, pixels.
     pub width: u32,
+    /// Frame height, pixels.
     pub height: u32,
     /// Bytes from one row to the next in the buffer (V4L2 `bytesperline`).
     pub bytes_per_line: usize,
@@ -201,8 +208,16 @@ impl FrameLayout {
 /// Why a buffer could not be turned into an image.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]
 pub enum LayoutError {
+    /// The buffer is shorter than one frame.
     #[error("buffer holds {got} B, the frame needs {needed} B")]
-    Short { got: usize, needed: usize },
+    Short {
+        /// Bytes the buffer held.
+        got: usize,
+        /// Bytes one frame needs ([`FrameLayout::needed_bytes`]).
+        needed: usize,
+    },
+    /// The copied pixels did not make a valid [`Image`] (a zero dimension,
+    /// for instance).
     #[error(transparent)]
     Frame(FrameError),
 }

@@ -26,8 +26,11 @@ pub enum Command {
     SetStreamingSlots([u8; 8]),
     /// 0x52: streaming timing, microseconds; duration 0xFFFFFFFF = forever.
     SetStreamingTiming {
+        /// Time between streamed packets, microseconds.
         interval_us: u32,
+        /// How long to stream, microseconds; [`STREAM_FOREVER`] for no end.
         duration_us: u32,
+        /// Wait before the first packet, microseconds.
         delay_us: u32,
     },
     /// 0x55: start streaming.
@@ -54,6 +57,7 @@ pub enum Command {
 pub const STREAM_FOREVER: u32 = 0xFFFF_FFFF;
 
 impl Command {
+    /// The command byte sent after the start byte.
     pub fn opcode(&self) -> u8 {
         match self {
             Command::GetCorrectedGyro => 0x26,
@@ -189,11 +193,22 @@ impl Command {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Received {
     /// A well-formed command; `with_header` when it started with 0xF9.
-    Command { command: Command, with_header: bool },
+    Command {
+        /// The decoded command.
+        command: Command,
+        /// True when the host asked for a response header (start byte 0xF9).
+        with_header: bool,
+    },
     /// A framed command whose checksum did not match (ignored by a device).
-    BadChecksum { opcode: u8 },
+    BadChecksum {
+        /// The command byte of the rejected command.
+        opcode: u8,
+    },
     /// A start byte followed by an opcode this codec does not know.
-    UnknownOpcode { opcode: u8 },
+    UnknownOpcode {
+        /// The unknown command byte.
+        opcode: u8,
+    },
 }
 
 /// Device-side parser of the host's command stream (used by the simulated
@@ -204,6 +219,7 @@ pub struct CommandParser {
 }
 
 impl CommandParser {
+    /// Appends bytes read from the line, in any chunking.
     pub fn push(&mut self, bytes: &[u8]) {
         self.buf.extend_from_slice(bytes);
     }

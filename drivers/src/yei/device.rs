@@ -42,6 +42,7 @@ pub struct YeiConfig {
     /// First wait before reopening a vanished port; doubles up to
     /// `reconnect_max`.
     pub reconnect_initial: Duration,
+    /// Longest wait between reopen attempts.
     pub reconnect_max: Duration,
     /// Samples buffered for the consumer before new ones are dropped (and
     /// counted as `queue_overflows`).
@@ -49,6 +50,9 @@ pub struct YeiConfig {
 }
 
 impl YeiConfig {
+    /// Defaults for a sensor on `port`: 115200 baud, 200 Hz of corrected
+    /// gyro + accel, 500 ms per handshake answer, reconnect waits from
+    /// 50 ms up to 2 s, 65536 queued samples.
     pub fn new(port: impl Into<String>) -> YeiConfig {
         YeiConfig {
             port: port.into(),
@@ -111,7 +115,10 @@ const LINE_BUDGET: f64 = 0.9;
 /// Who the sensor says it is.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct YeiIdentity {
+    /// Serial number (command 0xED).
     pub serial: u32,
+    /// Firmware version string (command 0xDF), trailing NULs and spaces
+    /// trimmed.
     pub firmware: String,
 }
 
@@ -168,37 +175,66 @@ pub struct YeiStats {
 /// check.
 #[derive(Debug, Error)]
 pub enum YeiError {
+    /// The serial port could not be opened.
     #[error("cannot open serial port {port} at {baud} baud: {source}; check the path (ls /dev/ttyACM* /dev/ttyUSB* /dev/serial/by-id), that you may open it (dialout group) and that no other program holds it")]
     Open {
+        /// Serial device path.
         port: String,
+        /// Line speed tried.
         baud: u32,
+        /// The serial library's error.
         source: serialport::Error,
     },
+    /// Reading or writing the port failed during the handshake.
     #[error("I/O error on {port} while {doing}: {source}")]
     Io {
+        /// Serial device path.
         port: String,
+        /// The handshake step ("sending a command").
         doing: &'static str,
+        /// The OS error.
         source: io::Error,
     },
+    /// Not one byte came back to a handshake command.
     #[error("{port} at {baud} baud answered nothing to {command} within {waited_ms} ms; check that a YEI 3-Space is connected to this port and powered, and that it is set to {baud} baud (the factory default is 115200)")]
     NoAnswer {
+        /// Serial device path.
         port: String,
+        /// Line speed used.
         baud: u32,
+        /// The command, named with its opcode ("get-serial-number (0xED)").
         command: &'static str,
+        /// How long we waited, milliseconds.
         waited_ms: u128,
     },
+    /// Bytes came back, but no valid response to the command among them
+    /// (often a wrong baud rate or another device).
     #[error("{port} at {baud} baud answered {command} with {received} bytes that are not a YEI 3-Space response (first bytes: {first_bytes}); check the baud rate (tried {baud}; the factory default is 115200) and that the device on this port is a YEI 3-Space")]
     UnexpectedAnswer {
+        /// Serial device path.
         port: String,
+        /// Line speed used.
         baud: u32,
+        /// The command, named with its opcode.
         command: &'static str,
+        /// Bytes received that were not a valid response.
         received: usize,
+        /// Up to 16 of them in hex, for the user.
         first_bytes: String,
     },
+    /// The configuration cannot work (zero interval, more data than the
+    /// line speed carries); nothing was sent.
     #[error("{port}: {why}")]
-    BadConfig { port: String, why: String },
+    BadConfig {
+        /// Serial device path.
+        port: String,
+        /// What is wrong and what to change.
+        why: String,
+    },
+    /// The stream layout or response header is invalid.
     #[error("streaming configuration: {0}")]
     Protocol(#[from] ProtocolError),
+    /// The decode thread could not be spawned.
     #[error("cannot start the decode thread: {0}")]
     Thread(io::Error),
 }
@@ -231,8 +267,11 @@ pub struct TimestampUnwrapper {
 /// What one timestamp did to the unwrapped clock.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ClockStep {
+    /// The first timestamp: it anchors the unwrapped clock.
     First,
+    /// On the timeline, at most `max_forward_us` after the last timestamp.
     Forward {
+        /// The 32-bit counter wrapped past 2^32 on this step.
         wrapped: bool,
     },
     /// Backwards or more than `max_forward_us` ahead, confirmed by the
@@ -472,6 +511,7 @@ impl YeiDevice {
         })
     }
 
+    /// Serial number and firmware read during the handshake.
     pub fn identity(&self) -> &YeiIdentity {
         &self.identity
     }
@@ -487,6 +527,7 @@ impl YeiDevice {
         self.samples.try_recv().ok()
     }
 
+    /// The decode thread's counters, as of its last update.
     pub fn stats(&self) -> YeiStats {
         *self
             .shared

@@ -26,12 +26,22 @@ pub const STANDARD_GRAVITY_M_S2: f64 = 9.806_65;
 /// Errors of the pure codec: what was expected and what came.
 #[derive(Debug, Clone, PartialEq, Eq, Error)]
 pub enum ProtocolError {
+    /// The response header lacks a field streamed packets need to be
+    /// validated and stamped (timestamp, echo, checksum, data length).
     #[error("streaming needs response header fields {missing:#04x} (timestamp 0x02, echo 0x04, checksum 0x08, data length 0x40); header config is {config:#010x}")]
-    HeaderLacksStreamingFields { config: u32, missing: u32 },
+    HeaderLacksStreamingFields {
+        /// The header bitfield given.
+        config: u32,
+        /// The needed bits it lacks.
+        missing: u32,
+    },
+    /// A streaming slot opcode this codec cannot decode (the opcode).
     #[error("streaming slot command {0:#04x} is not one this driver decodes (0x26-0x28, 0x2B, 0x40-0x43)")]
     UnknownSlot(u8),
+    /// More than the device's 8 streaming slots (the number given).
     #[error("at most 8 streaming slots, got {0}")]
     TooManySlots(usize),
+    /// A stream layout with no slot.
     #[error("no streaming slots configured")]
     NoSlots,
 }
@@ -113,12 +123,19 @@ impl HeaderConfig {
 /// A parsed response header; absent fields are `None`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct ResponseHeader {
+    /// Status byte, 0 on success.
     pub status: Option<u8>,
+    /// Sensor clock, microseconds, wrapping at 2^32.
     pub timestamp_us: Option<u32>,
+    /// Opcode of the command answered, 0xFF for streamed data.
     pub echo: Option<u8>,
+    /// Additive checksum of the payload (the header itself is not covered).
     pub checksum: Option<u8>,
+    /// Logical id (wireless sensors).
     pub logical_id: Option<u8>,
+    /// Sensor serial number.
     pub serial: Option<u32>,
+    /// Payload length, bytes.
     pub data_len: Option<u8>,
 }
 
@@ -206,6 +223,7 @@ pub enum StreamSlot {
 }
 
 impl StreamSlot {
+    /// The read command this slot streams.
     pub fn opcode(self) -> u8 {
         match self {
             StreamSlot::CorrectedGyro => 0x26,
@@ -219,6 +237,8 @@ impl StreamSlot {
         }
     }
 
+    /// The slot for a read command; [`ProtocolError::UnknownSlot`] for any
+    /// other opcode.
     pub fn from_opcode(opcode: u8) -> Result<StreamSlot, ProtocolError> {
         Ok(match opcode {
             0x26 => StreamSlot::CorrectedGyro,
@@ -251,6 +271,8 @@ pub struct StreamLayout {
 }
 
 impl StreamLayout {
+    /// A layout streaming `slots` in this order; 1 to 8 slots, else
+    /// [`ProtocolError::NoSlots`] or [`ProtocolError::TooManySlots`].
     pub fn new(slots: &[StreamSlot]) -> Result<StreamLayout, ProtocolError> {
         if slots.is_empty() {
             return Err(ProtocolError::NoSlots);
@@ -280,6 +302,7 @@ impl StreamLayout {
             .expect("two known slots are a valid layout")
     }
 
+    /// The slots, in payload order.
     pub fn slots(&self) -> &[StreamSlot] {
         &self.slots
     }
@@ -302,12 +325,22 @@ impl StreamLayout {
 /// Decoded values of one streamed payload; slots not configured are `None`.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct StreamValues {
+    /// Corrected angular rate, rad/s, sensor frame (slot 0x26).
     pub gyro_rad_s: Option<[f32; 3]>,
+    /// Corrected acceleration, g (not m/s^2), sensor frame (slot 0x27).
     pub accel_g: Option<[f32; 3]>,
+    /// Corrected magnetic field, gauss, sensor frame (slot 0x28).
     pub compass_gauss: Option<[f32; 3]>,
+    /// Sensor temperature, degrees Celsius (slot 0x2B).
     pub temperature_c: Option<f32>,
+    /// Raw gyroscope reading (slot 0x40 or 0x41), passed on as the sensor
+    /// sends it: no unit conversion here.
     pub raw_gyro: Option<[f32; 3]>,
+    /// Raw accelerometer reading (slot 0x40 or 0x42), passed on as the
+    /// sensor sends it: no unit conversion here.
     pub raw_accel: Option<[f32; 3]>,
+    /// Raw compass reading (slot 0x40 or 0x43), passed on as the sensor
+    /// sends it: no unit conversion here.
     pub raw_compass: Option<[f32; 3]>,
 }
 
@@ -316,6 +349,7 @@ pub struct StreamValues {
 pub struct StreamPacket {
     /// Sensor clock, microseconds, wrapping at 2^32.
     pub timestamp_us: u32,
+    /// The decoded payload.
     pub values: StreamValues,
 }
 
@@ -426,12 +460,18 @@ pub enum ResponseScan {
     /// The response header starts at `start`; its payload is
     /// `payload_start..payload_start + len`.
     Found {
+        /// Offset of the response header in the buffer.
         start: usize,
+        /// Offset of the payload (`start` + header length).
         payload_start: usize,
+        /// The parsed header.
         header: ResponseHeader,
     },
     /// No complete response yet; bytes before `keep_from` can be dropped.
-    NeedMore { keep_from: usize },
+    NeedMore {
+        /// First offset that may still begin the response.
+        keep_from: usize,
+    },
 }
 
 /// Looks for the header-framed response to command `echo` carrying
@@ -499,6 +539,9 @@ pub struct StreamDecoder {
 }
 
 impl StreamDecoder {
+    /// A decoder for packets framed by `header` carrying `layout`;
+    /// [`ProtocolError::HeaderLacksStreamingFields`] when `header` cannot
+    /// validate and stamp them.
     pub fn new(header: HeaderConfig, layout: StreamLayout) -> Result<StreamDecoder, ProtocolError> {
         header.check_streaming()?;
         let frame_len = header.len() + layout.payload_len();
@@ -518,6 +561,7 @@ impl StreamDecoder {
         self.frame_len
     }
 
+    /// Counters since the decoder was created.
     pub fn counts(&self) -> DecoderCounts {
         self.counts
     }

@@ -49,15 +49,19 @@ pub enum Behaviour {
 /// Settings of the simulated sensor.
 #[derive(Debug, Clone)]
 pub struct SimConfig {
+    /// Serial number the sensor reports (command 0xED).
     pub serial: u32,
     /// 12 ASCII bytes, as command 0xDF returns.
     pub firmware: String,
-    /// Sensor clock at the first streamed packet, u32 microseconds (set
-    /// close to 2^32 to make the stream wrap).
+    /// Sensor clock when streaming starts, u32 microseconds; the first
+    /// packet is stamped one interval later (set close to 2^32 to make the
+    /// stream wrap).
     pub start_timestamp_us: u32,
     /// Sensor clock rate error against the host, ppm.
     pub drift_ppm: f64,
+    /// Where the streamed readings come from.
     pub motion: Motion,
+    /// Whether the sensor answers at all.
     pub behaviour: Behaviour,
 }
 
@@ -85,7 +89,10 @@ pub enum Fault {
     BadChecksum,
     /// Close the port (the sensor vanishes) and come back on a new pty
     /// behind the same symlink after the given time.
-    ClosePort { reopen_after: Duration },
+    ClosePort {
+        /// How long the port stays gone.
+        reopen_after: Duration,
+    },
 }
 
 /// What the simulated sensor has done, for comparing with the driver.
@@ -95,6 +102,7 @@ pub struct SimStats {
     pub packets_sent: u64,
     /// Packets written damaged (dropped bytes, bad checksum).
     pub packets_damaged: u64,
+    /// Noise bytes written between packets ([`Fault::Garbage`]).
     pub garbage_bytes: u64,
     /// Times the port was (re)opened.
     pub connections: u64,
@@ -164,6 +172,9 @@ fn open_pty(link: &Path) -> io::Result<Pty> {
 }
 
 impl SimulatedYei {
+    /// Creates a pty pair and a symlink to its slave in a fresh directory
+    /// under the system temp dir, and starts serving; errors when the pty,
+    /// the link or the thread cannot be created.
     pub fn start(config: SimConfig) -> io::Result<SimulatedYei> {
         let dir = std::env::temp_dir().join(format!(
             "rigslam-yei-sim-{}-{}",
@@ -198,11 +209,14 @@ impl SimulatedYei {
         &self.link
     }
 
+    /// Queues a fault; it takes effect at the next streamed packet
+    /// ([`Fault::ClosePort`] at once).
     pub fn inject(&self, fault: Fault) {
         // The server only goes away on drop, which needs &mut self.
         let _ = self.faults.send(fault);
     }
 
+    /// What the sensor has done so far.
     pub fn stats(&self) -> SimStats {
         *self.stats.lock().expect("sim stats lock is never poisoned")
     }
