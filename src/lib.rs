@@ -15,9 +15,9 @@
 //! driven by [`run`]). The [`daemon`] runs the relative stage on its own
 //! thread and [`publish`] sends each pose to other processes over shared
 //! memory. Offline, [`trajectory`] holds timestamped poses, [`eval`]
-//! scores an estimate against ground truth, [`simulate`] renders
-//! synthetic sequences, and [`shared_data`] finds the real test
-//! recordings; [`slam_config`] is the settings file of both stages. No
+//! scores an estimate against ground truth (`plot`, behind the feature
+//! of that name, draws it), [`simulate`] renders synthetic sequences, and
+//! [`shared_data`] finds the real test recordings; [`slam_config`] is the settings file of both stages. No
 //! two sibling modules depend on each other (`tests/module_boundaries.rs`
 //! checks it).
 
@@ -30,6 +30,8 @@ pub mod edge_map;
 pub mod eval;
 pub mod features;
 pub mod imu;
+#[cfg(feature = "plot")]
+pub mod plot;
 pub mod publish;
 pub mod recording;
 pub mod relative;

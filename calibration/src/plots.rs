@@ -5,6 +5,7 @@
 use std::path::Path;
 
 use plotters::prelude::*;
+use rigslam::plot::{draw_legend, legend_line, AXIS_FONT, LABEL_FONT};
 
 use crate::allan::AllanCurve;
 use crate::error::CalibrationError;
@@ -50,8 +51,8 @@ pub fn plot_static_residuals(
         chart
             .configure_mesh()
             .y_desc("|a| - g [m/s^2]")
-            .label_style(("sans-serif", 16))
-            .axis_desc_style(("sans-serif", 18))
+            .label_style(LABEL_FONT)
+            .axis_desc_style(AXIS_FONT)
             .draw()?;
         chart
             .draw_series(
@@ -71,13 +72,7 @@ pub fn plot_static_residuals(
             )?
             .label("calibrated")
             .legend(|(x, y)| TriangleMarker::new((x + 10, y), 6, BLUE.filled()));
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .label_font(("sans-serif", 16))
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK)
-            .draw()?;
+        draw_legend(&mut chart, SeriesLabelPosition::UpperRight)?;
         let after_mm: Vec<f64> = after.iter().map(|r| r * 1e3).collect();
         let limit_mm = after_mm.iter().fold(1e-3f64, |m, v| m.max(v.abs())) * 1.2;
         let mut zoom = ChartBuilder::on(&bottom)
@@ -89,8 +84,8 @@ pub fn plot_static_residuals(
         zoom.configure_mesh()
             .x_desc("still pose (time order)")
             .y_desc("|a| - g [mm/s^2]")
-            .label_style(("sans-serif", 16))
-            .axis_desc_style(("sans-serif", 18))
+            .label_style(LABEL_FONT)
+            .axis_desc_style(AXIS_FONT)
             .draw()?;
         zoom.draw_series(
             after_mm
@@ -146,8 +141,8 @@ pub fn plot_allan(
                 .x_desc("cluster time tau [s]")
                 .y_desc(format!("Allan deviation [{unit}]"))
                 .y_label_formatter(&|v| format!("{v:.0e}"))
-                .label_style(("sans-serif", 16))
-                .axis_desc_style(("sans-serif", 18))
+                .label_style(LABEL_FONT)
+                .axis_desc_style(AXIS_FONT)
                 .draw()?;
             for k in 0..3 {
                 let (c, a, color) = (&curves[first + k], &axes[first + k], AXIS_COLORS[k]);
@@ -161,9 +156,7 @@ pub fn plot_allan(
                         "{name}: N {:.2e}, K {:.2e}, B {:.2e}",
                         a.white_noise_density, a.random_walk, a.bias_instability
                     ))
-                    .legend(move |(x, y)| {
-                        PathElement::new(vec![(x, y), (x + 25, y)], color.stroke_width(2))
-                    });
+                    .legend(move |(x, y)| legend_line(x, y, color.stroke_width(2)));
                 let white: Vec<(f64, f64)> = c
                     .tau_s
                     .iter()
@@ -189,13 +182,7 @@ pub fn plot_allan(
                     color.mix(0.6).stroke_width(1),
                 ))?;
             }
-            chart
-                .configure_series_labels()
-                .position(SeriesLabelPosition::UpperRight)
-                .label_font(("sans-serif", 15))
-                .background_style(WHITE.mix(0.85))
-                .border_style(BLACK)
-                .draw()?;
+            draw_legend(&mut chart, SeriesLabelPosition::UpperRight)?;
         }
         root.present()?;
         Ok(())

@@ -10,7 +10,8 @@ use super::tum::write_tum;
 use crate::trajectory::Trajectory;
 
 /// A trajectory file format.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum TrajectoryFormat {
     /// `t[s] tx ty tz qx qy qz qw`, space-separated.
     Tum,

@@ -6,11 +6,8 @@
 //! gives them), so the map only closes the loop by recognition. The same
 //! run goes through the absolute stage with recognition, without it, and
 //! the relative stage's own positions are kept, so the three errors can
-//! be compared over time and per lap.
-
-use std::path::Path;
-
-use plotters::prelude::*;
+//! be compared over time and per lap (`crate::plot::loop_comparison`
+//! draws them).
 
 use super::absolute::{AbsoluteConfig, AbsoluteStage};
 use super::simulate_relative::{simulate_room_run, RoomRunOptions};
@@ -120,113 +117,6 @@ pub fn compare_loops(options: &RoomRunOptions, config: &AbsoluteConfig) -> LoopC
         false_recognitions,
         laps,
     }
-}
-
-const RELATIVE_COLOR: RGBColor = RGBColor(127, 127, 127);
-const UNRECOGNISED_COLOR: RGBColor = RGBColor(255, 127, 14);
-const RECOGNISED_COLOR: RGBColor = RGBColor(31, 119, 180);
-
-/// Error over time of the three, as PNG or SVG by the file's extension.
-pub fn write_loop_plot(path: &Path, c: &LoopComparison, title: &str) -> Result<(), String> {
-    match path.extension().and_then(|e| e.to_str()) {
-        Some("png") => {
-            let root = BitMapBackend::new(path, (1100, 600)).into_drawing_area();
-            draw(&root, c, title).map_err(|e| e.to_string())?;
-            root.present().map_err(|e| e.to_string())
-        }
-        Some("svg") => {
-            let root = SVGBackend::new(path, (1100, 600)).into_drawing_area();
-            draw(&root, c, title).map_err(|e| e.to_string())?;
-            root.present().map_err(|e| e.to_string())
-        }
-        _ => Err(format!(
-            "{}: the plot's name must end in .png or .svg",
-            path.display()
-        )),
-    }
-}
-
-fn draw<DB: DrawingBackend>(
-    root: &DrawingArea<DB, plotters::coord::Shift>,
-    c: &LoopComparison,
-    title: &str,
-) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
-    root.fill(&WHITE)?;
-    let t_end = c.t_s.last().copied().unwrap_or(1.0).max(1e-3);
-    let largest = c
-        .relative_error_m
-        .iter()
-        .copied()
-        .chain(c.recognised_error_m.iter().flatten().copied())
-        .chain(c.unrecognised_error_m.iter().flatten().copied())
-        .filter(|e| e.is_finite())
-        .fold(0.0f64, f64::max)
-        .max(1e-3);
-    let mut chart = ChartBuilder::on(root)
-        .caption(title, ("sans-serif", 20))
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(0.0..t_end, 0.0..largest * 1.05)?;
-    chart
-        .configure_mesh()
-        .x_desc("time (s)")
-        .y_desc("position error (m)")
-        .draw()?;
-    // Lap boundaries.
-    for lap in 1..c.laps {
-        if let Some(k) = c.lap.iter().position(|&l| l == lap) {
-            let t = c.t_s[k];
-            chart.draw_series(LineSeries::new(
-                [(t, 0.0), (t, largest * 1.05)],
-                RGBColor(220, 220, 220).stroke_width(1),
-            ))?;
-        }
-    }
-    let series = |errors: Vec<(f64, f64)>| errors;
-    chart
-        .draw_series(LineSeries::new(
-            series(
-                c.t_s
-                    .iter()
-                    .copied()
-                    .zip(c.relative_error_m.iter().copied())
-                    .collect(),
-            ),
-            RELATIVE_COLOR.stroke_width(2),
-        ))?
-        .label("relative stage alone")
-        .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], RELATIVE_COLOR.stroke_width(2)));
-    let present = |errors: &[Option<f64>]| -> Vec<(f64, f64)> {
-        c.t_s
-            .iter()
-            .zip(errors)
-            .filter_map(|(&t, e)| Some((t, (*e)?)))
-            .collect()
-    };
-    chart
-        .draw_series(LineSeries::new(
-            present(&c.unrecognised_error_m),
-            UNRECOGNISED_COLOR.stroke_width(2),
-        ))?
-        .label("absolute stage, new track = new landmark")
-        .legend(|(x, y)| {
-            PathElement::new([(x, y), (x + 20, y)], UNRECOGNISED_COLOR.stroke_width(2))
-        });
-    chart
-        .draw_series(LineSeries::new(
-            present(&c.recognised_error_m),
-            RECOGNISED_COLOR.stroke_width(2),
-        ))?
-        .label("absolute stage with landmark recognition")
-        .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], RECOGNISED_COLOR.stroke_width(2)));
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()?;
-    Ok(())
 }
 
 #[cfg(test)]

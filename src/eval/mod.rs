@@ -3,7 +3,7 @@
 //! An estimate is scored in this order: [`associate`] pairs its poses with
 //! ground-truth poses by time; [`align`] fits the requested transformation;
 //! [`metrics`] computes the errors; [`report`] gathers them into the numbers
-//! `rigslam eval` prints; [`plot`] draws them. [`consistency`] checks a
+//! `rigslam eval` prints (`crate::plot::evaluation` draws them). [`consistency`] checks a
 //! published covariance against the errors (NEES).
 
 pub mod align;
@@ -11,7 +11,6 @@ pub mod associate;
 pub mod consistency;
 pub mod error;
 pub mod metrics;
-pub mod plot;
 pub mod report;
 
 pub use align::{Alignment, Sim3};

@@ -7,9 +7,10 @@ use std::path::Path;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use super::align::Alignment;
-use super::error::EvalError;
-use super::report::Evaluation;
+use super::{draw_legend, equal_aspect_ranges, legend_line, write_figure, DrawResult, Figure};
+use super::{AXIS_FONT, LABEL_FONT};
+use crate::eval::report::Evaluation;
+use crate::eval::{Alignment, EvalError};
 
 const WIDTH_PX: u32 = 1000;
 const HEIGHT_PX: u32 = 1300;
@@ -19,38 +20,23 @@ const ERROR_COLOR: RGBColor = RGBColor(31, 119, 180);
 
 /// Draws `evaluation` into `path`: `.png` or `.svg`.
 pub fn write_plot(path: &Path, evaluation: &Evaluation) -> Result<(), EvalError> {
-    let plot_error = |message: String| EvalError::Plot {
-        path: path.to_path_buf(),
-        message,
-    };
-    let extension = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
-    match extension.as_deref() {
-        Some("png") => {
-            let root = BitMapBackend::new(path, (WIDTH_PX, HEIGHT_PX)).into_drawing_area();
-            draw(&root, evaluation).map_err(|e| plot_error(e.to_string()))?;
-            root.present().map_err(|e| plot_error(e.to_string()))
+    write_figure(path, (WIDTH_PX, HEIGHT_PX), &EvaluationFigure(evaluation)).map_err(|message| {
+        EvalError::Plot {
+            path: path.to_path_buf(),
+            message,
         }
-        Some("svg") => {
-            let root = SVGBackend::new(path, (WIDTH_PX, HEIGHT_PX)).into_drawing_area();
-            draw(&root, evaluation).map_err(|e| plot_error(e.to_string()))?;
-            root.present().map_err(|e| plot_error(e.to_string()))
-        }
-        _ => Err(plot_error(
-            "unknown image type: the file name must end in .png or .svg".into(),
-        )),
-    }
+    })
 }
 
-type DrawResult<DB> = Result<(), DrawingAreaErrorKind<<DB as DrawingBackend>::ErrorType>>;
+struct EvaluationFigure<'a>(&'a Evaluation);
 
-fn draw<DB: DrawingBackend>(root: &DrawingArea<DB, Shift>, ev: &Evaluation) -> DrawResult<DB> {
-    root.fill(&WHITE)?;
-    let (top, bottom) = root.split_vertically(HEIGHT_PX * 7 / 10);
-    draw_top_view(&top, ev)?;
-    draw_error_over_time(&bottom, ev)
+impl Figure for EvaluationFigure<'_> {
+    fn draw<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> DrawResult<DB> {
+        root.fill(&WHITE)?;
+        let (top, bottom) = root.split_vertically(HEIGHT_PX * 7 / 10);
+        draw_top_view(&top, self.0)?;
+        draw_error_over_time(&bottom, self.0)
+    }
 }
 
 /// x-y of truth and aligned estimate, with equal metres on both axes.
@@ -90,8 +76,8 @@ fn draw_top_view<DB: DrawingBackend>(
         .configure_mesh()
         .x_desc("x [m]")
         .y_desc("y [m]")
-        .label_style(("sans-serif", 16))
-        .axis_desc_style(("sans-serif", 18))
+        .label_style(LABEL_FONT)
+        .axis_desc_style(AXIS_FONT)
         .draw()?;
     chart
         .draw_series(LineSeries::new(
@@ -99,16 +85,14 @@ fn draw_top_view<DB: DrawingBackend>(
             TRUTH_COLOR.stroke_width(2),
         ))?
         .label("ground truth")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 25, y)], TRUTH_COLOR.stroke_width(2)));
+        .legend(|(x, y)| legend_line(x, y, TRUTH_COLOR.stroke_width(2)));
     chart
         .draw_series(LineSeries::new(
             estimate.iter().copied(),
             ESTIMATE_COLOR.stroke_width(2),
         ))?
         .label("estimate (aligned)")
-        .legend(|(x, y)| {
-            PathElement::new(vec![(x, y), (x + 25, y)], ESTIMATE_COLOR.stroke_width(2))
-        });
+        .legend(|(x, y)| legend_line(x, y, ESTIMATE_COLOR.stroke_width(2)));
     if let (Some(start), Some(end)) = (truth.first(), truth.last()) {
         chart
             .draw_series([Circle::new(*start, 6, TRUTH_COLOR.filled())])?
@@ -119,13 +103,7 @@ fn draw_top_view<DB: DrawingBackend>(
             .label("end")
             .legend(|(x, y)| TriangleMarker::new((x + 12, y), 6, TRUTH_COLOR.filled()));
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .label_font(("sans-serif", 16))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()
+    draw_legend(&mut chart, SeriesLabelPosition::UpperRight)
 }
 
 /// ATE of each matched pose against seconds since the first.
@@ -156,13 +134,13 @@ fn draw_error_over_time<DB: DrawingBackend>(
         .configure_mesh()
         .x_desc("time since first matched pose [s]")
         .y_desc("ATE [m]")
-        .label_style(("sans-serif", 16))
-        .axis_desc_style(("sans-serif", 18))
+        .label_style(LABEL_FONT)
+        .axis_desc_style(AXIS_FONT)
         .draw()?;
     chart
         .draw_series(LineSeries::new(points, ERROR_COLOR.stroke_width(2)))?
         .label("ATE")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 25, y)], ERROR_COLOR.stroke_width(2)));
+        .legend(|(x, y)| legend_line(x, y, ERROR_COLOR.stroke_width(2)));
     let rmse = ev.report.ate_rmse_m;
     chart
         .draw_series(LineSeries::new(
@@ -170,50 +148,8 @@ fn draw_error_over_time<DB: DrawingBackend>(
             ERROR_COLOR.mix(0.6).stroke_width(1),
         ))?
         .label(format!("rmse {rmse:.3} m"))
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 25, y)], ERROR_COLOR.mix(0.6)));
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .label_font(("sans-serif", 16))
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .draw()
-}
-
-/// Axis ranges holding every point with 5 % margins, widened on one axis
-/// so that a metre is as long in x as in y on a plot of `size_px`.
-fn equal_aspect_ranges<'a>(
-    points: impl Iterator<Item = &'a (f64, f64)>,
-    size_px: (u32, u32),
-) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
-    let (mut x0, mut x1, mut y0, mut y1) = (
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-    );
-    for &(x, y) in points {
-        x0 = x0.min(x);
-        x1 = x1.max(x);
-        y0 = y0.min(y);
-        y1 = y1.max(y);
-    }
-    if !x0.is_finite() {
-        return (-1.0..1.0, -1.0..1.0);
-    }
-    let span = ((x1 - x0).max(y1 - y0) * 1.1).max(1e-3);
-    // Plot area roughly the drawing area less the label margins.
-    let aspect = (size_px.1 as f64 - 110.0).max(1.0) / (size_px.0 as f64 - 105.0).max(1.0);
-    let (x_span, y_span) = if aspect < 1.0 {
-        (span / aspect, span)
-    } else {
-        (span, span * aspect)
-    };
-    let (xc, yc) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
-    (
-        xc - 0.5 * x_span..xc + 0.5 * x_span,
-        yc - 0.5 * y_span..yc + 0.5 * y_span,
-    )
+        .legend(|(x, y)| legend_line(x, y, ERROR_COLOR.mix(0.6).into()));
+    draw_legend(&mut chart, SeriesLabelPosition::UpperRight)
 }
 
 #[cfg(test)]

@@ -6,9 +6,8 @@
 use crate::relative::window::{CameraImuRefinementConfig, NoiseAdaptationConfig, NoiseScale};
 
 /// Which estimator runs the relative stage.
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize,
-)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum EstimatorKind {
     /// The paper's windowed Levenberg-Marquardt optimisation.
@@ -27,9 +26,8 @@ impl EstimatorKind {
 }
 
 /// Where the window refines the camera-IMU calibration online.
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize, serde::Deserialize,
-)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum CameraImuRefinement {
     /// Stereo-inertial only: there it improved the held-apart evaluation

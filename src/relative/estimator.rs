@@ -13,9 +13,8 @@ use crate::sensors::{Image, ImuSample};
 use super::types::RelativeOutput;
 
 /// Which sensors the stage uses (`rigslam run --mode`).
-#[derive(
-    Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize, clap::ValueEnum,
-)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum SensorMode {
     /// One camera, no IMU: the paper's configuration 1; scale arbitrary

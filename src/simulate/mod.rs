@@ -10,6 +10,7 @@ pub mod imu_synth;
 pub mod interpolated;
 pub mod motion;
 pub mod motion_state;
+mod progress;
 pub mod render;
 pub mod scene;
 pub mod sequence;

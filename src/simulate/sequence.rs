@@ -1,7 +1,6 @@
 //! A whole synthetic sequence: motion, room sized to contain it, IMU, and
 //! the EuRoC ASL dataset written through [`crate::dataset::EurocWriter`].
 
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -10,6 +9,7 @@ use nalgebra::Vector3;
 use super::imu_synth::{synthesize, ImuSynthConfig};
 use super::interpolated::InterpolatedMotion;
 use super::motion::{BuiltinMotion, Motion, MotionError, SplineMotion};
+use super::progress::RenderProgress;
 use super::render::{RenderOptions, Renderer};
 use super::scene::{Aabb, Scene, SceneConfig};
 use super::texture::hash3;
@@ -432,17 +432,7 @@ pub fn simulate(config: &SimConfig, out: &Path) -> Result<SimReport, SimError> {
 
     let period_ns = (1e9 / config.camera_rate_hz).round() as i64;
     let frames = ((end_ns - start_ns) / period_ns + 1) as usize;
-    let progress = if config.show_progress && std::io::stderr().is_terminal() {
-        indicatif::ProgressBar::new(frames as u64).with_style(
-            indicatif::ProgressStyle::with_template(
-                "{msg} {bar:40} {pos}/{len} frames, {per_sec}, eta {eta}",
-            )
-            .expect("template is valid"),
-        )
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
-    progress.set_message("rendering");
+    let progress = RenderProgress::new(frames, config.show_progress);
     let (width, height) = (renderers[0].width(), renderers[0].height());
     let mut buffer = vec![0u8; width * height];
     let (mut render_s, mut write_s) = (0.0, 0.0);
@@ -473,9 +463,9 @@ pub fn simulate(config: &SimConfig, out: &Path) -> Result<SimReport, SimError> {
             render_s += (t1 - t0).as_secs_f64();
             write_s += t1.elapsed().as_secs_f64();
         }
-        progress.inc(1);
+        progress.frame_done();
     }
-    progress.finish_and_clear();
+    progress.finish();
 
     let (samples, biases) = imu_stream(config, &motion, start_ns, end_ns)?;
     let mut imu_calib = euroc_imu0();

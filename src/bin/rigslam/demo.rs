@@ -15,7 +15,7 @@ use anyhow::{bail, Context};
 use serde::Serialize;
 
 use rigslam::dataset::write_tum;
-use rigslam::eval::plot::write_plot;
+use rigslam::plot::evaluation::write_plot;
 use rigslam::relative::SensorMode;
 use rigslam::run::dataset_run::{run_dataset, summary_line, DatasetRun};
 use rigslam::run::RunReport;

@@ -3,8 +3,8 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use rigslam::eval::plot::write_plot;
 use rigslam::eval::{evaluate, Alignment, EvalOptions};
+use rigslam::plot::evaluation::write_plot;
 use rigslam::trajectory::Trajectory;
 
 #[derive(clap::Args)]

@@ -140,8 +140,9 @@ pub fn run(args: MapArgs) -> anyhow::Result<()> {
 }
 
 fn loop_comparison(args: LoopArgs) -> anyhow::Result<()> {
-    use rigslam::edge_map::loop_run::{compare_loops, write_loop_plot};
+    use rigslam::edge_map::loop_run::compare_loops;
     use rigslam::edge_map::simulate_relative::RoomRunOptions;
+    use rigslam::plot::loop_comparison::write_loop_plot;
     anyhow::ensure!(
         (1..=100).contains(&args.laps),
         "--laps {}: between 1 and 100",
