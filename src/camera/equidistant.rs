@@ -33,6 +33,7 @@ use std::f64::consts::FRAC_PI_2;
 
 use nalgebra::{Matrix2, Matrix2x3, Matrix3x2, SMatrix, Vector2, Vector3};
 
+use super::pinhole::{self, Distortion, Pinhole};
 use super::polynomial;
 use super::CameraError;
 
@@ -71,21 +72,14 @@ impl PinholeEquidistant {
         pinhole: [f64; 4],
         distortion: [f64; 4],
     ) -> Result<Self, CameraError> {
-        if width == 0 || height == 0 {
-            return Err(CameraError::EmptyImage { width, height });
-        }
-        let values = pinhole.iter().chain(distortion.iter());
-        for (&value, name) in values.zip(EQUIDISTANT_INTRINSIC_NAMES) {
-            if !value.is_finite() {
-                return Err(CameraError::NotFinite { name, value });
-            }
-        }
+        pinhole::validate(
+            width,
+            height,
+            pinhole,
+            &distortion,
+            &EQUIDISTANT_INTRINSIC_NAMES,
+        )?;
         let [fx, fy, cx, cy] = pinhole;
-        for (value, name) in [(fx, "fx"), (fy, "fy")] {
-            if value <= 0.0 {
-                return Err(CameraError::NonPositiveFocalLength { name, value });
-            }
-        }
         let [k1, k2, k3, k4] = distortion;
         // d theta_d / d theta as a polynomial in t = theta^2.
         let slope = [1.0, 3.0 * k1, 5.0 * k2, 7.0 * k3, 9.0 * k4];
@@ -111,13 +105,7 @@ impl PinholeEquidistant {
         intrinsics: &[f64],
         distortion: &[f64],
     ) -> Result<Self, CameraError> {
-        let pinhole: [f64; 4] = intrinsics
-            .try_into()
-            .map_err(|_| CameraError::WrongLength {
-                field: "intrinsics",
-                expected: "4 (fu, fv, cu, cv)",
-                got: intrinsics.len(),
-            })?;
+        let pinhole = pinhole::pinhole_from_kalibr(intrinsics)?;
         let coefficients: [f64; 4] =
             distortion
                 .try_into()
@@ -169,49 +157,14 @@ impl PinholeEquidistant {
         (theta * poly, slope)
     }
 
-    /// Distorts a point on the normalised (z = 1) plane.
-    pub fn distort(&self, xn: &Vector2<f64>) -> Vector2<f64> {
-        let r = xn.norm();
-        if r < SMALL_RADIUS {
-            return *xn;
-        }
-        let (theta_d, _) = self.theta_d_and_slope(r.atan());
-        xn * (theta_d / r)
-    }
-
-    /// Jacobian of [`Self::distort`] with respect to the undistorted point:
-    /// with `s(r) = theta_d / r`, `D = s I + (s'(r) / r) x x^T` and
-    /// `s'(r) / r = (theta_d'(theta) / (1 + r^2) - s) / r^2`.
-    pub fn distort_jacobian(&self, xn: &Vector2<f64>) -> Matrix2<f64> {
-        let r = xn.norm();
-        if r < SMALL_RADIUS {
-            return Matrix2::identity();
-        }
-        let r2 = r * r;
-        let (theta_d, slope) = self.theta_d_and_slope(r.atan());
-        let s = theta_d / r;
-        let ds_dr_over_r = (slope / (1.0 + r2) - s) / r2;
-        Matrix2::identity() * s + xn * xn.transpose() * ds_dr_over_r
-    }
-
-    /// Normalised coordinates of a point in front of the camera and
-    /// inside the valid angle.
-    fn normalise(&self, p_cam: &Vector3<f64>) -> Option<Vector2<f64>> {
-        if p_cam.z.is_nan() || p_cam.z <= f64::EPSILON {
-            return None;
-        }
-        let xn = Vector2::new(p_cam.x / p_cam.z, p_cam.y / p_cam.z);
-        (xn.norm().atan() < self.max_valid_theta).then_some(xn)
+    fn pinhole_model(&self) -> Pinhole {
+        Pinhole::from_array(self.pinhole())
     }
 
     /// Pixel of a point in the camera frame; `None` behind the camera or
     /// at or beyond [`Self::max_valid_theta`].
     pub fn project(&self, p_cam: &Vector3<f64>) -> Option<Vector2<f64>> {
-        let d = self.distort(&self.normalise(p_cam)?);
-        Some(Vector2::new(
-            self.fx * d.x + self.cx,
-            self.fy * d.y + self.cy,
-        ))
+        self.pinhole_model().project(self, p_cam)
     }
 
     /// Pixel of a point with the analytic Jacobians of the pixel with
@@ -223,30 +176,24 @@ impl PinholeEquidistant {
         &self,
         p_cam: &Vector3<f64>,
     ) -> Option<(Vector2<f64>, Matrix2x3<f64>, SMatrix<f64, 2, 8>)> {
-        let xn = self.normalise(p_cam)?;
-        let d = self.distort(&xn);
-        let px = Vector2::new(self.fx * d.x + self.cx, self.fy * d.y + self.cy);
-
-        let inv_z = 1.0 / p_cam.z;
-        let dxn_dp = Matrix2x3::new(inv_z, 0.0, -xn.x * inv_z, 0.0, inv_z, -xn.y * inv_z);
-        let focal = Matrix2::new(self.fx, 0.0, 0.0, self.fy);
-        let d_px_d_point = focal * self.distort_jacobian(&xn) * dxn_dp;
-
+        let projection = self
+            .pinhole_model()
+            .project_with_point_jacobian(self, p_cam)?;
+        let xn = projection.xn;
         let r = xn.norm();
         let theta = r.atan();
         let theta_over_r = if r < SMALL_RADIUS { 1.0 } else { theta / r };
         let mut d_px_d_intrinsics = SMatrix::<f64, 2, 8>::zeros();
-        d_px_d_intrinsics[(0, 0)] = d.x;
-        d_px_d_intrinsics[(1, 1)] = d.y;
-        d_px_d_intrinsics[(0, 2)] = 1.0;
-        d_px_d_intrinsics[(1, 3)] = 1.0;
+        d_px_d_intrinsics
+            .fixed_view_mut::<2, 4>(0, 0)
+            .copy_from(&Pinhole::intrinsic_jacobian(&projection.xd));
         let mut theta_power = theta_over_r * theta * theta;
         for column in 4..8 {
             d_px_d_intrinsics[(0, column)] = self.fx * xn.x * theta_power;
             d_px_d_intrinsics[(1, column)] = self.fy * xn.y * theta_power;
             theta_power *= theta * theta;
         }
-        Some((px, d_px_d_point, d_px_d_intrinsics))
+        Some((projection.px, projection.d_px_d_point, d_px_d_intrinsics))
     }
 
     /// Ray through a pixel as a point on the z = 1 plane; `None` if the
@@ -255,13 +202,57 @@ impl PinholeEquidistant {
     /// solve `theta_d(theta) = |x_d|` on the valid (monotone) range by
     /// bracketed Newton-bisection, then `x = x_d tan(theta) / |x_d|`.
     pub fn unproject(&self, px: &Vector2<f64>) -> Option<Vector3<f64>> {
-        let target = Vector2::new((px.x - self.cx) / self.fx, (px.y - self.cy) / self.fy);
-        if !target.iter().all(|v| v.is_finite()) {
-            return None;
+        self.pinhole_model().unproject(self, px)
+    }
+
+    /// The ray of [`Self::unproject`] with its Jacobian with respect to the
+    /// pixel (3x2, last row zero): `D(x)^-1 diag(1/fx, 1/fy)`.
+    pub fn unproject_with_jacobian(
+        &self,
+        px: &Vector2<f64>,
+    ) -> Option<(Vector3<f64>, Matrix3x2<f64>)> {
+        self.pinhole_model().unproject_with_jacobian(self, px)
+    }
+}
+
+/// The equidistant distortion, invertible below the fold angle.
+impl Distortion for PinholeEquidistant {
+    /// Distorts a point on the normalised (z = 1) plane.
+    fn distort(&self, xn: &Vector2<f64>) -> Vector2<f64> {
+        let r = xn.norm();
+        if r < SMALL_RADIUS {
+            return *xn;
         }
+        let (theta_d, _) = self.theta_d_and_slope(r.atan());
+        xn * (theta_d / r)
+    }
+
+    /// Jacobian of [`Self::distort`] with respect to the undistorted point:
+    /// with `s(r) = theta_d / r`, `D = s I + (s'(r) / r) x x^T` and
+    /// `s'(r) / r = (theta_d'(theta) / (1 + r^2) - s) / r^2`.
+    fn distort_jacobian(&self, xn: &Vector2<f64>) -> Matrix2<f64> {
+        let r = xn.norm();
+        if r < SMALL_RADIUS {
+            return Matrix2::identity();
+        }
+        let r2 = r * r;
+        let (theta_d, slope) = self.theta_d_and_slope(r.atan());
+        let s = theta_d / r;
+        let ds_dr_over_r = (slope / (1.0 + r2) - s) / r2;
+        Matrix2::identity() * s + xn * xn.transpose() * ds_dr_over_r
+    }
+
+    fn is_invertible_at(&self, xn: &Vector2<f64>) -> bool {
+        xn.norm().atan() < self.max_valid_theta
+    }
+
+    /// The distortion is radial, so inversion is one-dimensional: solve
+    /// `theta_d(theta) = |x_d|` on the valid (monotone) range by bracketed
+    /// Newton-bisection, then `x = x_d tan(theta) / |x_d|`.
+    fn undistort(&self, target: &Vector2<f64>) -> Option<Vector2<f64>> {
         let theta_d = target.norm();
         if theta_d == 0.0 {
-            return Some(Vector3::new(0.0, 0.0, 1.0));
+            return Some(Vector2::zeros());
         }
         let (theta_d_max, _) = self.theta_d_and_slope(self.max_valid_theta);
         if theta_d >= theta_d_max {
@@ -277,22 +268,7 @@ impl PinholeEquidistant {
         if !(r.is_finite() && theta < self.max_valid_theta) {
             return None;
         }
-        let xn = target * (r / theta_d);
-        Some(Vector3::new(xn.x, xn.y, 1.0))
-    }
-
-    /// The ray of [`Self::unproject`] with its Jacobian with respect to the
-    /// pixel (3x2, last row zero): `D(x)^-1 diag(1/fx, 1/fy)`.
-    pub fn unproject_with_jacobian(
-        &self,
-        px: &Vector2<f64>,
-    ) -> Option<(Vector3<f64>, Matrix3x2<f64>)> {
-        let ray = self.unproject(px)?;
-        let d_inv = self.distort_jacobian(&ray.xy()).try_inverse()?;
-        let dxn_dpx = d_inv * Matrix2::new(1.0 / self.fx, 0.0, 0.0, 1.0 / self.fy);
-        let mut jacobian = Matrix3x2::zeros();
-        jacobian.fixed_view_mut::<2, 2>(0, 0).copy_from(&dxn_dpx);
-        Some((ray, jacobian))
+        Some(target * (r / theta_d))
     }
 }
 

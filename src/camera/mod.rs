@@ -18,10 +18,13 @@
 //! `project_with_jacobians` (pixel w.r.t. point and intrinsics; the
 //! intrinsic vector's length is model-specific, so it lives on the model
 //! type) and `unproject_with_jacobian` (ray w.r.t. pixel). The enum
-//! exposes the model-independent ones. A new model (e.g. double sphere)
-//! is one more variant and one more file.
+//! exposes the model-independent ones. The pinhole and the chain rule
+//! through it are written once ([`pinhole`]); a model is its
+//! [`Distortion`] of the normalised plane plus its intrinsic Jacobian. A
+//! new model (e.g. double sphere) is one more variant and one more file.
 
 pub mod equidistant;
+pub mod pinhole;
 mod polynomial;
 pub mod radtan;
 
@@ -31,6 +34,7 @@ mod finite_difference;
 use nalgebra::{Matrix2x3, Matrix3x2, Vector2, Vector3};
 
 pub use equidistant::PinholeEquidistant;
+pub use pinhole::{Distortion, Pinhole};
 pub use radtan::PinholeRadtan;
 
 /// Why camera parameters were rejected. Readers wrap it with the file and

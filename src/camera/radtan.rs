@@ -50,6 +50,7 @@
 
 use nalgebra::{Matrix2, Matrix2x3, Matrix3x2, SMatrix, Vector2, Vector3};
 
+use super::pinhole::{self, Distortion, Pinhole};
 use super::polynomial;
 use super::CameraError;
 
@@ -92,22 +93,9 @@ impl PinholeRadtan {
         pinhole: [f64; 4],
         distortion: [f64; 5],
     ) -> Result<Self, CameraError> {
-        if width == 0 || height == 0 {
-            return Err(CameraError::EmptyImage { width, height });
-        }
-        let [fx, fy, cx, cy] = pinhole;
-        let values = pinhole.iter().chain(distortion.iter());
         // `pinhole` then `distortion` is the Jacobian's column order.
-        for (&value, name) in values.zip(RADTAN_INTRINSIC_NAMES) {
-            if !value.is_finite() {
-                return Err(CameraError::NotFinite { name, value });
-            }
-        }
-        for (value, name) in [(fx, "fx"), (fy, "fy")] {
-            if value <= 0.0 {
-                return Err(CameraError::NonPositiveFocalLength { name, value });
-            }
-        }
+        pinhole::validate(width, height, pinhole, &distortion, &RADTAN_INTRINSIC_NAMES)?;
+        let [fx, fy, cx, cy] = pinhole;
         Ok(Self {
             width,
             height,
@@ -128,13 +116,7 @@ impl PinholeRadtan {
         intrinsics: &[f64],
         distortion: &[f64],
     ) -> Result<Self, CameraError> {
-        let pinhole: [f64; 4] = intrinsics
-            .try_into()
-            .map_err(|_| CameraError::WrongLength {
-                field: "intrinsics",
-                expected: "4 (fu, fv, cu, cv)",
-                got: intrinsics.len(),
-            })?;
+        let pinhole = pinhole::pinhole_from_kalibr(intrinsics)?;
         let coefficients = match *distortion {
             [k1, k2, p1, p2] => [k1, k2, p1, p2, 0.0],
             [k1, k2, p1, p2, k3] => [k1, k2, p1, p2, k3],
@@ -201,51 +183,15 @@ impl PinholeRadtan {
         r * (1.0 + r2 * (k1 + r2 * (k2 + r2 * k3)))
     }
 
-    /// Distorts a point on the normalised (z = 1) plane.
-    pub fn distort(&self, xn: &Vector2<f64>) -> Vector2<f64> {
-        let [k1, k2, p1, p2, k3] = self.distortion;
-        let (x, y) = (xn.x, xn.y);
-        let r2 = x * x + y * y;
-        let radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
-        Vector2::new(
-            x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
-            y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y,
-        )
-    }
-
-    /// Jacobian of [`Self::distort`] with respect to the undistorted point.
-    pub fn distort_jacobian(&self, xn: &Vector2<f64>) -> Matrix2<f64> {
-        let [k1, k2, p1, p2, k3] = self.distortion;
-        let (x, y) = (xn.x, xn.y);
-        let r2 = x * x + y * y;
-        let radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
-        let dradial_dr2 = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2);
-        Matrix2::new(
-            radial + 2.0 * x * x * dradial_dr2 + 2.0 * p1 * y + 6.0 * p2 * x,
-            2.0 * x * y * dradial_dr2 + 2.0 * p1 * x + 2.0 * p2 * y,
-            2.0 * x * y * dradial_dr2 + 2.0 * p1 * x + 2.0 * p2 * y,
-            radial + 2.0 * y * y * dradial_dr2 + 6.0 * p1 * y + 2.0 * p2 * x,
-        )
-    }
-
-    /// Normalised coordinates of a point in front of the camera and inside
-    /// the fold radius.
-    fn normalise(&self, p_cam: &Vector3<f64>) -> Option<Vector2<f64>> {
-        if p_cam.z.is_nan() || p_cam.z <= f64::EPSILON {
-            return None;
-        }
-        let xn = Vector2::new(p_cam.x / p_cam.z, p_cam.y / p_cam.z);
-        (xn.norm() < self.max_valid_radius()).then_some(xn)
+    /// fx, fy, cx, cy.
+    fn pinhole_model(&self) -> Pinhole {
+        Pinhole::from_array([self.fx, self.fy, self.cx, self.cy])
     }
 
     /// Pixel of a point in the camera frame; `None` behind the camera
     /// (z <= machine epsilon) or at or beyond the fold radius.
     pub fn project(&self, p_cam: &Vector3<f64>) -> Option<Vector2<f64>> {
-        let d = self.distort(&self.normalise(p_cam)?);
-        Some(Vector2::new(
-            self.fx * d.x + self.cx,
-            self.fy * d.y + self.cy,
-        ))
+        self.pinhole_model().project(self, p_cam)
     }
 
     /// Pixel of a point with the analytic Jacobians of the pixel with
@@ -262,15 +208,10 @@ impl PinholeRadtan {
         &self,
         p_cam: &Vector3<f64>,
     ) -> Option<(Vector2<f64>, Matrix2x3<f64>, SMatrix<f64, 2, 9>)> {
-        let xn = self.normalise(p_cam)?;
-        let d = self.distort(&xn);
-        let px = Vector2::new(self.fx * d.x + self.cx, self.fy * d.y + self.cy);
-
-        let inv_z = 1.0 / p_cam.z;
-        let dxn_dp = Matrix2x3::new(inv_z, 0.0, -xn.x * inv_z, 0.0, inv_z, -xn.y * inv_z);
-        let focal = Matrix2::new(self.fx, 0.0, 0.0, self.fy);
-        let d_px_d_point = focal * self.distort_jacobian(&xn) * dxn_dp;
-
+        let projection = self
+            .pinhole_model()
+            .project_with_point_jacobian(self, p_cam)?;
+        let (xn, d) = (projection.xn, projection.xd);
         let (x, y) = (xn.x, xn.y);
         let r2 = x * x + y * y;
         let (fx, fy) = (self.fx, self.fy);
@@ -280,7 +221,7 @@ impl PinholeRadtan {
             d.x,  0.0, 1.0, 0.0, fx * x * r2, fx * x * r2 * r2, fx * 2.0 * x * y,          fx * (r2 + 2.0 * x * x), fx * x * r2 * r2 * r2,
             0.0,  d.y, 0.0, 1.0, fy * y * r2, fy * y * r2 * r2, fy * (r2 + 2.0 * y * y),   fy * 2.0 * x * y,        fy * y * r2 * r2 * r2,
         ]);
-        Some((px, d_px_d_point, d_px_d_intrinsics))
+        Some((projection.px, projection.d_px_d_point, d_px_d_intrinsics))
     }
 
     /// Ray through a pixel as a point on the z = 1 plane; `None` if no
@@ -294,13 +235,7 @@ impl PinholeRadtan {
     /// halved until the residual decreases and the iterate stays inside the
     /// fold radius) then adds the tangential terms.
     pub fn unproject(&self, px: &Vector2<f64>) -> Option<Vector3<f64>> {
-        let target = Vector2::new((px.x - self.cx) / self.fx, (px.y - self.cy) / self.fy);
-        if !target.iter().all(|v| v.is_finite()) {
-            return None;
-        }
-        let r_max = self.max_valid_radius();
-        let xn = self.undistort(&target, r_max)?;
-        Some(Vector3::new(xn.x, xn.y, 1.0))
+        self.pinhole_model().unproject(self, px)
     }
 
     /// The ray of [`Self::unproject`] with its Jacobian with respect to the
@@ -311,17 +246,11 @@ impl PinholeRadtan {
         &self,
         px: &Vector2<f64>,
     ) -> Option<(Vector3<f64>, Matrix3x2<f64>)> {
-        let ray = self.unproject(px)?;
-        let xn = ray.xy();
-        let d_inv = self.distort_jacobian(&xn).try_inverse()?;
-        let dxn_dpx = d_inv * Matrix2::new(1.0 / self.fx, 0.0, 0.0, 1.0 / self.fy);
-        let mut jacobian = Matrix3x2::zeros();
-        jacobian.fixed_view_mut::<2, 2>(0, 0).copy_from(&dxn_dpx);
-        Some((ray, jacobian))
+        self.pinhole_model().unproject_with_jacobian(self, px)
     }
 
     /// Undistorted point `x` with `distort(x) = target` and `|x| < r_max`.
-    fn undistort(&self, target: &Vector2<f64>, r_max: f64) -> Option<Vector2<f64>> {
+    fn undistort_inside(&self, target: &Vector2<f64>, r_max: f64) -> Option<Vector2<f64>> {
         let r_d = target.norm();
         if r_d == 0.0 {
             // distort(0) = 0 whatever the coefficients.
@@ -382,6 +311,44 @@ impl PinholeRadtan {
             }
         }
         polynomial::solve_increasing(&radial_map, r_d, lo, hi)
+    }
+}
+
+/// The radial-tangential distortion, invertible inside the fold radius.
+impl Distortion for PinholeRadtan {
+    /// Distorts a point on the normalised (z = 1) plane.
+    fn distort(&self, xn: &Vector2<f64>) -> Vector2<f64> {
+        let [k1, k2, p1, p2, k3] = self.distortion;
+        let (x, y) = (xn.x, xn.y);
+        let r2 = x * x + y * y;
+        let radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
+        Vector2::new(
+            x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
+            y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y,
+        )
+    }
+
+    /// Jacobian of [`Self::distort`] with respect to the undistorted point.
+    fn distort_jacobian(&self, xn: &Vector2<f64>) -> Matrix2<f64> {
+        let [k1, k2, p1, p2, k3] = self.distortion;
+        let (x, y) = (xn.x, xn.y);
+        let r2 = x * x + y * y;
+        let radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3));
+        let dradial_dr2 = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2);
+        Matrix2::new(
+            radial + 2.0 * x * x * dradial_dr2 + 2.0 * p1 * y + 6.0 * p2 * x,
+            2.0 * x * y * dradial_dr2 + 2.0 * p1 * x + 2.0 * p2 * y,
+            2.0 * x * y * dradial_dr2 + 2.0 * p1 * x + 2.0 * p2 * y,
+            radial + 2.0 * y * y * dradial_dr2 + 6.0 * p1 * y + 2.0 * p2 * x,
+        )
+    }
+
+    fn is_invertible_at(&self, xn: &Vector2<f64>) -> bool {
+        xn.norm() < self.max_valid_radius()
+    }
+
+    fn undistort(&self, xd: &Vector2<f64>) -> Option<Vector2<f64>> {
+        self.undistort_inside(xd, self.max_valid_radius())
     }
 }
 

@@ -1,22 +1,50 @@
 //! A rig camera as the window's hot loops use it: the calibration plus the
 //! radtan model's fold radius computed once. `PinholeRadtan::project`
 //! finds that radius (polynomial roots) on every call, which was half the
-//! window's time; this wrapper gives the same answers from the model's own
-//! `distort` and `distort_jacobian` with the radius cached.
+//! window's time; this wrapper gives the same answers through the same
+//! pinhole chain (`camera::pinhole`) with the radius cached.
 
 use nalgebra::{Matrix2, Matrix2x3, Vector2, Vector3};
 
-use crate::camera::CameraModel;
+use crate::camera::{CameraModel, Distortion, Pinhole, PinholeRadtan};
 use crate::rig::CameraCalibration;
 
 #[derive(Debug, Clone, PartialEq)]
+/// One camera of the rig as the window projects with it: the calibration with the distortion's
+/// validity radius cached.
 pub struct RigCamera {
+    /// Intrinsics, distortion and pose on the body.
     pub calibration: CameraCalibration,
     /// Radtan only: the normalised radius where the distortion folds.
     radtan_max_radius: Option<f64>,
 }
 
+/// A radtan camera whose fold radius was computed once.
+struct FoldKnown<'a> {
+    camera: &'a PinholeRadtan,
+    max_radius: f64,
+}
+
+impl Distortion for FoldKnown<'_> {
+    fn distort(&self, xn: &Vector2<f64>) -> Vector2<f64> {
+        self.camera.distort(xn)
+    }
+
+    fn distort_jacobian(&self, xn: &Vector2<f64>) -> Matrix2<f64> {
+        self.camera.distort_jacobian(xn)
+    }
+
+    fn is_invertible_at(&self, xn: &Vector2<f64>) -> bool {
+        xn.norm() < self.max_radius
+    }
+
+    fn undistort(&self, xd: &Vector2<f64>) -> Option<Vector2<f64>> {
+        self.camera.undistort(xd)
+    }
+}
+
 impl RigCamera {
+    /// The camera for `calibration`.
     pub fn new(calibration: CameraCalibration) -> Self {
         let radtan_max_radius = match &calibration.model {
             CameraModel::PinholeRadtan(c) => Some(c.max_valid_radius()),
@@ -31,10 +59,9 @@ impl RigCamera {
     /// Same as [`CameraModel::project`].
     pub fn project(&self, p_cam: &Vector3<f64>) -> Option<Vector2<f64>> {
         match (&self.calibration.model, self.radtan_max_radius) {
-            (CameraModel::PinholeRadtan(c), Some(r_max)) => {
-                let xn = normalise(p_cam, r_max)?;
-                let d = c.distort(&xn);
-                Some(Vector2::new(c.fx * d.x + c.cx, c.fy * d.y + c.cy))
+            (CameraModel::PinholeRadtan(camera), Some(max_radius)) => {
+                let pinhole = Pinhole::from_array([camera.fx, camera.fy, camera.cx, camera.cy]);
+                pinhole.project(&FoldKnown { camera, max_radius }, p_cam)
             }
             (model, _) => model.project(p_cam),
         }
@@ -46,28 +73,15 @@ impl RigCamera {
         p_cam: &Vector3<f64>,
     ) -> Option<(Vector2<f64>, Matrix2x3<f64>)> {
         match (&self.calibration.model, self.radtan_max_radius) {
-            (CameraModel::PinholeRadtan(c), Some(r_max)) => {
-                let xn = normalise(p_cam, r_max)?;
-                let d = c.distort(&xn);
-                let px = Vector2::new(c.fx * d.x + c.cx, c.fy * d.y + c.cy);
-                let inv_z = 1.0 / p_cam.z;
-                let dxn_dp = Matrix2x3::new(inv_z, 0.0, -xn.x * inv_z, 0.0, inv_z, -xn.y * inv_z);
-                let focal = Matrix2::new(c.fx, 0.0, 0.0, c.fy);
-                Some((px, focal * c.distort_jacobian(&xn) * dxn_dp))
+            (CameraModel::PinholeRadtan(camera), Some(max_radius)) => {
+                let pinhole = Pinhole::from_array([camera.fx, camera.fy, camera.cx, camera.cy]);
+                pinhole
+                    .project_with_point_jacobian(&FoldKnown { camera, max_radius }, p_cam)
+                    .map(|p| (p.px, p.d_px_d_point))
             }
             (model, _) => model.project_with_point_jacobian(p_cam),
         }
     }
-}
-
-/// The radtan model's normalisation: `None` behind the camera or at or
-/// beyond the fold radius.
-fn normalise(p_cam: &Vector3<f64>, r_max: f64) -> Option<Vector2<f64>> {
-    if p_cam.z.is_nan() || p_cam.z <= f64::EPSILON {
-        return None;
-    }
-    let xn = Vector2::new(p_cam.x / p_cam.z, p_cam.y / p_cam.z);
-    (xn.norm() < r_max).then_some(xn)
 }
 
 #[cfg(test)]
