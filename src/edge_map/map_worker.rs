@@ -18,7 +18,8 @@ use super::laplacian::BlockLaplacian;
 use super::ordering_reuse::{IncrementalSymbolic, OrderingReuse, SymbolicPath};
 use super::problem::{MapEdge, MapProblem};
 use super::solve::{
-    check_connected, solve_pcg, CgOptions, CholeskyFactor, SolveReport, SolverChoice,
+    check_connected, cholesky_solution, solve_pcg, CgOptions, CholeskyFactor, SolveReport,
+    SolverChoice,
 };
 use super::EdgeMapError;
 
@@ -236,12 +237,7 @@ impl MapSolveWorker {
                     .factorize(&laplacian, &problem, &kept, &mut report)?;
             symbolic_path = Some(path);
             report.factor_ms = ms_since(t);
-            report.factor_nnz = factor.nnz();
-            let t = Instant::now();
-            let mut x = laplacian.rhs.clone();
-            factor.solve_in_place(&mut x, 1);
-            report.solve_ms = ms_since(t);
-            report.method = "cholesky";
+            let mut x = cholesky_solution(&factor, &laplacian, &mut report);
             if let Some(robust) = self.robust {
                 let original = problem.edges.clone();
                 for _ in 0..robust.iterations {

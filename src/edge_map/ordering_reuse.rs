@@ -13,18 +13,13 @@
 //! last fresh AMD. An unchanged pattern reuses the whole symbolic
 //! factorisation.
 
-use std::sync::Arc;
 use std::time::Instant;
 
-use faer::sparse::linalg::cholesky::{
-    factorize_symbolic_cholesky, CholeskySymbolicParams, SymbolicCholesky, SymmetricOrdering,
-};
-use faer::sparse::SymbolicSparseColMatRef;
-use faer::{Par, Side};
+use faer::Par;
 
 use super::laplacian::BlockLaplacian;
 use super::problem::MapProblem;
-use super::solve::{block_amd_ordering, CholeskyFactor, SolveReport};
+use super::solve::{block_amd_ordering, CholeskyFactor, PatternSymbolic, SolveReport};
 use super::EdgeMapError;
 
 /// How the symbolic factorisation of a changed pattern is obtained.
@@ -49,10 +44,6 @@ pub enum SymbolicPath {
     Fresh,
 }
 
-/// A symbolic factorisation with the pattern (column pointers, row
-/// indices) it was computed for.
-type CachedSymbolic = (Vec<u32>, Vec<u32>, Arc<SymbolicCholesky<u32>>);
-
 /// Keeps the ordering (by map id) and the symbolic factorisation.
 pub struct IncrementalSymbolic {
     pub policy: OrderingReuse,
@@ -61,7 +52,7 @@ pub struct IncrementalSymbolic {
     order_ids: Vec<u32>,
     /// Landmarks ordered by the last fresh AMD.
     fresh_count: usize,
-    cached: Option<CachedSymbolic>,
+    cached: Option<PatternSymbolic>,
 }
 
 impl IncrementalSymbolic {
@@ -85,7 +76,7 @@ impl IncrementalSymbolic {
         kept: &[u32],
         report: &mut SolveReport,
     ) -> Result<(CholeskyFactor, SymbolicPath), EdgeMapError> {
-        let same = matches!(&self.cached, Some((c, r, _)) if *c == laplacian.col_ptr && *r == laplacian.row_idx);
+        let same = matches!(&self.cached, Some(cached) if cached.fits(laplacian));
         let mut path = SymbolicPath::Reused;
         if !same {
             let t = Instant::now();
@@ -146,31 +137,12 @@ impl IncrementalSymbolic {
                     inv[3 * u as usize + c as usize] = 3 * k as u32 + c;
                 }
             }
-            let pattern = SymbolicSparseColMatRef::new_checked(
-                dim,
-                dim,
-                &laplacian.col_ptr,
-                None,
-                &laplacian.row_idx,
-            );
-            let perm = faer::perm::PermRef::new_checked(&fwd, &inv, dim);
-            let symbolic = factorize_symbolic_cholesky(
-                pattern,
-                Side::Upper,
-                SymmetricOrdering::Custom(perm),
-                CholeskySymbolicParams::default(),
-            )
-            .map_err(|e| EdgeMapError::Solver(format!("symbolic factorisation: {e:?}")))?;
+            self.cached = Some(PatternSymbolic::analyse(laplacian, &fwd, &inv)?);
             report.symbolic_ms = t.elapsed().as_secs_f64() * 1e3;
-            self.cached = Some((
-                laplacian.col_ptr.clone(),
-                laplacian.row_idx.clone(),
-                Arc::new(symbolic),
-            ));
         }
         report.symbolic_reused = same;
-        let symbolic = Arc::clone(&self.cached.as_ref().expect("cached above").2);
-        let factor = CholeskyFactor::numeric(symbolic, laplacian, self.par)?;
+        let cached = self.cached.as_ref().expect("analysed above when absent");
+        let factor = cached.numeric(laplacian, self.par)?;
         Ok((factor, path))
     }
 }

@@ -133,7 +133,7 @@ pub struct EdgeMapSolver {
     pub choice: SolverChoice,
     pub cg: CgOptions,
     par: Par,
-    cached: Option<(Vec<u32>, Vec<u32>, Arc<SymbolicCholesky<u32>>)>,
+    cached: Option<PatternSymbolic>,
     last_solution: Vec<f64>,
     factor: Option<CholeskyFactor>,
 }
@@ -215,12 +215,7 @@ impl EdgeMapSolver {
         let t = Instant::now();
         let factor = self.factorize(laplacian, report)?;
         report.factor_ms = ms_since(t);
-        report.factor_nnz = factor.nnz();
-        let t = Instant::now();
-        let mut x = laplacian.rhs.clone();
-        factor.solve_in_place(&mut x, 1);
-        report.solve_ms = ms_since(t);
-        report.method = "cholesky";
+        let x = cholesky_solution(&factor, laplacian, report);
         self.factor = Some(factor);
         self.last_solution = x.clone();
         Ok(x)
@@ -233,38 +228,93 @@ impl EdgeMapSolver {
         laplacian: &BlockLaplacian,
         report: &mut SolveReport,
     ) -> Result<CholeskyFactor, EdgeMapError> {
-        let dim = laplacian.dim();
-        let pattern = SymbolicSparseColMatRef::new_checked(
-            dim,
-            dim,
-            &laplacian.col_ptr,
-            None,
-            &laplacian.row_idx,
-        );
-        let reuse = matches!(&self.cached, Some((c, r, _)) if *c == laplacian.col_ptr && *r == laplacian.row_idx);
+        let reuse = matches!(&self.cached, Some(cached) if cached.fits(laplacian));
         report.symbolic_reused = reuse;
-        if !reuse {
-            let t = Instant::now();
-            let (fwd, inv) = block_amd_ordering(laplacian)?;
-            report.order_ms = ms_since(t);
-            let perm = faer::perm::PermRef::new_checked(&fwd, &inv, dim);
-            let symbolic = factorize_symbolic_cholesky(
-                pattern,
-                Side::Upper,
-                SymmetricOrdering::Custom(perm),
-                CholeskySymbolicParams::default(),
-            )
-            .map_err(|e| EdgeMapError::Solver(format!("symbolic factorisation: {e:?}")))?;
-            report.symbolic_ms = ms_since(t);
-            self.cached = Some((
-                laplacian.col_ptr.clone(),
-                laplacian.row_idx.clone(),
-                Arc::new(symbolic),
-            ));
-        }
-        let symbolic = Arc::clone(&self.cached.as_ref().expect("cached above").2);
-        CholeskyFactor::numeric(symbolic, laplacian, self.par)
+        let cached = match self.cached.take() {
+            Some(cached) if reuse => cached,
+            _ => {
+                let t = Instant::now();
+                let (fwd, inv) = block_amd_ordering(laplacian)?;
+                report.order_ms = ms_since(t);
+                let symbolic = PatternSymbolic::analyse(laplacian, &fwd, &inv)?;
+                report.symbolic_ms = ms_since(t);
+                symbolic
+            }
+        };
+        let factor = cached.numeric(laplacian, self.par);
+        self.cached = Some(cached);
+        factor
     }
+}
+
+/// A symbolic Cholesky factorisation and the sparsity pattern it was
+/// computed for: while a new Laplacian has the same pattern, only the
+/// numeric factorisation is redone.
+pub struct PatternSymbolic {
+    col_ptr: Vec<u32>,
+    row_idx: Vec<u32>,
+    symbolic: Arc<SymbolicCholesky<u32>>,
+}
+
+impl PatternSymbolic {
+    /// Symbolic factorisation of `laplacian`'s upper triangle eliminated in
+    /// the order `fwd` (scalar indices; `inv` its inverse permutation).
+    pub fn analyse(
+        laplacian: &BlockLaplacian,
+        fwd: &[u32],
+        inv: &[u32],
+    ) -> Result<Self, EdgeMapError> {
+        let dim = laplacian.dim();
+        let perm = faer::perm::PermRef::new_checked(fwd, inv, dim);
+        let symbolic = factorize_symbolic_cholesky(
+            upper_pattern(laplacian),
+            Side::Upper,
+            SymmetricOrdering::Custom(perm),
+            CholeskySymbolicParams::default(),
+        )
+        .map_err(|e| EdgeMapError::Solver(format!("symbolic factorisation: {e:?}")))?;
+        Ok(Self {
+            col_ptr: laplacian.col_ptr.clone(),
+            row_idx: laplacian.row_idx.clone(),
+            symbolic: Arc::new(symbolic),
+        })
+    }
+
+    /// Whether `laplacian` has the pattern this was computed for.
+    pub fn fits(&self, laplacian: &BlockLaplacian) -> bool {
+        self.col_ptr == laplacian.col_ptr && self.row_idx == laplacian.row_idx
+    }
+
+    /// Numeric factorisation of `laplacian` (whose pattern [`Self::fits`]).
+    pub fn numeric(
+        &self,
+        laplacian: &BlockLaplacian,
+        par: Par,
+    ) -> Result<CholeskyFactor, EdgeMapError> {
+        CholeskyFactor::numeric(Arc::clone(&self.symbolic), laplacian, par)
+    }
+}
+
+/// The sparsity pattern of the Laplacian's stored (upper) triangle.
+fn upper_pattern(laplacian: &BlockLaplacian) -> SymbolicSparseColMatRef<'_, u32> {
+    let dim = laplacian.dim();
+    SymbolicSparseColMatRef::new_checked(dim, dim, &laplacian.col_ptr, None, &laplacian.row_idx)
+}
+
+/// `A^-1 B` by the factor of A; fills the factor size, the solve time and
+/// the method of `report`.
+pub fn cholesky_solution(
+    factor: &CholeskyFactor,
+    laplacian: &BlockLaplacian,
+    report: &mut SolveReport,
+) -> Vec<f64> {
+    report.factor_nnz = factor.nnz();
+    let t = Instant::now();
+    let mut x = laplacian.rhs.clone();
+    factor.solve_in_place(&mut x, 1);
+    report.solve_ms = ms_since(t);
+    report.method = "cholesky";
+    x
 }
 
 impl CholeskyFactor {
@@ -276,16 +326,8 @@ impl CholeskyFactor {
         laplacian: &BlockLaplacian,
         par: Par,
     ) -> Result<Self, EdgeMapError> {
-        let dim = laplacian.dim();
-        let pattern = SymbolicSparseColMatRef::new_checked(
-            dim,
-            dim,
-            &laplacian.col_ptr,
-            None,
-            &laplacian.row_idx,
-        );
         let mut values = vec![0.0; symbolic.len_val()];
-        let matrix = SparseColMatRef::new(pattern, &laplacian.values);
+        let matrix = SparseColMatRef::new(upper_pattern(laplacian), &laplacian.values);
         let mut buffer =
             MemBuffer::new(symbolic.factorize_numeric_llt_scratch::<f64>(par, Default::default()));
         symbolic
