@@ -3,7 +3,7 @@
 //! Preintegration for Real-Time Visual-Inertial Odometry", TRO 2017, eq. 1-8).
 //! Perturbations are on the right: `R Exp(dphi)`.
 
-use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, Matrix3x2, Rotation3, UnitQuaternion, Vector3};
 
 /// Below this angle the series forms are used (their error is ~angle^4).
 const SMALL_ANGLE_RAD: f64 = 1e-5;
@@ -12,6 +12,22 @@ const SMALL_ANGLE_RAD: f64 = 1e-5;
 #[inline]
 pub fn hat(v: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+/// An orthonormal basis `[b1, b2]` of the plane orthogonal to the unit
+/// vector `n` (the tangent plane of the sphere at `n`), with `b1 = n x a /
+/// |n x a|` for a coordinate axis `a` far from `n` and `b2 = n x b1`: the
+/// coordinates in which a direction (gravity, a translation's direction)
+/// is perturbed.
+pub fn tangent_basis(n: &Vector3<f64>) -> Matrix3x2<f64> {
+    let helper = if n.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    let b1 = n.cross(&helper).normalize();
+    let b2 = n.cross(&b1);
+    Matrix3x2::from_columns(&[b1, b2])
 }
 
 /// Exp: the rotation by angle |phi| about phi/|phi| (Rodrigues).

@@ -99,32 +99,20 @@ impl EkfOdometry {
         tracking: TrackingState,
         landmarks: bool,
     ) -> RelativeOutput {
-        let position = state.T_world_body.translation.vector;
-        let delta = match (tracking, self.previous_position) {
-            (TrackingState::Tracking, Some(p)) => position - p,
-            _ => Vector3::zeros(),
+        let landmarks = if landmarks {
+            let mut body = self.filter.landmarks_in_body();
+            for l in &mut body {
+                l.descriptor = self.tracker.descriptor(l.id);
+            }
+            body
+        } else {
+            Vec::new()
         };
+        let out =
+            RelativeOutput::from_state(&state, tracking, self.previous_position, landmarks, None);
         if tracking == TrackingState::Tracking {
-            self.previous_position = Some(position);
+            self.previous_position = Some(state.T_world_body.translation.vector);
         }
-        let out = RelativeOutput {
-            t_ns: state.t_ns,
-            state: tracking,
-            T_world_body: state.T_world_body,
-            velocity_world_m_s: state.velocity_world_m_s,
-            biases: state.biases,
-            delta_translation_world_m: delta,
-            landmarks: if landmarks {
-                let mut body = self.filter.landmarks_in_body();
-                for l in &mut body {
-                    l.descriptor = self.tracker.descriptor(l.id);
-                }
-                body
-            } else {
-                Vec::new()
-            },
-            pose_covariance: None,
-        };
         self.last_output = Some(out.clone());
         out
     }

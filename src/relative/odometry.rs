@@ -284,11 +284,6 @@ impl WindowOdometry {
             .as_ref()
             .filter(|o| o.state == TrackingState::Tracking)
             .map(|o| o.T_world_body.translation.vector);
-        let position = state.T_world_body.translation.vector;
-        let delta = match (tracking, previous) {
-            (TrackingState::Tracking, Some(p)) => position - p,
-            _ => Vector3::zeros(),
-        };
         let landmarks = match frame {
             Some(f) if tracking == TrackingState::Tracking => self.body_landmarks(state, f),
             _ => Vec::new(),
@@ -301,16 +296,7 @@ impl WindowOdometry {
         if let Some(c) = pose_covariance {
             self.last_covariance = Some((state.T_world_body, c));
         }
-        let out = RelativeOutput {
-            t_ns: state.t_ns,
-            state: tracking,
-            T_world_body: state.T_world_body,
-            velocity_world_m_s: state.velocity_world_m_s,
-            biases: state.biases,
-            delta_translation_world_m: delta,
-            landmarks,
-            pose_covariance,
-        };
+        let out = RelativeOutput::from_state(state, tracking, previous, landmarks, pose_covariance);
         self.last_output = Some(out.clone());
         out
     }

@@ -44,15 +44,15 @@ use super::types::{LandmarkId, Observation, TrackedFrame};
 /// Settings of the tracker (defaults in brackets).
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrackerConfig {
-    /// Features kept in the left image [150].
+    /// Features kept in the left image \[150\].
     pub target_features: usize,
-    /// Side of a detection bucket, px [48].
+    /// Side of a detection bucket, px \[48\].
     pub bucket_px: usize,
-    /// Smallest distance of a new feature to any tracked one, px [15].
+    /// Smallest distance of a new feature to any tracked one, px \[15\].
     pub min_distance_px: f32,
     /// Half side of the KLT window, px [7: 15x15].
     pub klt_half_window_px: usize,
-    /// Pyramid levels including the image [3].
+    /// Pyramid levels including the image \[3\].
     pub pyramid_levels: usize,
     /// Forward-backward agreement, px [1.0].
     pub fb_threshold_px: f32,
@@ -61,7 +61,7 @@ pub struct TrackerConfig {
     /// Median image motion below which MSAC is skipped, px [1.0].
     pub ransac_min_flow_px: f64,
     /// Keyframe when the rotation-compensated median parallax against the
-    /// last keyframe exceeds this, px [15].
+    /// last keyframe exceeds this, px \[15\].
     pub keyframe_parallax_px: f64,
     /// Keyframe when fewer than this share of the last keyframe's features
     /// are still tracked [0.6].
@@ -70,7 +70,7 @@ pub struct TrackerConfig {
     pub keyframe_max_interval_s: f64,
     /// Largest distance of a right feature from its epipolar line, px [1.5].
     pub stereo_epipolar_px: f64,
-    /// Depth assumed for a right-image search without history, m [4].
+    /// Depth assumed for a right-image search without history, m \[4\].
     pub stereo_prior_depth_m: f64,
 }
 
@@ -98,39 +98,67 @@ impl Default for TrackerConfig {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum TrackerError {
     #[error("tracker setting `{key}` = {value}: {allowed}")]
+    /// A setting is out of range.
     InvalidConfig {
+        /// The setting's key.
         key: &'static str,
+        /// Its value, as written.
         value: String,
+        /// The allowed range.
         allowed: &'static str,
     },
     #[error("stereo tracking needs two cameras, got {0}")]
+    /// A stereo mode was asked for with fewer than two cameras (the field is how many).
     NeedsTwoCameras(usize),
     #[error("no camera given")]
+    /// The rig has no camera.
     NoCamera,
     #[error("camera {camera}: image {got_w}x{got_h} px, the calibration says {want_w}x{want_h}")]
+    /// An image's size differs from its camera's calibration.
     ImageSize {
+        /// The camera (0 left, 1 right).
         camera: u8,
+        /// Width of the image, px.
         got_w: u32,
+        /// Height of the image, px.
         got_h: u32,
+        /// Width the calibration says, px.
         want_w: u32,
+        /// Height the calibration says, px.
         want_h: u32,
     },
     #[error("frame at {t_ns} ns does not come after the previous one at {previous_ns} ns")]
-    TimeNotIncreasing { t_ns: i64, previous_ns: i64 },
+    /// A frame's stamp is not after the previous frame's.
+    TimeNotIncreasing {
+        /// The frame's stamp, ns.
+        t_ns: i64,
+        /// The previous frame's stamp, ns.
+        previous_ns: i64,
+    },
     #[error("image: {0}")]
+    /// An image could not enter the front end (not grey, buffer too short) or a pyramid setting is
+    /// invalid; the field is the reason.
     Image(String),
 }
 
 /// Counters since the tracker was made.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
 pub struct TrackerStats {
+    /// Frames processed.
     pub frames: u64,
+    /// Feature tracks carried into a new frame by KLT (summed over frames).
     pub tracked: u64,
+    /// Tracks KLT lost (left the image, did not converge, failed the forward-backward check).
     pub lost_klt: u64,
+    /// Tracks MSAC rejected as outliers of the frame-to-frame motion.
     pub rejected_ransac: u64,
+    /// New corners detected to refill the image.
     pub detected: u64,
+    /// Left features found in the right image (summed over frames).
     pub stereo_matched: u64,
+    /// Left features not found in the right image, or off the epipolar line.
     pub stereo_rejected: u64,
+    /// Times every track was dropped after lost tracking.
     pub resets: u64,
 }
 
@@ -288,7 +316,7 @@ impl Tracker {
             let T_c1_c0 = cameras[1].T_body_cam.inverse() * cameras[0].T_body_cam;
             let r = T_c1_c0.rotation.to_rotation_matrix().into_inner();
             let t = T_c1_c0.translation.vector;
-            (r, t, crate::two_view::essential::skew(&t) * r)
+            (r, t, crate::imu::so3::hat(&t) * r)
         } else {
             (Matrix3::identity(), Vector3::zeros(), Matrix3::zeros())
         };
@@ -325,10 +353,12 @@ impl Tracker {
         })
     }
 
+    /// The settings it was built with.
     pub fn config(&self) -> &TrackerConfig {
         &self.config
     }
 
+    /// The counters since it was made.
     pub fn stats(&self) -> TrackerStats {
         self.stats
     }

@@ -15,6 +15,7 @@ pub type LandmarkId = u64;
 /// One landmark seen in one image.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Observation {
+    /// The landmark (feature track) seen.
     pub landmark: LandmarkId,
     /// 0 = left (or only) camera, 1 = right camera of a stereo rig.
     pub camera_index: u8,
@@ -25,6 +26,7 @@ pub struct Observation {
 /// What the tracker hands on for one frame.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrackedFrame {
+    /// Exposure stamp, ns (the clock the sensors are stamped in).
     pub t_ns: i64,
     /// Every observation in this frame, left and right camera.
     pub observations: Vec<Observation>,
@@ -45,9 +47,13 @@ impl TrackedFrame {
 #[allow(non_snake_case)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct KeyframeState {
+    /// Keyframe stamp, ns.
     pub t_ns: i64,
+    /// Body (IMU) pose: maps body coordinates into the world frame.
     pub T_world_body: Isometry3<f64>,
+    /// Body velocity in the world frame, m/s.
     pub velocity_world_m_s: Vector3<f64>,
+    /// IMU biases at the keyframe.
     pub biases: ImuBiases,
 }
 
@@ -68,8 +74,11 @@ pub enum TrackingState {
 /// covariance: what the absolute stage turns into edges (eq. 41-42).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct BodyLandmark {
+    /// The landmark's track id.
     pub id: LandmarkId,
+    /// Position in the current frame's body (IMU) frame, m.
     pub position_body_m: Vector3<f64>,
+    /// Covariance of that position in the body frame, m^2.
     pub covariance_body_m2: Matrix3<f64>,
     /// ORB descriptor of the track at its birth (left image), when the
     /// tracker could describe it: how the absolute stage recognises the
@@ -90,6 +99,7 @@ pub struct PoseCovariance {
     pub matrix: Matrix6<f64>,
     /// Stamp and pose of the origin (zero covariance).
     pub origin_t_ns: i64,
+    /// Pose of the origin: maps its body coordinates into the world frame.
     pub T_world_origin: Isometry3<f64>,
 }
 
@@ -97,18 +107,53 @@ pub struct PoseCovariance {
 #[allow(non_snake_case)]
 #[derive(Debug, Clone, PartialEq)]
 pub struct RelativeOutput {
+    /// Frame stamp, ns.
     pub t_ns: i64,
+    /// Whether the pose is usable.
     pub state: TrackingState,
+    /// Body (IMU) pose: maps body coordinates into the world frame.
     pub T_world_body: Isometry3<f64>,
+    /// Body velocity in the world frame, m/s.
     pub velocity_world_m_s: Vector3<f64>,
+    /// IMU biases estimated for this frame (zero in the vision-only modes).
     pub biases: ImuBiases,
     /// Translation of the body since the previous output, in the world
     /// frame: the Kalman position filter's prediction input (eq. 60).
     pub delta_translation_world_m: Vector3<f64>,
+    /// Landmarks tracked in this frame, in its body frame, for the absolute stage.
     pub landmarks: Vec<BodyLandmark>,
     /// None while initialising or lost, and from estimators that keep
     /// none.
     pub pose_covariance: Option<PoseCovariance>,
+}
+
+impl RelativeOutput {
+    /// The output for `state` with its `tracking` state: the translation
+    /// since `previous_position_world_m` (the last tracked position, as the
+    /// estimator keeps it) while tracking, zero otherwise or without one.
+    pub fn from_state(
+        state: &KeyframeState,
+        tracking: TrackingState,
+        previous_position_world_m: Option<Vector3<f64>>,
+        landmarks: Vec<BodyLandmark>,
+        pose_covariance: Option<PoseCovariance>,
+    ) -> Self {
+        let position = state.T_world_body.translation.vector;
+        let delta = match (tracking, previous_position_world_m) {
+            (TrackingState::Tracking, Some(p)) => position - p,
+            _ => Vector3::zeros(),
+        };
+        Self {
+            t_ns: state.t_ns,
+            state: tracking,
+            T_world_body: state.T_world_body,
+            velocity_world_m_s: state.velocity_world_m_s,
+            biases: state.biases,
+            delta_translation_world_m: delta,
+            landmarks,
+            pose_covariance,
+        }
+    }
 }
 
 #[cfg(test)]

@@ -5,12 +5,9 @@
 //! Convention: `x_2 = R x_1 + t`, `E = [t]ₓ R`, `q2ᵀ E q1 = 0` for
 //! homogeneous normalised image coordinates `q = (x, y, 1)`.
 
-use nalgebra::{Matrix3, Rotation3, SMatrix, SVector, Unit, Vector2, Vector3};
+use nalgebra::{Matrix3, Matrix3x2, Rotation3, SMatrix, SVector, Unit, Vector2, Vector3};
 
-/// `[v]ₓ`, the cross-product matrix.
-pub fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
-    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
-}
+use crate::imu::so3::{hat as skew, tangent_basis};
 
 /// `E = [t]ₓ R`.
 pub fn essential_from_pose(rotation_c2_c1: &Matrix3<f64>, t_c2_c1: &Vector3<f64>) -> Matrix3<f64> {
@@ -109,18 +106,6 @@ pub fn pose_from_essential(
     best
 }
 
-/// An orthonormal basis of the plane orthogonal to unit `t`.
-fn tangent_basis(t: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
-    let helper = if t.x.abs() < 0.9 {
-        Vector3::x()
-    } else {
-        Vector3::y()
-    };
-    let b1 = t.cross(&helper).normalize();
-    let b2 = t.cross(&b1);
-    (b1, b2)
-}
-
 /// The pose moved by `delta = (ω, v)`: `R ← R exp([ω]ₓ)`,
 /// `t ← normalise(t + v₁ b₁ + v₂ b₂)`.
 fn retract(
@@ -129,7 +114,8 @@ fn retract(
     delta: &SVector<f64, 5>,
 ) -> (Matrix3<f64>, Vector3<f64>) {
     let omega = Vector3::new(delta[0], delta[1], delta[2]);
-    let (b1, b2) = tangent_basis(t);
+    let basis = tangent_basis(t);
+    let (b1, b2) = (basis.column(0), basis.column(1));
     let r_new = r * Rotation3::from_scaled_axis(omega).into_inner();
     let t_new = (t + b1 * delta[3] + b2 * delta[4]).normalize();
     (r_new, t_new)
@@ -140,7 +126,7 @@ fn retract(
 fn residual_and_gradient(
     r: &Matrix3<f64>,
     t: &Vector3<f64>,
-    basis: &(Vector3<f64>, Vector3<f64>),
+    basis: &Matrix3x2<f64>,
     x1: &Vector2<f64>,
     x2: &Vector2<f64>,
 ) -> Option<(f64, SVector<f64, 5>)> {
@@ -175,8 +161,8 @@ fn residual_and_gradient(
     {
         grad[c] = g.dot(&(skew_t_r * skew(axis)));
     }
-    grad[3] = g.dot(&(skew(&basis.0) * r));
-    grad[4] = g.dot(&(skew(&basis.1) * r));
+    grad[3] = g.dot(&(skew(&basis.column(0).into_owned()) * r));
+    grad[4] = g.dot(&(skew(&basis.column(1).into_owned()) * r));
     Some((a / d, grad))
 }
 

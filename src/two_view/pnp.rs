@@ -10,25 +10,32 @@ use nalgebra::{
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use super::essential::skew;
 use super::p3p::p3p;
 use super::ransac::{needed_iterations, sample_distinct, validate_correspondences};
 use super::TwoViewError;
+use crate::imu::so3::hat as skew;
 
 /// Settings of [`estimate_absolute_pose`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct AbsolutePoseConfig {
     /// Inlier threshold on the reprojection error, normalised image units.
     pub threshold: f64,
+    /// Probability of having drawn one all-inlier sample when RANSAC stops.
     pub confidence: f64,
+    /// Largest number of RANSAC iterations.
     pub max_iterations: usize,
+    /// Fewest inliers a pose may rest on.
     pub min_inliers: usize,
+    /// Seed of the sampler; the same seed and input give the same result.
     pub seed: u64,
     /// Levenberg-Marquardt iterations on the inliers (0 disables).
     pub refine_iterations: usize,
 }
 
 impl AbsolutePoseConfig {
+    /// Defaults for a camera of focal length `focal_px` and an inlier threshold of `threshold_px`
+    /// pixels (confidence 0.999, at most 1000 iterations, 6 inliers, 10 refinement iterations, seed
+    /// 0).
     pub fn for_pixels(threshold_px: f64, focal_px: f64) -> Self {
         Self {
             threshold: threshold_px / focal_px,
@@ -47,8 +54,11 @@ impl AbsolutePoseConfig {
 pub struct AbsolutePose {
     /// Maps world coordinates into the camera: `X_cam = T_cam_world X_world`.
     pub T_cam_world: Isometry3<f64>,
+    /// Per correspondence: whether it is an inlier of the final pose.
     pub inliers: Vec<bool>,
+    /// Number of inliers.
     pub inlier_count: usize,
+    /// RANSAC iterations run.
     pub iterations: usize,
 }
 

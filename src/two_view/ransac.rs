@@ -12,9 +12,10 @@ use nalgebra::{Matrix3, Rotation3, Unit, Vector2, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::essential::{pose_from_essential, refine_pose, sampson_error, skew};
+use super::essential::{pose_from_essential, refine_pose, sampson_error};
 use super::five_point::five_point;
 use super::TwoViewError;
+use crate::imu::so3::hat as skew;
 
 /// Levenberg-Marquardt iterations of each local optimisation.
 const LOCAL_REFINE_ITERATIONS: usize = 5;
@@ -27,6 +28,7 @@ pub struct RelativePoseConfig {
     pub threshold: f64,
     /// Probability of having drawn one all-inlier sample when stopping.
     pub confidence: f64,
+    /// Largest number of MSAC iterations.
     pub max_iterations: usize,
     /// Fewest inliers a pose may rest on.
     pub min_inliers: usize,
@@ -94,6 +96,7 @@ impl RelativePoseConfig {
 /// A relative pose `x_2 = R x_1 + t` up to the scale of `t`.
 #[derive(Debug, Clone)]
 pub struct RelativePose {
+    /// `R` of `x_2 = R x_1 + t`: rotation from the first camera's frame to the second's.
     pub rotation_c2_c1: Rotation3<f64>,
     /// Direction of `t`; `None` when the views have too little parallax to
     /// observe it (pure rotation), in which case `rotation_c2_c1` comes from
@@ -101,10 +104,13 @@ pub struct RelativePose {
     pub translation_dir_c2_c1: Option<Unit<Vector3<f64>>>,
     /// `[t]ₓ R` of unit norm; zero when the translation is unobservable.
     pub essential: Matrix3<f64>,
+    /// Per correspondence: whether it is an inlier of the final pose.
     pub inliers: Vec<bool>,
+    /// Number of inliers.
     pub inlier_count: usize,
     /// Inliers in front of both cameras.
     pub in_front_count: usize,
+    /// MSAC iterations run.
     pub iterations: usize,
     /// Median angle between `R q1` and `q2` over the inliers.
     pub median_parallax_rad: f64,

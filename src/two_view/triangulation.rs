@@ -12,7 +12,7 @@
 
 use nalgebra::{Matrix2, Matrix3, Matrix4, Vector2, Vector3, Vector4};
 
-use super::essential::skew;
+use crate::imu::so3::hat as skew;
 
 /// Checks applied to each triangulated point.
 #[derive(Debug, Clone, PartialEq)]
@@ -39,24 +39,46 @@ impl Default for TriangulationConfig {
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
 pub enum TriangulationFailure {
     #[error("a coordinate or the pose is not finite")]
+    /// A coordinate or the pose has a NaN or infinite value.
     NonFinite,
     #[error("rays meet at {parallax_rad} rad, below the minimum parallax")]
-    LowParallax { parallax_rad: f64 },
+    /// The rays are too close to parallel for a reliable depth.
+    LowParallax {
+        /// Angle between the two rays, rad.
+        parallax_rad: f64,
+    },
     #[error("point at depths {depth_c1} (view 1) and {depth_c2} (view 2) is behind a camera or too near")]
-    BehindCamera { depth_c1: f64, depth_c2: f64 },
+    /// The point is behind a camera or nearer than the minimum depth.
+    BehindCamera {
+        /// Depth in the first camera, same unit as the pose's translation.
+        depth_c1: f64,
+        /// Depth in the second camera.
+        depth_c2: f64,
+    },
     #[error("point at depths {depth_c1} (view 1) and {depth_c2} (view 2) is too far")]
-    TooFar { depth_c1: f64, depth_c2: f64 },
+    /// The point is beyond the maximum depth.
+    TooFar {
+        /// Depth in the first camera, same unit as the pose's translation.
+        depth_c1: f64,
+        /// Depth in the second camera.
+        depth_c2: f64,
+    },
 }
 
 /// A point seen in two views, in the first camera's frame.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TriangulatedPoint {
+    /// The point in the first camera's frame (unit of the pose's translation).
     pub point_c1: Vector3<f64>,
+    /// Its depth (z) in the first camera.
     pub depth_c1: f64,
+    /// Its depth (z) in the second camera.
     pub depth_c2: f64,
+    /// Angle between the two viewing rays, rad.
     pub parallax_rad: f64,
     /// The image points after the optimal correction.
     pub corrected_x1: Vector2<f64>,
+    /// The second image point after the optimal correction.
     pub corrected_x2: Vector2<f64>,
 }
 

@@ -48,7 +48,7 @@ use nalgebra::{
 
 use super::level_rotation;
 use crate::imu::preintegration::Preintegrator;
-use crate::imu::so3::{log, right_jacobian, right_jacobian_inverse};
+use crate::imu::so3::{log, right_jacobian, right_jacobian_inverse, tangent_basis};
 use crate::imu::{ImuBiases, Preintegrated, PreintegrationError, GRAVITY_M_S2};
 use crate::relative::types::KeyframeState;
 use crate::sensors::ImuSample;
@@ -645,19 +645,6 @@ fn solve(a: &DMatrix<f64>, b: &DVector<f64>) -> Option<Solution> {
     })
 }
 
-/// Two unit vectors orthogonal to `g` (and to each other).
-fn tangent_basis(g: &Vector3<f64>) -> Matrix3x2<f64> {
-    let n = g.normalize();
-    let helper = if n.x.abs() < 0.9 {
-        Vector3::x()
-    } else {
-        Vector3::y()
-    };
-    let b1 = n.cross(&helper).normalize();
-    let b2 = n.cross(&b1);
-    Matrix3x2::from_columns(&[b1, b2])
-}
-
 /// Steps 1-3 (module documentation) on preintegrated intervals. The
 /// deltas are corrected to the new gyro bias to first order; when that
 /// bias is far from the integration bias (more than ~0.01 rad/s over
@@ -735,7 +722,7 @@ pub fn align(
                 scale: estimate_scale,
                 accel_bias: with_ba,
             };
-            let basis = tangent_basis(&g) * gravity_g;
+            let basis = tangent_basis(&g.normalize()) * gravity_g;
             let param = GravityParam::Tangent { g0: g, basis };
             let (a, b) = build_system(&frames, &prepared, &p_bc, layout, param, scale, accel_prior);
             let Some(sol) = solve(&a, &b) else {

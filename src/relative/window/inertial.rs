@@ -32,7 +32,12 @@ pub(crate) fn bias_walk_sqrt_info(noise: &ImuNoise, dt_s: f64) -> Vector6<f64> {
         .map(|v| 1.0 / v.max(1e-18).sqrt())
 }
 
-/// An orthonormal basis of the plane orthogonal to the unit vector `d`.
+/// An orthonormal basis of the plane orthogonal to the unit vector `d`,
+/// by Gram-Schmidt: `b1` is a coordinate axis far from `d` with its
+/// component along `d` removed, `b2 = d x b1`. It spans the same plane as
+/// `crate::imu::so3::tangent_basis` (a quarter turn apart); the window's
+/// gravity steps and every trajectory measured with them use this one,
+/// and switching would change their floating-point path.
 pub fn tangent_basis(d: &Vector3<f64>) -> Matrix3x2<f64> {
     let a = if d.x.abs() < 0.9 {
         Vector3::x()
