@@ -21,6 +21,8 @@
 //! two sibling modules depend on each other (`tests/module_boundaries.rs`
 //! checks it).
 
+#![warn(missing_docs)]
+
 pub use rigslam_drivers as sensors;
 
 pub mod camera;

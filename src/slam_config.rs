@@ -61,6 +61,7 @@ impl SlamSettings {
         Ok(settings)
     }
 
+    /// The settings as the text of a TOML file with both tables (e.g. to write out the defaults).
     pub fn to_toml(&self) -> Result<String, ConfigError> {
         toml::to_string(self).map_err(|e| ConfigError::Parse {
             path: "(defaults)".into(),

@@ -7,24 +7,30 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 #[allow(non_snake_case)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StampedPose {
+    /// Stamp, ns (the clock of the sensors the pose was estimated from, or the ground truth's).
     pub t_ns: i64,
     /// Maps body coordinates into the world frame.
     pub T_world_body: Isometry3<f64>,
 }
 
 impl StampedPose {
+    /// The pose with body position `position` (world frame, m) and body-to-world rotation
+    /// `orientation` at `t_ns`.
     pub fn new(t_ns: i64, position: Vector3<f64>, orientation: UnitQuaternion<f64>) -> Self {
         Self {
             t_ns,
             T_world_body: Isometry3::from_parts(Translation3::from(position), orientation),
         }
     }
+    /// Body origin in the world frame, m.
     pub fn position(&self) -> Vector3<f64> {
         self.T_world_body.translation.vector
     }
+    /// Body-to-world rotation.
     pub fn orientation(&self) -> UnitQuaternion<f64> {
         self.T_world_body.rotation
     }
+    /// The stamp in seconds.
     pub fn t_s(&self) -> f64 {
         self.t_ns as f64 * 1e-9
     }
@@ -38,16 +44,20 @@ impl StampedPose {
 /// [`Self::is_time_ordered`].
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Trajectory {
+    /// The poses, in time order.
     pub poses: Vec<StampedPose>,
 }
 
 impl Trajectory {
+    /// A trajectory of `poses`, taken as given (not sorted or checked).
     pub fn new(poses: Vec<StampedPose>) -> Self {
         Self { poses }
     }
+    /// Number of poses.
     pub fn len(&self) -> usize {
         self.poses.len()
     }
+    /// Whether there is no pose.
     pub fn is_empty(&self) -> bool {
         self.poses.is_empty()
     }

@@ -117,10 +117,12 @@ impl PinholeEquidistant {
         Self::new(width, height, pinhole, coefficients)
     }
 
+    /// Image width, pixels.
     pub fn width(&self) -> u32 {
         self.width
     }
 
+    /// Image height, pixels.
     pub fn height(&self) -> u32 {
         self.height
     }

@@ -41,18 +41,46 @@ pub use radtan::PinholeRadtan;
 /// field the values came from.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum CameraError {
+    /// The image width or height is zero.
     #[error("image size {width}x{height}: both sides must be non-zero")]
-    EmptyImage { width: u32, height: u32 },
+    EmptyImage {
+        /// Image width as given, pixels.
+        width: u32,
+        /// Image height as given, pixels.
+        height: u32,
+    },
+    /// An intrinsic or distortion coefficient is NaN or infinite.
     #[error("camera parameter `{name}` = {value} is not a finite number")]
-    NotFinite { name: &'static str, value: f64 },
+    NotFinite {
+        /// The parameter's name as the model lists it (`fx`, `cy`, `k2`, `p1`, ...).
+        name: &'static str,
+        /// The offending value.
+        value: f64,
+    },
+    /// A focal length is zero or negative.
     #[error("focal length `{name}` = {value} must be positive")]
-    NonPositiveFocalLength { name: &'static str, value: f64 },
+    NonPositiveFocalLength {
+        /// `fx` or `fy`.
+        name: &'static str,
+        /// The offending value, pixels.
+        value: f64,
+    },
+    /// [`CameraModel::from_kalibr`] was given a distortion model name other
+    /// than `radtan`, `radial-tangential` or `equidistant`.
     #[error("distortion model `{name}` is not one of radtan, radial-tangential, equidistant")]
-    UnknownDistortionModel { name: String },
+    UnknownDistortionModel {
+        /// The name as read.
+        name: String,
+    },
+    /// A Kalibr/EuRoC parameter list has the wrong number of values for the
+    /// model.
     #[error("`{field}` lists {got} values, expected {expected}")]
     WrongLength {
+        /// The list: `intrinsics` or `distortion_coefficients`.
         field: &'static str,
+        /// The accepted length(s), with the values' names.
         expected: &'static str,
+        /// How many values the list had.
         got: usize,
     },
 }
@@ -60,7 +88,9 @@ pub enum CameraError {
 /// A calibrated camera, whatever its projection model.
 #[derive(Debug, Clone, PartialEq)]
 pub enum CameraModel {
+    /// Pinhole with radial-tangential distortion (Kalibr `radtan`).
     PinholeRadtan(PinholeRadtan),
+    /// Pinhole with equidistant fisheye distortion (Kalibr `equidistant`).
     PinholeEquidistant(PinholeEquidistant),
 }
 
@@ -161,6 +191,7 @@ impl CameraModel {
         }
     }
 
+    /// Image width, pixels.
     pub fn width(&self) -> u32 {
         match self {
             CameraModel::PinholeRadtan(c) => c.width,
@@ -168,6 +199,7 @@ impl CameraModel {
         }
     }
 
+    /// Image height, pixels.
     pub fn height(&self) -> u32 {
         match self {
             CameraModel::PinholeRadtan(c) => c.height,

@@ -56,17 +56,23 @@ use super::CameraError;
 
 /// Pinhole camera with radial-tangential distortion, as OpenCV and Kalibr
 /// (`pinhole` + `radtan`) define it. See the module documentation for the
-/// equations.
+/// equations. The fields are public but only [`Self::new`] and
+/// [`Self::from_kalibr`] validate them.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PinholeRadtan {
+    /// Image width, pixels.
     pub width: u32,
+    /// Image height, pixels.
     pub height: u32,
-    /// fx, fy, cx, cy in pixels.
+    /// Focal length along x, pixels.
     pub fx: f64,
+    /// Focal length along y, pixels.
     pub fy: f64,
+    /// Principal point x, pixels.
     pub cx: f64,
+    /// Principal point y, pixels.
     pub cy: f64,
-    /// k1, k2, p1, p2, k3 (OpenCV's order).
+    /// k1, k2, p1, p2, k3 (OpenCV's order), on the normalised plane.
     pub distortion: [f64; 5],
 }
 

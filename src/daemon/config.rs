@@ -18,7 +18,9 @@ use crate::relative::{EstimatorKind, RelativeConfig, RigModel, SensorMode};
 #[derive(Debug, Clone, PartialEq, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DaemonConfig {
+    /// `[camera]`: where frames come from.
     pub camera: CameraConfig,
+    /// `[imu]`: where IMU samples come from.
     pub imu: ImuConfig,
     /// Needed for live sensors; a EuRoC replay reads the dataset's own
     /// `sensor.yaml` files when this table is absent.
@@ -28,12 +30,16 @@ pub struct DaemonConfig {
     #[serde(default)]
     pub replay: Option<ReplayConfig>,
     #[serde(default)]
+    /// `[slam]`: sensor mode, estimator and the settings of both stages.
     pub slam: SlamConfig,
     #[serde(default)]
+    /// `[publish]`: the iceoryx2 services the poses and status go out on.
     pub publish: IpcConfig,
     #[serde(default)]
+    /// `[recording]`: raw streams and poses to MCAP files (off by default).
     pub recording: RecordingConfig,
     #[serde(default)]
+    /// `[pipeline]`: queue bounds and the health rules.
     pub pipeline: PipelineConfig,
 }
 
@@ -41,6 +47,7 @@ pub struct DaemonConfig {
 #[derive(Debug, Clone, PartialEq, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraConfig {
+    /// Driver that delivers the frames.
     pub source: CameraSource,
     /// v4l2: `/dev/videoN`, `N` or a udev symlink (`/dev/rigslam-camera`);
     /// aravis: the camera id ("Vendor-Model-Serial") or IP, absent for
@@ -54,14 +61,19 @@ pub struct CameraConfig {
     #[serde(default)]
     pub width: Option<u32>,
     #[serde(default)]
+    /// Requested height, px (the device's setting when absent).
     pub height: Option<u32>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
+/// Where the daemon's frames come from (`source` in `[camera]`).
 pub enum CameraSource {
+    /// A V4L2 camera (`/dev/videoN`), mmap streaming.
     V4l2,
+    /// A GigE/USB3 Vision camera through libaravis (the `aravis` feature).
     Aravis,
+    /// The frames of the `[replay]` dataset or recording.
     Replay,
     /// A moving test pattern on the host clock (no hardware): bring-up
     /// of the IMU side, and the fault tests. Nothing to track in it.
@@ -72,11 +84,13 @@ pub enum CameraSource {
 #[derive(Debug, Clone, PartialEq, serde::Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ImuConfig {
+    /// Driver that delivers the samples.
     pub source: ImuSource,
     /// yei: the serial device (`/dev/rigslam-imu` from the udev rule).
     #[serde(default)]
     pub port: Option<String>,
     #[serde(default = "default_baud")]
+    /// Serial baud rate of the YEI port \[115200\].
     pub baud: u32,
     /// Streaming rate asked of the YEI, Hz.
     #[serde(default = "default_imu_rate_hz")]
@@ -93,8 +107,11 @@ fn default_imu_rate_hz() -> f64 {
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
+/// Where the daemon's IMU samples come from (`source` in `[imu]`).
 pub enum ImuSource {
+    /// A YEI 3-Space sensor on a serial port (`port`, `baud`, `rate_hz`).
     Yei,
+    /// The IMU samples of the `[replay]` dataset or recording.
     Replay,
 }
 
@@ -160,6 +177,7 @@ pub struct ReplayConfig {
     /// comes from its attachments unless `[calibration]` names files).
     pub dataset: PathBuf,
     #[serde(default)]
+    /// How fast the replay goes (as recorded by default).
     pub pace: ReplayPace,
     /// Stop after this many frames (all when absent).
     #[serde(default)]
@@ -219,6 +237,7 @@ impl Default for SlamConfig {
 #[derive(Debug, Clone, PartialEq, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct RecordingConfig {
+    /// Record at all [false].
     pub enabled: bool,
     /// Where the `rigslam-<t>.mcap` files go.
     pub dir: PathBuf,
@@ -277,21 +296,35 @@ impl Default for PipelineConfig {
 #[derive(Debug, thiserror::Error)]
 pub enum DaemonConfigError {
     #[error("cannot read {path}: {source}")]
+    /// The config file cannot be read.
     Read {
+        /// The file.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
     #[error("{path}: {message}")]
-    Parse { path: PathBuf, message: String },
+    /// The file is not valid TOML, or does not match the tables and keys this struct expects.
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// The parser's message, with the position in the file.
+        message: String,
+    },
     #[error("{}", .0.iter().map(|p| p.to_string()).collect::<Vec<_>>().join("\n"))]
+    /// The file parsed, but settings are missing, out of range or inconsistent (every problem
+    /// found, one per line in the message).
     Problems(Vec<Problem>),
 }
 
 /// One thing wrong: the file, the key (dotted, `camera.device`) and why.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Problem {
+    /// The config file the problem is in.
     pub file: PathBuf,
+    /// The dotted key, e.g. `camera.device`.
     pub key: String,
+    /// Why the value cannot be used.
     pub why: String,
 }
 

@@ -39,6 +39,8 @@ struct Anchor {
 }
 
 impl FastPropagator {
+    /// A propagator with no frame state yet; the IMU alone carries the pose for at most
+    /// `imu_only_max_s` seconds after the last frame (negative counts as 0).
     pub fn new(imu_only_max_s: f64) -> Self {
         Self {
             imu_only_max_ns: (imu_only_max_s.max(0.0) * 1e9) as i64,

@@ -19,30 +19,38 @@ use crate::sensors::yei::device::host_monotonic_ns;
 /// Shared by every thread of the pipeline.
 #[derive(Default)]
 pub struct Health {
+    /// Frames the sources handed to the frame queue.
     pub frames_in: AtomicU64,
+    /// IMU samples the sources handed to the IMU queue.
     pub imu_in: AtomicU64,
+    /// Frame poses the sink sent on `rigslam/pose`.
     pub poses_out: AtomicU64,
+    /// IMU-rate poses sent on `rigslam/pose_fast`.
     pub pose_fast_out: AtomicU64,
     /// Poses the publisher failed to send.
     pub pose_drops: AtomicU64,
     /// Frames and samples the SLAM stage refused (stamps going back,
     /// non-finite values).
     pub frames_rejected: AtomicU64,
+    /// IMU samples the SLAM stage refused (see `frames_rejected`).
     pub imu_rejected: AtomicU64,
     /// Images and samples a source left out as unreadable: a recording's
     /// message that does not decode, a stereo half without its partner, a
     /// listed image whose file is missing, a non-finite row of a dataset.
     pub frames_skipped: AtomicU64,
+    /// IMU samples a source left out as unreadable (see `frames_skipped`).
     pub imu_skipped: AtomicU64,
     /// Stamps going back, or forward by more than a second.
     pub timestamp_jumps: AtomicU64,
     /// Host time of the last frame / sample handed to the queue, ns (0: none yet).
     pub last_frame_ns: AtomicI64,
+    /// Host `CLOCK_MONOTONIC` of the last IMU sample handed to the queue, ns (0: none yet).
     pub last_imu_ns: AtomicI64,
     /// Host time the SLAM stage last went round its loop, ns.
     pub stage_heartbeat_ns: AtomicI64,
     /// The IMU driver lost its port and is reopening it.
     pub imu_reconnecting: AtomicBool,
+    /// Times the IMU driver reopened its port.
     pub imu_reconnects: AtomicU64,
     /// The last frame's tracking state (the wire code).
     pub tracking_state: AtomicU32,
@@ -116,10 +124,12 @@ impl LatencyHistogram {
         }
     }
 
+    /// Values recorded over the run.
     pub fn count(&self) -> u64 {
         self.total
     }
 
+    /// Largest value recorded, us (0 before any).
     pub fn max_us(&self) -> f64 {
         self.max_us
     }
@@ -225,13 +235,19 @@ impl RateBase {
 /// Rules for the health bits.
 #[derive(Debug, Clone, Copy)]
 pub struct HealthRules {
+    /// No frame for this long: camera stalled, ns.
     pub camera_stall_ns: i64,
+    /// No IMU sample for this long: IMU gone, ns (ignored when `uses_imu` is false).
     pub imu_stall_ns: i64,
+    /// A stage with work and no progress for this long is stuck, ns.
     pub stuck_ns: i64,
+    /// Whether the sensor mode uses the IMU, so that an IMU stall matters.
     pub uses_imu: bool,
 }
 
 impl Health {
+    /// All counters zero, the SLAM stage's heartbeat set to now (host `CLOCK_MONOTONIC`), so it
+    /// does not count as stuck before it starts.
     pub fn new() -> Self {
         let h = Self::default();
         h.stage_heartbeat_ns
@@ -288,6 +304,8 @@ impl Health {
         }
     }
 
+    /// Records one frame's latency, frame arrival to pose published, us: for the status period's
+    /// figures and the whole run's histogram.
     pub fn record_latency_us(&self, us: f64) {
         self.latency_window_us
             .lock()

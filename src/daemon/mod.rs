@@ -39,6 +39,7 @@ pub struct Doorbell {
 }
 
 impl Doorbell {
+    /// Counts one ring and wakes every thread waiting on the bell.
     pub fn ring(&self) {
         *self.rings.lock().unwrap_or_else(|e| e.into_inner()) += 1;
         self.rung.notify_all();

@@ -25,18 +25,25 @@ use super::Doorbell;
 #[derive(Debug, thiserror::Error)]
 pub enum PipelineError {
     #[error("cannot start the {0} thread: {1}")]
+    /// A thread (named by the first field) could not be spawned.
     Thread(&'static str, std::io::Error),
     #[error(transparent)]
+    /// The recorder could not create or write its MCAP file.
     Recording(#[from] RecordingError),
     #[error("the SLAM stage failed: {0}")]
+    /// The SLAM stage could not build its estimator at start: the rig does not serve the mode,
+    /// a setting is out of range, or the estimator refused the rig.
     Stage(#[from] OdometryError),
     #[error("the {0} thread panicked")]
+    /// A pipeline thread (named by the field) panicked.
     Panicked(&'static str),
 }
 
 /// The iceoryx2 publishers of `pose` and `pose_fast`.
 pub struct IpcSink {
+    /// Publisher of `rigslam/pose`: one message per frame.
     pub pose: StreamPublisher<PoseMessage>,
+    /// Publisher of `rigslam/pose_fast`: one message per IMU sample.
     pub pose_fast: StreamPublisher<PoseMessage>,
 }
 
@@ -82,28 +89,41 @@ impl PoseSink for RecordingSink {
 /// What a finished pipeline did.
 #[derive(Debug, Clone, Default, serde::Serialize)]
 pub struct PipelineReport {
+    /// Frames the sources handed to the pipeline.
     pub frames: u64,
+    /// IMU samples the sources handed to the pipeline.
     pub imu_samples: u64,
+    /// Frame poses published.
     pub poses: u64,
+    /// IMU-rate poses published.
     pub poses_fast: u64,
     /// Every frame and sample lost, whatever the cause: queue overflows,
     /// refused by the stage, skipped by the source.
     pub frame_drops: u64,
+    /// IMU samples lost, whatever the cause (see `frame_drops`).
     pub imu_drops: u64,
     /// Of those, the ones a source left out as unreadable
     /// ([`super::health::Health::frames_skipped`]).
     pub frames_skipped: u64,
+    /// IMU samples a source left out as unreadable.
     pub imu_skipped: u64,
+    /// Poses the publisher failed to send.
     pub pose_drops: u64,
+    /// Stamps that went back, or forward by more than a second.
     pub timestamp_jumps: u64,
+    /// Records the recorder dropped because its channel was full.
     pub recording_drops: u64,
+    /// The MCAP files the recorder wrote and kept (older ones may have been deleted to stay within
+    /// the budget).
     pub recordings: Vec<PathBuf>,
     /// A replay stopped on an error before its end.
     pub source_failed: bool,
     /// Frame arrival to pose published, every frame of the run (within
     /// 1 %, see [`super::health::LatencyHistogram`]).
     pub latency_p50_us: f64,
+    /// 99th percentile of that latency, us.
     pub latency_p99_us: f64,
+    /// Largest latency, us.
     pub latency_max_us: f64,
 }
 
@@ -250,6 +270,8 @@ impl Pipeline {
         })
     }
 
+    /// The counters and health state the threads share, for a supervisor to read while the pipeline
+    /// runs.
     pub fn health(&self) -> &Arc<Health> {
         &self.health
     }

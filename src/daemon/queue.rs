@@ -22,7 +22,9 @@ use std::time::{Duration, Instant};
 /// What `push` does when the queue is full.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum WhenFull {
+    /// Drop the oldest waiting item to make room; the push never blocks (live drivers).
     DropOldest,
+    /// Block until there is room (replays, so nothing is lost).
     Wait,
 }
 
@@ -42,6 +44,7 @@ pub struct BoundedQueue<T> {
 /// What happened to a pushed item.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Pushed {
+    /// Queued without dropping anything.
     Queued,
     /// Queued after the oldest item was dropped.
     DroppedOldest,
@@ -50,6 +53,8 @@ pub enum Pushed {
 }
 
 impl<T> BoundedQueue<T> {
+    /// An empty queue named `name` (for logs and status) holding at most `capacity` items (at least
+    /// 1), with the given overflow policy.
     pub fn new(name: &'static str, capacity: usize, when_full: WhenFull) -> Self {
         let capacity = capacity.max(1);
         Self {
@@ -148,22 +153,27 @@ impl<T> BoundedQueue<T> {
         self.not_full.notify_all();
     }
 
+    /// Whether [`close`](Self::close) was called.
     pub fn is_closed(&self) -> bool {
         self.closed.load(Ordering::Acquire)
     }
 
+    /// Items waiting now.
     pub fn len(&self) -> usize {
         self.lock().len()
     }
 
+    /// Whether no item is waiting now.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
 
+    /// Largest number of waiting items.
     pub fn capacity(&self) -> usize {
         self.capacity
     }
 
+    /// The name given at construction, for logs and status.
     pub fn name(&self) -> &'static str {
         self.name
     }

@@ -42,14 +42,20 @@ impl RecordSender {
         }
     }
 
+    /// Hands an IMU sample to the recorder, stamped with the host's `CLOCK_MONOTONIC` now; dropped
+    /// and counted if the channel is full.
     pub fn imu(&self, sample: &ImuSample) {
         self.send(Record::Imu(*sample, host_monotonic_ns()));
     }
 
+    /// Hands a frame to the recorder, stamped with the host's `CLOCK_MONOTONIC` now; dropped and
+    /// counted if the channel is full.
     pub fn frame(&self, frame: &FrameItem) {
         self.send(Record::Frame(frame.clone(), host_monotonic_ns()));
     }
 
+    /// Hands a published pose to the recorder, stamped with the host's `CLOCK_MONOTONIC` now;
+    /// dropped and counted if the channel is full.
     pub fn pose(&self, pose: RecordedPose) {
         self.send(Record::Pose(pose, host_monotonic_ns()));
     }

@@ -29,8 +29,11 @@ use super::queue::BoundedQueue;
 /// One exposure on its way to the SLAM stage.
 #[derive(Debug, Clone)]
 pub struct FrameItem {
+    /// Exposure stamp, ns: host `CLOCK_MONOTONIC` for live drivers, the recording's time on replay.
     pub t_ns: i64,
+    /// The left (cam0) image, or the only one in mono.
     pub left: Frame,
+    /// The right (cam1) image of a stereo pair.
     pub right: Option<Frame>,
     /// Host `CLOCK_MONOTONIC` when the source handed it over, ns.
     pub arrival_ns: i64,
@@ -39,7 +42,10 @@ pub struct FrameItem {
 /// Where the stage's poses go: the iceoryx2 publishers in the daemon, a
 /// list in tests. Returns false when the pose could not be sent.
 pub trait PoseSink: Send {
+    /// Sends a frame's pose; `output` is the estimator's full answer for that frame. Returns false
+    /// when it could not be sent.
     fn pose(&mut self, message: &PoseMessage, output: &RelativeOutput) -> bool;
+    /// Sends an IMU-rate pose from the fast propagator. Returns false when it could not be sent.
     fn pose_fast(&mut self, message: &PoseMessage) -> bool;
 }
 
@@ -49,8 +55,11 @@ const JUMP_FORWARD_NS: i64 = 1_000_000_000;
 /// The stage's fixed settings.
 #[derive(Debug, Clone)]
 pub struct StageSettings {
+    /// Sensor mode the estimator runs in.
     pub mode: SensorMode,
+    /// Which relative estimator runs (window or EKF).
     pub estimator: EstimatorKind,
+    /// Settings of the relative stage.
     pub relative: RelativeConfig,
     /// How long to wait for the IMU sample past a frame, at most.
     pub imu_wait: Duration,
@@ -63,9 +72,13 @@ pub struct StageSettings {
 
 /// Inputs of the stage, shared with the sources and the supervisor.
 pub struct StageInputs {
+    /// Frames from the camera source.
     pub frames: Arc<BoundedQueue<FrameItem>>,
+    /// IMU samples from the IMU source.
     pub imu: Arc<BoundedQueue<ImuSample>>,
+    /// Rung by the sources when they push, so the stage sleeps on one condition variable.
     pub doorbell: Arc<super::Doorbell>,
+    /// Counters and heartbeat the health monitor reads.
     pub health: Arc<Health>,
     /// A new rig to rebuild the estimator with (SIGHUP).
     pub reload: Arc<Mutex<Option<RigModel>>>,

@@ -26,10 +26,15 @@ use super::Doorbell;
 /// What every source thread shares.
 #[derive(Clone)]
 pub struct SourceLinks {
+    /// Frames to the SLAM stage.
     pub frames: Arc<BoundedQueue<FrameItem>>,
+    /// IMU samples to the SLAM stage.
     pub imu: Arc<BoundedQueue<ImuSample>>,
+    /// Rung after each push, to wake the SLAM stage.
     pub doorbell: Arc<Doorbell>,
+    /// Counters and last-seen times the health monitor reads.
     pub health: Arc<Health>,
+    /// Set when the daemon stops; the source threads return when they see it.
     pub stop: Arc<AtomicBool>,
     /// Raw samples for the recorder, when recording.
     pub record: Option<super::recorder::RecordSender>,

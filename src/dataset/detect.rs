@@ -15,7 +15,9 @@ use crate::trajectory::Trajectory;
 /// A dataset of either layout `--dataset` accepts.
 #[derive(Debug, Clone)]
 pub enum Dataset {
+    /// A EuRoC ASL folder (`mav0/`).
     Euroc(EurocDataset),
+    /// A KITTI odometry sequence folder.
     Kitti(KittiSequence),
 }
 

@@ -22,6 +22,7 @@ b_a_RS_S_x [m s^-2], b_a_RS_S_y [m s^-2], b_a_RS_S_z [m s^-2]";
 #[allow(non_snake_case)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GroundTruthState {
+    /// Stamp, ns (EuRoC's clock, the one the sensors are stamped in).
     pub t_ns: i64,
     /// Maps body (IMU) coordinates into the world frame.
     pub T_world_body: Isometry3<f64>,
@@ -34,6 +35,7 @@ pub struct GroundTruthState {
 }
 
 impl GroundTruthState {
+    /// The stamped pose `T_world_body`, dropping velocity and biases.
     pub fn pose(&self) -> StampedPose {
         StampedPose {
             t_ns: self.t_ns,

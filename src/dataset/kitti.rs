@@ -34,17 +34,23 @@ const IMAGE_DIRS: [(&str, &str); 3] = [("image_0", "P0"), ("image_l", "P0"), ("i
 /// One mono KITTI odometry sequence.
 #[derive(Debug, Clone)]
 pub struct KittiSequence {
+    /// The sequence folder (holding `image_0/`, `times.txt`, `calib.txt`).
     pub root: PathBuf,
     /// The folder images come from.
     pub image_dir: PathBuf,
     /// fx, fy, cx, cy from calib.txt, no distortion (images are rectified).
     pub camera: CameraCalibration,
+    /// The images in file-name order, stamped from `times.txt` (or at 10 Hz without it).
     pub frames: Vec<ImageEntry>,
     /// `poses.txt`, stamped like the frames; pose of the left camera (= body).
     pub groundtruth: Option<Trajectory>,
 }
 
 impl KittiSequence {
+    /// Opens the KITTI odometry sequence in `path`: the first image folder found (`image_0`,
+    /// `image_l`, `image_2`) with its projection matrix from `calib.txt`, the stamps from
+    /// `times.txt` (frame i at i/10 s without it) and `poses.txt` when present. Errors name the
+    /// file that is missing or malformed.
     pub fn open(path: &Path) -> Result<Self, DatasetError> {
         let (image_dir, projection) = IMAGE_DIRS
             .iter()

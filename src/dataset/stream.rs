@@ -12,12 +12,16 @@ use super::euroc::{EurocCamera, ImageEntry};
 /// One thing a rig delivers.
 #[derive(Debug, Clone)]
 pub enum SensorEvent {
+    /// One IMU sample (stamp in the dataset's clock, ns).
     Imu(ImuSample),
     /// An exposure: the left image and, when stereo was asked for and the
     /// right image exists, the right one with the same stamp.
     Frame {
+        /// Exposure stamp in the dataset's clock, ns.
         t_ns: i64,
+        /// The cam0 (left) image, or the only one.
         left: Frame,
+        /// The cam1 (right) image with the same stamp, when stereo was asked for and it exists.
         right: Option<Frame>,
     },
 }
@@ -25,7 +29,9 @@ pub enum SensorEvent {
 /// What the stream left out, for the run report.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
 pub struct StreamCounts {
+    /// Frames delivered so far.
     pub frames: u64,
+    /// IMU samples delivered so far.
     pub imu_samples: u64,
     /// Listed left stamps whose image file is absent.
     pub frames_missing_image: u64,
@@ -74,6 +80,7 @@ pub struct StreamOptions {
     /// Skip frames before this stamp (and IMU samples before the first
     /// delivered frame's previous 2 s, as a live IMU would have run before the camera).
     pub start_ns: Option<i64>,
+    /// Stop after this many frames (all when `None`).
     pub max_frames: Option<usize>,
 }
 
@@ -170,6 +177,7 @@ impl<'a> SensorStream<'a> {
         (self.left.len() - self.next_frame.min(self.left.len())).min(self.max_frames)
     }
 
+    /// What the stream delivered and left out so far.
     pub fn counts(&self) -> StreamCounts {
         self.counts
     }

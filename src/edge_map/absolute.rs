@@ -109,7 +109,10 @@ pub enum LandmarkCovariance {
     Exact,
     /// The paper's approximation: the inverse of A's sub-matrix over the
     /// visible landmarks grown by `hops` rings; no consider terms.
-    SubMatrix { hops: usize },
+    SubMatrix {
+        /// Rings of neighbours added around the visible landmarks.
+        hops: usize,
+    },
 }
 
 /// Where the map solve runs.
@@ -139,12 +142,17 @@ pub enum SolveMode {
 /// Configuration of the absolute stage.
 #[derive(Clone, Debug)]
 pub struct AbsoluteConfig {
+    /// Which landmark pairs of a frame become edges [frame nodes every 5 frames].
     pub policy: EdgePolicy,
+    /// How those edges are weighted as measurements [the paper's, scaled].
     pub weighting: EdgeWeighting,
     /// Map solve every this many frames (the paper: 5).
     pub solve_every_frames: usize,
+    /// Where the map solve runs \[pipelined\].
     pub solve_mode: SolveMode,
+    /// Direct sparse Cholesky or conjugate gradients [auto: CG above 200 000 landmarks].
     pub solver: SolverChoice,
+    /// How the visible landmarks' covariance for the correction is computed \[exact\].
     pub covariance: LandmarkCovariance,
     /// Prediction noise: `Q = sigma^2 * |Δ| * I` (a random walk per metre
     /// travelled), sigma in m per sqrt(m).
@@ -197,6 +205,7 @@ impl Default for AbsoluteConfig {
 #[allow(non_snake_case)]
 #[derive(Clone, Debug, PartialEq)]
 pub struct CorrectedPose {
+    /// Frame stamp, ns.
     pub t_ns: i64,
     /// Position from the filter, orientation from the relative stage.
     pub T_world_body: Isometry3<f64>,
@@ -213,8 +222,11 @@ pub struct CorrectedPose {
 /// Counters and timings of a run.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct AbsoluteStats {
+    /// Frames pushed.
     pub frames: usize,
+    /// Frames the position filter corrected with landmarks.
     pub corrections: usize,
+    /// Map solves installed.
     pub solves: usize,
     /// Solves whose sparsity pattern equalled the previous one's, so the
     /// symbolic factorisation was reused.
@@ -224,7 +236,9 @@ pub struct AbsoluteStats {
     pub ordering_reused: usize,
     /// Solves with a fresh AMD ordering.
     pub fresh_orderings: usize,
+    /// Solves done by conjugate gradients.
     pub pcg_solves: usize,
+    /// Conjugate-gradient iterations over all of them.
     pub pcg_iterations: usize,
     /// Iterations a cold start would have needed (when measured).
     pub pcg_cold_iterations: usize,
@@ -235,14 +249,19 @@ pub struct AbsoluteStats {
     /// install (zero while solves take less than K frames), total and
     /// longest, ms.
     pub solve_wait_ms: f64,
+    /// Longest of those waits, ms.
     pub solve_wait_max_ms: f64,
+    /// Time spent in map solves in all, ms.
     pub solve_total_ms: f64,
     /// Parts of `solve_total_ms`: assembly of A, ordering + symbolic
     /// analysis, numeric factorisation, and the covariance blocks of the
     /// landmarks in view.
     pub solve_assemble_ms: f64,
+    /// Ordering and symbolic analysis, ms.
     pub solve_symbolic_ms: f64,
+    /// Numeric factorisation, ms.
     pub solve_factor_ms: f64,
+    /// Covariance blocks of the landmarks in view, ms.
     pub solve_covariance_ms: f64,
     /// Entries of the last solve's Cholesky factor.
     pub last_factor_nnz: usize,
@@ -251,6 +270,7 @@ pub struct AbsoluteStats {
     /// Robust reweighting: extra solves in all, and edges down-weighted
     /// in the last map.
     pub robust_solves: usize,
+    /// Edges down-weighted in the last map.
     pub last_downweighted_edges: usize,
     /// Tracks recognised in some frames but not confirmed in the next
     /// (`RecognitionConfig::confirm_frames`): left as new landmarks.
@@ -258,8 +278,11 @@ pub struct AbsoluteStats {
     /// Recognitions that put the robot elsewhere than the frame's
     /// landmarks already in the map do (`RecognitionConfig::consensus_gate_m`).
     pub inconsistent_recognitions: usize,
+    /// Time spent in `push` over all frames, ms (inline solves included).
     pub frame_total_ms: f64,
+    /// Longest time on one frame, ms.
     pub frame_max_ms: f64,
+    /// Map solves that failed (the previous map was kept).
     pub solve_errors: usize,
     /// New track ids recognised as landmarks already in the map.
     pub recognised: usize,
@@ -346,6 +369,7 @@ impl Drop for Background {
 }
 
 impl AbsoluteStage {
+    /// A stage with `config`, starting its solve thread in the background and pipelined modes.
     pub fn new(config: AbsoluteConfig) -> Self {
         let inline = config.solve_mode == SolveMode::Inline;
         let new_worker = || {
@@ -423,10 +447,12 @@ impl AbsoluteStage {
         self.worker.as_mut()
     }
 
+    /// Counters and timings so far.
     pub fn stats(&self) -> &AbsoluteStats {
         &self.stats
     }
 
+    /// The settings it was built with.
     pub fn config(&self) -> &AbsoluteConfig {
         &self.config
     }
@@ -1109,7 +1135,10 @@ pub enum MapReference {
     Landmark(LandmarkId),
     /// The robot's position in a frame, by the number of frames pushed
     /// before it.
-    Frame { index: usize },
+    Frame {
+        /// Frames pushed before it.
+        index: usize,
+    },
 }
 
 /// The track id recorded for a frame node of [`EdgePolicy::FrameNodes`]

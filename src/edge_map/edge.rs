@@ -92,11 +92,14 @@ pub struct EdgeMap {
 /// map elsewhere (the map solve thread) needs to catch up.
 #[derive(Clone, Debug, Default)]
 pub struct EdgeChanges {
+    /// Number of landmarks (and frame nodes) in the map now.
     pub landmark_count: u32,
+    /// Each changed edge, keyed by its (smaller, larger) landmark ids, with its new fused value.
     pub edges: Vec<((u32, u32), FusedEdge)>,
 }
 
 impl EdgeMap {
+    /// An empty map.
     pub fn new() -> Self {
         Self::default()
     }
@@ -204,14 +207,17 @@ impl EdgeMap {
         }
     }
 
+    /// The fused edge between `i` and `j` (in either order), if any.
     pub fn edge(&self, i: u32, j: u32) -> Option<&FusedEdge> {
         self.edges.get(&(i.min(j), i.max(j)))
     }
 
+    /// Number of fused edges.
     pub fn edge_count(&self) -> usize {
         self.edges.len()
     }
 
+    /// Number of landmarks (and frame nodes) in the map.
     pub fn landmark_count(&self) -> u32 {
         self.landmark_count
     }

@@ -22,12 +22,22 @@ pub struct BlockLaplacian {
     /// Number of unknown landmarks (all but the reference).
     pub node_count: usize,
     /// Node-level upper pattern: column `v` lists the nodes `u <= v` with a
-    /// block `A_uv`, sorted, the diagonal last.
+    /// block `A_uv`, sorted, the diagonal last. Column `v` spans
+    /// `node_row_idx[node_col_ptr[v]..node_col_ptr[v + 1]]`
+    /// (`node_count + 1` entries).
     pub node_col_ptr: Vec<u32>,
+    /// Node (unknown landmark) index of each block in the node pattern,
+    /// column by column as `node_col_ptr` delimits them.
     pub node_row_idx: Vec<u32>,
-    /// Scalar upper CSC of `A`, dimension `3 * node_count`.
+    /// Scalar upper CSC of `A`, dimension `3 * node_count`: column `c`
+    /// spans `row_idx[col_ptr[c]..col_ptr[c + 1]]` and the same range of
+    /// `values` (`3 * node_count + 1` entries).
     pub col_ptr: Vec<u32>,
+    /// Scalar row of each stored entry of `A`, ascending within a column,
+    /// never below the diagonal.
     pub row_idx: Vec<u32>,
+    /// Stored entries of `A` (sums of edge information matrices), m^-2,
+    /// parallel to `row_idx`.
     pub values: Vec<f64>,
     /// Right-hand side `B`, m^-1.
     pub rhs: Vec<f64>,

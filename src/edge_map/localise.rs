@@ -43,6 +43,7 @@ pub struct LocaliseConfig {
     pub inlier_m: f64,
     /// Relocalisation: at least this many inliers to accept a transform.
     pub min_inliers: usize,
+    /// Relocalisation: RANSAC iterations per attempt.
     pub ransac_iterations: usize,
     /// Relocalisation: when both the map and the relative stage's world
     /// have gravity along -z (inertial modes), the transform between them
@@ -64,7 +65,9 @@ pub struct LocaliseConfig {
     /// frame's fit leaves the rotation off by about a degree, which
     /// every offset to a landmark then carries.
     pub refit_every_frames: usize,
+    /// Recognised landmark pairs (relative world, map) the refit uses, newest first.
     pub refit_pairs: usize,
+    /// Seed of the RANSAC sampler; the same seed and input give the same result.
     pub seed: u64,
 }
 
@@ -92,7 +95,9 @@ impl Default for LocaliseConfig {
 /// What the localiser did so far.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
 pub struct LocaliseStats {
+    /// Frames pushed.
     pub frames: usize,
+    /// Frames with a pose in the map.
     pub localised_frames: usize,
     /// Relocalisation attempts (frames matched by descriptor alone).
     pub attempts: usize,
@@ -100,10 +105,12 @@ pub struct LocaliseStats {
     pub relocalisations: usize,
     /// Times the relative stage lost tracking and localisation restarted.
     pub resets: usize,
+    /// Tracks recognised as map landmarks.
     pub recognised: usize,
     /// Recognitions that placed the robot elsewhere than the frame's
     /// associated landmarks do (see [`consistent_recognitions`]).
     pub inconsistent_recognitions: usize,
+    /// Frames the position filter corrected with map landmarks.
     pub corrections: usize,
     /// Landmarks left out of a correction by the innovation gate.
     pub gated_out: usize,
@@ -115,8 +122,11 @@ pub struct LocaliseStats {
 #[allow(non_snake_case)]
 #[derive(Clone, Debug, PartialEq)]
 pub struct LocalisedPose {
+    /// Frame stamp, ns.
     pub t_ns: i64,
+    /// Body (IMU) pose in the map frame: maps body coordinates into the map frame.
     pub T_map_body: Isometry3<f64>,
+    /// Covariance of the body position in the map frame, m^2.
     pub position_covariance_m2: Matrix3<f64>,
     /// Map landmarks used by this frame's correction.
     pub landmarks_used: usize,
@@ -160,6 +170,7 @@ pub struct MapLocaliser {
 const INDEX_CELL_M: f64 = 1.0;
 
 impl MapLocaliser {
+    /// A localiser in `map`, not localised yet.
     pub fn new(map: &SavedMap, config: LocaliseConfig) -> Self {
         let positions_m: Vec<Vector3<f64>> = map.landmarks.iter().map(|l| l.position_m).collect();
         let index =
@@ -178,6 +189,7 @@ impl MapLocaliser {
         }
     }
 
+    /// Counters so far.
     pub fn stats(&self) -> &LocaliseStats {
         &self.stats
     }

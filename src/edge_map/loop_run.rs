@@ -15,9 +15,11 @@ use super::simulate_relative::{simulate_room_run, RoomRunOptions};
 /// Position errors of one run, per frame, m.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct LoopComparison {
+    /// Frame stamps, s.
     pub t_s: Vec<f64>,
     /// Lap index of each frame (0-based).
     pub lap: Vec<usize>,
+    /// The relative stage's own position error per frame, m.
     pub relative_error_m: Vec<f64>,
     /// Absolute stage with recognition (None before its filter starts).
     pub recognised_error_m: Vec<Option<f64>>,
@@ -25,7 +27,9 @@ pub struct LoopComparison {
     pub unrecognised_error_m: Vec<Option<f64>>,
     /// Track ids recognised, and how many of them were the wrong landmark.
     pub recognised: usize,
+    /// Of those, recognitions of the wrong landmark.
     pub false_recognitions: usize,
+    /// Laps driven (the last one may be partial).
     pub laps: usize,
 }
 
@@ -44,13 +48,18 @@ pub fn lap_rmse(errors: &[Option<f64>], laps: &[usize], lap: usize) -> f64 {
 }
 
 impl LoopComparison {
+    /// RMS of the relative stage's position error in lap `lap`, m (NaN when the lap has no frame).
     pub fn relative_lap_rmse(&self, lap: usize) -> f64 {
         let e: Vec<Option<f64>> = self.relative_error_m.iter().map(|&e| Some(e)).collect();
         lap_rmse(&e, &self.lap, lap)
     }
+    /// RMS of the recognising absolute stage's position error in lap `lap`, m (NaN when it has
+    /// none).
     pub fn recognised_lap_rmse(&self, lap: usize) -> f64 {
         lap_rmse(&self.recognised_error_m, &self.lap, lap)
     }
+    /// RMS of the non-recognising absolute stage's position error in lap `lap`, m (NaN when it has
+    /// none).
     pub fn unrecognised_lap_rmse(&self, lap: usize) -> f64 {
         lap_rmse(&self.unrecognised_error_m, &self.lap, lap)
     }

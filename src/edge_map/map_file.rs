@@ -33,29 +33,42 @@ const PREALLOCATED_LANDMARKS: usize = 4096;
 /// One landmark of a saved map.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MapLandmark {
+    /// Landmark id in the map.
     pub id: u32,
+    /// Position in the map's world frame, m.
     pub position_m: Vector3<f64>,
+    /// Covariance of the position given its neighbours in the map, m^2.
     pub covariance_m2: Matrix3<f64>,
+    /// ORB descriptor for recognition, when the landmark has one.
     pub descriptor: Option<Descriptor>,
 }
 
 /// A saved map.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SavedMap {
+    /// The landmarks, in file order.
     pub landmarks: Vec<MapLandmark>,
 }
 
 #[derive(Debug, thiserror::Error)]
+/// Why a map file could not be written or read.
 pub enum MapFileError {
     #[error("{path}: {source}")]
+    /// The file could not be created, written or read.
     Io {
+        /// The file.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
     #[error("{path}:{line}: {message}")]
+    /// A line does not parse (or the header is wrong).
     Parse {
+        /// The file.
         path: PathBuf,
+        /// 1-based line number.
         line: usize,
+        /// What is wrong with it.
         message: String,
     },
 }
@@ -80,6 +93,7 @@ fn parse_hex(text: &str) -> Option<Descriptor> {
 }
 
 impl SavedMap {
+    /// Writes the map to `path` in the text format above (creating or truncating the file).
     pub fn write(&self, path: &Path) -> Result<(), MapFileError> {
         let io = |source| MapFileError::Io {
             path: path.to_path_buf(),
@@ -116,6 +130,7 @@ impl SavedMap {
         out.flush().map_err(io)
     }
 
+    /// Reads a map written by [`Self::write`].
     pub fn read(path: &Path) -> Result<Self, MapFileError> {
         let file = std::fs::File::open(path).map_err(|source| MapFileError::Io {
             path: path.to_path_buf(),

@@ -3,11 +3,15 @@
 //! solution) goes to a [`MapSolveWorker`], which may live on another
 //! thread, and a [`SolvedMap`] comes back.
 //!
-//! The worker keeps what carries over between solves: the symbolic
-//! Cholesky factorisation (reused by [`EdgeMapSolver`] while the sparsity
-//! pattern is unchanged) and, for very large maps, the conjugate-gradient
-//! warm start: the last solution, extended to landmarks added since by
-//! chaining their fused edges from already placed neighbours.
+//! The worker keeps what carries over between solves: the fill-reducing
+//! ordering and the symbolic Cholesky factorisation
+//! ([`IncrementalSymbolic`]: the symbolic part is reused whole while the
+//! sparsity pattern is unchanged, as in [`super::EdgeMapSolver`], and the
+//! ordering is reused with new landmarks appended when it changes). For
+//! very large maps it solves by conjugate gradient instead, warm-started
+//! from the previous solution the request carries, extended to landmarks
+//! added since by chaining their fused edges from already placed
+//! neighbours.
 
 use std::collections::VecDeque;
 use std::time::Instant;
@@ -45,13 +49,14 @@ pub struct MapSolveRequest {
 pub struct CovarianceBlocks {
     /// Row/column block of each map id in `matrix`.
     pub slot: std::collections::HashMap<u32, usize>,
-    /// `Σ_L(V, V)`, 3 rows and columns per landmark (zero for the
-    /// reference).
+    /// `Σ_L(V, V)`, m^2, 3 rows and columns per landmark (world-frame
+    /// axes; zero for the reference).
     pub matrix: nalgebra::DMatrix<f64>,
 }
 
 impl CovarianceBlocks {
-    /// The joint covariance of `ids` (all must have a slot).
+    /// The joint covariance of `ids` (3 rows and columns per id, in the
+    /// order given), m^2; `None` if one of them has no slot.
     pub fn select(&self, ids: &[u32]) -> Option<nalgebra::DMatrix<f64>> {
         let slots: Option<Vec<usize>> = ids.iter().map(|id| self.slot.get(id).copied()).collect();
         let slots = slots?;
@@ -65,9 +70,12 @@ impl CovarianceBlocks {
 /// A solved map: landmark positions relative to the reference, and what
 /// the position filter needs for their covariances (eq. 59).
 pub struct SolvedMap {
+    /// The [`MapSolveRequest::version`] this answers; a stage ignores a
+    /// result older than the map it already holds.
     pub version: u64,
-    /// Position of each map id relative to the reference, m; None for a
-    /// landmark outside the reference's connected component.
+    /// Position of each map id relative to the reference, world-frame
+    /// axes, m; None for a landmark outside the reference's connected
+    /// component.
     pub positions_m: Vec<Option<Vector3<f64>>>,
     /// The solved problem (the reference's component, renumbered).
     pub problem: MapProblem,
@@ -77,6 +85,7 @@ pub struct SolvedMap {
     pub laplacian: BlockLaplacian,
     /// Cholesky factor of `A` (None after a conjugate-gradient solve).
     pub factor: Option<CholeskyFactor>,
+    /// Timings and solver statistics of this solve.
     pub report: SolveReport,
     /// Iterations a cold start (from zero) needed on the same system, when
     /// the worker was asked to measure it.
@@ -103,7 +112,9 @@ pub const DEFAULT_REFRESH_FRACTION: f64 = 0.1;
 /// Solves map requests; keeps the symbolic factorisation between them.
 pub struct MapSolveWorker {
     symbolic: IncrementalSymbolic,
+    /// Cholesky, conjugate gradient, or chosen by map size.
     pub choice: SolverChoice,
+    /// Stopping rule of the conjugate-gradient solves.
     pub cg: CgOptions,
     /// Also run every CG solve from a cold start (zero) and report its
     /// iterations (measurement only; doubles the CG cost).
@@ -123,7 +134,12 @@ pub struct MapSolveWorker {
 /// is the same).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RobustWeights {
+    /// Squared Mahalanobis residual (unitless) above which an edge is
+    /// down-weighted; the default 16.27 is the 99.9 % quantile of a
+    /// chi-square with 3 dof.
     pub threshold_chi2: f64,
+    /// Upper bound on the reweighted solves after the first; they stop
+    /// early once no edge exceeds the threshold. Default 2.
     pub iterations: usize,
 }
 
@@ -161,6 +177,11 @@ impl RobustWeights {
 }
 
 impl MapSolveWorker {
+    /// A worker solving with `choice`, default CG options, no robust
+    /// reweighting, no cold-start measurement, and ordering reuse that
+    /// appends new landmarks until they exceed [`DEFAULT_REFRESH_FRACTION`]
+    /// of those the last fresh AMD ordered.
+    /// `threads`: 1 runs sequentially, more uses faer's rayon parallelism.
     pub fn new(choice: SolverChoice, threads: usize) -> Self {
         Self {
             symbolic: IncrementalSymbolic::new(

@@ -60,29 +60,40 @@ pub use solve::{EdgeMapSolver, SolveReport, SolverChoice};
 #[derive(Debug, thiserror::Error)]
 pub enum EdgeMapError {
     #[error("{path}: {source}")]
+    /// An edges file could not be read or written.
     Io {
+        /// The file.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
     /// A line of an edges file that cannot be used.
     #[error("{path}:{line}: {message}")]
     Line {
+        /// The file.
         path: PathBuf,
+        /// 1-based line number.
         line: usize,
+        /// What is wrong with it.
         message: String,
     },
     #[error(
         "the edge graph is not connected: {} cannot be placed relative to reference landmark {reference}",
         describe_components(unplaced)
     )]
+    /// Some landmarks have no chain of edges to the reference, so the map cannot place them.
     Disconnected {
+        /// Id of the reference landmark (fixed at the origin).
         reference: u32,
         /// Landmark ids of each component that does not hold the reference.
         unplaced: Vec<Vec<u32>>,
     },
     #[error("A is not positive definite (an edge information matrix is indefinite, or the graph is degenerate)")]
+    /// The system matrix A is not positive definite (an edge information matrix is indefinite, or
+    /// the graph is degenerate).
     NotPositiveDefinite,
     #[error("solver: {0}")]
+    /// The sparse solver failed (its message).
     Solver(String),
 }
 

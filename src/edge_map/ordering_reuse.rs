@@ -29,7 +29,11 @@ pub enum OrderingReuse {
     Fresh,
     /// Keep the ordered landmarks' order, append new ones; fresh AMD once
     /// the appended landmarks exceed this fraction of the ordered ones.
-    AppendNew { refresh_fraction: f64 },
+    AppendNew {
+        /// Growth allowed since the last fresh AMD, as a fraction of the
+        /// landmarks it ordered (0.1: fresh AMD past 10 % more).
+        refresh_fraction: f64,
+    },
 }
 
 /// What the last factorisation did with the ordering.
@@ -46,6 +50,8 @@ pub enum SymbolicPath {
 
 /// Keeps the ordering (by map id) and the symbolic factorisation.
 pub struct IncrementalSymbolic {
+    /// How a changed pattern's ordering is obtained; may be changed
+    /// between factorisations.
     pub policy: OrderingReuse,
     par: Par,
     /// Map ids in elimination order.
@@ -56,6 +62,8 @@ pub struct IncrementalSymbolic {
 }
 
 impl IncrementalSymbolic {
+    /// Nothing cached yet: the first factorisation runs a fresh AMD. `par`
+    /// is faer's parallelism for the numeric factorisations.
     pub fn new(policy: OrderingReuse, par: Par) -> Self {
         Self {
             policy,

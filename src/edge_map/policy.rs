@@ -30,7 +30,10 @@ pub enum EdgePolicy {
     /// errors are strongly correlated), so the map loses little and its
     /// unknowns and fill shrink. [`EdgePolicy::pairs`] gives no pairs for
     /// it; the caller adds the frame node.
-    FrameNodes { every: usize },
+    FrameNodes {
+        /// Keep one tracking frame in this many (1: every frame).
+        every: usize,
+    },
 }
 
 impl std::fmt::Display for EdgePolicy {

@@ -41,6 +41,7 @@ pub struct LandmarkFix {
 /// What one correction did.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct CorrectionReport {
+    /// Landmarks used in the correction.
     pub landmarks: usize,
     /// Normalised innovation squared `r^T S^-1 r` (chi-square with
     /// `3 * landmarks` degrees of freedom when the filter is consistent).
@@ -51,11 +52,16 @@ pub struct CorrectionReport {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum CorrectionError {
     #[error("innovation covariance is not positive definite")]
+    /// The innovation covariance `S` is not positive definite.
     SingularInnovation,
     #[error("a covariance given to the correction is {rows}x{cols}; it needs {expected} columns (3 per landmark)")]
+    /// A covariance matrix given has the wrong shape.
     Shape {
+        /// Its rows.
         rows: usize,
+        /// Its columns.
         cols: usize,
+        /// Columns it needs (3 per landmark).
         expected: usize,
     },
 }
@@ -74,6 +80,8 @@ pub struct PositionFilter {
 const SENSITIVITY_FLOOR: f64 = 1e-9;
 
 impl PositionFilter {
+    /// A filter at `position_world_m` (m) with covariance `covariance_m2` (m^2), no map sensitivity
+    /// yet.
     pub fn new(position_world_m: Vector3<f64>, covariance_m2: Matrix3<f64>) -> Self {
         Self {
             position_world_m,
@@ -82,10 +90,12 @@ impl PositionFilter {
         }
     }
 
+    /// Estimated body position in the world (map) frame, m.
     pub fn position_world_m(&self) -> Vector3<f64> {
         self.position_world_m
     }
 
+    /// Covariance of that position, m^2.
     pub fn covariance_m2(&self) -> Matrix3<f64> {
         self.covariance_m2
     }

@@ -8,9 +8,13 @@ use super::edge::EdgeMap;
 /// `L_j - L_i` (world frame) with information `info = Σ^-1`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MapEdge {
+    /// Id of the landmark the edge starts at.
     pub i: u32,
+    /// Id of the landmark the edge ends at.
     pub j: u32,
+    /// Estimate of `L_j - L_i`, world frame, m.
     pub y_m: Vector3<f64>,
+    /// Information of that estimate (inverse covariance), m^-2.
     pub info: Matrix3<f64>,
 }
 
@@ -18,8 +22,11 @@ pub struct MapEdge {
 /// landmark fixed at the origin (it removes the nullity 3 of A, eq. 57).
 #[derive(Clone, Debug, Default)]
 pub struct MapProblem {
+    /// Number of landmarks (and frame nodes); ids run `0..landmark_count`.
     pub landmark_count: u32,
+    /// Id of the landmark fixed at the origin.
     pub reference: u32,
+    /// The fused edges.
     pub edges: Vec<MapEdge>,
 }
 

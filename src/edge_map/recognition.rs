@@ -115,14 +115,17 @@ impl LandmarkIndex {
         }
     }
 
+    /// World position of landmark `id`, m, if it is indexed.
     pub fn position(&self, id: u32) -> Option<Vector3<f64>> {
         *self.positions.get(id as usize)?
     }
 
+    /// Landmarks indexed.
     pub fn len(&self) -> usize {
         self.positions.iter().flatten().count()
     }
 
+    /// Whether no landmark is indexed.
     pub fn is_empty(&self) -> bool {
         self.cells.is_empty()
     }
@@ -176,13 +179,16 @@ pub struct RecognitionQuery {
     pub predicted_world_m: Vector3<f64>,
     /// Covariance of that prediction (observation + robot position), m².
     pub covariance_m2: Matrix3<f64>,
+    /// The track's ORB descriptor.
     pub descriptor: Descriptor,
 }
 
 /// The recognised map landmark and its descriptor distance.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Recognition {
+    /// The map landmark's id.
     pub map_id: u32,
+    /// Hamming distance between the two descriptors, bits (of 256).
     pub hamming: u32,
 }
 
@@ -251,8 +257,11 @@ pub fn recognise(
 /// position and covariance (the position filter's) and the body's
 /// orientation in the map's frame.
 pub struct FramePlacement {
+    /// Body-to-map rotation.
     pub rotation: Matrix3<f64>,
+    /// Body position in the map frame, m.
     pub position_m: Vector3<f64>,
+    /// Covariance of that position, m^2.
     pub position_covariance_m2: Matrix3<f64>,
     /// Multiplies the tracks' body-frame covariances.
     pub landmark_covariance_scale: f64,

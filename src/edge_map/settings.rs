@@ -116,8 +116,11 @@ pub const REAL_DATA_COVARIANCE_SCALE: f64 = 2.0;
 /// allowed.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SettingError {
+    /// The dotted key, e.g. `absolute.policy`.
     pub key: &'static str,
+    /// Its value, as written.
     pub value: String,
+    /// What is allowed.
     pub allowed: &'static str,
 }
 
@@ -259,9 +262,6 @@ impl AbsoluteSettings {
         })
     }
 
-    /// The localiser's settings (`--load-map`): the recognition gates,
-    /// increment noise and correction size of this table, checked as for
-    /// the absolute stage.
     /// The recognition gates of this table, for the absolute stage and the
     /// localiser alike (checked by [`Self::to_config`]).
     fn recognition_config(&self) -> RecognitionConfig {
@@ -280,6 +280,9 @@ impl AbsoluteSettings {
         }
     }
 
+    /// The localiser's settings (`--load-map`): the recognition gates,
+    /// increment noise and correction size of this table, checked as for
+    /// the absolute stage (the first setting out of range otherwise).
     pub fn to_localise_config(&self) -> Result<LocaliseConfig, SettingError> {
         let stage = self.to_config()?;
         Ok(LocaliseConfig {

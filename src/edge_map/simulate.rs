@@ -27,12 +27,15 @@ pub struct CityOptions {
     /// keeps those connected to the reference (a few crowded-out ones may
     /// be missing from large runs).
     pub landmarks: usize,
+    /// Side of a city block (street spacing), m.
     pub block_m: f64,
     /// Landmarks per metre of street (both sides together).
     pub landmarks_per_m: f64,
+    /// Width of the strip the route stays in, blocks.
     pub strip_blocks: i64,
     /// Distance between frames, m.
     pub step_m: f64,
+    /// Largest distance at which a landmark is observed, m.
     pub range_m: f64,
     /// At most this many (nearest) landmarks are observed per frame.
     pub max_visible: usize,
@@ -40,7 +43,9 @@ pub struct CityOptions {
     pub sigma_transverse_per_m: f64,
     /// Depth standard deviation per squared metre of depth (stereo).
     pub sigma_depth_per_m2: f64,
+    /// Which landmark pairs of a frame become edges.
     pub policy: EdgePolicy,
+    /// Seed of the route, landmarks and noise; the same seed gives the same run.
     pub seed: u64,
     /// Draw observation noise from the stated covariances (false: exact
     /// observations, same covariances).
@@ -68,6 +73,7 @@ impl Default for CityOptions {
 
 /// A simulated map: the fused problem and the true landmark positions.
 pub struct SimulatedMap {
+    /// The fused edges, ready to solve.
     pub problem: MapProblem,
     /// True positions by id, world frame, m (of the frame for a frame
     /// node).
@@ -75,7 +81,9 @@ pub struct SimulatedMap {
     /// Which ids are frame nodes ([`EdgePolicy::FrameNodes`]), not
     /// landmarks.
     pub frame_node: Vec<bool>,
+    /// Frames driven.
     pub frames: usize,
+    /// Observations (or frame-landmark pairs) fused into edges.
     pub measurements: usize,
     /// Wall time spent choosing pairs and fusing edges (eq. 41-43), ms.
     pub fuse_ms: f64,

@@ -23,6 +23,7 @@ use crate::relative::types::{BodyLandmark, LandmarkId, RelativeOutput, TrackingS
 pub struct RoomRunOptions {
     /// Room extent (x, y), m; landmarks on its four walls, 0-3 m high.
     pub room_m: (f64, f64),
+    /// Landmarks placed on the walls.
     pub landmarks: usize,
     /// Laps of the oval path (semi-axes 35% of the room).
     pub laps: f64,
@@ -30,6 +31,7 @@ pub struct RoomRunOptions {
     pub step_m: f64,
     /// Landmarks within this range and the field of view are seen.
     pub range_m: f64,
+    /// Half of the horizontal field of view, rad.
     pub half_fov_rad: f64,
     /// At most this many (nearest) landmarks per frame.
     pub max_visible: usize,
@@ -58,6 +60,8 @@ pub struct RoomRunOptions {
     /// through the same room differ (a map made in one, localised in by
     /// the other).
     pub noise_seed: Option<u64>,
+    /// Seed of the room (landmark positions and descriptors), and of the drive unless `noise_seed`
+    /// is given.
     pub seed: u64,
 }
 
@@ -86,6 +90,8 @@ impl Default for RoomRunOptions {
 
 /// A simulated run with its ground truth.
 pub struct RoomRun {
+    /// What the relative stage would have output per frame (drifting odometry, tracks re-identified
+    /// on re-entering the view).
     pub outputs: Vec<RelativeOutput>,
     /// True body position per frame, world frame, m.
     pub truth_position_m: Vec<Vector3<f64>>,

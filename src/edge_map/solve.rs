@@ -36,7 +36,10 @@ pub enum SolverChoice {
     ConjugateGradient,
     /// Cholesky up to `cg_above_landmarks` landmarks, CG above once a
     /// previous solution exists to start from.
-    Auto { cg_above_landmarks: usize },
+    Auto {
+        /// Landmark count (reference included) above which CG is used.
+        cg_above_landmarks: usize,
+    },
 }
 
 /// Conjugate-gradient stopping rule.
@@ -44,6 +47,8 @@ pub enum SolverChoice {
 pub struct CgOptions {
     /// Stop when `|B - A L| <= rel_tol |B|`.
     pub rel_tol: f64,
+    /// Iterations allowed before the solve fails with
+    /// [`EdgeMapError::Solver`].
     pub max_iterations: usize,
 }
 
@@ -59,6 +64,7 @@ impl Default for CgOptions {
 /// What one solve did and how long each part took.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct SolveReport {
+    /// Connectivity check and assembly of `A` and `B`, ms.
     pub assemble_ms: f64,
     /// Ordering + symbolic analysis; 0 when the cached one was reused.
     pub symbolic_ms: f64,
@@ -66,19 +72,25 @@ pub struct SolveReport {
     pub order_ms: f64,
     /// Symbolic (when done) + numeric factorisation.
     pub factor_ms: f64,
+    /// Triangular solves with the factor, or the whole CG run, ms.
     pub solve_ms: f64,
     /// Covariance blocks asked for with the solve (map worker only).
     pub covariance_ms: f64,
+    /// Wall time of the whole solve, ms.
     pub total_ms: f64,
+    /// Whether the cached symbolic factorisation was reused whole because
+    /// the pattern was unchanged (false for CG).
     pub symbolic_reused: bool,
+    /// `"cholesky"` or `"pcg"`.
     pub method: &'static str,
     /// CG only.
     pub cg_iterations: usize,
     /// Entries of the Cholesky factor (0 for CG).
     pub factor_nnz: usize,
-    /// Robust reweighting: solves after the first, and edges down-weighted
-    /// in the last one.
+    /// Robust reweighting: solves after the first (0 without it).
     pub robust_iterations: usize,
+    /// Robust reweighting: edges whose weight was below 1 at the last
+    /// reweighting (0 without it).
     pub downweighted_edges: usize,
 }
 
@@ -110,6 +122,8 @@ impl CholeskyFactor {
         );
     }
 
+    /// Stored values of the factor (faer's supernodal or simplicial
+    /// layout): the fill measure reported as [`SolveReport::factor_nnz`].
     pub fn nnz(&self) -> usize {
         self.values.len()
     }
@@ -130,7 +144,9 @@ impl CholeskyFactor {
 /// Keeps what can be reused between map solves: the symbolic factorisation
 /// (while the pattern is unchanged) and the last solution (CG warm start).
 pub struct EdgeMapSolver {
+    /// Cholesky, conjugate gradient, or chosen by map size.
     pub choice: SolverChoice,
+    /// Stopping rule of the conjugate-gradient solves.
     pub cg: CgOptions,
     par: Par,
     cached: Option<PatternSymbolic>,

@@ -26,6 +26,7 @@ pub enum Alignment {
 }
 
 impl Alignment {
+    /// Lower-case name as `--align` and the JSON report spell it.
     pub fn name(self) -> &'static str {
         match self {
             Self::None => "none",
@@ -40,12 +41,16 @@ impl Alignment {
 /// world coordinates into ground-truth world coordinates.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sim3 {
+    /// Rotation from estimate world to ground-truth world.
     pub rotation: Rotation3<f64>,
+    /// Translation, in ground-truth world units (m).
     pub translation: Vector3<f64>,
+    /// Scale, ground-truth units per estimate unit (1 unless fitted as Sim(3)).
     pub scale: f64,
 }
 
 impl Sim3 {
+    /// The similarity that changes nothing (scale 1).
     pub fn identity() -> Self {
         Self {
             rotation: Rotation3::identity(),
@@ -54,6 +59,7 @@ impl Sim3 {
         }
     }
 
+    /// Maps a point from estimate world into ground-truth world coordinates.
     pub fn transform_point(&self, p: &Vector3<f64>) -> Vector3<f64> {
         self.scale * (self.rotation * p) + self.translation
     }

@@ -15,14 +15,18 @@ pub struct MatchedPoses {
     pub gt_index: Vec<usize>,
     /// Ground-truth stamp of each pair, ns.
     pub t_ns: Vec<i64>,
+    /// Estimated pose of each pair (body in the estimate's world).
     pub T_world_est: Vec<Isometry3<f64>>,
+    /// Ground-truth pose of each pair (body in the ground-truth world).
     pub T_world_gt: Vec<Isometry3<f64>>,
 }
 
 impl MatchedPoses {
+    /// Number of pairs.
     pub fn len(&self) -> usize {
         self.t_ns.len()
     }
+    /// Whether no pose was paired.
     pub fn is_empty(&self) -> bool {
         self.t_ns.is_empty()
     }

@@ -28,8 +28,11 @@ use crate::trajectory::Trajectory;
 #[allow(non_snake_case)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CovariancePose {
+    /// Stamp, ns.
     pub t_ns: i64,
+    /// Body (IMU) pose in the world frame.
     pub T_world_body: Isometry3<f64>,
+    /// Covariance of the pose, in the convention of [`PoseCovariance`].
     pub covariance: PoseCovariance,
 }
 

@@ -14,23 +14,37 @@ pub enum EvalError {
          check seconds vs nanoseconds, the clock both were stamped with, or --t-offset-s"
     )]
     NoMatches {
+        /// Largest time difference allowed in a pair, ms.
         max_dt_ms: f64,
+        /// Offset added to the estimate's stamps, s.
         t_offset_s: f64,
+        /// First estimated stamp, s.
         est_first_s: f64,
+        /// Last estimated stamp, s.
         est_last_s: f64,
+        /// Poses in the estimate.
         est_count: usize,
+        /// First ground-truth stamp, s.
         gt_first_s: f64,
+        /// Last ground-truth stamp, s.
         gt_last_s: f64,
+        /// Poses in the ground truth.
         gt_count: usize,
     },
     /// A trajectory without a single pose.
     #[error("the {which} trajectory is empty")]
-    Empty { which: &'static str },
+    Empty {
+        /// `estimated` or `ground-truth`.
+        which: &'static str,
+    },
     /// Too few matched poses for what was asked.
     #[error("{what} needs at least {needed} matched poses, found {found}")]
     TooFewPoses {
+        /// What was asked (e.g. the alignment).
         what: &'static str,
+        /// Matched poses it needs.
         needed: usize,
+        /// Matched poses there are.
         found: usize,
     },
     /// The matched positions do not fix the alignment (all equal, or on a line).
@@ -39,7 +53,9 @@ pub enum EvalError {
     /// The plot could not be drawn or written.
     #[error("{path}: cannot draw the plot: {message}")]
     Plot {
+        /// The file the plot was to be written to.
         path: std::path::PathBuf,
+        /// The plotting library's error.
         message: String,
     },
 }

@@ -5,13 +5,19 @@ use nalgebra::{Isometry3, Vector3};
 /// Summary statistics of a list of errors, in the errors' unit.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct ErrorStats {
+    /// Root mean square.
     pub rmse: f64,
+    /// Mean.
     pub mean: f64,
+    /// Median.
     pub median: f64,
+    /// Largest.
     pub max: f64,
+    /// Smallest.
     pub min: f64,
     /// Population standard deviation (divides by n, as evo does).
     pub std: f64,
+    /// Number of errors (at least 1).
     pub count: usize,
 }
 

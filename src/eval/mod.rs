@@ -1,6 +1,6 @@
 //! Trajectory evaluation: association, alignment, ATE, RPE, drift.
 //!
-//! An estimate is scored in this order: [`associate`] pairs its poses with
+//! An estimate is scored in this order: [`associate`](mod@associate) pairs its poses with
 //! ground-truth poses by time; [`align`] fits the requested transformation;
 //! [`metrics`] computes the errors; [`report`] gathers them into the numbers
 //! `rigslam eval` prints (`crate::plot::evaluation` draws them). [`consistency`] checks a

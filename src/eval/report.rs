@@ -15,6 +15,7 @@ use crate::trajectory::Trajectory;
 /// How to evaluate.
 #[derive(Debug, Clone, Copy)]
 pub struct EvalOptions {
+    /// How the estimate is fitted to the ground truth before the errors are taken \[se3\].
     pub alignment: Alignment,
     /// Largest time difference of an associated pair, ns (evo's default 10 ms).
     pub max_dt_ns: i64,
@@ -47,28 +48,41 @@ impl Default for EvalOptions {
 /// (e.g. no pose pair ~1 m apart on a short trajectory).
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct EvalReport {
+    /// The alignment applied.
     pub align: Alignment,
+    /// Estimated poses paired with a ground-truth pose.
     pub matched_poses: usize,
+    /// Poses in the estimate.
     pub estimate_poses: usize,
+    /// Poses in the ground truth.
     pub ground_truth_poses: usize,
+    /// Largest time difference allowed in a pair, ms.
     pub max_dt_ms: f64,
+    /// Offset added to the estimate's stamps before association, s.
     pub t_offset_s: f64,
     /// Time spanned by the matched poses, s.
     pub duration_s: f64,
     /// True path length between the first and last matched stamps, over all
     /// ground-truth poses in between, m.
     pub path_length_m: f64,
+    /// Absolute trajectory error (position, after alignment): root mean square, m.
     pub ate_rmse_m: f64,
+    /// ATE mean, m.
     pub ate_mean_m: f64,
+    /// ATE median, m.
     pub ate_median_m: f64,
+    /// ATE largest, m.
     pub ate_max_m: f64,
+    /// ATE smallest, m.
     pub ate_min_m: f64,
+    /// ATE population standard deviation, m.
     pub ate_std_m: f64,
     /// Mean over pose pairs ~1 m of true path apart of relative translation
     /// error / true path length between them, m/m.
     pub rpe_trans_m_per_m: Option<f64>,
     /// Same pairs: relative rotation error / path length, deg/m.
     pub rpe_rot_deg_per_m: Option<f64>,
+    /// Pose pairs the two RPE-over-distance figures above average.
     pub rpe_pairs_1m: usize,
     /// Mean relative translation error of consecutive matched poses, m.
     pub rpe_trans_m_per_frame: Option<f64>,
@@ -83,6 +97,8 @@ pub struct EvalReport {
     /// The paper's eq. 72: |final estimated - final true position| / true
     /// path length, %, with the estimate anchored at its first pose.
     pub final_drift_pct: Option<f64>,
+    /// Whether the estimate was scaled by the ratio of path lengths for the final drift (monocular
+    /// runs).
     pub scale_by_path: bool,
     /// Scale of the applied alignment (1 except for sim3).
     pub align_scale: f64,
@@ -92,12 +108,17 @@ pub struct EvalReport {
 #[allow(non_snake_case)]
 #[derive(Debug, Clone)]
 pub struct Evaluation {
+    /// The numbers `rigslam eval` prints.
     pub report: EvalReport,
+    /// The estimate-ground truth pairs.
     pub matched: MatchedPoses,
+    /// The transformation fitted, estimate world to ground-truth world.
     pub alignment: Sim3,
     /// The matched estimated poses after alignment.
     pub T_world_est_aligned: Vec<Isometry3<f64>>,
+    /// ATE of each matched pair (position error after alignment), m.
     pub ate_errors_m: Vec<f64>,
+    /// The RPE pairs about `rpe_delta_m` of true path apart, with their errors.
     pub rpe_1m: RpeOverDistance,
 }
 

@@ -22,6 +22,7 @@ pub struct CornerConfig {
     /// Corners closer than this to an edge are not reported (a KLT window
     /// must fit around them).
     pub border_px: usize,
+    /// Bucketing of the corners over the image and the minimum distance to existing features.
     pub grid: GridConfig,
 }
 
@@ -47,6 +48,7 @@ pub struct CornerDetector {
 }
 
 impl CornerDetector {
+    /// A detector with `config` and empty scratch buffers.
     pub fn new(config: CornerConfig) -> Self {
         Self {
             config,
@@ -56,6 +58,7 @@ impl CornerDetector {
         }
     }
 
+    /// The settings it was built with.
     pub fn config(&self) -> &CornerConfig {
         &self.config
     }

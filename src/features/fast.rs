@@ -16,7 +16,9 @@ use crate::features::pyramid::GreyImage;
 /// A corner in the pixel grid of the image it was found in.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Corner {
+    /// Column, px (0 at the left edge).
     pub x: u32,
+    /// Row, px (0 at the top edge).
     pub y: u32,
     /// FAST score, or whatever score a later stage put here.
     pub score: f32,

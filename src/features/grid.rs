@@ -44,6 +44,7 @@ pub struct GridSelector {
 }
 
 impl GridSelector {
+    /// A selector with `config` and empty buffers.
     pub fn new(config: GridConfig) -> Self {
         Self {
             config,
@@ -51,6 +52,7 @@ impl GridSelector {
         }
     }
 
+    /// The settings it was built with.
     pub fn config(&self) -> &GridConfig {
         &self.config
     }

@@ -75,6 +75,7 @@ impl Default for KltConfig {
 /// What happened to one feature.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum TrackStatus {
+    /// Converged inside the image (and passed the forward-backward check when one is set).
     Tracked,
     /// The window left the image at the finest level.
     OutOfImage,
@@ -113,6 +114,8 @@ pub struct KltTracker {
 }
 
 impl KltTracker {
+    /// A tracker with `config`; [`FeatureError::Config`] when the window, iteration count,
+    /// `epsilon_px`, `min_eigenvalue` or `fb_threshold_px` is out of range.
     pub fn new(config: KltConfig) -> Result<Self, FeatureError> {
         if config.half_window_px == 0
             || config.max_iterations == 0
@@ -141,6 +144,7 @@ impl KltTracker {
         })
     }
 
+    /// The settings it was built with.
     pub fn config(&self) -> &KltConfig {
         &self.config
     }

@@ -46,14 +46,18 @@ pub struct SearchWindow<'a> {
     pub predicted: &'a [[f32; 2]],
     /// Per train descriptor: its position, px.
     pub train_positions: &'a [[f32; 2]],
+    /// Largest distance between the predicted and the train position, px.
     pub radius_px: f32,
 }
 
 /// One accepted correspondence.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Match {
+    /// Index of the query descriptor.
     pub query: u32,
+    /// Index of the train descriptor.
     pub train: u32,
+    /// Hamming distance between the two, bits (of 256).
     pub distance: u32,
 }
 
@@ -68,6 +72,7 @@ pub struct Matcher {
 }
 
 impl Matcher {
+    /// A matcher with `config` and empty buffers.
     pub fn new(config: MatchConfig) -> Self {
         Self {
             config,

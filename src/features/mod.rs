@@ -33,15 +33,30 @@ pub use score::{harris_score, shi_tomasi_score};
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
 pub enum FeatureError {
     #[error("image {width}x{height} is empty")]
-    Empty { width: usize, height: usize },
-    #[error("buffer of {got} B is too short for a {width}x{height} grey image")]
-    BufferTooShort {
-        got: usize,
+    /// The image has no pixels.
+    Empty {
+        /// Width, px.
         width: usize,
+        /// Height, px.
+        height: usize,
+    },
+    #[error("buffer of {got} B is too short for a {width}x{height} grey image")]
+    /// The pixel buffer holds fewer than `width * height` bytes.
+    BufferTooShort {
+        /// Buffer length, bytes.
+        got: usize,
+        /// Width, px.
+        width: usize,
+        /// Height, px.
         height: usize,
     },
     #[error("{format} images are not grey; demosaic them before the front end")]
-    UnsupportedFormat { format: String },
+    /// The image is not grey (8 or 16 bit), e.g. Bayer or colour.
+    UnsupportedFormat {
+        /// The image's pixel format.
+        format: String,
+    },
     #[error("bad configuration: {0}")]
+    /// A detector, tracker or pyramid setting is out of range (the message names it).
     Config(String),
 }

@@ -26,8 +26,9 @@ pub const ORIENTATION_RADIUS_PX: usize = 15;
 /// An oriented keypoint.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Keypoint {
-    /// Position in level-0 pixels.
+    /// Position in level-0 pixels (column).
     pub x: f32,
+    /// Position in level-0 pixels (row).
     pub y: f32,
     /// Pyramid level it was found on.
     pub level: u8,
@@ -40,15 +41,20 @@ pub struct Keypoint {
 /// Extraction parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct OrbConfig {
+    /// Keypoints kept over all levels, at most \[1000\].
     pub max_features: usize,
+    /// Pyramid levels including the image \[8\].
     pub levels: usize,
+    /// Scale factor between consecutive levels, > 1 \[1.2\].
     pub scale: f32,
+    /// FAST threshold, grey levels \[20\].
     pub fast_threshold: u8,
     /// Used on a level where the first threshold finds too few corners.
     pub fallback_fast_threshold: u8,
     /// Keypoints are at least this far from a level's edges, px (the
     /// orientation disc and the rotated pattern must fit).
     pub edge_px: usize,
+    /// `k` of the Harris response `det - k trace^2` that ranks the corners \[0.04\].
     pub harris_k: f32,
     /// Grid bucket side on each level, px of that level.
     pub bucket_px: usize,
@@ -85,6 +91,8 @@ pub struct OrbExtractor {
 }
 
 impl OrbExtractor {
+    /// An extractor with `config`; [`FeatureError::Config`] when `edge_px` leaves no room for the
+    /// orientation disc, `max_features` is 0, or the pyramid settings are invalid.
     pub fn new(config: OrbConfig) -> Result<Self, FeatureError> {
         if config.edge_px < ORIENTATION_RADIUS_PX + 1 || config.max_features == 0 {
             return Err(FeatureError::Config(format!(
@@ -118,6 +126,7 @@ impl OrbExtractor {
         })
     }
 
+    /// The settings it was built with.
     pub fn config(&self) -> &OrbConfig {
         &self.config
     }

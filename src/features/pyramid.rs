@@ -14,8 +14,11 @@ use crate::sensors::{Image, PixelFormat};
 /// `data[y * width..(y + 1) * width]`).
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct GreyImage {
+    /// Width, px.
     pub width: usize,
+    /// Height, px.
     pub height: usize,
+    /// Grey levels, row-major, `width * height` bytes.
     pub data: Vec<u8>,
 }
 
@@ -157,6 +160,8 @@ pub struct Pyramid {
 }
 
 impl Pyramid {
+    /// A pyramid with `config` and no levels built yet; [`FeatureError::Config`] unless `levels >=
+    /// 1` and `scale` is finite and > 1.
     pub fn new(config: PyramidConfig) -> Result<Self, FeatureError> {
         config.validate()?;
         Ok(Self {
@@ -168,6 +173,7 @@ impl Pyramid {
         })
     }
 
+    /// The settings it was built with.
     pub fn config(&self) -> &PyramidConfig {
         &self.config
     }

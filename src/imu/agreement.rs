@@ -44,6 +44,7 @@ use crate::dataset::GroundTruthState;
 /// one length.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AccelAgreement {
+    /// Window length `T`, s.
     pub window_s: f64,
     /// Windows compared (each wholly inside the ground truth).
     pub windows: usize,
@@ -58,7 +59,9 @@ pub struct AccelAgreement {
 /// over windows of one length.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GyroAgreement {
+    /// Window length `T`, s.
     pub window_s: f64,
+    /// Windows compared (each wholly inside the ground truth).
     pub windows: usize,
     /// RMS of the rotation error `e` per body axis, rad.
     pub rms_angle_error_rad: Vector3<f64>,

@@ -31,6 +31,7 @@ impl Default for IntervalConfig {
 /// Why a sample was not used.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RejectReason {
+    /// A NaN or infinite value.
     NotFinite,
     /// Same stamp as the previous accepted sample.
     RepeatedStamp,
@@ -42,53 +43,82 @@ pub enum RejectReason {
 /// before it arrived (`i64::MIN` if none), which places it in the stream.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RejectedSample {
+    /// Stamp of the last accepted sample when this one arrived, ns (`i64::MIN` if none).
     pub arrived_after_ns: i64,
+    /// The rejected sample's own stamp, ns.
     pub t_ns: i64,
+    /// Why it was rejected.
     pub reason: RejectReason,
 }
 
 /// What went wrong inside one interval.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct IntervalReport {
+    /// Rejected samples with NaN or infinite values.
     pub not_finite: usize,
+    /// Rejected samples with the same stamp as the previous accepted one.
     pub repeated_stamps: usize,
+    /// Rejected samples stamped before the previous accepted one.
     pub backwards_stamps: usize,
     /// Gaps between consecutive accepted samples longer than the limit.
     pub long_gaps: usize,
+    /// Longest gap between consecutive accepted samples in the interval, ns.
     pub longest_gap_ns: i64,
     /// False when anything above is non-zero.
     pub reliable: bool,
 }
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
+/// Why the samples of an interval could not be gathered.
 pub enum IntervalError {
     #[error("interval ends at {t_end_ns} ns, not after its start {t_start_ns} ns")]
-    Empty { t_start_ns: i64, t_end_ns: i64 },
+    /// The interval's end is not after its start.
+    Empty {
+        /// Interval start, ns.
+        t_start_ns: i64,
+        /// Interval end, ns.
+        t_end_ns: i64,
+    },
     #[error("no IMU sample at or before the interval start {t_start_ns} ns")]
-    StartNotCovered { t_start_ns: i64 },
+    /// No accepted sample at or before the start.
+    StartNotCovered {
+        /// Interval start, ns.
+        t_start_ns: i64,
+    },
     #[error("no IMU sample at or after the interval end {t_end_ns} ns (yet)")]
-    EndNotCovered { t_end_ns: i64 },
+    /// No accepted sample at or after the end yet (wait for more samples).
+    EndNotCovered {
+        /// Interval end, ns.
+        t_end_ns: i64,
+    },
 }
 
 /// The samples of one interval, with one more on either side when the
 /// stream has them (for the quadratic rule's centred triples).
 #[derive(Debug, Clone, PartialEq)]
 pub struct ImuInterval<'a> {
+    /// Accepted samples from the last one at or before `t_start_ns` to the first one at or after
+    /// `t_end_ns`, plus one more on either side when the stream has it.
     pub samples: &'a [ImuSample],
+    /// Interval start, ns.
     pub t_start_ns: i64,
+    /// Interval end, ns.
     pub t_end_ns: i64,
+    /// Rejections and gaps inside the interval.
     pub report: IntervalReport,
 }
 
 /// The accepted, corrected samples of a stream, strictly increasing.
 #[derive(Debug, Clone, Default)]
 pub struct ImuStream {
+    /// Correction applied to every accepted sample.
     pub intrinsics: ImuIntrinsics,
     samples: Vec<ImuSample>,
     rejected: Vec<RejectedSample>,
 }
 
 impl ImuStream {
+    /// An empty stream that corrects samples with `intrinsics`.
     pub fn new(intrinsics: ImuIntrinsics) -> Self {
         Self {
             intrinsics,
@@ -140,10 +170,12 @@ impl ImuStream {
         }
     }
 
+    /// The accepted, corrected samples, strictly increasing in time.
     pub fn samples(&self) -> &[ImuSample] {
         &self.samples
     }
 
+    /// Every rejected sample, in arrival order.
     pub fn rejected(&self) -> &[RejectedSample] {
         &self.rejected
     }

@@ -16,6 +16,7 @@ use crate::text_file::DatasetError;
 /// Standard deviations of one sample's noise for a spacing of `dt_s`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct DiscreteNoise {
+    /// Sample spacing the sigmas are for, s.
     pub dt_s: f64,
     /// rad/s, per sample.
     pub gyro_sigma_rad_s: f64,

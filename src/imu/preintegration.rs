@@ -30,6 +30,7 @@ use super::strapdown::{ImuBiases, NavState};
 use crate::rig::ImuNoise;
 use crate::sensors::ImuSample;
 
+/// 9x9 matrix over `[dphi, dv, dp]` (rad, m/s, m), the preintegration's covariance layout.
 pub type Matrix9 = SMatrix<f64, 9, 9>;
 
 /// How each step between two samples is integrated.
@@ -48,8 +49,10 @@ pub enum IntegrationScheme {
 }
 
 impl IntegrationScheme {
+    /// Every scheme, in the order `euler`, `midpoint`, `quadratic` (for sweeps and option lists).
     pub const ALL: [IntegrationScheme; 3] = [Self::Euler, Self::Midpoint, Self::Quadratic];
 
+    /// Lower-case name as the command line and settings files spell it.
     pub fn name(self) -> &'static str {
         match self {
             Self::Euler => "euler",
@@ -60,39 +63,69 @@ impl IntegrationScheme {
 }
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
+/// Why an interval could not be preintegrated.
 pub enum PreintegrationError {
     #[error("interval ends at {t_end_ns} ns, not after its start {t_start_ns} ns")]
-    EmptyInterval { t_start_ns: i64, t_end_ns: i64 },
+    /// The interval's end is not after its start.
+    EmptyInterval {
+        /// Interval start, ns.
+        t_start_ns: i64,
+        /// Interval end, ns.
+        t_end_ns: i64,
+    },
     #[error(
         "samples span {first_ns}..{last_ns} ns, which does not cover the interval \
          {t_start_ns}..{t_end_ns} ns"
     )]
+    /// The samples do not reach back to the interval's start or forward to its end.
     NotCovered {
+        /// Interval start, ns.
         t_start_ns: i64,
+        /// Interval end, ns.
         t_end_ns: i64,
+        /// Stamp of the first sample given, ns.
         first_ns: i64,
+        /// Stamp of the last sample given, ns.
         last_ns: i64,
     },
     #[error("IMU sample {index} at {t_ns} ns is not finite")]
-    NotFinite { index: usize, t_ns: i64 },
+    /// A sample has a NaN or infinite value.
+    NotFinite {
+        /// Its index in the samples given.
+        index: usize,
+        /// Its stamp, ns.
+        t_ns: i64,
+    },
     #[error("IMU sample {index} at {t_ns} ns does not come after the previous one")]
-    NotIncreasing { index: usize, t_ns: i64 },
+    /// A sample's stamp is not after the previous sample's.
+    NotIncreasing {
+        /// Its index in the samples given.
+        index: usize,
+        /// Its stamp, ns.
+        t_ns: i64,
+    },
 }
 
 /// The preintegrated measurement of one interval.
 #[allow(non_snake_case)]
 #[derive(Debug, Clone, PartialEq)]
 pub struct Preintegrated {
+    /// Interval start (the earlier frame's stamp), ns.
     pub t_start_ns: i64,
+    /// Interval end (the later frame's stamp), ns.
     pub t_end_ns: i64,
+    /// Interval length, s.
     pub dt_s: f64,
+    /// Rule the steps were integrated with.
     pub scheme: IntegrationScheme,
     /// The biases the deltas were integrated with (the linearisation point
     /// of the bias Jacobians).
     pub biases: ImuBiases,
     /// Rotation of the end body frame in the start body frame.
     pub delta_R: Matrix3<f64>,
+    /// Velocity change in the start body frame, gravity excluded, m/s.
     pub delta_v_m_s: Vector3<f64>,
+    /// Position change in the start body frame, gravity and initial velocity excluded, m.
     pub delta_p_m: Vector3<f64>,
     /// Covariance of `[dphi, dv, dp]` from the white measurement noise.
     pub covariance: Matrix9,
@@ -102,10 +135,16 @@ pub struct Preintegrated {
     /// `s_g^2 covariance_gyro + s_a^2 (covariance - covariance_gyro)`
     /// without integrating again ([`Self::scaled_covariance`]).
     pub covariance_gyro: Matrix9,
+    /// Jacobian of the rotation delta with respect to the gyro bias: `delta_R(bg + d) = delta_R
+    /// Exp(d_R_d_bg d)`, rad per rad/s.
     pub d_R_d_bg: Matrix3<f64>,
+    /// Jacobian of `delta_v_m_s` with respect to the gyro bias, m/s per rad/s.
     pub d_v_d_bg: Matrix3<f64>,
+    /// Jacobian of `delta_v_m_s` with respect to the accel bias, s.
     pub d_v_d_ba: Matrix3<f64>,
+    /// Jacobian of `delta_p_m` with respect to the gyro bias, m per rad/s.
     pub d_p_d_bg: Matrix3<f64>,
+    /// Jacobian of `delta_p_m` with respect to the accel bias, s^2.
     pub d_p_d_ba: Matrix3<f64>,
     /// Sample steps integrated (partial ones at the ends included).
     pub steps: usize,
@@ -119,8 +158,11 @@ pub struct Preintegrated {
 #[allow(non_snake_case)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CorrectedDeltas {
+    /// Rotation of the end body frame in the start body frame.
     pub delta_R: Matrix3<f64>,
+    /// Velocity change in the start body frame, gravity excluded, m/s.
     pub delta_v_m_s: Vector3<f64>,
+    /// Position change in the start body frame, gravity and initial velocity excluded, m.
     pub delta_p_m: Vector3<f64>,
 }
 
@@ -187,7 +229,9 @@ struct Step {
 /// allocates nothing once they have grown.
 #[derive(Debug, Clone)]
 pub struct Preintegrator {
+    /// Rule each sample step is integrated with.
     pub scheme: IntegrationScheme,
+    /// Continuous-time noise densities the covariance is propagated from.
     pub noise: ImuNoise,
     steps: Vec<Step>,
     /// Rotation from the start frame and its gyro-bias Jacobian at each
@@ -204,6 +248,7 @@ pub struct Preintegrator {
 type Blocks = [[Matrix3<f64>; 3]; 3];
 
 impl Preintegrator {
+    /// A preintegrator with empty scratch buffers.
     pub fn new(scheme: IntegrationScheme, noise: ImuNoise) -> Self {
         Self {
             scheme,

@@ -20,8 +20,11 @@
 pub struct StepRule {
     /// Sample indices of the nodes; only the first `count` are used.
     pub nodes: [usize; 3],
+    /// Number of nodes used: 1 (Euler), 2 (midpoint) or 3 (quadratic).
     pub count: usize,
+    /// Weights of the single integral over the step, s.
     pub single: [f64; 3],
+    /// Weights of the double integral over the step, s^2.
     pub double: [f64; 3],
 }
 

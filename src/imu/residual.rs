@@ -17,11 +17,13 @@ use super::preintegration::Preintegrated;
 use super::so3::{exp, hat, log, right_jacobian, right_jacobian_inverse};
 use super::strapdown::{ImuBiases, NavState};
 
+/// 9-vector `[r_R, r_v, r_p]` (rad, m/s, m), the inertial residual's layout.
 pub type Vector9 = SVector<f64, 9>;
 
 /// The residual and its Jacobians.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ImuResidual {
+    /// `[r_R, r_v, r_p]`, unweighted (rad, m/s, m).
     pub residual: Vector9,
     /// d residual / d [dphi_i, dv_i, dp_i]
     pub d_state_i: SMatrix<f64, 9, 9>,

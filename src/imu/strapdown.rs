@@ -25,17 +25,22 @@ pub fn gravity_world_m_s2() -> Vector3<f64> {
 #[allow(non_snake_case)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NavState {
+    /// Stamp, ns (the IMU's clock).
     pub t_ns: i64,
     /// Maps body coordinates into the world frame.
     pub R_world_body: UnitQuaternion<f64>,
+    /// Body origin in the world frame (z up, gravity along -z), m.
     pub position_world_m: Vector3<f64>,
+    /// Body velocity in the world frame, m/s.
     pub velocity_world_m_s: Vector3<f64>,
 }
 
 /// Sensor biases subtracted from every sample.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ImuBiases {
+    /// Gyroscope bias in the IMU frame, rad/s.
     pub gyro_rad_s: Vector3<f64>,
+    /// Accelerometer bias in the IMU frame, m/s^2.
     pub accel_m_s2: Vector3<f64>,
 }
 
@@ -50,13 +55,32 @@ impl From<&crate::dataset::GroundTruthState> for ImuBiases {
 }
 
 #[derive(Debug, thiserror::Error, PartialEq)]
+/// Why strapdown integration could not run.
 pub enum StrapdownError {
     #[error("IMU sample {index} at {t_ns} ns does not come after the previous one")]
-    NotTimeOrdered { index: usize, t_ns: i64 },
+    /// A sample's stamp is not after the previous sample's.
+    NotTimeOrdered {
+        /// Its index in the samples given.
+        index: usize,
+        /// Its stamp, ns.
+        t_ns: i64,
+    },
     #[error("initial state at {state_ns} ns but the first sample is at {sample_ns} ns")]
-    StartMismatch { state_ns: i64, sample_ns: i64 },
+    /// The first sample is not at the initial state's stamp (integration starts exactly there).
+    StartMismatch {
+        /// Stamp of the initial state, ns.
+        state_ns: i64,
+        /// Stamp of the first sample, ns.
+        sample_ns: i64,
+    },
     #[error("IMU sample {index} at {t_ns} ns is not finite")]
-    NotFinite { index: usize, t_ns: i64 },
+    /// A sample has a NaN or infinite value.
+    NotFinite {
+        /// Its index in the samples given.
+        index: usize,
+        /// Its stamp, ns.
+        t_ns: i64,
+    },
 }
 
 struct Derivative {

@@ -7,7 +7,9 @@ use std::ffi::{CStr, CString};
 /// A group by name and id.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Group {
+    /// Group name, as in `/etc/group`.
     pub name: String,
+    /// Numeric group id.
     pub gid: u32,
 }
 

@@ -46,41 +46,88 @@ impl Default for IpcConfig {
 #[derive(Debug, thiserror::Error)]
 pub enum IpcError {
     #[error("iceoryx2 root path {path:?} is not usable: {reason}")]
-    RootPath { path: PathBuf, reason: String },
+    /// The iceoryx2 root directory (or `/dev/shm`) cannot be created, read, listed or given the
+    /// publishing group and mode, or its file system does not keep permission bits.
+    RootPath {
+        /// The directory.
+        path: PathBuf,
+        /// What failed.
+        reason: String,
+    },
     #[error("service name {name:?} is not valid: {reason}")]
-    ServiceName { name: String, reason: String },
+    /// The service name built from the configured prefix is not one iceoryx2 accepts.
+    ServiceName {
+        /// The rejected name.
+        name: String,
+        /// iceoryx2's objection.
+        reason: String,
+    },
     #[error("cannot create an iceoryx2 node: {reason}")]
-    Node { reason: String },
+    /// iceoryx2 refused to create this process's node.
+    Node {
+        /// iceoryx2's error.
+        reason: String,
+    },
     #[error("permission denied: {message}")]
-    Permission { message: String },
+    /// A file of the instance could not be given the publishing group or
+    /// mode, or iceoryx2 was refused access to one.
+    Permission {
+        /// Names the file or the refused operation, and how to grant access.
+        message: String,
+    },
     #[error("publish.group {name:?}: {reason}")]
-    Group { name: String, reason: String },
+    /// `publish.group` names no group, or the daemon's user is not in it.
+    Group {
+        /// The configured group.
+        name: String,
+        /// Which of the two, and the command that fixes it.
+        reason: String,
+    },
     #[error(
         "{path:?} belongs to user {owner}, not to {user}, who would publish: only its owner \
          publishes there. If {owner} is not the daemon's user, another process took the \
          service name before the daemon, or a run as {owner} left it behind: stop that \
          process, remove it (`sudo rm -rf {path:?}`) and start the daemon again"
     )]
+    /// A file or directory of the instance belongs to another user, so this process would not be
+    /// its only publisher.
     Foreign {
+        /// The file or directory.
         path: PathBuf,
+        /// Its owner's user name.
         owner: String,
+        /// The user this process runs as.
         user: String,
     },
     #[error(
         "service {service} does not exist: rigslamd is not running, or runs with another \
          root_path or service_prefix (it, not a subscriber, creates the services)"
     )]
-    NotPublished { service: String },
-    #[error("service {service}: {action}: {reason}")]
-    Service {
+    /// A subscriber opened a service that does not exist: the daemon is not running, or runs with
+    /// another root path or service prefix (the daemon, not a subscriber, creates the services).
+    NotPublished {
+        /// The full service name.
         service: String,
+    },
+    #[error("service {service}: {action}: {reason}")]
+    /// An iceoryx2 operation on a service failed.
+    Service {
+        /// The full service name.
+        service: String,
+        /// What was being done (e.g. opening or creating a publisher).
         action: &'static str,
+        /// iceoryx2's error, formatted.
         reason: String,
     },
     #[error("service {service}: sample has layout version {found}, this build reads {expected}")]
+    /// A sample's layout version differs from the one this build reads: the publisher and the
+    /// subscriber are different builds.
     LayoutVersion {
+        /// The full service name.
         service: String,
+        /// Layout version found in the sample.
         found: u32,
+        /// Layout version this build reads.
         expected: u32,
     },
 }

@@ -107,6 +107,7 @@ pub struct PoseMessage {
 #[type_name("rigslam_queue_fill_v1")]
 #[repr(C)]
 pub struct QueueFill {
+    /// Queue name, NUL-padded ASCII (not NUL-terminated when all 16 bytes are used).
     pub name: [u8; 16],
     /// Items waiting when the status was taken.
     pub len: u32,
@@ -213,7 +214,9 @@ pub struct StatusMessage {
     /// residuals (1: as declared). NaN when there is no estimate (no IMU,
     /// or before the SLAM stage ran).
     pub imu_noise_scale_gyro: f64,
+    /// Multiplier on the declared accelerometer noise density (see `imu_noise_scale_gyro`).
     pub imu_noise_scale_accel: f64,
+    /// Multiplier on the declared pixel sigma (see `imu_noise_scale_gyro`).
     pub pixel_noise_scale: f64,
     /// How far the online estimate of camera 0's pose in the IMU frame
     /// is from the calibration file (rotation angle, deg; translation,
@@ -221,7 +224,10 @@ pub struct StatusMessage {
     /// shift (s; positive: the images were taken after their stamps).
     /// NaN when the calibration is not refined (off, or no IMU).
     pub camera_imu_rotation_deg: f64,
+    /// Distance of the online estimate of camera 0's position in the IMU
+    /// frame from the file's, m (see `camera_imu_rotation_deg`).
     pub camera_imu_translation_m: f64,
+    /// Time offset of the frames beyond the file's time shift, s (see `camera_imu_rotation_deg`).
     pub camera_imu_time_offset_s: f64,
 }
 

@@ -31,29 +31,48 @@ pub const IMU_SCHEMA_NAME: &str = "rigslam.ImuSample";
 const IMU_JSON_SCHEMA: &str = r#"{"type":"object","properties":{"t_ns":{"type":"integer","description":"host CLOCK_MONOTONIC, ns"},"gyro_rad_s":{"type":"array","items":{"type":"number"},"minItems":3,"maxItems":3},"accel_m_s2":{"type":"array","items":{"type":"number"},"minItems":3,"maxItems":3}},"required":["t_ns","gyro_rad_s","accel_m_s2"]}"#;
 
 #[derive(Debug, Error)]
+/// Why a recording could not be written or read. Every variant names the file.
 pub enum RecordingError {
     #[error("cannot create recording {path}: {source}")]
+    /// The file could not be created.
     Create {
+        /// The file.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
     #[error("cannot read recording {path}: {source}")]
+    /// The file could not be opened or read.
     Read {
+        /// The file.
         path: PathBuf,
+        /// The I/O error.
         source: std::io::Error,
     },
     #[error("MCAP error in {path}: {source}")]
+    /// The MCAP library refused to write or read the file.
     Mcap {
+        /// The file.
         path: PathBuf,
+        /// The MCAP library's error.
         source: mcap::McapError,
     },
     #[error("{path} has no summary: the file was not closed (cut off mid-write?)")]
-    NoSummary { path: PathBuf },
-    #[error("{path}: message {sequence} on {topic} does not have the channel's layout: {source}")]
-    BadMessage {
+    /// The file ends without its summary section: it was not closed (the writer was cut off).
+    NoSummary {
+        /// The file.
         path: PathBuf,
+    },
+    #[error("{path}: message {sequence} on {topic} does not have the channel's layout: {source}")]
+    /// A message's JSON does not match its channel's schema.
+    BadMessage {
+        /// The file.
+        path: PathBuf,
+        /// The channel's topic.
         topic: String,
+        /// The message's sequence number on its channel.
         sequence: u32,
+        /// The JSON decoder's error.
         source: serde_json::Error,
     },
     /// A length field that does not fit the file (a string, map, chunk
@@ -61,23 +80,41 @@ pub enum RecordingError {
     /// is at.
     #[error("{path}: malformed MCAP: {reason}")]
     Malformed {
+        /// The file.
         path: PathBuf,
+        /// Byte offset of the bad length field.
         offset: u64,
+        /// What does not fit.
         reason: String,
     },
     #[error("{path} has no channel {topic}")]
-    NoChannel { path: PathBuf, topic: String },
-    #[error("{path}: attachment {name}: {reason}")]
-    BadAttachment {
+    /// The file has no channel on the topic asked for.
+    NoChannel {
+        /// The file.
         path: PathBuf,
+        /// The missing topic.
+        topic: String,
+    },
+    #[error("{path}: attachment {name}: {reason}")]
+    /// An attachment (e.g. the rig calibration) cannot be used.
+    BadAttachment {
+        /// The file.
+        path: PathBuf,
+        /// The attachment's name.
         name: String,
+        /// Why it cannot be used.
         reason: String,
     },
     #[error("{path}: message {sequence} on {topic}: {reason}")]
+    /// An image message does not decode into a frame.
     BadImage {
+        /// The file.
         path: PathBuf,
+        /// The channel's topic.
         topic: String,
+        /// The message's sequence number on its channel.
         sequence: u32,
+        /// Why it does not decode (encoding, size, data length).
         reason: String,
     },
 }
@@ -116,11 +153,15 @@ static IMAGE_JSON_SCHEMA: std::sync::LazyLock<String> = std::sync::LazyLock::new
 /// A pose as the recording keeps it (the published `rigslam/pose`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RecordedPose {
+    /// Stamp of the frame the pose is for, ns (the clock the frames are stamped in).
     pub t_ns: i64,
     /// The wire code of the tracking state.
     pub tracking_state: u32,
+    /// Body (IMU) position in the world frame, m.
     pub position_world_m: [f64; 3],
+    /// Body-to-world rotation as a unit quaternion, x, y, z, w.
     pub orientation_world_body_xyzw: [f64; 4],
+    /// Body velocity in the world frame, m/s.
     pub velocity_world_m_s: [f64; 3],
 }
 
@@ -248,6 +289,8 @@ pub struct McapRecorder {
 }
 
 impl McapRecorder {
+    /// Creates (or truncates) the MCAP file at `path`, without compression, ready for channels and
+    /// messages.
     pub fn create(path: impl AsRef<Path>) -> Result<McapRecorder, RecordingError> {
         let path = path.as_ref().to_path_buf();
         let file = File::create(&path).map_err(|source| RecordingError::Create {

@@ -113,6 +113,7 @@ pub fn rig_of_recording_in(bytes: &[u8], path: &Path) -> Result<Option<RigModel>
 /// What a replay reads from a recording, in file order.
 #[derive(Debug)]
 pub enum ReplayItem {
+    /// A decoded IMU sample or frame.
     Event(SensorEvent),
     /// A sensor message the replay leaves out (the robot's data may be
     /// damaged; the rest of the file still plays).
@@ -124,11 +125,19 @@ pub enum ReplayItem {
 pub enum SkippedMessage {
     /// Its bytes do not decode (the error names the file, topic and
     /// sequence number).
-    Unreadable { image: bool, error: RecordingError },
+    Unreadable {
+        /// Whether the message was an image (else an IMU sample).
+        image: bool,
+        /// What failed to decode.
+        error: RecordingError,
+    },
     /// A stereo half whose partner is missing or has another stamp.
     Unpaired {
+        /// Topic of the half that has no partner.
         topic: String,
+        /// Its sequence number on that channel.
         sequence: u32,
+        /// Its stamp, ns.
         t_ns: i64,
     },
 }

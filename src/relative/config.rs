@@ -17,6 +17,7 @@ pub enum EstimatorKind {
 }
 
 impl EstimatorKind {
+    /// Lower-case name as the command line and settings files spell it.
     pub fn name(self) -> &'static str {
         match self {
             EstimatorKind::Window => "window",
@@ -35,6 +36,7 @@ pub enum CameraImuRefinement {
     Auto,
     /// Both inertial modes.
     On,
+    /// Never: the calibration file's camera-IMU transformation and time shift are used as they are.
     Off,
 }
 
@@ -66,6 +68,7 @@ pub struct RelativeConfig {
     /// Keyframes needed (and the time they must span, s) before the
     /// visual-inertial alignment is tried in the inertial modes.
     pub init_keyframes: usize,
+    /// Time the keyframes must span before the alignment is tried, s.
     pub init_min_span_s: f64,
     /// Largest relative standard deviation of the scale at which the
     /// mono-inertial stage switches from initialisation to hybrid.
@@ -82,11 +85,14 @@ pub struct RelativeConfig {
     /// Multipliers on the declared gyroscope and accelerometer noise
     /// densities to start from (and keep, with the adaptation off).
     pub imu_noise_scale_gyro: f64,
+    /// Multiplier on the declared accelerometer noise density to start from (see
+    /// `imu_noise_scale_gyro`).
     pub imu_noise_scale_accel: f64,
     /// Horizon of the adaptation, s.
     pub imu_noise_adaptation_memory_s: f64,
     /// Bounds of either multiplier.
     pub imu_noise_scale_min: f64,
+    /// Upper bound of either multiplier.
     pub imu_noise_scale_max: f64,
     /// Estimate the bias random walks' scales too (off: measured worse
     /// in mono-inertial, see the adaptation's module doc).
@@ -103,7 +109,9 @@ pub struct RelativeConfig {
     /// holds it: the lever arm hardly shows in ordinary motion, and freed
     /// (0.03) it wandered and cost accuracy (bench/README.md).
     pub camera_imu_rotation_sigma_deg: f64,
+    /// How far the file's camera 0 translation may be off, one sigma, m.
     pub camera_imu_translation_sigma_m: f64,
+    /// How far the file's time shift may be off, one sigma, s.
     pub camera_imu_time_offset_sigma_s: f64,
     /// How far the stereo calibration's rotation between the cameras may
     /// be off, one sigma, deg.
@@ -146,15 +154,32 @@ impl Default for RelativeConfig {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ConfigError {
     #[error("reading {path}: {message}")]
-    Read { path: String, message: String },
+    /// The settings file could not be read.
+    Read {
+        /// The file.
+        path: String,
+        /// The I/O error.
+        message: String,
+    },
     #[error("{path}: {message}")]
-    Parse { path: String, message: String },
+    /// The settings file is not valid TOML, has unknown keys, or puts keys in the wrong table.
+    Parse {
+        /// The file (or what the text came from).
+        path: String,
+        /// The parser's message.
+        message: String,
+    },
     #[error("{0}")]
+    /// Settings that contradict each other (the message says which).
     Invalid(String),
     #[error("{key} = {value} is out of range: {allowed}")]
+    /// A setting is out of range.
     OutOfRange {
+        /// The setting's key.
         key: &'static str,
+        /// Its value, as written.
         value: String,
+        /// The allowed range.
         allowed: &'static str,
     },
 }

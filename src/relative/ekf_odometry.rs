@@ -52,6 +52,13 @@ pub struct EkfOdometry {
 }
 
 impl EkfOdometry {
+    /// The EKF baseline for `mode`, on the cameras and IMU of `rig` the
+    /// mode uses; it stays initialising until the IMU says the rig rests.
+    /// Fails with [`OdometryError::Setup`] for a mode without the IMU (the
+    /// filter propagates with it) or when the tracker or the filter refuses
+    /// the rig or the settings, [`OdometryError::Rig`] when the rig lacks a
+    /// camera or the IMU, and [`OdometryError::Config`] when a setting is
+    /// out of range.
     pub fn new(
         mode: SensorMode,
         rig: &RigModel,

@@ -29,6 +29,7 @@ pub enum SensorMode {
 }
 
 impl SensorMode {
+    /// Every mode, from `mono` to `stereo-inertial`.
     pub const ALL: [SensorMode; 4] = [
         SensorMode::Mono,
         SensorMode::MonoInertial,
@@ -36,14 +37,18 @@ impl SensorMode {
         SensorMode::StereoInertial,
     ];
 
+    /// Whether the mode needs the IMU.
     pub fn uses_imu(self) -> bool {
         matches!(self, SensorMode::MonoInertial | SensorMode::StereoInertial)
     }
 
+    /// Whether the mode needs a second (right) camera.
     pub fn uses_stereo(self) -> bool {
         matches!(self, SensorMode::Stereo | SensorMode::StereoInertial)
     }
 
+    /// Lower-case name as the command line and settings files spell it (`mono`, `mono-inertial`,
+    /// `stereo`, `stereo-inertial`).
     pub fn name(self) -> &'static str {
         match self {
             SensorMode::Mono => "mono",
@@ -78,13 +83,21 @@ impl FromStr for SensorMode {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum RigError {
     #[error("mode {mode} needs {needed} camera(s), the rig has {have}")]
+    /// The mode needs more cameras than the rig has.
     TooFewCameras {
+        /// The mode asked for.
         mode: SensorMode,
+        /// Cameras it needs.
         needed: usize,
+        /// Cameras the rig has.
         have: usize,
     },
     #[error("mode {mode} needs an IMU, the rig has none (imu0/ missing?)")]
-    NoImu { mode: SensorMode },
+    /// The mode needs an IMU and the rig has none.
+    NoImu {
+        /// The mode asked for.
+        mode: SensorMode,
+    },
 }
 
 impl RigModel {
@@ -109,8 +122,11 @@ impl RigModel {
 /// modes, the right one taken at the same instant.
 #[derive(Debug, Clone, Copy)]
 pub struct FrameInput<'a> {
+    /// Exposure stamp, ns (the clock the IMU samples are stamped in).
     pub t_ns: i64,
+    /// The left (cam0) image, or the only one.
     pub left: &'a Image,
+    /// The right (cam1) image taken at the same instant (stereo modes).
     pub right: Option<&'a Image>,
 }
 
@@ -118,10 +134,12 @@ pub struct FrameInput<'a> {
 /// `"imu"`, `"window"`, ...). `rigslam run --report` aggregates them.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct FrameTimings {
+    /// Stage name and its time on the last frame, ms, in the order they ran.
     pub stages_ms: Vec<(&'static str, f64)>,
 }
 
 impl FrameTimings {
+    /// Forgets the last frame's timings.
     pub fn clear(&mut self) {
         self.stages_ms.clear();
     }

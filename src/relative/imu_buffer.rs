@@ -41,10 +41,12 @@ impl ImuBuffer {
         }
     }
 
+    /// Samples dropped so far (non-finite, or a stamp not after the previous one).
     pub fn dropped(&self) -> u64 {
         self.dropped
     }
 
+    /// The accepted, corrected samples held, strictly increasing in time.
     pub fn samples(&self) -> &[ImuSample] {
         self.stream.samples()
     }

@@ -98,7 +98,8 @@ struct Counters {
 const REST_FLOW_PX: f64 = 1.5;
 /// Median displacement since the rest began under which it goes on, px.
 const REST_DRIFT_PX: f64 = 1.5;
-/// A keyframe at least this often, s (the tracker may ask sooner).
+/// A keyframe at least this often, ns (0.5 s; the tracker may ask
+/// sooner).
 const MAX_KEYFRAME_GAP_NS: i64 = 500_000_000;
 /// After a loss, the IMU carries the last trusted state to where vision
 /// starts again for at most this long; beyond, the trajectory goes on from
@@ -172,6 +173,12 @@ fn image_digest(image: &crate::sensors::Image) -> u64 {
 }
 
 impl WindowOdometry {
+    /// The windowed estimator for `mode`, on the cameras (and IMU) of `rig`
+    /// the mode uses; it starts initialising. Fails with
+    /// [`OdometryError::Rig`] when the rig lacks a camera or the IMU the
+    /// mode needs, [`OdometryError::Config`] when a setting is out of
+    /// range, and [`OdometryError::Setup`] when the tracker or the window
+    /// refuses the rig or the settings.
     pub fn new(
         mode: SensorMode,
         rig: &RigModel,

@@ -9,10 +9,13 @@ use super::tracker::{Tracker, TrackerConfig};
 #[derive(Debug, thiserror::Error)]
 pub enum OdometryError {
     #[error(transparent)]
+    /// The rig lacks a camera or the IMU the mode needs.
     Rig(#[from] super::estimator::RigError),
     #[error(transparent)]
+    /// A setting is out of range.
     Config(#[from] super::config::ConfigError),
     #[error("setting up the relative stage: {0}")]
+    /// The estimator refused the rig or the settings (the message says why).
     Setup(String),
 }
 

@@ -20,9 +20,15 @@ use std::path::{Path, PathBuf};
 use super::{kalibr, RigModel};
 use crate::text_file::DatasetError;
 
+/// File name of a Kalibr camera chain with intrinsics only (`rigslam-calibrate camera`); not enough
+/// for a rig.
 pub const CAMCHAIN_INTRINSICS: &str = "camchain.yaml";
+/// File name of the Kalibr camera chain with `T_cam_imu` and `timeshift_cam_imu`
+/// (`rigslam-calibrate camera-imu`).
 pub const CAMCHAIN: &str = "camchain-imucam.yaml";
+/// File name of the Kalibr IMU noise file (`rigslam-calibrate noise`).
 pub const IMU_NOISE: &str = "imu.yaml";
+/// File name of the IMU intrinsics `x_c = S x_r + b` (`rigslam-calibrate imu`); optional.
 pub const IMU_INTRINSICS: &str = "imu_intrinsics.yaml";
 
 /// The files of a folder that make a rig, in the order they are read.
@@ -33,8 +39,11 @@ pub const RIG_FILES: [&str; 3] = [CAMCHAIN, IMU_NOISE, IMU_INTRINSICS];
 /// `imu0.yaml`), with where it came from for the messages.
 #[derive(Debug, Clone, PartialEq)]
 pub struct CalibrationFile {
+    /// Canonical name, e.g. `camchain-imucam.yaml`.
     pub name: String,
+    /// Where the bytes were read from (a file or a recording's attachment), for the messages.
     pub origin: PathBuf,
+    /// The file's contents.
     pub bytes: Vec<u8>,
 }
 

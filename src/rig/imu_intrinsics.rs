@@ -13,9 +13,13 @@ use crate::sensors::ImuSample;
 /// `rigslam-calibrate imu` estimates them.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ImuIntrinsics {
+    /// Gyroscope `S` (scale and misalignment).
     pub gyro_scale: Matrix3<f64>,
+    /// Gyroscope `b`, rad/s.
     pub gyro_offset_rad_s: Vector3<f64>,
+    /// Accelerometer `S` (scale and misalignment).
     pub accel_scale: Matrix3<f64>,
+    /// Accelerometer `b`, m/s^2.
     pub accel_offset_m_s2: Vector3<f64>,
 }
 
@@ -45,6 +49,7 @@ impl ImuIntrinsics {
         }
     }
 
+    /// Whether this is exactly the identity correction (`S = I`, `b = 0`).
     pub fn is_identity(&self) -> bool {
         *self == Self::IDENTITY
     }

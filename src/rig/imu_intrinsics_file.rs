@@ -16,10 +16,16 @@ use crate::text_file::DatasetError;
 /// The intrinsics file: rows of S, biases in SI (accel m/s^2, gyro rad/s).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct IntrinsicsFile {
+    /// Human-readable statement of the model, `x_c = S x_r + b (accel m/s^2, gyro rad/s)`; not
+    /// interpreted when read.
     pub model: String,
+    /// Accelerometer `S`, row by row.
     pub accel_scale_matrix: [[f64; 3]; 3],
+    /// Accelerometer `b`, m/s^2.
     pub accel_bias: [f64; 3],
+    /// Gyroscope `S`, row by row.
     pub gyro_scale_matrix: [[f64; 3]; 3],
+    /// Gyroscope `b`, rad/s.
     pub gyro_bias: [f64; 3],
 }
 
@@ -28,6 +34,7 @@ fn rows(m: &Matrix3<f64>) -> [[f64; 3]; 3] {
 }
 
 impl IntrinsicsFile {
+    /// The file contents for `i`.
     pub fn from_intrinsics(i: &ImuIntrinsics) -> Self {
         Self {
             model: "x_c = S x_r + b (accel m/s^2, gyro rad/s)".into(),
@@ -38,6 +45,7 @@ impl IntrinsicsFile {
         }
     }
 
+    /// The correction the file describes (no check that `S` is invertible; the reader does that).
     pub fn intrinsics(&self) -> ImuIntrinsics {
         let m = |r: &[[f64; 3]; 3]| Matrix3::from_fn(|i, j| r[i][j]);
         ImuIntrinsics {

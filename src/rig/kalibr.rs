@@ -37,9 +37,14 @@ pub struct KalibrCamera {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub T_cn_cnm1: Option<[[f64; 4]; 4]>,
     #[serde(default)]
+    /// Indices of the cameras whose views overlap this one's (Kalibr writes it; rigslam does not
+    /// use it).
     pub cam_overlaps: Vec<u32>,
+    /// Projection model; only `pinhole` is read.
     pub camera_model: String,
+    /// Distortion coefficients, in the order of `distortion_model`.
     pub distortion_coeffs: Vec<f64>,
+    /// `radtan`, `equidistant` or `none`.
     pub distortion_model: String,
     /// `[fu, fv, pu, pv]` for the pinhole model, px.
     pub intrinsics: Vec<f64>,
@@ -69,6 +74,7 @@ pub struct KalibrImu {
     /// rad/s^2/sqrt(Hz)
     pub gyroscope_random_walk: f64,
     #[serde(default = "default_imu_topic")]
+    /// Kalibr requires it; rigslam does not use it \[`/imu0`\].
     pub rostopic: String,
     /// Hz
     pub update_rate: f64,

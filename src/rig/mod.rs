@@ -22,6 +22,7 @@ pub mod sensor_yaml;
 #[allow(non_snake_case)]
 #[derive(Debug, Clone, PartialEq)]
 pub struct CameraCalibration {
+    /// Projection and distortion model with its parameters, px.
     pub model: CameraModel,
     /// Maps camera coordinates into the body (IMU) frame (EuRoC's `T_BS`).
     pub T_body_cam: Isometry3<f64>,
@@ -69,7 +70,9 @@ impl ImuNoise {
 pub struct ImuCalibration {
     /// Maps IMU coordinates into the body frame (identity when the body is the IMU).
     pub T_body_imu: Isometry3<f64>,
+    /// IMU sample rate, Hz (turns the noise densities into per-sample sigmas).
     pub rate_hz: f64,
+    /// Noise densities and bias random walks (continuous time, Kalibr's convention).
     pub noise: ImuNoise,
     /// Scale, misalignment and offset applied to every raw sample before
     /// it is used (`rigslam-calibrate imu`; identity for a sensor
@@ -82,7 +85,9 @@ pub struct ImuCalibration {
 /// says whether it serves a mode.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RigModel {
+    /// Camera 0 (left) first, then camera 1 (right) in the stereo modes.
     pub cameras: Vec<CameraCalibration>,
+    /// The IMU; needed by the inertial modes only.
     pub imu: Option<ImuCalibration>,
 }
 

@@ -327,8 +327,13 @@ impl Fields<'_> {
     }
 }
 
-/// A noise figure checked as [`Fields::plausible_noise`] does, for
-/// readers of other layouts (Kalibr's `imu.yaml`).
+/// Checks a continuous-time IMU noise density `v` (SI units per
+/// sqrt(Hz), Kalibr's convention) as the `sensor.yaml` reader does, for
+/// readers of other layouts (Kalibr's `imu.yaml`): `v` must be positive
+/// and finite and at most `max`; a larger value is a unit or convention
+/// mistake (degrees, a per-sample sigma, a variance). `typical` (a
+/// consumer MEMS part's value) only goes into the error message, which is
+/// the `Err` string.
 pub fn plausible_noise(v: f64, max: f64, typical: f64) -> Result<f64, String> {
     if !(v.is_finite() && v > 0.0) {
         return Err(format!("expected a positive finite number, found {v}"));

@@ -31,10 +31,15 @@ use crate::edge_map::settings::AbsoluteSettings;
 pub struct DatasetRun {
     /// `None`: the richest mode the dataset supports.
     pub mode: Option<SensorMode>,
+    /// Relative estimator to run.
     pub estimator: EstimatorKind,
+    /// Settings of the relative stage.
     pub config: RelativeConfig,
+    /// How the run is paced (as recorded, or as fast as possible).
     pub options: RunOptions,
+    /// Skip the dataset's first seconds, s (from its first frame).
     pub start_s: f64,
+    /// Stop after this many frames (all when `None`).
     pub max_frames: Option<usize>,
     /// Ground truth to score against instead of the dataset's own.
     pub groundtruth: Option<Trajectory>,
@@ -80,12 +85,16 @@ impl Default for DatasetRun {
 
 /// Everything a run produced.
 pub struct DatasetRunResult {
+    /// The numbers of the run.
     pub report: RunReport,
+    /// The trajectory, timings and counters.
     pub outcome: RunOutcome,
+    /// The trajectory against the ground truth, when there is one.
     pub evaluation: Option<Evaluation>,
     /// The relative stage's own trajectory when the absolute stage ran
     /// (then `outcome.trajectory` is the corrected one).
     pub trajectory_relative: Option<Trajectory>,
+    /// The relative stage's trajectory against the ground truth, when the absolute stage ran.
     pub evaluation_relative: Option<Evaluation>,
 }
 
@@ -93,22 +102,31 @@ pub struct DatasetRunResult {
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {
     #[error(transparent)]
+    /// The dataset could not be read.
     Dataset(#[from] DatasetError),
     #[error(transparent)]
+    /// The estimator could not be built for the rig and mode.
     Setup(#[from] OdometryError),
     #[error("--start-s must be a finite number >= 0, got {0}")]
+    /// `--start-s` is negative or not finite (the field is the value given).
     BadStart(f64),
     #[error("{0} lists no frames")]
+    /// The dataset (named by the field) has no frame to run on.
     NoFrames(String),
     #[error(transparent)]
+    /// A setting is missing or out of range.
     Config(#[from] crate::relative::config::ConfigError),
     #[error("saving the map: {0}")]
+    /// The map could not be written.
     SaveMap(#[from] MapFileError),
     #[error("--save-map needs the absolute stage (--absolute)")]
+    /// `--save-map` was given without `--absolute`.
     SaveMapWithoutAbsolute,
     #[error("the map is saved at the end of the run: no map to save (the absolute stage never had two landmarks in view while tracking)")]
+    /// The absolute stage never had a map to save.
     NoMapToSave,
     #[error("--load-map and --absolute: pick one (localise in a saved map, or build a new one)")]
+    /// `--load-map` and `--absolute` were both given.
     LoadMapAndAbsolute,
 }
 

@@ -35,13 +35,22 @@ pub struct RunOutcome {
     /// Wall time per frame: the frame's own call plus the IMU samples
     /// delivered since the previous frame, ms.
     pub frame_ms: Vec<f64>,
+    /// Wall time of each estimator stage per frame (and `imu_push`, the IMU samples before it), ms,
+    /// by stage name.
     pub stage_ms: BTreeMap<&'static str, Vec<f64>>,
+    /// Stamp of the first frame, ns (dataset clock).
     pub first_frame_ns: Option<i64>,
+    /// Stamp of the last frame, ns.
     pub last_frame_ns: Option<i64>,
+    /// Stamp of the first frame with a usable (metric, or in mono consistently scaled) pose, ns.
     pub initialized_at_ns: Option<i64>,
+    /// Times tracking was lost after having been initialised (a run of lost frames counts once).
     pub lost_count: u64,
+    /// Frames reported lost (including consecutive ones).
     pub lost_frames: u64,
+    /// Wall time of the whole run, s.
     pub wall_s: f64,
+    /// Resident memory when 10 % of the frames were done, MiB (`None` off Linux).
     pub rss_at_10pct_mib: Option<f64>,
     /// The estimator's last answer (final biases, state).
     pub last_output: Option<RelativeOutput>,
@@ -154,6 +163,7 @@ impl RunOutcome {
         (TimingStats::of(&self.frame_ms), stages)
     }
 
+    /// Sequence time from the first to the last frame, s (0 with fewer than two frames).
     pub fn sequence_s(&self) -> f64 {
         match (self.first_frame_ns, self.last_frame_ns) {
             (Some(a), Some(b)) => (b - a) as f64 * 1e-9,

@@ -65,6 +65,7 @@ pub struct RecognitionCheck {
     pub checked: usize,
     /// Of them, farther apart than [`WRONG_M`] and than 1 m.
     pub wrong: usize,
+    /// Of them, farther apart than 1 m.
     pub over_1_m: usize,
     /// Median distance between the two tracks' true positions, m.
     pub median_m: f64,

@@ -11,9 +11,13 @@ use crate::eval::EvalReport;
 /// Mean, median and 99th percentile of a set of durations, ms.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct TimingStats {
+    /// Mean, ms.
     pub mean_ms: f64,
+    /// Median, ms.
     pub p50_ms: f64,
+    /// 99th percentile, ms.
     pub p99_ms: f64,
+    /// Largest, ms.
     pub max_ms: f64,
     /// How many frames the stage ran on.
     pub count: usize,
@@ -45,20 +49,31 @@ impl TimingStats {
 /// `rigslam run --report FILE` (and `--json`).
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct RunReport {
+    /// The dataset's path.
     pub dataset: String,
+    /// Sensor mode run (`mono`, `stereo-inertial`, ...).
     pub mode: String,
+    /// Relative estimator run (`window` or `ekf`).
     pub estimator: String,
+    /// Frames delivered.
     pub frames: u64,
+    /// IMU samples delivered.
     pub imu_samples: u64,
+    /// Wall time of the run, s.
     pub wall_s: f64,
     /// Sequence time covered by the frames, s.
     pub sequence_s: f64,
     /// Sequence time over wall time.
     pub realtime_factor: f64,
+    /// Mean wall time per frame, ms (the frame's call plus the IMU samples before it).
     pub mean_ms_per_frame: f64,
+    /// Median wall time per frame, ms.
     pub p50_ms_per_frame: f64,
+    /// 99th percentile of the wall time per frame, ms.
     pub p99_ms_per_frame: f64,
+    /// Largest wall time of a frame, ms.
     pub max_ms_per_frame: f64,
+    /// Timing of each estimator stage, by name.
     pub stages: BTreeMap<String, TimingStats>,
     /// Sequence time of the first frame with a metric (or, in `mono`,
     /// consistently scaled) pose, s from the first frame; `null` if never.
@@ -67,7 +82,9 @@ pub struct RunReport {
     pub lost_count: u64,
     /// Frames reported lost (including consecutive ones).
     pub lost_frames: u64,
+    /// Poses in the written trajectory.
     pub poses_written: usize,
+    /// What the dataset stream delivered and left out.
     pub stream: StreamCounts,
     /// The estimator's own counters (drops, resets, keyframes, ...).
     pub counters: BTreeMap<String, u64>,
@@ -87,6 +104,7 @@ pub struct RunReport {
     /// Resident memory at 10 % and at the end of the run, MiB: flat memory
     /// shows as two close numbers.
     pub rss_at_10pct_mib: Option<f64>,
+    /// Resident memory at the end of the run, MiB.
     pub rss_at_end_mib: Option<f64>,
     /// Against the dataset's ground truth, when it has one (the corrected
     /// trajectory when the absolute stage ran).
@@ -153,19 +171,24 @@ pub struct CameraImuReport {
     /// Camera 0 in the body (IMU) frame: translation, m, and rotation as a
     /// quaternion `[w, x, y, z]`.
     pub translation_body_cam0_m: [f64; 3],
+    /// Rotation of camera 0 in the body frame, quaternion `[w, x, y, z]`.
     pub rotation_body_cam0_wxyz: [f64; 4],
     /// The frames' lag behind the IMU beyond the file's time shift, ms.
     pub time_offset_ms: f64,
     /// Distance from the file.
     pub rotation_from_file_deg: f64,
+    /// Translation distance from the file, mm.
     pub translation_from_file_mm: f64,
     /// Camera 1's rotation in camera 0 against the file's, deg (0 without
     /// a second camera), and that rotation as a quaternion `[w, x, y, z]`.
     pub stereo_rotation_from_file_deg: f64,
+    /// Camera 1's rotation in camera 0, quaternion `[w, x, y, z]`.
     pub rotation_cam0_cam1_wxyz: [f64; 4],
     /// One sigma of the last solve.
     pub rotation_sigma_deg: f64,
+    /// One sigma of the translation, mm.
     pub translation_sigma_mm: f64,
+    /// One sigma of the time offset, ms.
     pub time_offset_sigma_ms: f64,
     /// Farther from the file than the warning distance.
     pub far_from_file: bool,

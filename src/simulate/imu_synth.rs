@@ -21,12 +21,14 @@ use crate::sensors::ImuSample;
 /// How to synthesise the IMU stream.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ImuSynthConfig {
+    /// Sample rate, Hz.
     pub rate_hz: f64,
     /// Continuous-time densities; `None` gives ideal (noise-free, bias-free
     /// beyond `initial_biases`) measurements.
     pub noise: Option<ImuNoise>,
     /// Biases at the first sample.
     pub initial_biases: ImuBiases,
+    /// Seed of the noise and bias random walk; the same seed gives the same stream.
     pub seed: u64,
 }
 
@@ -48,7 +50,10 @@ impl Default for ImuSynthConfig {
 /// The samples and the true bias at each of them.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SynthImu {
+    /// The synthetic samples (specific force and rate in the body frame, stamps in the sequence's
+    /// clock, ns).
     pub samples: Vec<ImuSample>,
+    /// The true biases at each sample.
     pub biases: Vec<ImuBiases>,
 }
 

@@ -19,11 +19,24 @@ use crate::trajectory::{StampedPose, Trajectory};
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum InterpolationError {
     #[error("the trajectory has {0} poses; at least 2 are needed")]
+    /// Fewer than two poses (the field is how many there are).
     TooShort(usize),
     #[error("the trajectory's stamps are not strictly increasing at pose {index} (t = {t_ns} ns)")]
-    NotIncreasing { index: usize, t_ns: i64 },
+    /// A stamp is not after the previous one.
+    NotIncreasing {
+        /// Index of the pose.
+        index: usize,
+        /// Its stamp, ns.
+        t_ns: i64,
+    },
     #[error("pose {index} (t = {t_ns} ns) is not finite")]
-    NotFinite { index: usize, t_ns: i64 },
+    /// A pose has a NaN or infinite value.
+    NotFinite {
+        /// Index of the pose.
+        index: usize,
+        /// Its stamp, ns.
+        t_ns: i64,
+    },
 }
 
 /// The recorded poses, interpolated.
@@ -33,6 +46,8 @@ pub struct InterpolatedMotion {
 }
 
 impl InterpolatedMotion {
+    /// Checks `trajectory` (at least two poses, strictly increasing stamps, finite values) and
+    /// keeps a copy to interpolate.
     pub fn new(trajectory: &Trajectory) -> Result<Self, InterpolationError> {
         let poses = trajectory.poses.clone();
         if poses.len() < 2 {
@@ -57,10 +72,12 @@ impl InterpolatedMotion {
         Ok(Self { poses })
     }
 
+    /// Stamp of the first pose, ns.
     pub fn start_ns(&self) -> i64 {
         self.poses[0].t_ns
     }
 
+    /// Stamp of the last pose, ns.
     pub fn end_ns(&self) -> i64 {
         self.poses[self.poses.len() - 1].t_ns
     }

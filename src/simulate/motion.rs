@@ -18,13 +18,16 @@ use crate::trajectory::Trajectory;
 /// A motion defined on `[start_ns, end_ns]`.
 #[derive(Debug, Clone)]
 pub enum Motion {
+    /// The built-in sinusoidal loop.
     Builtin(BuiltinMotion),
+    /// A cubic B-spline fitted to recorded poses.
     Spline(SplineMotion),
     /// Recorded poses interpolated, no fit ([`super::interpolated`]).
     Interpolated(InterpolatedMotion),
 }
 
 impl Motion {
+    /// First instant the motion is defined at, ns.
     pub fn start_ns(&self) -> i64 {
         match self {
             Motion::Builtin(m) => m.start_ns,
@@ -32,6 +35,7 @@ impl Motion {
             Motion::Interpolated(m) => m.start_ns(),
         }
     }
+    /// Last instant the motion is defined at, ns.
     pub fn end_ns(&self) -> i64 {
         match self {
             Motion::Builtin(m) => m.start_ns + (m.duration_s * 1e9).round() as i64,
@@ -53,8 +57,11 @@ impl Motion {
 /// One sinusoid `amplitude * sin(omega * t + phase)`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Sinusoid {
+    /// Amplitude (m for a position, rad for an angle).
     pub amplitude: f64,
+    /// Angular frequency, rad/s.
     pub omega_rad_s: f64,
+    /// Phase at `t = 0` (the motion's start), rad.
     pub phase_rad: f64,
 }
 
@@ -87,9 +94,13 @@ fn sum_of_sines(terms: &[Sinusoid], t_s: f64) -> (f64, f64, f64) {
 /// 1 m/s, rotation rates up to about 1 rad/s.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BuiltinMotion {
+    /// Stamp of the motion's start, ns.
     pub start_ns: i64,
+    /// Length, s.
     pub duration_s: f64,
+    /// Constant part of the body position in the world frame, m.
     pub centre_m: Vector3<f64>,
+    /// Sinusoids added to the x, y and z world position, m.
     pub position: [Vec<Sinusoid>; 3],
     /// Yaw, pitch, roll of the forward frame (x forward, z up), rad.
     pub angles: [Vec<Sinusoid>; 3],
@@ -180,10 +191,13 @@ pub struct SplineMotion {
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum MotionError {
     #[error("trajectory has {0} poses; a spline needs at least 2 spanning 4 knot intervals")]
+    /// Too few poses (the field is how many there are).
     TooShort(usize),
     #[error("trajectory stamps are not strictly increasing")]
+    /// The stamps do not strictly increase.
     NotTimeOrdered,
     #[error("knot spacing must be positive and finite, got {0} s")]
+    /// The knot spacing (the field, s) is not positive and finite.
     BadKnotSpacing(f64),
 }
 
@@ -440,9 +454,11 @@ impl SplineMotion {
         self.positions.len()
     }
 
+    /// First instant the spline is defined at (knot 1), ns.
     pub fn start_ns(&self) -> i64 {
         self.t0_ns + (self.knot_spacing_s * 1e9).round() as i64
     }
+    /// Last instant the spline is defined at (knot n-2), ns.
     pub fn end_ns(&self) -> i64 {
         self.t0_ns + ((self.positions.len() - 2) as f64 * self.knot_spacing_s * 1e9).round() as i64
     }

@@ -134,9 +134,11 @@ impl Renderer {
         }
     }
 
+    /// Image width, px.
     pub fn width(&self) -> usize {
         self.width
     }
+    /// Image height, px.
     pub fn height(&self) -> usize {
         self.height
     }

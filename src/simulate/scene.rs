@@ -10,11 +10,14 @@ use super::texture::Texture;
 /// An axis-aligned box, world frame, metres.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Aabb {
+    /// Lower corner, m.
     pub min_m: [f32; 3],
+    /// Upper corner, m.
     pub max_m: [f32; 3],
 }
 
 impl Aabb {
+    /// The box between the corners `min_m` and `max_m`, m.
     pub fn new(min_m: [f32; 3], max_m: [f32; 3]) -> Self {
         Self { min_m, max_m }
     }
@@ -29,6 +32,7 @@ impl Aabb {
             max_m: self.max_m.map(|v| v + margin_m),
         }
     }
+    /// Whether `p` (world, m) is strictly inside.
     pub fn contains(&self, p: [f32; 3]) -> bool {
         (0..3).all(|a| self.min_m[a] < p[a] && p[a] < self.max_m[a])
     }
@@ -37,6 +41,7 @@ impl Aabb {
 /// How to build a scene.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SceneConfig {
+    /// Seed of the box placement and textures; the same seed gives the same scene.
     pub seed: u64,
     /// Inside of the room.
     pub room: Aabb,
@@ -51,6 +56,7 @@ pub struct SceneConfig {
 /// One flat face: texture plus the plane coordinates of its corner.
 #[derive(Debug, Clone)]
 pub struct Surface {
+    /// The face's texture.
     pub texture: Texture,
     /// World coordinates (along the face's u and v axes) of the texture's corner.
     pub origin_uv_m: [f32; 2],
@@ -66,16 +72,22 @@ pub struct Surface {
 /// world axes `u = (axis + 1) % 3` and `v = (axis + 2) % 3`.
 #[derive(Debug, Clone)]
 pub struct Scene {
+    /// The room (its inside faces are surfaces 0-5).
     pub room: Aabb,
+    /// The boxes in the room.
     pub boxes: Vec<Aabb>,
+    /// Every face, indexed as above.
     pub surfaces: Vec<Surface>,
 }
 
 /// What a ray hits.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Hit {
+    /// Ray parameter at the hit, m (the distance for a unit direction).
     pub t_m: f32,
+    /// Index of the surface hit in [`Scene::surfaces`].
     pub surface: usize,
+    /// Axis of the face's normal: 0 x, 1 y, 2 z.
     pub axis: usize,
 }
 

@@ -40,6 +40,7 @@ pub struct SplineConfig {
     /// Through the trajectory at every knot ([`SplineMotion::fit_through`])
     /// or with control poses on it, smoothing it ([`SplineMotion::fit`]).
     pub through_samples: bool,
+    /// Time between knots, s.
     pub knot_spacing_s: f64,
 }
 
@@ -65,6 +66,7 @@ impl SplineConfig {
         knot_spacing_s: 0.05,
     };
 
+    /// The spline settings for `imu`: [`Self::SYNTHETIC_IMU`] or [`Self::REAL_IMU`].
     pub fn for_imu(imu: &ImuSource) -> Self {
         match imu {
             ImuSource::Synthetic => Self::SYNTHETIC_IMU,
@@ -89,19 +91,30 @@ pub struct SimConfig {
     pub trajectory: Option<PathBuf>,
     /// Length of the sequence; `None` = 30 s built-in or the whole file.
     pub duration_s: Option<f64>,
+    /// Where the IMU samples come from.
     pub imu: ImuSource,
+    /// Render cam1 as well (a stereo sequence).
     pub stereo: bool,
+    /// Seed of the scene and the IMU noise; the same seed gives the same sequence.
     pub seed: u64,
+    /// Camera frame rate, Hz.
     pub camera_rate_hz: f64,
+    /// IMU rate of synthetic samples, Hz.
     pub imu_rate_hz: f64,
+    /// Left camera: intrinsics, distortion and pose on the body.
     pub cam0: CameraCalibration,
+    /// Right camera, used when `stereo`.
     pub cam1: CameraCalibration,
     /// Synthetic IMU noise; `None` gives ideal measurements (biases stay at
     /// their initial values).
     pub imu_noise: Option<ImuNoise>,
+    /// Biases of the synthetic IMU at the first sample.
     pub initial_biases: ImuBiases,
+    /// Rendering options (pixel noise, vignetting).
     pub render: RenderOptions,
+    /// Boxes placed in the room.
     pub box_count: usize,
+    /// Base texel edge of the textures, m.
     pub texel_m: f32,
     /// How a trajectory file becomes a spline; `None` chooses by the IMU
     /// source ([`SplineConfig::for_imu`]).
@@ -155,10 +168,15 @@ pub struct SimReport {
     pub frames: usize,
     /// Images written (frames times cameras).
     pub images: usize,
+    /// IMU samples written.
     pub imu_samples: usize,
+    /// Sequence length, s.
     pub duration_s: f64,
+    /// Length of the path the body travels, m.
     pub path_length_m: f64,
+    /// Size of the room along x, y, z, m.
     pub room_size_m: [f64; 3],
+    /// Boxes placed (fewer than asked when they do not fit).
     pub boxes: usize,
     /// Scene generation (textures) plus ray tables, s.
     pub setup_s: f64,
@@ -173,6 +191,7 @@ pub struct SimReport {
     pub write_s: f64,
     /// Images per second including PNG encoding and writing.
     pub render_write_fps: f64,
+    /// Total wall time, s.
     pub total_s: f64,
     /// With a real IMU log: its accelerometer noise density measured
     /// against the rendered motion ([`accel_agreement`], 0.25 s windows),
@@ -193,22 +212,32 @@ pub struct SimReport {
 const REAL_IMU_AGREEMENT_WINDOW_S: f64 = 0.25;
 
 #[derive(Debug, thiserror::Error)]
+/// Why a sequence could not be simulated.
 pub enum SimError {
     #[error(transparent)]
+    /// A trajectory or IMU log could not be read, or the dataset could not be written.
     Dataset(#[from] DatasetError),
     #[error("{path}: cannot follow this trajectory: {source}")]
+    /// The trajectory cannot be turned into a spline.
     Motion {
+        /// The trajectory file.
         path: PathBuf,
         #[source]
+        /// Why.
         source: MotionError,
     },
     #[error("{path}: no IMU samples inside the trajectory's span [{start_ns}, {end_ns}] ns")]
+    /// The real IMU log has no sample inside the trajectory's span.
     NoImuInSpan {
+        /// The IMU log.
         path: PathBuf,
+        /// Start of the trajectory's span, ns.
         start_ns: i64,
+        /// End of the trajectory's span, ns.
         end_ns: i64,
     },
     #[error("invalid configuration: {0}")]
+    /// The settings contradict each other or are out of range (the message says which).
     Config(String),
 }
 

@@ -31,10 +31,12 @@ pub struct EssentialSolutions {
 }
 
 impl EssentialSolutions {
+    /// The solutions found (0 to 10).
     pub fn as_slice(&self) -> &[Matrix3<f64>] {
         &self.matrices[..self.len]
     }
 
+    /// Whether no solution was found.
     pub fn is_empty(&self) -> bool {
         self.len == 0
     }

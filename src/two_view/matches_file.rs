@@ -1,7 +1,7 @@
 //! Text files of image-pair correspondences and of true relative motions,
 //! the inputs of `rigslam bench essential`.
 //!
-//! Matches (e.g. `../shared/data/kitti/seq_a_matches.txt`): lines starting
+//! Matches (e.g. `kitti/seq_a_matches.txt` in [`crate::shared_data`]): lines starting
 //! with `#` are comments, one of them `# K fx fy cx cy: <4 numbers>`; then
 //! per image pair `k n` followed by `n` quadruples `x1 y1 x2 y2` in pixels
 //! (frame k to k+1), either on the same line or one quadruple per line.
@@ -22,14 +22,18 @@ use crate::text_file::DatasetError;
 pub struct PixelMatches {
     /// Index of the first frame; the pair is (k, k+1).
     pub k: usize,
+    /// Pixel positions in frame k.
     pub px1: Vec<Vector2<f64>>,
+    /// Pixel positions of the same points in frame k+1.
     pub px2: Vec<Vector2<f64>>,
 }
 
 #[derive(Debug, Clone, PartialEq)]
+/// A correspondence file: the camera and the matches of each image pair.
 pub struct MatchesFile {
     /// `fx fy cx cy` in pixels.
     pub pinhole: [f64; 4],
+    /// The image pairs in file order.
     pub pairs: Vec<PixelMatches>,
 }
 
@@ -183,8 +187,11 @@ pub fn parse_matches(path: &Path, text: &str) -> Result<MatchesFile, DatasetErro
 /// One true relative motion `x_{k+1} = R x_k + t`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct RelativeMotion {
+    /// Index of the first frame; the motion is from frame k to k+1.
     pub k: usize,
+    /// `R`: rotation from camera k's frame to camera k+1's.
     pub rotation_c2_c1: Matrix3<f64>,
+    /// `t`: translation of `x_{k+1} = R x_k + t`, in the file's unit.
     pub t_c2_c1: Vector3<f64>,
 }
 

@@ -1,9 +1,9 @@
 //! Two-view geometry: the paper's chain after tracking. A frame's
 //! correspondences with the previous one go through [`ransac`] (MSAC over
-//! the [`five_point`] solver, then [`essential`] decomposition, cheirality
+//! the [`five_point`](mod@five_point) solver, then [`essential`] decomposition, cheirality
 //! and refinement) to a [`RelativePose`]; [`triangulation`] turns the
 //! inliers into points (optimal two-view correction, then linear
-//! triangulation); [`p3p`] and [`pnp`] place a frame against known points.
+//! triangulation); [`p3p`](mod@p3p) and [`pnp`] place a frame against known points.
 //!
 //! Inputs are normalised image coordinates (`K⁻¹` applied, distortion
 //! removed, e.g. by [`crate::camera::CameraModel::unproject`]) or, for the
@@ -32,17 +32,43 @@ pub use triangulation::{triangulate, TriangulationConfig, TriangulationFailure};
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum TwoViewError {
     #[error("need at least {needed} correspondences, got {got}")]
-    TooFewCorrespondences { needed: usize, got: usize },
+    /// Fewer correspondences than the minimal solver or the refinement needs.
+    TooFewCorrespondences {
+        /// Correspondences needed.
+        needed: usize,
+        /// Correspondences given.
+        got: usize,
+    },
     #[error("{first} points in the first set but {second} in the second")]
-    LengthMismatch { first: usize, second: usize },
+    /// The two point lists differ in length.
+    LengthMismatch {
+        /// Length of the first list.
+        first: usize,
+        /// Length of the second list.
+        second: usize,
+    },
     #[error("correspondence {index} has a coordinate that is not finite")]
-    NonFinite { index: usize },
+    /// A correspondence has a NaN or infinite coordinate.
+    NonFinite {
+        /// Its index.
+        index: usize,
+    },
     #[error("setting `{key}` = {value} is outside the allowed range {allowed}")]
+    /// A setting is out of range.
     InvalidConfig {
+        /// The setting's name.
         key: &'static str,
+        /// Its value.
         value: f64,
+        /// The allowed range.
         allowed: &'static str,
     },
     #[error("no model is supported by enough inliers (best {best}, need {needed})")]
-    NoConsensus { best: usize, needed: usize },
+    /// No hypothesis has `min_inliers` inliers.
+    NoConsensus {
+        /// Inliers of the best hypothesis.
+        best: usize,
+        /// Inliers needed.
+        needed: usize,
+    },
 }

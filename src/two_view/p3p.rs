@@ -19,7 +19,9 @@ use super::polynomial::{self, MAX_DEGREE};
 /// A pose `X_cam = R X_world + t`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CameraPose {
+    /// `R`: rotation from world to camera coordinates.
     pub rotation_cam_world: Matrix3<f64>,
+    /// `t`: the world origin in camera coordinates.
     pub t_cam_world: Vector3<f64>,
 }
 
@@ -31,6 +33,7 @@ pub struct P3pSolutions {
 }
 
 impl P3pSolutions {
+    /// The poses found (0 to 4).
     pub fn as_slice(&self) -> &[CameraPose] {
         &self.poses[..self.len]
     }

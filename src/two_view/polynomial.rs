@@ -20,6 +20,7 @@ pub struct RealRoots {
 }
 
 impl RealRoots {
+    /// The roots, in increasing order.
     pub fn as_slice(&self) -> &[f64] {
         &self.roots[..self.len]
     }

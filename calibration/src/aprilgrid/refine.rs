@@ -188,7 +188,7 @@ fn meet(
 }
 
 /// The junction as the meeting point of its two edges, each a line fitted
-/// over [`EDGE_FROM_CELLS`]..[`EDGE_TO_CELLS`] cells either side of the
+/// over `EDGE_FROM_CELLS..EDGE_TO_CELLS` cells either side of the
 /// junction (the tag's side one way, the corner square's the other): many
 /// more pixels than the window of [`refine_junction`], so less noise.
 /// `None` if an edge is missing or the lines meet far from `q`.

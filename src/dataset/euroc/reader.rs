@@ -18,6 +18,7 @@ use crate::sensors::{Frame, ImuSample};
 /// One row of a camera's `data.csv`.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ImageEntry {
+    /// Exposure stamp from `data.csv`, ns (EuRoC's clock).
     pub t_ns: i64,
     /// The image file; `None` when the stamp is listed but the file is
     /// absent (EuRoC's V1_01 cam1 lists stamps whose PNGs were dropped).
@@ -33,7 +34,9 @@ pub struct EurocCamera {
     pub name: String,
     /// N of `camN`, which becomes [`Frame::camera_index`].
     pub camera_index: u8,
+    /// Intrinsics, distortion and `T_BS` (camera to body = IMU) from the camera's `sensor.yaml`.
     pub calibration: CameraCalibration,
+    /// The `data.csv` rows in increasing stamp order.
     pub frames: Vec<ImageEntry>,
     /// The `data.csv` the frames came from, for error messages.
     pub csv_path: PathBuf,
@@ -56,6 +59,7 @@ impl EurocCamera {
 /// The IMU: calibration and samples.
 #[derive(Debug, Clone)]
 pub struct EurocImu {
+    /// Noise densities and `T_BS` from `imu0/sensor.yaml`.
     pub calibration: ImuCalibration,
     /// Finite samples in increasing time order.
     pub samples: Vec<ImuSample>,
@@ -70,7 +74,9 @@ pub struct EurocDataset {
     pub root: PathBuf,
     /// `camN` folders in increasing N.
     pub cameras: Vec<EurocCamera>,
+    /// `imu0`, when the dataset has one.
     pub imu: Option<EurocImu>,
+    /// `state_groundtruth_estimate0/data.csv`, when present.
     pub groundtruth: Option<Vec<GroundTruthState>>,
 }
 

@@ -4,22 +4,22 @@
 //! An EKF-SLAM visual-inertial filter on tracked observations (no image
 //! processing here; the tracker feeds [`TrackedFrame`]s):
 //!
-//! - State ([`state`]): body orientation (error-state on SO(3), right
+//! - State (private `state` module): body orientation (error-state on SO(3), right
 //!   perturbation), position, velocity, gyro and accel biases (15 error
 //!   states) plus up to [`EkfConfig::max_landmarks`] landmarks as world
-//!   xyz (3 each; why not inverse depth: see [`state`]).
-//! - Propagation ([`propagation`]) with every IMU sample, continuous
+//!   xyz (3 each; why not inverse depth: see the `state` source module).
+//! - Propagation (`propagation`) with every IMU sample, continuous
 //!   Kalibr densities made discrete per step. The landmark rows of the
 //!   covariance do not change during propagation, only the cross terms
 //!   with the body do: the filter accumulates the 15x15 transition
 //!   between frames and applies it to the cross block once per frame
 //!   (exactly equivalent, 15x15 work per IMU sample instead of 15 x 3N).
-//! - Update ([`update`]) with the reprojections of the state's landmarks
+//! - Update (`update`) with the reprojections of the state's landmarks
 //!   in every camera of the frame (distorted pixels, `sigma_px`), each
 //!   observation gated by its Mahalanobis distance against
 //!   [`EkfConfig::gate_chi2`] (chi-square, 2 dof), then one batch update
 //!   in Joseph form.
-//! - Landmarks ([`init`]): a landmark not in the state enters from a
+//! - Landmarks (`init`): a landmark not in the state enters from a
 //!   stereo observation (camera 1 in the frame) triangulated with the
 //!   calibrated pair, or, with one camera, delayed until a second view
 //!   with `min_parallax_mono_rad` of parallax; tracks are preferred by
@@ -101,12 +101,15 @@ pub struct EkfConfig {
     pub max_stereo_depth_sigma_fraction: f64,
     /// Landmark depth limits at initialisation, m.
     pub min_depth_m: f64,
+    /// Largest landmark depth at initialisation, m.
     pub max_depth_m: f64,
     /// Factor on the two-view triangulation's depth variance in mono
     /// (covers the past pose's error, which is not in the state).
     pub mono_init_inflation: f64,
     /// Smallest depth standard deviation of a mono landmark at
-    /// initialisation, as a fraction of its depth (see [`init`]).
+    /// initialisation, as a fraction of its depth: the depth prior along
+    /// the ray takes the larger of this and the inflated two-view depth
+    /// sigma, and the following frames' updates refine it.
     pub mono_depth_sigma_fraction: f64,
     /// A landmark whose observations were rejected in this many frames in
     /// a row is dropped.
@@ -146,9 +149,13 @@ pub struct InitialSigmas {
     /// certain; a large yaw sigma would only feed the standard EKF's
     /// spurious heading information (see the module doc).
     pub yaw_rad: f64,
+    /// Position, per world axis, m.
     pub position_m: f64,
+    /// Velocity, per world axis, m/s.
     pub velocity_m_s: f64,
+    /// Gyroscope bias, per axis, rad/s.
     pub gyro_bias_rad_s: f64,
+    /// Accelerometer bias, per axis, m/s^2.
     pub accel_bias_m_s2: f64,
 }
 
@@ -171,15 +178,25 @@ impl Default for InitialSigmas {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum EkfError {
     #[error("the rig has no camera; the EKF needs camera 0")]
+    /// The rig has no camera.
     NoCamera,
     #[error("the rig has no IMU; the EKF propagates with the IMU (inertial modes only)")]
+    /// The rig has no IMU (the EKF is for the inertial modes only).
     NoImu,
     #[error("the IMU sits {lever_arm_m} m from the body origin; the EKF assumes the body is the IMU frame (translation of T_body_imu must be zero)")]
-    ImuLeverArm { lever_arm_m: f64 },
+    /// The IMU is not at the body origin: the EKF assumes the body is the IMU frame.
+    ImuLeverArm {
+        /// Length of the translation of `T_body_imu`, m.
+        lever_arm_m: f64,
+    },
     #[error("EKF config `{key}` = {value} is outside {allowed}")]
+    /// A setting is out of range.
     InvalidConfig {
+        /// The setting's key.
         key: &'static str,
+        /// Its value.
         value: f64,
+        /// The allowed range.
         allowed: &'static str,
     },
 }
@@ -196,7 +213,9 @@ pub struct EkfUpdate {
     /// Observations dropped as unusable (non-finite pixel, unknown
     /// camera, landmark behind the camera).
     pub ignored: usize,
+    /// Landmarks that entered the state on this frame.
     pub landmarks_added: usize,
+    /// Landmarks dropped from the state on this frame (left the view, lost, or rejected too often).
     pub landmarks_removed: usize,
     /// Landmarks in the state after the frame.
     pub landmark_count: usize,
@@ -425,6 +444,7 @@ impl EkfFilter {
         self.nav = Some(nav);
     }
 
+    /// Whether the filter has a state yet ([`EkfFilter::initialize`] was called).
     pub fn is_initialized(&self) -> bool {
         self.nav.is_some()
     }
@@ -889,8 +909,11 @@ impl EkfFilter {
         self.covariance.fixed_view::<3, 3>(POS, POS).into()
     }
 
-    /// Covariance of the body's 15 navigation error states (layout in the
-    /// [`state`] module doc).
+    /// Covariance of the body's 15 navigation error states, rows and
+    /// columns in the order `[dtheta, dp, dv, db_g, db_a]` (3 each):
+    /// orientation as a right (body-frame) perturbation
+    /// `R = R_hat Exp(dtheta)` in rad, then world position (m), world
+    /// velocity (m/s), gyro bias (rad/s) and accel bias (m/s^2).
     pub fn navigation_covariance(&self) -> SMatrix<f64, 15, 15> {
         self.covariance.fixed_view::<15, 15>(0, 0).into()
     }

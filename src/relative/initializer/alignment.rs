@@ -57,6 +57,8 @@ use crate::sensors::ImuSample;
 #[allow(non_snake_case)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct VisionKeyframe {
+    /// Image timestamp, ns, on the IMU's clock: the IMU intervals must
+    /// start and end at these stamps.
     pub t_ns: i64,
     /// Maps this camera's coordinates into the first camera's (or any
     /// fixed) frame; the translation is up to scale.
@@ -66,14 +68,21 @@ pub struct VisionKeyframe {
 /// Whether the scale is estimated (mono) or known (stereo: 1).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum ScaleMode {
+    /// Mono: the scale (metric per vision unit) is an unknown of the
+    /// alignment.
     Estimate,
+    /// The poses' scale is known (stereo: 1, the poses are in metres);
+    /// must be positive and finite.
     Known(f64),
 }
 
 /// Settings of [`align`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct AlignmentConfig {
+    /// Magnitude of gravity, m/s^2: the refined gravity vector is held to
+    /// this norm (default 9.81).
     pub gravity_m_s2: f64,
+    /// Keyframes needed; values below 4 count as 4.
     pub min_keyframes: usize,
     /// Gauss-Newton iterations of the gyroscope bias.
     pub gyro_bias_iterations: usize,
@@ -112,26 +121,69 @@ impl Default for AlignmentConfig {
     }
 }
 
+/// Why the visual-inertial alignment refused its inputs or found no
+/// usable solution.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum AlignmentError {
+    /// Fewer keyframes than [`AlignmentConfig::min_keyframes`] (at least 4).
     #[error("{got} keyframes, need at least {needed}")]
-    TooFewKeyframes { got: usize, needed: usize },
+    TooFewKeyframes {
+        /// Keyframes given.
+        got: usize,
+        /// Keyframes needed.
+        needed: usize,
+    },
+    /// The IMU intervals are not exactly one fewer than the keyframes.
     #[error("{keyframes} keyframes need {} IMU intervals, got {intervals}", keyframes - 1)]
-    IntervalCount { keyframes: usize, intervals: usize },
+    IntervalCount {
+        /// Keyframes given.
+        keyframes: usize,
+        /// IMU intervals given.
+        intervals: usize,
+    },
+    /// An IMU interval's start or end stamp differs from the stamps of the
+    /// two keyframes it should join.
     #[error("IMU interval {index} does not run from keyframe {index} to keyframe {}", index + 1)]
-    StampMismatch { index: usize },
+    StampMismatch {
+        /// The interval, 0-based (it should join keyframes `index` and
+        /// `index + 1`).
+        index: usize,
+    },
+    /// A keyframe pose, the camera mounting or an IMU interval holds NaN
+    /// or infinity, or an interval's duration is not positive.
     #[error("keyframe or interval {index} is not finite")]
-    NotFinite { index: usize },
+    NotFinite {
+        /// The keyframe or interval, 0-based (also 0 for a non-finite
+        /// camera mounting).
+        index: usize,
+    },
+    /// The least-squares problem has no usable solution (fewer equations
+    /// than unknowns, a zero system, or gravity solved as zero or not
+    /// finite); the text says which.
     #[error("the alignment problem is degenerate: {0}")]
     Degenerate(&'static str),
+    /// The estimated scale is zero, negative or NaN: the IMU motion does
+    /// not fit the vision poses.
     #[error("the estimated scale {scale} (std {scale_std}) is not positive")]
-    ScaleNotPositive { scale: f64, scale_std: f64 },
+    ScaleNotPositive {
+        /// The estimate, metric per vision unit.
+        scale: f64,
+        /// Its standard deviation.
+        scale_std: f64,
+    },
+    /// A setting of [`AlignmentConfig`], or the known scale of
+    /// [`ScaleMode::Known`], is out of range or not finite.
     #[error("setting `{key}` = {value} is outside the allowed range {allowed}")]
     InvalidConfig {
+        /// The setting's name (`scale` for the known scale).
         key: &'static str,
+        /// The value given.
         value: f64,
+        /// The allowed range, e.g. `> 0`.
         allowed: &'static str,
     },
+    /// Preintegrating the raw IMU samples failed
+    /// ([`align_with_reintegration`] only).
     #[error(transparent)]
     Preintegration(#[from] PreintegrationError),
 }
@@ -139,6 +191,7 @@ pub enum AlignmentError {
 /// The gyroscope bias from the rotations alone.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct GyroBiasEstimate {
+    /// The gyroscope bias, IMU frame, rad/s.
     pub gyro_rad_s: Vector3<f64>,
     /// Per-axis standard deviation (inflated by the reduced chi-square
     /// when above 1).
@@ -156,6 +209,7 @@ pub struct Alignment {
     /// Standard deviation of `scale` (0 when known, infinite when
     /// unobservable).
     pub scale_std: f64,
+    /// `scale_std / scale`.
     pub scale_rel_std: f64,
     /// `scale_rel_std <= max_scale_rel_std`: safe to switch to the
     /// tightly coupled mode.
@@ -173,7 +227,12 @@ pub struct Alignment {
     pub velocities_world_m_s: Vec<Vector3<f64>>,
     /// Per keyframe: metric body pose in the world frame, velocity, biases.
     pub keyframes: Vec<KeyframeState>,
+    /// The gyroscope bias of step 1 and the accelerometer bias (estimated,
+    /// or the integration value), IMU frame; every keyframe state carries
+    /// them.
     pub biases: ImuBiases,
+    /// Per-axis standard deviation of the gyroscope bias, rad/s (see
+    /// [`GyroBiasEstimate::sigma_rad_s`]).
     pub gyro_bias_sigma_rad_s: Vector3<f64>,
     /// Whether `biases.accel_m_s2` was estimated (else the integration
     /// value was kept).

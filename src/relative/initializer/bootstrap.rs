@@ -36,6 +36,7 @@ pub struct BootstrapConfig {
     pub ransac_threshold_px: f64,
     /// Smallest median rotation-compensated parallax of the inliers.
     pub min_parallax_px: f64,
+    /// Fewest MSAC inliers.
     pub min_inliers: usize,
     /// Smallest fraction of the correspondences that must be inliers.
     pub min_inlier_ratio: f64,
@@ -43,6 +44,7 @@ pub struct BootstrapConfig {
     pub min_landmarks: usize,
     /// Per-point checks; depths in units of the (unit) first translation.
     pub triangulation: TriangulationConfig,
+    /// Seed of the MSAC sampler; the same seed and input give the same result.
     pub seed: u64,
 }
 
@@ -70,25 +72,50 @@ impl Default for BootstrapConfig {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum BootstrapRefusal {
     #[error("{found} landmarks seen in both frames, need {needed}")]
-    TooFewCorrespondences { found: usize, needed: usize },
+    /// Too few landmarks are seen in both frames.
+    TooFewCorrespondences {
+        /// Landmarks seen in both.
+        found: usize,
+        /// Landmarks needed.
+        needed: usize,
+    },
     #[error("pure rotation: translation not observable (median parallax {median_parallax_px} px)")]
-    PureRotation { median_parallax_px: f64 },
-    #[error("median parallax {median_parallax_px} px, need {needed_px}")]
-    TooLittleParallax {
+    /// The camera only rotated between the frames: the translation is not observable.
+    PureRotation {
+        /// Median rotation-compensated parallax of the inliers, px.
         median_parallax_px: f64,
+    },
+    #[error("median parallax {median_parallax_px} px, need {needed_px}")]
+    /// The inliers' parallax is below the minimum.
+    TooLittleParallax {
+        /// Median rotation-compensated parallax of the inliers, px.
+        median_parallax_px: f64,
+        /// The minimum, px.
         needed_px: f64,
     },
     #[error("{inliers} of {correspondences} correspondences are inliers, need {needed}")]
+    /// Too few correspondences are MSAC inliers (in number or in share).
     TooFewInliers {
+        /// Inliers.
         inliers: usize,
+        /// Correspondences.
         correspondences: usize,
+        /// Inliers needed.
         needed: usize,
     },
     #[error("{found} landmarks triangulated, need {needed}")]
-    TooFewLandmarks { found: usize, needed: usize },
+    /// Too few landmarks survive triangulation.
+    TooFewLandmarks {
+        /// Landmarks triangulated.
+        found: usize,
+        /// Landmarks needed.
+        needed: usize,
+    },
     #[error("the camera model has no usable focal length")]
+    /// The camera model has no usable focal length to convert the pixel thresholds.
     BadCamera,
     #[error(transparent)]
+    /// The two-view estimation failed (too few or bad correspondences, no consensus).
     Geometry(#[from] TwoViewError),
 }
 
@@ -96,7 +123,9 @@ pub enum BootstrapRefusal {
 /// translation.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Landmark {
+    /// The landmark's track id.
     pub id: LandmarkId,
+    /// Position in the first camera's frame, in units of the first translation.
     pub position_c0: Vector3<f64>,
 }
 
@@ -104,15 +133,20 @@ pub struct Landmark {
 #[allow(non_snake_case)]
 #[derive(Debug, Clone, PartialEq)]
 pub struct Bootstrap {
+    /// Stamp of the first frame, ns.
     pub t_first_ns: i64,
+    /// Stamp of the second frame, ns.
     pub t_second_ns: i64,
     /// Maps the second camera's coordinates into the first's; the
     /// translation has unit length.
     pub T_c0_c1: Isometry3<f64>,
     /// Sorted by id.
     pub landmarks: Vec<Landmark>,
+    /// Landmarks seen in both frames.
     pub correspondences: usize,
+    /// MSAC inliers among them.
     pub inlier_count: usize,
+    /// Median rotation-compensated parallax of the inliers, px.
     pub median_parallax_px: f64,
 }
 
@@ -231,10 +265,13 @@ pub fn bootstrap_two_view(
 /// Settings of [`pnp_frame`].
 #[derive(Debug, Clone, PartialEq)]
 pub struct PnpConfig {
+    /// Which camera's observations to use (0 = left or only).
     pub camera_index: u8,
     /// Reprojection inlier threshold, pixels.
     pub threshold_px: f64,
+    /// Fewest inliers for the pose to be accepted.
     pub min_inliers: usize,
+    /// Seed of the RANSAC sampler; the same seed and input give the same result.
     pub seed: u64,
 }
 
@@ -253,11 +290,14 @@ impl Default for PnpConfig {
 #[allow(non_snake_case)]
 #[derive(Debug, Clone, PartialEq)]
 pub struct PnpFrame {
+    /// Frame stamp, ns.
     pub t_ns: i64,
     /// Maps this camera's coordinates into the first camera's frame, in
     /// the landmarks' units.
     pub T_c0_cam: Isometry3<f64>,
+    /// Bootstrap landmarks seen in the frame.
     pub correspondences: usize,
+    /// RANSAC inliers among them.
     pub inlier_count: usize,
 }
 

@@ -83,47 +83,89 @@ impl Default for StaticStartConfig {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum StaticRefusal {
     #[error("setting `{key}` = {value} is outside the allowed range {allowed}")]
+    /// A setting is out of range.
     InvalidConfig {
+        /// The setting's key.
         key: &'static str,
+        /// Its value.
         value: f64,
+        /// The allowed range.
         allowed: &'static str,
     },
     #[error("IMU sample {index} at {t_ns} ns is not finite")]
-    NotFinite { index: usize, t_ns: i64 },
+    /// A sample has a NaN or infinite value.
+    NotFinite {
+        /// Its index in the samples given.
+        index: usize,
+        /// Its stamp, ns.
+        t_ns: i64,
+    },
     #[error("IMU sample {index} at {t_ns} ns does not come after the previous one")]
-    NotIncreasing { index: usize, t_ns: i64 },
+    /// A sample's stamp is not after the previous sample's.
+    NotIncreasing {
+        /// Its index in the samples given.
+        index: usize,
+        /// Its stamp, ns.
+        t_ns: i64,
+    },
     #[error("the window {t_start_ns}..{t_end_ns} ns is not covered: a gap of {gap_s} s")]
+    /// The samples leave a gap in the window (or do not reach its start).
     Gap {
+        /// Window start, ns.
         t_start_ns: i64,
+        /// Window end, ns.
         t_end_ns: i64,
+        /// Length of the gap, s.
         gap_s: f64,
     },
     #[error("only {blocks} blocks with samples in the window, need 4")]
-    TooFewBlocks { blocks: usize },
+    /// Fewer than 4 blocks of the window hold samples.
+    TooFewBlocks {
+        /// Blocks with samples.
+        blocks: usize,
+    },
     #[error("rotating: gyro block means spread {spread_rad_s} rad/s, threshold {threshold_rad_s}")]
+    /// The gyro block means spread more than the threshold: the rig rotates.
     Rotating {
+        /// Spread of the gyro block means (norm over the axes), rad/s.
         spread_rad_s: f64,
+        /// The threshold, rad/s.
         threshold_rad_s: f64,
     },
     #[error(
         "accelerating: accelerometer block means spread {spread_m_s2} m/s^2, \
          threshold {threshold_m_s2}"
     )]
+    /// The accelerometer block means spread more than the threshold: the rig accelerates.
     Accelerating {
+        /// Spread of the accelerometer block means (norm over the axes), m/s^2.
         spread_m_s2: f64,
+        /// The threshold, m/s^2.
         threshold_m_s2: f64,
     },
     #[error("mean rate {rate_rad_s} rad/s is more than a gyro bias can be ({max_rad_s})")]
-    Turning { rate_rad_s: f64, max_rad_s: f64 },
+    /// The mean rate is larger than a gyro bias can be: the rig turns steadily.
+    Turning {
+        /// Norm of the mean rate, rad/s.
+        rate_rad_s: f64,
+        /// Largest plausible gyro bias, rad/s.
+        max_rad_s: f64,
+    },
     #[error("mean specific force {norm_m_s2} m/s^2 is not gravity")]
-    NotGravity { norm_m_s2: f64 },
+    /// The mean specific force is too far from 9.81 m/s^2.
+    NotGravity {
+        /// Its norm, m/s^2.
+        norm_m_s2: f64,
+    },
 }
 
 /// The state at the end of a window at rest.
 #[allow(non_snake_case)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StaticStart {
+    /// Window start, ns.
     pub t_start_ns: i64,
+    /// Window end, ns: the instant the state is for.
     pub t_end_ns: i64,
     /// Levels the body: maps the mean specific force onto world +z; yaw 0.
     pub R_world_body: UnitQuaternion<f64>,
@@ -135,12 +177,15 @@ pub struct StaticStart {
     pub gyro_bias_sigma_rad_s: Vector3<f64>,
     /// Zero by assumption.
     pub velocity_world_m_s: Vector3<f64>,
+    /// Mean specific force over the window, body frame, m/s^2.
     pub accel_mean_m_s2: Vector3<f64>,
     /// Standard deviation of the tilt from the spread of the accelerometer
     /// block means (the accelerometer bias, not observable at rest, adds
     /// up to |b_a| / g more).
     pub tilt_sigma_rad: f64,
+    /// Spread of the gyro block means (norm over the axes), rad/s.
     pub gyro_spread_rad_s: f64,
+    /// Spread of the accelerometer block means (norm over the axes), m/s^2.
     pub accel_spread_m_s2: f64,
     /// 1 minus the largest ratio of a test statistic to its threshold
     /// (gyro spread, accelerometer spread, gravity error): 1 for a perfectly

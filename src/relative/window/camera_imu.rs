@@ -50,12 +50,19 @@ use crate::imu::so3::{exp, hat, log, right_jacobian_inverse};
 pub const CALIB_DIM: usize = 10;
 /// Where each part starts in it.
 pub const CALIB_ROT: usize = 0;
+/// Offset of `dt_c`, camera 0's translation in the body frame (3).
 pub const CALIB_POS: usize = 3;
+/// Offset of `d td`, the time offset (1).
 pub const CALIB_TIME: usize = 6;
+/// Offset of `dpsi_s`, camera 1's rotation in camera 0 (3).
 pub const CALIB_STEREO: usize = 7;
+/// Jacobian of a pixel error with respect to the calibration block.
 pub type Matrix2xCalib = SMatrix<f64, 2, CALIB_DIM>;
+/// Square matrix over the calibration block (information, covariance).
 pub type MatrixCalib = SMatrix<f64, CALIB_DIM, CALIB_DIM>;
+/// A vector over the calibration block (step, gradient).
 pub type VectorCalib = SVector<f64, CALIB_DIM>;
+/// Cross block between the calibration and a landmark's 3 coordinates.
 pub type MatrixCalibx3 = SMatrix<f64, CALIB_DIM, 3>;
 
 /// Settings (defaults in brackets).
@@ -64,11 +71,13 @@ pub struct CameraImuRefinementConfig {
     /// Estimate the calibration in the window's inertial solves [false;
     /// the relative stage's `camera_imu_refinement` decides per mode].
     pub enabled: bool,
-    /// How far the file may be off, 1 sigma: rotation deg [2],
+    /// How far the file may be off, 1 sigma: rotation deg \[2\],
     /// translation m [0.0005: held, see the relative stage's
     /// `camera_imu_translation_sigma_m`], time offset s [0.01].
     pub rotation_sigma_deg: f64,
+    /// How far the file's camera 0 translation may be off, 1 sigma, m.
     pub translation_sigma_m: f64,
+    /// How far the frames' time offset beyond the file's time shift may be off, 1 sigma, s.
     pub time_offset_sigma_s: f64,
     /// How far the stereo calibration's rotation between the cameras may
     /// be off, 1 sigma, deg [0.2].
@@ -80,7 +89,9 @@ pub struct CameraImuRefinementConfig {
     /// [0.003]; a Kalibr calibration of a rigid rig is good to a tenth of
     /// that.
     pub warn_rotation_deg: f64,
+    /// Translation from the file beyond which the estimate is reported as far, m.
     pub warn_translation_m: f64,
+    /// Time offset beyond which the estimate is reported as far, s.
     pub warn_time_offset_s: f64,
 }
 
@@ -101,6 +112,8 @@ impl Default for CameraImuRefinementConfig {
 }
 
 impl CameraImuRefinementConfig {
+    /// Checks that every sigma and warning distance is positive and finite and `carry_weight` is in
+    /// [0, 1); the message names the key.
     pub fn validate(&self) -> Result<(), String> {
         for (key, v) in [
             ("camera_imu_rotation_sigma_deg", self.rotation_sigma_deg),
@@ -132,6 +145,7 @@ impl CameraImuRefinementConfig {
 #[allow(non_snake_case)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CameraImuEstimate {
+    /// Camera 0's pose in the body (IMU) frame: maps camera coordinates into the body frame.
     pub T_body_cam0: Isometry3<f64>,
     /// The frames' lag behind the IMU clock beyond the file's time shift,
     /// s (see the module doc).
@@ -140,12 +154,15 @@ pub struct CameraImuEstimate {
     pub T_cam0_cam1: Isometry3<f64>,
     /// Distance from the file.
     pub rotation_from_file_deg: f64,
+    /// Translation distance from the file, m.
     pub translation_from_file_m: f64,
     /// Angle between the stereo rotation refined and the file's, deg.
     pub stereo_rotation_from_file_deg: f64,
     /// One sigma of the last solve (NaN before one).
     pub rotation_sigma_deg: f64,
+    /// One sigma of camera 0's translation, m (NaN before a solve).
     pub translation_sigma_m: f64,
+    /// One sigma of the time offset, s (NaN before a solve).
     pub time_offset_sigma_s: f64,
     /// Beyond the configured warning distance in any of the three, once
     /// the estimate has settled ([`WARN_AFTER_SOLVES`]).
@@ -232,6 +249,7 @@ impl CameraImuState {
         }
     }
 
+    /// The settings it was built with.
     pub fn config(&self) -> &CameraImuRefinementConfig {
         &self.config
     }
@@ -344,6 +362,7 @@ impl CameraImuState {
         }
     }
 
+    /// The current estimate with its distance from the file and its sigmas.
     pub fn estimate(&self) -> CameraImuEstimate {
         let (e, _) = difference(&self.values(), &self.file_values());
         let rotation_from_file_deg = e.fixed_rows::<3>(CALIB_ROT).norm().to_degrees();
@@ -386,6 +405,7 @@ impl CameraImuState {
 pub struct BodyMotion {
     /// Angular rate in the body frame (gyroscope less bias), rad/s.
     pub omega_body_rad_s: Vector3<f64>,
+    /// Body velocity in the world frame, m/s.
     pub velocity_world_m_s: Vector3<f64>,
 }
 

@@ -28,12 +28,17 @@ type Vector9 = SVector<f64, 9>;
 /// The answer of [`Window::track_frame`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FramePose {
+    /// The frame's estimated state: the pose, and the velocity when the
+    /// IMU interval from the latest keyframe was used (then with that
+    /// keyframe's biases); otherwise velocity and biases as guessed.
     pub state: KeyframeState,
     /// Observations of known landmarks in the frame.
     pub matched: usize,
     /// Of those, the ones within the chi-square threshold at the end.
     pub inliers: usize,
+    /// Gauss-Newton / LM iterations run.
     pub iterations: usize,
+    /// Cost at the end (half the sum of robustified squared whitened errors).
     pub final_cost: f64,
     /// Enough inliers (`min_track_inliers`) and a finite state.
     pub good: bool,
@@ -41,6 +46,7 @@ pub struct FramePose {
     /// latest keyframe, with the noise the window estimated
     /// ([`super::NoiseScale`]); None when the pose is not determined.
     pub pose_marginal: Option<Matrix6<f64>>,
+    /// Wall time of the call, ms.
     pub ms: f64,
 }
 

@@ -23,6 +23,8 @@ use crate::rig::ImuNoise;
 /// Columns of an inertial factor's Jacobian: keyframe i (15), keyframe j
 /// (15), gravity direction (2).
 pub const INERTIAL_COLS: usize = 2 * FULL_DIM + 2;
+/// First of the two gravity-direction columns (the step `delta` in the
+/// tangent plane, see [`tangent_basis`]) in an inertial factor's Jacobian.
 pub const GRAVITY_COL: usize = 2 * FULL_DIM;
 
 /// `1 / sigma` of the bias change over `dt_s` under the random walk.

@@ -9,6 +9,7 @@ use nalgebra::SMatrix;
 use super::noise_adaptation::NoiseScale;
 use crate::imu::Preintegrated;
 
+/// 9x9 matrix over the inertial residual `[r_R, r_v, r_p]`.
 pub type Matrix9 = SMatrix<f64, 9, 9>;
 
 /// A preintegrated interval with its whitening.

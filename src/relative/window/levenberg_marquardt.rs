@@ -38,21 +38,27 @@ const RELATIVE_DECREASE: f64 = 1e-6;
 /// What one [`Window::optimize`] did.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct WindowReport {
+    /// LM iterations run.
     pub iterations: usize,
     /// Cost (half the sum of robustified squared whitened errors) before
     /// and after.
     pub initial_cost: f64,
+    /// Cost after the optimisation.
     pub final_cost: f64,
+    /// Keyframes in the window.
     pub keyframes: usize,
+    /// Keyframes optimised (the newest `keyframes_free`).
     pub free_keyframes: usize,
     /// Landmarks and observations in the problem.
     pub landmarks: usize,
+    /// Observations in the problem.
     pub observations: usize,
     /// Observations flagged as outliers by this call.
     pub new_outliers: usize,
     /// True when the marginals came from the inverted reduced system (see
     /// [`Window::landmarks_in_body`]).
     pub exact_marginals: bool,
+    /// Wall time of the call, ms.
     pub ms: f64,
 }
 

@@ -19,7 +19,7 @@
 //!
 //! Gauge: the fixed keyframes (at least the first one) fix the world
 //! frame. In monocular vision-only mode with a single fixed keyframe the
-//! distance between the first two keyframes is held ([`prior::ScaleAnchor`]),
+//! distance between the first two keyframes is held (the private `ScaleAnchor` prior),
 //! which fixes the scale the initialiser chose (unit first translation);
 //! from two fixed keyframes on they fix it. With the IMU the world is
 //! gravity-aligned; gravity is a 2-DoF direction state (see [`inertial`])
@@ -71,19 +71,20 @@ use rig_camera::RigCamera;
 /// Settings of the window (defaults in brackets).
 #[derive(Debug, Clone, PartialEq)]
 pub struct WindowConfig {
-    /// L: keyframes kept [10].
+    /// L: keyframes kept \[10\].
     pub keyframes_kept: usize,
-    /// M: newest keyframes optimised [7]; the oldest L-M are held fixed.
+    /// M: newest keyframes optimised \[7\]; the oldest L-M are held fixed.
     pub keyframes_free: usize,
     /// Standard deviation of a pixel measurement [1.0].
     pub pixel_sigma: f64,
+    /// Loss applied to each whitened reprojection error \[Huber\].
     pub robust_kernel: RobustKernel,
     /// Kernel threshold in pixels [1.5].
     pub huber_px: f64,
     /// Squared whitened error above which an observation is flagged an
     /// outlier after an optimisation [5.991, chi-square 2 DoF at 95%].
     pub outlier_chi2: f64,
-    /// LM iterations per optimisation [10].
+    /// LM iterations per optimisation \[10\].
     pub max_iterations: usize,
     /// Inertial terms on [false]; see [`Window::enable_imu`].
     pub use_imu: bool,
@@ -93,6 +94,7 @@ pub struct WindowConfig {
     pub stereo_min_parallax_deg: f64,
     /// Depth range of a new landmark in either camera, window units [0.05, 200].
     pub min_depth_m: f64,
+    /// Largest depth of a new landmark in either camera, window units.
     pub max_depth_m: f64,
     /// Largest reprojection error of a new landmark in the two views it
     /// is triangulated from, px [5.0].
@@ -102,17 +104,19 @@ pub struct WindowConfig {
     /// Prior on the oldest free keyframe when no marginal is known yet:
     /// velocity m/s [0.5], gyro bias rad/s [0.01], accel bias m/s^2 [0.2].
     pub velocity_prior_sigma_m_s: f64,
+    /// Prior sigma of the gyro bias, rad/s.
     pub gyro_bias_prior_sigma_rad_s: f64,
+    /// Prior sigma of the accel bias, m/s^2.
     pub accel_bias_prior_sigma_m_s2: f64,
     /// Share of the previous solve's marginal information kept as the
     /// prior on the boundary keyframe's velocity and biases [0.5].
     pub prior_weight: f64,
     /// Carry the boundary prior forward by marginalising the departing
-    /// inertial link ([`marginalise`]) [true]; false: `prior_weight` times
+    /// inertial link (the private `marginalise` module) [true]; false: `prior_weight` times
     /// the last solve's marginal, the paper's reading of eq. 34.
     pub marginalise_boundary: bool,
     /// Factor on the new boundary's pose covariance in that
-    /// marginalisation [4]. The pose's marginal already holds the departing
+    /// marginalisation \[4\]. The pose's marginal already holds the departing
     /// link's information, and the visual errors of neighbouring keyframes
     /// are correlated: taken at face value (1) the prior grows
     /// overconfident (errors of 2-3 sigma on the YEI rendering) and locks
@@ -120,7 +124,7 @@ pub struct WindowConfig {
     /// mono-inertial sliding test then drifts 0.046 m over 7 m; 0.035 at
     /// 2, 0.026 at 4).
     pub boundary_pose_covariance_scale: f64,
-    /// Memory of that prior, s [10]: its information is multiplied by
+    /// Memory of that prior, s \[10\]: its information is multiplied by
     /// `exp(-dt / memory)` per link, so what the biases were thought to be
     /// when the chain started (an in-flight initialisation's gyro bias is
     /// 1-3 mrad/s off) fades instead of holding them there; `inf` keeps
@@ -132,9 +136,9 @@ pub struct WindowConfig {
     /// The same for gravity [0.9]: gravity is a constant of the whole run,
     /// so its information may accumulate (to about 9 windows' worth).
     pub gravity_prior_weight: f64,
-    /// Inliers for [`Window::track_frame`] to call a pose good [12].
+    /// Inliers for [`Window::track_frame`] to call a pose good \[12\].
     pub min_track_inliers: usize,
-    /// LM iterations of [`Window::track_frame`] [8].
+    /// LM iterations of [`Window::track_frame`] \[8\].
     pub track_max_iterations: usize,
     /// The IMU's noise as the window weighs it: a scale on the declared
     /// densities, estimated online from the inertial residuals
@@ -179,42 +183,75 @@ impl Default for WindowConfig {
 }
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
+/// Why the window could not be built or could not take an input.
 pub enum WindowError {
     #[error("window config `{key}` = {value}: {allowed}")]
+    /// A setting is out of range.
     InvalidConfig {
+        /// The setting's key.
         key: &'static str,
+        /// Its value, as written.
         value: String,
+        /// The allowed range.
         allowed: &'static str,
     },
     #[error("IMU noise adaptation: {0}")]
+    /// The IMU noise adaptation settings are invalid (the message says which).
     InvalidNoiseAdaptation(String),
     #[error("camera-IMU refinement: {0}")]
+    /// The camera-IMU refinement settings are invalid (the message says which).
     InvalidCameraImu(String),
     #[error("the rig has no camera")]
+    /// The rig has no camera.
     NoCamera,
     #[error("use_imu is set but the rig has no IMU")]
+    /// `use_imu` is set but the rig has no IMU.
     NoImu,
     #[error("keyframe state at {t_ns} ns is not finite")]
-    NonFiniteState { t_ns: i64 },
+    /// A keyframe's initial guess has a NaN or infinite value.
+    NonFiniteState {
+        /// The keyframe's stamp, ns.
+        t_ns: i64,
+    },
     #[error("keyframe at {t_ns} ns does not come after the latest one at {latest_ns} ns")]
-    NotIncreasing { t_ns: i64, latest_ns: i64 },
+    /// A keyframe is not after the latest one.
+    NotIncreasing {
+        /// The new keyframe's stamp, ns.
+        t_ns: i64,
+        /// The latest keyframe's stamp, ns.
+        latest_ns: i64,
+    },
     #[error(
         "preintegrated IMU spans {start_ns}..{end_ns} ns, expected {expected_start_ns}..{expected_end_ns} ns"
     )]
+    /// A keyframe's preintegrated IMU interval does not run from the latest keyframe to it (or has
+    /// no positive length).
     ImuIntervalMismatch {
+        /// Start of the preintegrated interval, ns.
         start_ns: i64,
+        /// End of the preintegrated interval, ns.
         end_ns: i64,
+        /// The latest keyframe's stamp, ns.
         expected_start_ns: i64,
+        /// The new keyframe's stamp, ns.
         expected_end_ns: i64,
     },
     #[error("{what}: got {got} values for {expected} keyframes")]
+    /// A list given for the keyframes has the wrong length.
     LengthMismatch {
+        /// What the list is (e.g. `states`).
         what: &'static str,
+        /// Values given.
         got: usize,
+        /// Keyframes in the window.
         expected: usize,
     },
     #[error("{what} is not finite or out of range")]
-    InvalidValue { what: &'static str },
+    /// A value given is not finite or out of range.
+    InvalidValue {
+        /// Which value.
+        what: &'static str,
+    },
 }
 
 impl WindowConfig {
@@ -408,6 +445,8 @@ pub struct Window {
 }
 
 impl Window {
+    /// An empty window; fails when a setting is out of range, the rig has no camera, or `use_imu`
+    /// is set and the rig has no IMU.
     pub fn new(config: WindowConfig, rig: &RigModel) -> Result<Self, WindowError> {
         config.validate()?;
         if rig.cameras.is_empty() {
@@ -452,6 +491,7 @@ impl Window {
         })
     }
 
+    /// The settings it was built with.
     pub fn config(&self) -> &WindowConfig {
         &self.config
     }
@@ -580,6 +620,7 @@ impl Window {
         n.saturating_sub(self.config.keyframes_free).max(1).min(n)
     }
 
+    /// The newest keyframe's state, if any.
     pub fn latest(&self) -> Option<&KeyframeState> {
         self.keyframes.back().map(|k| &k.state)
     }
@@ -664,10 +705,13 @@ impl Window {
         }
     }
 
+    /// Keyframes in the window.
     pub fn keyframe_count(&self) -> usize {
         self.keyframes.len()
     }
 
+    /// Gravity in the world frame as the window estimates it, m/s^2 (9.81 m/s^2 along the estimated
+    /// direction).
     pub fn gravity_world_m_s2(&self) -> Vector3<f64> {
         self.gravity_dir * GRAVITY_M_S2
     }
@@ -1058,14 +1102,18 @@ impl Window {
         }
     }
 
+    /// Whether the inertial terms are on.
     pub fn imu_enabled(&self) -> bool {
         self.use_imu
     }
 
+    /// Position of a landmark in the world frame (window units, m when metric), if the window holds
+    /// it.
     pub fn landmark_world(&self, id: LandmarkId) -> Option<Vector3<f64>> {
         self.landmarks.get(&id).map(|l| l.position_world_m)
     }
 
+    /// Landmarks in the window.
     pub fn landmark_count(&self) -> usize {
         self.landmarks.len()
     }

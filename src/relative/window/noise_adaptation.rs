@@ -57,17 +57,21 @@ use nalgebra::Vector6;
 /// Multipliers on the declared noise densities (standard deviations).
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct NoiseScale {
+    /// On the declared gyroscope noise density.
     pub gyro: f64,
+    /// On the declared accelerometer noise density.
     pub accel: f64,
     /// On the declared pixel sigma of a feature.
     pub pixel: f64,
     /// On the declared bias random walks of the gyroscope and the
     /// accelerometer.
     pub gyro_walk: f64,
+    /// On the declared accelerometer bias random walk.
     pub accel_walk: f64,
 }
 
 impl NoiseScale {
+    /// Every multiplier 1: the noise as declared.
     pub const DECLARED: Self = Self {
         gyro: 1.0,
         accel: 1.0,
@@ -95,12 +99,13 @@ pub struct NoiseAdaptationConfig {
     pub enabled: bool,
     /// The scale to start from (and keep, when not enabled) [1, 1].
     pub initial: NoiseScale,
-    /// Horizon of the estimate, s of IMU links [20].
+    /// Horizon of the estimate, s of IMU links \[20\].
     pub memory_s: f64,
-    /// Weight of the starting value, in links [3].
+    /// Weight of the starting value, in links \[3\].
     pub prior_links: f64,
     /// Bounds of either scale [0.1, 100].
     pub min_scale: f64,
+    /// Upper bound of either scale.
     pub max_scale: f64,
     /// Estimate the bias random walks' scales too [false].
     pub adapt_walk: bool,
@@ -121,6 +126,8 @@ impl Default for NoiseAdaptationConfig {
 }
 
 impl NoiseAdaptationConfig {
+    /// Checks that the horizon, prior weight and bounds are positive and finite, the bounds ordered
+    /// and the initial gyro and accel scales within them; the message names the key.
     pub fn validate(&self) -> Result<(), String> {
         let positive = |name: &str, v: f64| {
             if v.is_finite() && v > 0.0 {
@@ -160,14 +167,22 @@ impl NoiseAdaptationConfig {
 /// scale it was whitened with.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LinkEvidence {
+    /// Squared whitened residual of the rotation rows (3).
     pub chi2_rotation: f64,
+    /// Redundancy of the rotation rows: 3 minus their leverage (how much of them other terms also
+    /// measure).
     pub redundancy_rotation: f64,
+    /// Squared whitened residual of the velocity and position rows (6).
     pub chi2_translation: f64,
+    /// Redundancy of the velocity and position rows.
     pub redundancy_translation: f64,
     /// The bias walk's gyroscope and accelerometer rows.
     pub chi2_gyro_walk: f64,
+    /// Redundancy of the gyroscope bias walk rows.
     pub redundancy_gyro_walk: f64,
+    /// Squared whitened residual of the accelerometer bias walk rows (3).
     pub chi2_accel_walk: f64,
+    /// Redundancy of the accelerometer bias walk rows.
     pub redundancy_accel_walk: f64,
     /// Length of the link, s.
     pub dt_s: f64,
@@ -195,6 +210,7 @@ pub struct NoiseAdaptation {
 const MIN_REDUNDANCY_SHARE: f64 = 0.05;
 
 impl NoiseAdaptation {
+    /// An estimator starting from `config.initial`, weighted as `prior_links` links' worth.
     pub fn new(config: NoiseAdaptationConfig) -> Self {
         let s = config.initial;
         let w = config.prior_links;
@@ -211,10 +227,12 @@ impl NoiseAdaptation {
         }
     }
 
+    /// The current multipliers.
     pub fn scale(&self) -> NoiseScale {
         self.scale
     }
 
+    /// The settings it was built with.
     pub fn config(&self) -> &NoiseAdaptationConfig {
         &self.config
     }

@@ -14,6 +14,7 @@ use nalgebra::{Isometry3, Matrix2x3, SMatrix, Vector2, Vector3};
 use super::rig_camera::RigCamera;
 use crate::imu::so3::hat;
 
+/// 2x6 Jacobian of a pixel error with respect to a body pose `[dphi, dp]`.
 pub type Matrix2x6 = SMatrix<f64, 2, 6>;
 
 /// One linearised reprojection (pixels, not yet divided by sigma).
@@ -25,6 +26,7 @@ pub struct Reprojection {
     pub d_pose: Matrix2x6,
     /// d error / d landmark (world).
     pub d_point: Matrix2x3<f64>,
+    /// Depth of the landmark in the camera, window units (m when metric).
     pub depth_m: f64,
 }
 

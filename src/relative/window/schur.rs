@@ -19,6 +19,7 @@ use super::camera_imu::{Matrix2xCalib, MatrixCalibx3, CALIB_DIM};
 use super::reprojection::Matrix2x6;
 use crate::relative::types::LandmarkId;
 
+/// Cross block between a body pose `[dphi, dp]` and a landmark's 3 coordinates.
 pub type Matrix6x3 = SMatrix<f64, 6, 3>;
 
 /// Smallest diagonal value damping scales (so that a direction no term

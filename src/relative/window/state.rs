@@ -14,12 +14,17 @@ use crate::relative::types::{KeyframeState, LandmarkId};
 
 /// Offsets inside one keyframe's block of the step.
 pub const ROT: usize = 0;
+/// Offset of the position error `dp`, world frame, m.
 pub const POS: usize = 3;
+/// Offset of the velocity error `dv`, world frame, m/s.
 pub const VEL: usize = 6;
+/// Offset of the gyro bias error, rad/s.
 pub const BG: usize = 9;
+/// Offset of the accel bias error, m/s^2.
 pub const BA: usize = 12;
 /// Block sizes: pose only (vision) or the full navigation state.
 pub const POSE_DIM: usize = 6;
+/// Size of the full navigation block: rotation, position, velocity, gyro and accel biases (3 each).
 pub const FULL_DIM: usize = 15;
 
 /// One observation as a keyframe keeps it.

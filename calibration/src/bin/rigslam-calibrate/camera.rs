@@ -23,7 +23,7 @@ pub struct CameraArgs {
     #[arg(long)]
     square: f64,
     /// The rig's calibration folder (created if need be): this camera's
-    /// entry goes into camchain.yaml there, with <camera>_report.md and the
+    /// entry goes into camchain.yaml there, with `<camera>_report.md` and the
     /// plots beside it.
     #[arg(long, value_name = "DIR", default_value = "calibration")]
     out: PathBuf,
