@@ -1217,3 +1217,6 @@ fn submatrix_blocks(map: &SolvedMap, ids: &[u32], hops: usize) -> DMatrix<f64> {
     }
     covariance
 }
+
+#[cfg(test)]
+mod tests;

@@ -574,5 +574,4 @@ pub fn rigid_fit(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> Option<Isometry3<f64
 }
 
 #[cfg(test)]
-#[path = "localise_tests.rs"]
 mod tests;

@@ -578,67 +578,66 @@ mod tests {
         }
         assert!(blocks.select(&[120]).is_none());
     }
-}
 
-/// Warm- vs cold-started CG iterations on a growing simulated map (not a
-/// check; `--ignored --nocapture` prints the table in bench/README.md).
-#[cfg(test)]
-#[test]
-#[ignore = "measurement, not a check: prints warm vs cold CG iterations (--ignored --nocapture)"]
-fn print_warm_start_table() {
-    use crate::edge_map::simulate::{simulate_city, CityOptions};
-    let landmarks: usize = std::env::var("RIGSLAM_WARM_LANDMARKS")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(10_000);
-    let city = simulate_city(&CityOptions {
-        landmarks,
-        ..CityOptions::default()
-    });
-    let step = 15u32; // about 5 frames of new landmarks (2 m per frame, 1.5 per m)
-    let solves = 6;
-    let top = city.problem.landmark_count;
-    for rel_tol in [1e-4, 1e-6, 1e-8, 1e-10] {
-        let mut cg = MapSolveWorker::new(SolverChoice::ConjugateGradient, 1);
-        cg.measure_cold_start = true;
-        cg.cg.rel_tol = rel_tol;
-        cg.cg.max_iterations = 200_000;
-        let mut cholesky = MapSolveWorker::new(SolverChoice::Cholesky, 1);
-        let mut previous: Vec<Option<Vector3<f64>>> = Vec::new();
-        let (mut warm, mut cold, mut worst) = (0usize, 0usize, 0.0f64);
-        let (mut warm_ms, mut cold_ms) = (0.0, 0.0);
-        for k in 0..=solves {
-            let n = top - (solves - k) as u32 * step;
-            let request = MapSolveRequest {
-                version: k as u64,
-                problem: tests::prefix(&city.problem, n),
-                previous_m: previous.clone(),
-                covariance_of: Vec::new(),
-            };
-            let reference = cholesky.solve(request.clone()).unwrap();
-            let t = Instant::now();
-            let solved = cg.solve(request).unwrap();
-            let both_ms = ms_since(t);
-            if k > 0 {
-                warm += solved.report.cg_iterations;
-                cold += solved.cold_cg_iterations.unwrap();
-                warm_ms += solved.report.solve_ms;
-                cold_ms += both_ms - solved.report.solve_ms;
-                for (a, b) in solved.positions_m.iter().zip(&reference.positions_m) {
-                    if let (Some(a), Some(b)) = (a, b) {
-                        worst = worst.max((a - b).norm());
+    /// Warm- vs cold-started CG iterations on a growing simulated map (not a
+    /// check; `--ignored --nocapture` prints the table in bench/README.md).
+    #[test]
+    #[ignore = "measurement, not a check: prints warm vs cold CG iterations (--ignored --nocapture)"]
+    fn print_warm_start_table() {
+        use crate::edge_map::simulate::{simulate_city, CityOptions};
+        let landmarks: usize = std::env::var("RIGSLAM_WARM_LANDMARKS")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(10_000);
+        let city = simulate_city(&CityOptions {
+            landmarks,
+            ..CityOptions::default()
+        });
+        let step = 15u32; // about 5 frames of new landmarks (2 m per frame, 1.5 per m)
+        let solves = 6;
+        let top = city.problem.landmark_count;
+        for rel_tol in [1e-4, 1e-6, 1e-8, 1e-10] {
+            let mut cg = MapSolveWorker::new(SolverChoice::ConjugateGradient, 1);
+            cg.measure_cold_start = true;
+            cg.cg.rel_tol = rel_tol;
+            cg.cg.max_iterations = 200_000;
+            let mut cholesky = MapSolveWorker::new(SolverChoice::Cholesky, 1);
+            let mut previous: Vec<Option<Vector3<f64>>> = Vec::new();
+            let (mut warm, mut cold, mut worst) = (0usize, 0usize, 0.0f64);
+            let (mut warm_ms, mut cold_ms) = (0.0, 0.0);
+            for k in 0..=solves {
+                let n = top - (solves - k) as u32 * step;
+                let request = MapSolveRequest {
+                    version: k as u64,
+                    problem: tests::prefix(&city.problem, n),
+                    previous_m: previous.clone(),
+                    covariance_of: Vec::new(),
+                };
+                let reference = cholesky.solve(request.clone()).unwrap();
+                let t = Instant::now();
+                let solved = cg.solve(request).unwrap();
+                let both_ms = ms_since(t);
+                if k > 0 {
+                    warm += solved.report.cg_iterations;
+                    cold += solved.cold_cg_iterations.unwrap();
+                    warm_ms += solved.report.solve_ms;
+                    cold_ms += both_ms - solved.report.solve_ms;
+                    for (a, b) in solved.positions_m.iter().zip(&reference.positions_m) {
+                        if let (Some(a), Some(b)) = (a, b) {
+                            worst = worst.max((a - b).norm());
+                        }
                     }
                 }
+                previous = solved.positions_m;
             }
-            previous = solved.positions_m;
+            println!(
+                "| {top} | {rel_tol:e} | {:.0} | {:.0} | {:.2} | {:.0} / {:.0} | {worst:.1e} |",
+                warm as f64 / solves as f64,
+                cold as f64 / solves as f64,
+                cold as f64 / warm.max(1) as f64,
+                warm_ms / solves as f64,
+                cold_ms / solves as f64,
+            );
         }
-        println!(
-            "| {top} | {rel_tol:e} | {:.0} | {:.0} | {:.2} | {:.0} / {:.0} | {worst:.1e} |",
-            warm as f64 / solves as f64,
-            cold as f64 / solves as f64,
-            cold as f64 / warm.max(1) as f64,
-            warm_ms / solves as f64,
-            cold_ms / solves as f64,
-        );
     }
 }

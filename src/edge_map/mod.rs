@@ -19,8 +19,6 @@
 //! filter's consistency.
 
 pub mod absolute;
-#[cfg(test)]
-mod absolute_tests;
 pub mod covariance;
 pub mod edge;
 pub mod edges_file;

@@ -303,12 +303,6 @@ mod tests {
         let e = load_folder(&file, true).expect_err("a file").to_string();
         assert!(e.contains("not a folder"), "{e}");
     }
-}
-
-#[cfg(test)]
-mod named_file_tests {
-    use super::*;
-    use crate::rig::euroc::{euroc_cam0, euroc_cam1, euroc_imu0};
 
     #[test]
     fn euroc_and_kalibr_files_can_be_mixed_and_each_is_recognised() {

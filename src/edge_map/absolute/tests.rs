@@ -6,15 +6,15 @@ use nalgebra::{Isometry3, Matrix3, Vector3};
 
 use crate::relative::types::{BodyLandmark, RelativeOutput, TrackingState};
 
-use super::absolute::{
+use super::{
     AbsoluteConfig, AbsoluteStage, EdgeWeighting, LandmarkCovariance, MapReference, SolveMode,
 };
-use super::map_worker::{MapSolveWorker, SolvedMap};
-use super::nees::anees_bounds_95;
-use super::policy::EdgePolicy;
-use super::recognition::RecognitionConfig;
-use super::simulate_relative::{simulate_room_run, RoomRunOptions};
-use super::solve::SolverChoice;
+use crate::edge_map::map_worker::{MapSolveWorker, SolvedMap};
+use crate::edge_map::nees::anees_bounds_95;
+use crate::edge_map::policy::EdgePolicy;
+use crate::edge_map::recognition::RecognitionConfig;
+use crate::edge_map::simulate_relative::{simulate_room_run, RoomRunOptions};
+use crate::edge_map::solve::SolverChoice;
 use crate::features::orb::Descriptor;
 
 /// Per-frame average NEES over `seeds` runs, and the RMS position errors
