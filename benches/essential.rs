@@ -5,7 +5,7 @@ use std::path::Path;
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
 use nalgebra::{Vector2, Vector3};
-use rigslam::two_view::matches_file::{normalise, read_matches};
+use rigslam::dataset::matches_file::{normalise, read_matches};
 use rigslam::two_view::{estimate_relative_pose, five_point, p3p, RelativePoseConfig};
 
 const MATCHES: &str = concat!(

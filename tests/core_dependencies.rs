@@ -4,7 +4,8 @@
 //! them only where those features gate it (the binaries, `src/plot/`, the
 //! rendering progress bar, and `cfg_attr` derives of the settings enums).
 //! A program that wants poses depends on `rigslam` with
-//! `default-features = false` and gets none of them.
+//! `default-features = false` and gets none of them. The maths modules
+//! read no files either.
 
 use std::path::{Path, PathBuf};
 
@@ -97,5 +98,46 @@ fn the_plot_module_is_gated_in_lib_rs() {
     assert!(
         lib.contains("#[cfg(feature = \"plot\")]\npub mod plot;"),
         "src/lib.rs must declare `pub mod plot` behind #[cfg(feature = \"plot\")]"
+    );
+}
+
+/// The maths modules read no files: formats and I/O live in `dataset`,
+/// `rig`, `recording` and `text_file`, which hand the maths plain values.
+#[test]
+fn the_maths_modules_read_no_files() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let test_only = [
+        "tests.rs",
+        "test_scenes.rs",
+        "finite_difference.rs",
+        "synthetic.rs",
+    ];
+    let mut offenders = Vec::new();
+    for module in ["camera", "imu", "two_view", "features"] {
+        let mut files = Vec::new();
+        rust_files(&root.join("src").join(module), &mut files);
+        for file in files {
+            let name = file.file_name().and_then(|n| n.to_str()).unwrap_or("");
+            if test_only.contains(&name) {
+                continue;
+            }
+            let text = std::fs::read_to_string(&file).expect("readable source");
+            // Unit tests sit at the end of the file; they may read fixtures.
+            let code = text.split("#[cfg(test)]").next().unwrap_or("");
+            for (n, line) in code.lines().enumerate() {
+                let line = line.split("//").next().unwrap_or("");
+                if ["crate::text_file", "std::fs", "File::", "matches_file"]
+                    .iter()
+                    .any(|io| line.contains(io))
+                {
+                    offenders.push(format!("{}:{}: {}", file.display(), n + 1, line.trim()));
+                }
+            }
+        }
+    }
+    assert!(
+        offenders.is_empty(),
+        "file I/O in the maths modules:\n{}",
+        offenders.join("\n")
     );
 }

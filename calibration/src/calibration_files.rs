@@ -31,7 +31,9 @@ mod tests {
         let dir = tempfile::tempdir().expect("temp dir");
         let p = dir.path().join("imu.yaml");
         std::fs::write(&p, kalibr_imu_yaml(&noise, 100.0, "test\nsecond line")).expect("write");
-        let (back, rate) = rigslam::imu::read_kalibr_imu_yaml(&p).expect("valid Kalibr file");
+        let text = std::fs::read_to_string(&p).expect("written above");
+        let imu = rigslam::rig::kalibr::imu_from_kalibr(&text, &p).expect("valid Kalibr file");
+        let (back, rate) = (imu.noise, imu.rate_hz);
         assert_eq!(rate, 100.0);
         assert!((back.gyroscope_noise_density / noise.gyroscope_noise_density - 1.0).abs() < 1e-6);
         assert!(

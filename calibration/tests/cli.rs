@@ -202,8 +202,10 @@ fn noise_refuses_a_moving_log_and_measures_a_still_one() {
         assert!((d / 1e-3 - 1.0).abs() < 0.05, "{key} {d}");
     }
     assert!(v["gyroscope_random_walk"].is_f64() && v["accelerometer_random_walk"].is_f64());
-    let (noise, rate) =
-        rigslam::imu::read_kalibr_imu_yaml(&yaml).expect("Kalibr file reads in the core");
+    let text = std::fs::read_to_string(&yaml).expect("imu.yaml written");
+    let imu =
+        rigslam::rig::kalibr::imu_from_kalibr(&text, &yaml).expect("Kalibr file reads in the core");
+    let (noise, rate) = (imu.noise, imu.rate_hz);
     assert_eq!(rate, 100.0);
     assert!(
         (noise.gyroscope_noise_density / v["gyroscope_noise_density"].as_f64().expect("number")

@@ -7,6 +7,7 @@ pub mod euroc;
 pub mod groundtruth;
 pub mod image_file;
 pub mod kitti;
+pub mod matches_file;
 pub mod stream;
 pub use crate::text_file::text;
 pub mod trajectory_out;

@@ -21,7 +21,7 @@ pub use agreement::{accel_agreement, gyro_agreement, AccelAgreement, GyroAgreeme
 pub use interval::{
     interpolate_sample, ImuInterval, ImuStream, IntervalConfig, IntervalError, IntervalReport,
 };
-pub use noise::{bias_walk_covariance, parse_kalibr_imu_yaml, read_kalibr_imu_yaml, DiscreteNoise};
+pub use noise::{bias_walk_covariance, DiscreteNoise};
 pub use preintegration::{IntegrationScheme, Preintegrated, PreintegrationError, Preintegrator};
 pub use residual::{imu_residual, ImuResidual};
 pub use strapdown::{integrate, step, ImuBiases, NavState, StrapdownError, GRAVITY_M_S2};

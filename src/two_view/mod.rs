@@ -12,7 +12,6 @@
 
 pub mod essential;
 pub mod five_point;
-pub mod matches_file;
 pub mod p3p;
 pub mod pnp;
 pub mod polynomial;

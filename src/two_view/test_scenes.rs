@@ -96,5 +96,5 @@ pub fn random_scene(
 
 /// Angle of `a⁻¹ b` in radians.
 pub fn rotation_angle(a: &Matrix3<f64>, b: &Matrix3<f64>) -> f64 {
-    crate::two_view::matches_file::rotation_error_deg(a, b).to_radians()
+    crate::dataset::matches_file::rotation_error_deg(a, b).to_radians()
 }

@@ -184,7 +184,7 @@ pub fn sensor_yaml(data: &[u8]) {
         }
         Err(e) => dataset_error_yaml(&e),
     }
-    if let Err(e) = rigslam::imu::parse_kalibr_imu_yaml(&text, path) {
+    if let Err(e) = rigslam::rig::kalibr::imu_from_kalibr(&text, path) {
         dataset_error_yaml(&e);
     }
 }
@@ -345,7 +345,7 @@ pub fn edges_file(data: &[u8]) {
 
 /// The matches and relative-motion files of `rigslam bench essential`.
 pub fn matches_file(data: &[u8]) {
-    use rigslam::two_view::matches_file::{normalise, parse_matches, parse_relative_motions};
+    use rigslam::dataset::matches_file::{normalise, parse_matches, parse_relative_motions};
     let text = text(data);
     let path = Path::new(NAME);
     match parse_matches(path, &text) {

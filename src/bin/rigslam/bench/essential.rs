@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use rigslam::two_view::matches_file::{
+use rigslam::dataset::matches_file::{
     normalise, read_matches, read_relative_motions, rotation_error_deg,
 };
 use rigslam::two_view::{estimate_relative_pose, RelativePoseConfig};
