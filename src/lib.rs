@@ -7,24 +7,25 @@
 //! threads or replayed from a recording by [`dataset`] (EuRoC, KITTI,
 //! TUM) and [`recording`] (MCAP), every text file through [`text_file`];
 //! [`rig`] holds the calibration they come with (and reads its files) and
-//! [`camera`] projects and unprojects. The relative stage,
-//! [`relative`], tracks the image with [`features`] and [`two_view`],
-//! integrates the IMU between frames with [`imu`] and optimises a window
-//! of keyframes; the absolute stage, [`edge_map`], turns its output into
-//! a linear map and a position filter (today in `rigslam run --absolute`,
-//! driven by [`run`]). The [`daemon`] runs the relative stage on its own
-//! thread and [`publish`] sends each pose to other processes over shared
-//! memory. Offline, [`trajectory`] holds timestamped poses, [`eval`]
-//! scores an estimate against ground truth (`plot`, behind the feature
-//! of that name, draws it), [`simulate`] renders synthetic sequences, and
-//! [`shared_data`] finds the real test recordings; [`slam_config`] is the settings file of both stages. No
-//! two sibling modules depend on each other (`tests/module_boundaries.rs`
-//! checks it).
+//! [`camera`] projects and unprojects. The relative stage, [`relative`],
+//! tracks the image with [`features`] and [`two_view`], integrates the IMU
+//! between frames with [`imu`] and optimises a window of keyframes; the
+//! absolute stage, [`absolute`], turns its output into a linear map
+//! ([`edge_map`], the maths) and a position filter (today in `rigslam run
+//! --absolute`, driven by [`run`]). The [`daemon`] runs the relative stage
+//! on its own thread and [`publish`] sends each pose to other processes
+//! over shared memory. Offline, [`trajectory`] holds timestamped poses,
+//! [`eval`] scores an estimate against ground truth (`plot`, behind the
+//! feature of that name, draws it), [`simulate`] renders synthetic
+//! sequences, and [`shared_data`] finds the real test recordings;
+//! [`slam_config`] is the settings file of both stages. No two sibling
+//! modules depend on each other (`tests/module_boundaries.rs` checks it).
 
 #![warn(missing_docs)]
 
 pub use rigslam_drivers as sensors;
 
+pub mod absolute;
 pub mod camera;
 pub mod daemon;
 pub mod dataset;

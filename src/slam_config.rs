@@ -5,7 +5,7 @@
 
 use std::path::Path;
 
-use crate::edge_map::settings::{AbsoluteSettings, SettingError};
+use crate::absolute::settings::{AbsoluteSettings, SettingError};
 use crate::relative::{ConfigError, RelativeConfig};
 
 /// Both stages' settings; every key has a default.

@@ -10,7 +10,7 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::edge_map::settings::AbsoluteSettings;
+use crate::absolute::settings::AbsoluteSettings;
 use crate::publish::IpcConfig;
 use crate::relative::{EstimatorKind, RelativeConfig, RigModel, SensorMode};
 

@@ -1,4 +1,5 @@
-//! The absolute stage's edge map (paper eq. 41-59).
+//! The edge map of the absolute stage (paper eq. 41-59): the linear maths,
+//! free of threads, recognition and persistence.
 //!
 //! Follow the data: a frame's landmark observations become edge
 //! measurements for the pairs an [`policy::EdgePolicy`] picks ([`edge`],
@@ -11,46 +12,26 @@
 //! `rigslam map solve`, and [`simulate`] generates problems from simulated
 //! observations.
 //!
-//! The absolute stage itself, [`absolute::AbsoluteStage`], runs all of it
-//! per frame of the relative stage: edges fused, the map solved every few
-//! frames off the frame-rate path ([`map_worker`]), and the robot position
-//! corrected by the Kalman filter of eq. 60-71 ([`position_filter`]);
-//! [`simulate_relative`] simulates its input and [`nees`] checks the
-//! filter's consistency.
+//! The absolute stage that runs all of it per frame is [`crate::absolute`].
 
-pub mod absolute;
 pub mod covariance;
 pub mod edge;
 pub mod edges_file;
 mod inverse_blocks;
 pub mod laplacian;
-pub mod localise;
-pub mod loop_run;
-pub mod map_file;
-pub mod map_worker;
-pub mod nees;
 pub mod ordering_reuse;
 pub mod policy;
-pub mod position_filter;
 pub mod problem;
-pub mod recognition;
-pub mod settings;
 pub mod simulate;
-pub mod simulate_relative;
 pub mod solve;
 #[cfg(test)]
 mod tests;
 
 use std::path::PathBuf;
 
-pub use absolute::{
-    AbsoluteConfig, AbsoluteStage, AbsoluteStats, CorrectedPose, EdgeWeighting, LandmarkCovariance,
-    MapReference, SolveMode,
-};
 pub use edge::{EdgeMap, FusedEdge, LandmarkObservation};
 pub use laplacian::BlockLaplacian;
 pub use policy::EdgePolicy;
-pub use position_filter::PositionFilter;
 pub use problem::{MapEdge, MapProblem};
 pub use solve::{EdgeMapSolver, SolveReport, SolverChoice};
 

@@ -1,6 +1,6 @@
 //! The absolute stage's error over laps of a room, against the relative
 //! stage alone and against a map without recognition
-//! ([`crate::edge_map::loop_run`] computes the three).
+//! ([`crate::absolute::loop_run`] computes the three).
 
 use std::path::Path;
 
@@ -8,7 +8,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::{draw_legend, legend_line, write_figure, DrawResult, Figure, AXIS_FONT, LABEL_FONT};
-use crate::edge_map::loop_run::LoopComparison;
+use crate::absolute::loop_run::LoopComparison;
 
 const RELATIVE_COLOR: RGBColor = RGBColor(127, 127, 127);
 const UNRECOGNISED_COLOR: RGBColor = RGBColor(255, 127, 14);

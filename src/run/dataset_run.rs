@@ -6,12 +6,12 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use super::recognition_check::{check_recognitions, SightingLog, WRONG_M};
+use crate::absolute::localise::MapLocaliser;
+use crate::absolute::map_file::{MapFileError, SavedMap};
+use crate::absolute::AbsoluteStage;
 use crate::dataset::{
     groundtruth_trajectory, open_dataset, Dataset, DatasetError, SensorStream, StreamOptions,
 };
-use crate::edge_map::localise::MapLocaliser;
-use crate::edge_map::map_file::{MapFileError, SavedMap};
-use crate::edge_map::AbsoluteStage;
 use crate::eval::consistency::{pose_nees, CovariancePose};
 use crate::eval::report::Evaluation;
 use crate::eval::{evaluate, Alignment, EvalOptions};
@@ -24,7 +24,7 @@ use crate::trajectory::{StampedPose, Trajectory};
 
 use super::report::{resident_memory_mib, RunReport};
 use super::{run_stream, RunOptions, RunOutcome};
-use crate::edge_map::settings::AbsoluteSettings;
+use crate::absolute::settings::AbsoluteSettings;
 
 /// What to run.
 #[derive(Debug, Clone)]

@@ -4,8 +4,8 @@
 
 use std::collections::BTreeMap;
 
+use crate::absolute::AbsoluteStats;
 use crate::dataset::StreamCounts;
-use crate::edge_map::AbsoluteStats;
 use crate::eval::EvalReport;
 
 /// Mean, median and 99th percentile of a set of durations, ms.
@@ -118,7 +118,7 @@ pub struct RunReport {
     /// when it ran and recognised landmarks.
     pub recognition_check: Option<super::recognition_check::RecognitionCheck>,
     /// Localisation in a saved map (`--load-map`), when it ran.
-    pub localise: Option<crate::edge_map::localise::LocaliseStats>,
+    pub localise: Option<crate::absolute::localise::LocaliseStats>,
 }
 
 /// The process's resident memory now and at its peak, MiB, from

@@ -312,12 +312,12 @@ pub fn dataset_dir(data: &[u8]) {
 /// A saved map, as `--load-map` reads it.
 pub fn map_file(data: &[u8]) {
     let path = Path::new(NAME);
-    match rigslam::edge_map::map_file::SavedMap::read_from(Cursor::new(data), path) {
+    match rigslam::absolute::map_file::SavedMap::read_from(Cursor::new(data), path) {
         Ok(_) => {}
         Err(e) => {
             let message = e.to_string();
             names(&message, NAME);
-            if let rigslam::edge_map::map_file::MapFileError::Parse { line, .. } = e {
+            if let rigslam::absolute::map_file::MapFileError::Parse { line, .. } = e {
                 line_in(line, &text(data), &message);
             }
         }

@@ -140,8 +140,8 @@ pub fn run(args: MapArgs) -> anyhow::Result<()> {
 }
 
 fn loop_comparison(args: LoopArgs) -> anyhow::Result<()> {
-    use rigslam::edge_map::loop_run::compare_loops;
-    use rigslam::edge_map::simulate_relative::RoomRunOptions;
+    use rigslam::absolute::loop_run::compare_loops;
+    use rigslam::absolute::simulate_relative::RoomRunOptions;
     use rigslam::plot::loop_comparison::write_loop_plot;
     anyhow::ensure!(
         (1..=100).contains(&args.laps),
@@ -166,9 +166,9 @@ fn loop_comparison(args: LoopArgs) -> anyhow::Result<()> {
         seed: args.seed,
         ..RoomRunOptions::default()
     };
-    let defaults = rigslam::edge_map::AbsoluteConfig::default();
-    let config = rigslam::edge_map::AbsoluteConfig {
-        solve_mode: rigslam::edge_map::SolveMode::Inline,
+    let defaults = rigslam::absolute::AbsoluteConfig::default();
+    let config = rigslam::absolute::AbsoluteConfig {
+        solve_mode: rigslam::absolute::SolveMode::Inline,
         policy: args.policy.unwrap_or(defaults.policy),
         ..defaults
     };

@@ -6,8 +6,8 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
+use rigslam::absolute::map_file::SavedMap;
 use rigslam::dataset::{read_trajectory_any, write_trajectory, TrajectoryFormat};
-use rigslam::edge_map::map_file::SavedMap;
 use rigslam::eval::Alignment;
 use rigslam::plot::evaluation::write_plot;
 use rigslam::relative::{EstimatorKind, SensorMode};

@@ -1,6 +1,6 @@
 use super::*;
-use crate::edge_map::absolute::{AbsoluteConfig, AbsoluteStage};
-use crate::edge_map::simulate_relative::{simulate_room_run, RoomRun, RoomRunOptions};
+use crate::absolute::simulate_relative::{simulate_room_run, RoomRun, RoomRunOptions};
+use crate::absolute::stage::{AbsoluteConfig, AbsoluteStage};
 
 fn room(noise_seed: Option<u64>, laps: f64) -> RoomRunOptions {
     RoomRunOptions {
@@ -20,7 +20,7 @@ fn room(noise_seed: Option<u64>, laps: f64) -> RoomRunOptions {
 fn saved_map(run: &RoomRun) -> (SavedMap, Isometry3<f64>) {
     let mut stage = AbsoluteStage::new(AbsoluteConfig {
         recognition: Some(RecognitionConfig::default()),
-        solve_mode: crate::edge_map::absolute::SolveMode::Inline,
+        solve_mode: crate::absolute::stage::SolveMode::Inline,
         ..Default::default()
     });
     for output in &run.outputs {

@@ -465,7 +465,7 @@ mod tests {
     fn consider_terms_keep_repeated_map_errors_consistent() {
         // ANEES of 400 runs, 3 dof: 95% bounds chi2(1200) / 400 by the
         // Wilson-Hilferty approximation, [2.76, 3.25].
-        let (low, high) = crate::edge_map::nees::anees_bounds_95(3, 400);
+        let (low, high) = crate::absolute::nees::anees_bounds_95(3, 400);
         assert!((low - 2.765).abs() < 0.01 && (high - 3.245).abs() < 0.01);
         let consistent = static_robot_anees(true);
         assert!(

@@ -37,7 +37,7 @@
 //! own thread by default.
 //!
 //! ```no_run
-//! use rigslam::edge_map::{AbsoluteConfig, AbsoluteStage};
+//! use rigslam::absolute::{AbsoluteConfig, AbsoluteStage};
 //! # fn relative_outputs() -> Vec<rigslam::relative::types::RelativeOutput> { Vec::new() }
 //! let mut stage = AbsoluteStage::new(AbsoluteConfig::default());
 //! for output in relative_outputs() {
@@ -57,18 +57,18 @@ use std::time::Instant;
 
 use nalgebra::{DMatrix, Isometry3, Matrix3, Translation3, Vector3};
 
-use super::covariance::submatrix_covariance;
-use super::edge::{EdgeChanges, EdgeMap, LandmarkObservation};
 use super::map_worker::{MapSolveRequest, MapSolveWorker, RobustWeights, SolvedMap};
-use super::ordering_reuse::SymbolicPath;
-use super::policy::EdgePolicy;
 use super::position_filter::{LandmarkFix, PositionFilter};
-use super::problem::MapProblem;
 use super::recognition::{
     consistent_recognitions, recognise_tracks, FramePlacement, LandmarkIndex, RecognitionConfig,
 };
-use super::solve::SolverChoice;
-use super::EdgeMapError;
+use crate::edge_map::covariance::submatrix_covariance;
+use crate::edge_map::edge::{EdgeChanges, EdgeMap, LandmarkObservation};
+use crate::edge_map::ordering_reuse::SymbolicPath;
+use crate::edge_map::policy::EdgePolicy;
+use crate::edge_map::problem::MapProblem;
+use crate::edge_map::solve::SolverChoice;
+use crate::edge_map::EdgeMapError;
 use crate::features::orb::Descriptor;
 use crate::relative::types::{BodyLandmark, LandmarkId, RelativeOutput, TrackingState};
 

@@ -6,7 +6,7 @@
 //! The worker keeps what carries over between solves: the fill-reducing
 //! ordering and the symbolic Cholesky factorisation
 //! ([`IncrementalSymbolic`]: the symbolic part is reused whole while the
-//! sparsity pattern is unchanged, as in [`super::EdgeMapSolver`], and the
+//! sparsity pattern is unchanged, as in [`crate::edge_map::EdgeMapSolver`], and the
 //! ordering is reused with new landmarks appended when it changes). For
 //! very large maps it solves by conjugate gradient instead, warm-started
 //! from the previous solution the request carries, extended to landmarks
@@ -18,14 +18,14 @@ use std::time::Instant;
 
 use nalgebra::Vector3;
 
-use super::laplacian::BlockLaplacian;
-use super::ordering_reuse::{IncrementalSymbolic, OrderingReuse, SymbolicPath};
-use super::problem::{MapEdge, MapProblem};
-use super::solve::{
+use crate::edge_map::laplacian::BlockLaplacian;
+use crate::edge_map::ordering_reuse::{IncrementalSymbolic, OrderingReuse, SymbolicPath};
+use crate::edge_map::problem::{MapEdge, MapProblem};
+use crate::edge_map::solve::{
     check_connected, cholesky_solution, solve_pcg, CgOptions, CholeskyFactor, SolveReport,
     SolverChoice,
 };
-use super::EdgeMapError;
+use crate::edge_map::EdgeMapError;
 
 /// A snapshot of the map to solve.
 #[derive(Clone, Debug)]

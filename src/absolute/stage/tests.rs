@@ -9,11 +9,11 @@ use crate::relative::types::{BodyLandmark, RelativeOutput, TrackingState};
 use super::{
     AbsoluteConfig, AbsoluteStage, EdgeWeighting, LandmarkCovariance, MapReference, SolveMode,
 };
-use crate::edge_map::map_worker::{MapSolveWorker, SolvedMap};
-use crate::edge_map::nees::anees_bounds_95;
+use crate::absolute::map_worker::{MapSolveWorker, SolvedMap};
+use crate::absolute::nees::anees_bounds_95;
+use crate::absolute::recognition::RecognitionConfig;
+use crate::absolute::simulate_relative::{simulate_room_run, RoomRunOptions};
 use crate::edge_map::policy::EdgePolicy;
-use crate::edge_map::recognition::RecognitionConfig;
-use crate::edge_map::simulate_relative::{simulate_room_run, RoomRunOptions};
 use crate::edge_map::solve::SolverChoice;
 use crate::features::orb::Descriptor;
 

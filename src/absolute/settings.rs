@@ -2,11 +2,11 @@
 //! table of `rigslam run --config FILE` (and of the daemon's `[slam]`),
 //! every key with a default, turned into an [`AbsoluteConfig`].
 
-use super::absolute::{AbsoluteConfig, LandmarkCovariance, SolveMode};
 use super::localise::LocaliseConfig;
 use super::map_worker::RobustWeights;
-use super::policy::EdgePolicy;
 use super::recognition::RecognitionConfig;
+use super::stage::{AbsoluteConfig, LandmarkCovariance, SolveMode};
+use crate::edge_map::policy::EdgePolicy;
 
 /// The `[absolute]` table.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]

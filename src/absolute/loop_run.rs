@@ -9,8 +9,8 @@
 //! be compared over time and per lap (`crate::plot::loop_comparison`
 //! draws them).
 
-use super::absolute::{AbsoluteConfig, AbsoluteStage};
 use super::simulate_relative::{simulate_room_run, RoomRunOptions};
+use super::stage::{AbsoluteConfig, AbsoluteStage};
 
 /// Position errors of one run, per frame, m.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -131,7 +131,7 @@ pub fn compare_loops(options: &RoomRunOptions, config: &AbsoluteConfig) -> LoopC
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::edge_map::absolute::SolveMode;
+    use crate::absolute::stage::SolveMode;
 
     fn revisiting_room(seed: u64) -> RoomRunOptions {
         RoomRunOptions {
