@@ -98,6 +98,12 @@ fn euroc_at_rest_initialises_from_the_static_start_and_stays_within_a_centimetre
         // The vehicle moved 2 mm in these 4.7 s (ground truth).
         let moved = largest_displacement_m(&poses);
         assert!(moved < 0.01, "{mode}: drifted {moved} m at rest");
+        // Metric modes check their covariance against the truth.
+        assert!(
+            report["nees"]["poses"].as_u64().is_some_and(|n| n > 0),
+            "{mode}: {}",
+            report["nees"]
+        );
     }
 }
 
@@ -151,6 +157,9 @@ fn kitti_mono_meets_the_papers_configuration_1_bar() {
     assert!(drift <= 2.0, "final drift {drift} %");
     let ate = eval["ate_rmse_m"].as_f64().expect("ate");
     assert!(ate < 0.5, "ATE {ate} m");
+    // Without metric scale there is no covariance to check against metric
+    // truth: no NEES (it printed 1.6e9 per dof before).
+    assert!(report["nees"].is_null(), "mono NEES: {}", report["nees"]);
 }
 
 #[test]

@@ -342,8 +342,11 @@ pub fn run_dataset(
         counters,
         imu_noise_scale: estimator.imu_noise_scale(),
         camera_imu: estimator.camera_imu().map(Into::into),
+        // Monocular vision alone has no metric scale: its covariance is in
+        // its own arbitrary unit and a NEES against metric truth means nothing.
         nees: ground_truth
             .as_ref()
+            .filter(|_| mode.uses_imu() || mode.uses_stereo())
             .and_then(|gt| pose_nees(&covariance_poses, gt)),
         peak_rss_mib: rss_peak,
         rss_at_10pct_mib: outcome.rss_at_10pct_mib,

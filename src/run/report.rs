@@ -97,7 +97,8 @@ pub struct RunReport {
     /// calibration file.
     pub camera_imu: Option<CameraImuReport>,
     /// Consistency of the published pose covariance against the ground
-    /// truth (NEES per degree of freedom; 1 is consistent).
+    /// truth (NEES per degree of freedom; 1 is consistent). None without
+    /// ground truth and in `mono`, whose poses have no metric scale.
     pub nees: Option<crate::eval::consistency::NeesReport>,
     /// Peak resident memory of the process, MiB (Linux VmHWM).
     pub peak_rss_mib: Option<f64>,
