@@ -5,7 +5,8 @@
 //! [`crate::relative::RelativeOutput`], recognises landmarks it has mapped
 //! before ([`recognition`]), adds the frame's edges to the
 //! [`crate::edge_map`] (the linear maths), has the map solved every few
-//! frames off the frame-rate path ([`map_worker`]) and corrects the robot
+//! frames off the frame-rate path ([`map_worker`], scheduled by mode in
+//! `solve_schedule`) and corrects the robot
 //! position with the Kalman filter of eq. 60-71 ([`position_filter`],
 //! checked by [`nees`]). Its settings file table is [`settings`]. A map
 //! outlives the run through [`map_file`]; [`localise`] places a robot in a
@@ -21,6 +22,7 @@ pub mod position_filter;
 pub mod recognition;
 pub mod settings;
 pub mod simulate_relative;
+mod solve_schedule;
 pub mod stage;
 
 pub use position_filter::PositionFilter;

@@ -51,8 +51,6 @@
 //! ```
 
 use std::collections::HashMap;
-use std::sync::mpsc::{self, Receiver, Sender};
-use std::thread::JoinHandle;
 use std::time::Instant;
 
 use nalgebra::{DMatrix, Isometry3, Matrix3, Translation3, Vector3};
@@ -62,11 +60,11 @@ use super::position_filter::{LandmarkFix, PositionFilter};
 use super::recognition::{
     consistent_recognitions, recognise_tracks, FramePlacement, LandmarkIndex, RecognitionConfig,
 };
+use super::solve_schedule::MapSolver;
 use crate::edge_map::covariance::submatrix_covariance;
-use crate::edge_map::edge::{EdgeChanges, EdgeMap, LandmarkObservation};
+use crate::edge_map::edge::{EdgeMap, LandmarkObservation};
 use crate::edge_map::ordering_reuse::SymbolicPath;
 use crate::edge_map::policy::EdgePolicy;
-use crate::edge_map::problem::MapProblem;
 use crate::edge_map::solve::SolverChoice;
 use crate::edge_map::EdgeMapError;
 use crate::features::orb::Descriptor;
@@ -333,86 +331,19 @@ pub struct AbsoluteStage {
     odometry: Option<(u32, Vector3<f64>, f64)>,
     next_version: u64,
     stats: AbsoluteStats,
-    worker: Option<MapSolveWorker>,
-    background: Option<Background>,
-    in_flight: bool,
-    deferred: bool,
-    manual_request: Option<MapSolveRequest>,
+    /// Where the map is solved, with what is in flight.
+    solver: MapSolver,
     /// Map ids in view in the last tracking frame, the most precise
     /// first: the covariance blocks the next solve computes.
     in_view: Vec<u32>,
 }
 
-struct Background {
-    requests: Option<Sender<BackgroundRequest>>,
-    results: Receiver<Result<SolvedMap, EdgeMapError>>,
-    thread: Option<JoinHandle<()>>,
-}
-
-/// What the frame path sends the map thread: only the edges changed since
-/// the last request (the thread keeps its own copy of the edge map), so
-/// that the frame never copies or sorts the whole map.
-struct BackgroundRequest {
-    version: u64,
-    changes: EdgeChanges,
-    previous_m: Vec<Option<Vector3<f64>>>,
-    covariance_of: Vec<u32>,
-}
-
-impl Drop for Background {
-    fn drop(&mut self) {
-        self.requests.take();
-        if let Some(thread) = self.thread.take() {
-            let _ = thread.join();
-        }
-    }
-}
-
 impl AbsoluteStage {
     /// A stage with `config`, starting its solve thread in the background and pipelined modes.
     pub fn new(config: AbsoluteConfig) -> Self {
-        let inline = config.solve_mode == SolveMode::Inline;
-        let new_worker = || {
-            let mut worker = MapSolveWorker::new(config.solver, config.solver_threads);
-            worker.robust = config.robust;
-            worker
-        };
-        let mut worker = new_worker();
-        let background = if matches!(
-            config.solve_mode,
-            SolveMode::Background | SolveMode::Pipelined
-        ) {
-            let (request_tx, request_rx) = mpsc::channel::<BackgroundRequest>();
-            let (result_tx, result_rx) = mpsc::channel();
-            let thread = std::thread::Builder::new()
-                .name("rigslam-map-solve".into())
-                .spawn(move || {
-                    let mut mirror = EdgeMap::new();
-                    for request in request_rx {
-                        mirror.apply_changes(&request.changes);
-                        let request = MapSolveRequest {
-                            version: request.version,
-                            problem: MapProblem::from_edge_map(&mirror, 0),
-                            previous_m: request.previous_m,
-                            covariance_of: request.covariance_of,
-                        };
-                        if result_tx.send(worker.solve(request)).is_err() {
-                            break;
-                        }
-                    }
-                })
-                .expect("spawning the map solve thread");
-            worker = new_worker();
-            Some(Background {
-                requests: Some(request_tx),
-                results: result_rx,
-                thread: Some(thread),
-            })
-        } else {
-            None
-        };
+        let solver = MapSolver::new(&config);
         let mut edges = EdgeMap::new();
-        if background.is_some() {
+        if solver.needs_edge_changes() {
             edges.track_changes();
         }
         Self {
@@ -433,18 +364,14 @@ impl AbsoluteStage {
             odometry: None,
             next_version: 1,
             stats: AbsoluteStats::default(),
-            worker: inline.then_some(worker),
-            background,
-            in_flight: false,
-            deferred: false,
+            solver,
             in_view: Vec::new(),
-            manual_request: None,
         }
     }
 
     /// The inline worker (Inline mode only), e.g. to measure CG cold starts.
     pub fn worker_mut(&mut self) -> Option<&mut MapSolveWorker> {
-        self.worker.as_mut()
+        self.solver.inline_worker()
     }
 
     /// Counters and timings so far.
@@ -547,7 +474,7 @@ impl AbsoluteStage {
             SolveMode::Pipelined
                 if self.frames_since_solve + 1 >= self.config.solve_every_frames =>
             {
-                if self.in_flight {
+                if self.solver.in_flight() {
                     let wait = Instant::now();
                     self.wait_for_solve();
                     let waited = wait.elapsed().as_secs_f64() * 1e3;
@@ -657,23 +584,17 @@ impl AbsoluteStage {
     /// Waits for a running background solve and installs it (end of a run,
     /// tests). Returns immediately in the other modes.
     pub fn wait_for_solve(&mut self) {
-        if !self.in_flight {
-            return;
-        }
-        if let Some(bg) = &self.background {
-            if let Ok(result) = bg.results.recv() {
-                self.in_flight = false;
-                self.install(result);
-                if std::mem::take(&mut self.deferred) {
-                    self.request_solve();
-                }
+        if let Some((result, deferred)) = self.solver.finished(true) {
+            self.install(result);
+            if deferred {
+                self.request_solve();
             }
         }
     }
 
     /// Manual mode: the request waiting to be solved, if any.
     pub fn take_solve_request(&mut self) -> Option<MapSolveRequest> {
-        self.manual_request.take()
+        self.solver.take_request()
     }
 
     /// Manual mode: installs a solved map (ignored if older than the one
@@ -683,11 +604,9 @@ impl AbsoluteStage {
     }
 
     fn poll_background(&mut self) {
-        let Some(bg) = &self.background else { return };
-        if let Ok(result) = bg.results.try_recv() {
-            self.in_flight = false;
+        if let Some((result, deferred)) = self.solver.finished(false) {
             self.install(result);
-            if std::mem::take(&mut self.deferred) {
+            if deferred {
                 self.request_solve();
             }
         }
@@ -739,8 +658,7 @@ impl AbsoluteStage {
     }
 
     fn request_solve(&mut self) {
-        if self.in_flight {
-            self.deferred = true;
+        if self.solver.defer_if_busy() {
             self.stats.deferred_solves += 1;
             return;
         }
@@ -755,35 +673,11 @@ impl AbsoluteStage {
             LandmarkCovariance::Exact => self.in_view.clone(),
             LandmarkCovariance::SubMatrix { .. } => Vec::new(),
         };
-        if let Some(bg) = &self.background {
-            let sender = bg.requests.as_ref().expect("sender lives until drop");
-            let request = BackgroundRequest {
-                version,
-                changes: self.edges.take_changes(),
-                previous_m,
-                covariance_of,
-            };
-            if sender.send(request).is_ok() {
-                self.in_flight = true;
-            }
-            return;
-        }
-        let request = MapSolveRequest {
-            version,
-            problem: MapProblem::from_edge_map(&self.edges, 0),
-            previous_m,
-            covariance_of,
-        };
-        match self.config.solve_mode {
-            SolveMode::Inline => {
-                let worker = self.worker.as_mut().expect("inline mode has a worker");
-                let result = worker.solve(request);
-                self.install(result);
-            }
-            // Background and pipelined modes sent their changes above.
-            SolveMode::Manual | SolveMode::Background | SolveMode::Pipelined => {
-                self.manual_request = Some(request)
-            }
+        if let Some(result) =
+            self.solver
+                .submit(version, &mut self.edges, previous_m, covariance_of)
+        {
+            self.install(result);
         }
     }
 
