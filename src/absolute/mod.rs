@@ -22,7 +22,7 @@ pub mod position_filter;
 pub mod recognition;
 pub mod settings;
 pub mod simulate_relative;
-mod solve_schedule;
+pub mod solve_schedule;
 pub mod stage;
 
 pub use position_filter::PositionFilter;

@@ -8,11 +8,35 @@ use std::thread::JoinHandle;
 
 use nalgebra::Vector3;
 
-use super::map_worker::{MapSolveRequest, MapSolveWorker, SolvedMap};
-use super::stage::{AbsoluteConfig, SolveMode};
+use super::map_worker::{MapSolveRequest, MapSolveWorker, RobustWeights, SolvedMap};
 use crate::edge_map::edge::{EdgeChanges, EdgeMap};
 use crate::edge_map::problem::MapProblem;
+use crate::edge_map::solve::SolverChoice;
 use crate::edge_map::EdgeMapError;
+
+/// Where the map solve runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SolveMode {
+    /// In `push`, on the frame that triggers it (deterministic: tests,
+    /// offline runs). The frame after a trigger sees the new map.
+    Inline,
+    /// On a background thread the stage owns. A finished solve is picked
+    /// up by the next `push`; a trigger while one runs is deferred until it
+    /// returns. Frames never wait for it, so which map a frame sees
+    /// depends on timing (a replay faster than real time sees older maps).
+    Background,
+    /// On the background thread, installed on a fixed schedule: the solve
+    /// requested at frame n is installed at frame n + K (K =
+    /// `solve_every_frames`), the frame that requests the next one, which
+    /// waits for it if it is not done. A run is repeatable and a replay
+    /// faster than real time sees the maps a live run would; live at
+    /// 20 Hz with K = 5 a frame waits only if a solve takes over 250 ms.
+    Pipelined,
+    /// The caller runs it: [`super::AbsoluteStage::take_solve_request`] hands out
+    /// the request, any thread solves it with a [`MapSolveWorker`], and
+    /// [`super::AbsoluteStage::install_solved_map`] installs the result.
+    Manual,
+}
 
 /// The solve state of one [`SolveMode`].
 pub(super) enum MapSolver {
@@ -58,14 +82,21 @@ impl Drop for SolveThread {
 }
 
 impl MapSolver {
-    /// The state for `config.solve_mode`, starting the thread where it has one.
-    pub(super) fn new(config: &AbsoluteConfig) -> Self {
+    /// The state for `mode`, starting the thread where it has one; the
+    /// worker solves with `solver` on `threads` threads, reweighting by
+    /// `robust`.
+    pub(super) fn new(
+        mode: SolveMode,
+        solver: SolverChoice,
+        threads: usize,
+        robust: Option<RobustWeights>,
+    ) -> Self {
         let worker = || {
-            let mut worker = MapSolveWorker::new(config.solver, config.solver_threads);
-            worker.robust = config.robust;
+            let mut worker = MapSolveWorker::new(solver, threads);
+            worker.robust = robust;
             worker
         };
-        match config.solve_mode {
+        match mode {
             SolveMode::Inline => MapSolver::Inline(worker()),
             SolveMode::Manual => MapSolver::Manual { request: None },
             SolveMode::Background | SolveMode::Pipelined => MapSolver::Thread {

@@ -113,29 +113,7 @@ pub enum LandmarkCovariance {
     },
 }
 
-/// Where the map solve runs.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum SolveMode {
-    /// In `push`, on the frame that triggers it (deterministic: tests,
-    /// offline runs). The frame after a trigger sees the new map.
-    Inline,
-    /// On a background thread the stage owns. A finished solve is picked
-    /// up by the next `push`; a trigger while one runs is deferred until it
-    /// returns. Frames never wait for it, so which map a frame sees
-    /// depends on timing (a replay faster than real time sees older maps).
-    Background,
-    /// On the background thread, installed on a fixed schedule: the solve
-    /// requested at frame n is installed at frame n + K (K =
-    /// `solve_every_frames`), the frame that requests the next one, which
-    /// waits for it if it is not done. A run is repeatable and a replay
-    /// faster than real time sees the maps a live run would; live at
-    /// 20 Hz with K = 5 a frame waits only if a solve takes over 250 ms.
-    Pipelined,
-    /// The caller runs it: [`AbsoluteStage::take_solve_request`] hands out
-    /// the request, any thread solves it with a [`MapSolveWorker`], and
-    /// [`AbsoluteStage::install_solved_map`] installs the result.
-    Manual,
-}
+pub use super::solve_schedule::SolveMode;
 
 /// Configuration of the absolute stage.
 #[derive(Clone, Debug)]
@@ -341,7 +319,12 @@ pub struct AbsoluteStage {
 impl AbsoluteStage {
     /// A stage with `config`, starting its solve thread in the background and pipelined modes.
     pub fn new(config: AbsoluteConfig) -> Self {
-        let solver = MapSolver::new(&config);
+        let solver = MapSolver::new(
+            config.solve_mode,
+            config.solver,
+            config.solver_threads,
+            config.robust,
+        );
         let mut edges = EdgeMap::new();
         if solver.needs_edge_changes() {
             edges.track_changes();
