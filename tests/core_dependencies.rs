@@ -7,7 +7,7 @@
 //! `default-features = false` and gets none of them. The maths modules
 //! read no files either.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// Optional crate, its feature, and the only library files that may name it
 /// outside a `#[cfg_attr(feature = ...)]` line.
@@ -17,16 +17,10 @@ const GATED: &[(&str, &str, &[&str])] = &[
     ("indicatif", "progress", &["src/simulate/progress.rs"]),
 ];
 
-fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    for entry in std::fs::read_dir(dir).expect("readable source folder") {
-        let path = entry.expect("entry").path();
-        if path.is_dir() {
-            rust_files(&path, out);
-        } else if path.extension().is_some_and(|e| e == "rs") {
-            out.push(path);
-        }
-    }
-}
+#[path = "common/source_files.rs"]
+mod source_files;
+
+use source_files::rust_files;
 
 #[test]
 fn optional_crates_are_optional_in_the_manifest() {
@@ -56,8 +50,7 @@ fn optional_crates_are_optional_in_the_manifest() {
 #[test]
 fn the_library_names_optional_crates_only_behind_their_feature() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-    let mut files = Vec::new();
-    rust_files(&root.join("src"), &mut files);
+    let files = rust_files(&root.join("src"));
     let mut offenders = Vec::new();
     for file in &files {
         let rel = file
@@ -114,8 +107,7 @@ fn the_maths_modules_read_no_files() {
     ];
     let mut offenders = Vec::new();
     for module in ["camera", "imu", "two_view", "features"] {
-        let mut files = Vec::new();
-        rust_files(&root.join("src").join(module), &mut files);
+        let files = rust_files(&root.join("src").join(module));
         for file in files {
             let name = file.file_name().and_then(|n| n.to_str()).unwrap_or("");
             if test_only.contains(&name) {

@@ -9,22 +9,16 @@
 
 use std::path::{Path, PathBuf};
 
-fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
-    for entry in std::fs::read_dir(dir).expect("readable source folder") {
-        let path = entry.expect("entry").path();
-        if path.is_dir() {
-            rust_files(&path, out);
-        } else if path.extension().is_some_and(|e| e == "rs") {
-            out.push(path);
-        }
-    }
-}
+#[path = "common/source_files.rs"]
+mod source_files;
+
+use source_files::rust_files;
 
 fn workspace_sources() -> Vec<PathBuf> {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let mut files = Vec::new();
     for crate_src in ["src", "drivers/src", "calibration/src"] {
-        rust_files(&root.join(crate_src), &mut files);
+        files.extend(rust_files(&root.join(crate_src)));
     }
     assert!(files.len() > 100, "found only {} source files", files.len());
     files

@@ -181,35 +181,35 @@ impl MapSolver {
         previous_m: Vec<Option<Vector3<f64>>>,
         covariance_of: Vec<u32>,
     ) -> Option<Result<SolvedMap, EdgeMapError>> {
-        if let MapSolver::Thread {
-            thread, in_flight, ..
-        } = self
-        {
-            let sender = thread.requests.as_ref().expect("sender lives until drop");
-            let request = ThreadRequest {
-                version,
-                changes: edges.take_changes(),
-                previous_m,
-                covariance_of,
-            };
-            if sender.send(request).is_ok() {
-                *in_flight = true;
-            }
-            return None;
-        }
-        let request = MapSolveRequest {
+        let whole = |edges: &EdgeMap, previous_m, covariance_of| MapSolveRequest {
             version,
             problem: MapProblem::from_edge_map(edges, 0),
             previous_m,
             covariance_of,
         };
         match self {
-            MapSolver::Inline(worker) => Some(worker.solve(request)),
-            MapSolver::Manual { request: waiting } => {
-                *waiting = Some(request);
+            MapSolver::Thread {
+                thread, in_flight, ..
+            } => {
+                let sender = thread.requests.as_ref().expect("sender lives until drop");
+                let request = ThreadRequest {
+                    version,
+                    changes: edges.take_changes(),
+                    previous_m,
+                    covariance_of,
+                };
+                if sender.send(request).is_ok() {
+                    *in_flight = true;
+                }
                 None
             }
-            MapSolver::Thread { .. } => unreachable!("handled above"),
+            MapSolver::Inline(worker) => {
+                Some(worker.solve(whole(edges, previous_m, covariance_of)))
+            }
+            MapSolver::Manual { request } => {
+                *request = Some(whole(edges, previous_m, covariance_of));
+                None
+            }
         }
     }
 
