@@ -2,23 +2,31 @@
 //! landmarks and a corrected robot position out (paper eq. 41-71).
 //!
 //! Follow a frame: [`stage::AbsoluteStage`] takes each
-//! [`crate::relative::RelativeOutput`], recognises landmarks it has mapped
-//! before ([`recognition`]), adds the frame's edges to the
-//! [`crate::edge_map`] (the linear maths), has the map solved every few
-//! frames off the frame-rate path ([`map_worker`], scheduled by mode in
-//! `solve_schedule`) and corrects the robot
-//! position with the Kalman filter of eq. 60-71 ([`position_filter`],
-//! checked by [`nees`]). Its settings file table is [`settings`]. A map
-//! outlives the run through [`map_file`]; [`localise`] places a robot in a
-//! saved map. [`simulate_relative`] simulates the stage's input and
-//! [`loop_run`] measures it over laps of a room.
+//! [`crate::relative::RelativeOutput`] and hands it to its parts. The
+//! `recogniser` gives new tracks that are landmarks mapped before their
+//! old identity ([`recognition`]'s gates, confirmed over frames); the
+//! `map_builder` adds the frame's edges to the [`crate::edge_map`] (the
+//! linear maths) and keeps which track is which unknown
+//! (`landmark_registry`); the map is solved every few frames off the
+//! frame-rate path ([`map_worker`], scheduled by mode in
+//! [`solve_schedule`]); and the robot position is corrected with the
+//! Kalman filter of eq. 60-71 ([`position_filter`], checked by [`nees`]).
+//! What the stage is built with is [`config`], read from the settings
+//! file's table by [`settings`]. A map outlives the run through
+//! [`map_file`]; [`localise`] places a robot in a saved map.
+//! [`simulate_relative`] simulates the stage's input and [`loop_run`]
+//! measures it over laps of a room.
 
+pub mod config;
+mod landmark_registry;
 pub mod localise;
 pub mod loop_run;
+mod map_builder;
 pub mod map_file;
 pub mod map_worker;
 pub mod nees;
 pub mod position_filter;
+mod recogniser;
 pub mod recognition;
 pub mod settings;
 pub mod simulate_relative;

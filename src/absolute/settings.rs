@@ -2,10 +2,11 @@
 //! table of `rigslam run --config FILE` (and of the daemon's `[slam]`),
 //! every key with a default, turned into an [`AbsoluteConfig`].
 
+use super::config::{AbsoluteConfig, LandmarkCovariance};
 use super::localise::LocaliseConfig;
 use super::map_worker::RobustWeights;
 use super::recognition::RecognitionConfig;
-use super::stage::{AbsoluteConfig, LandmarkCovariance, SolveMode};
+use super::solve_schedule::SolveMode;
 use crate::edge_map::policy::EdgePolicy;
 
 /// The `[absolute]` table.

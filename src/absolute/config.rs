@@ -1,0 +1,115 @@
+//! What the absolute stage is built with: which edges a frame gives the
+//! map and how they are weighted, how often and where the map is solved,
+//! and the position filter's noise and covariance choices. The settings
+//! file's `[absolute]` table becomes one of these in [`super::settings`].
+
+use super::map_worker::RobustWeights;
+use super::recognition::RecognitionConfig;
+use super::solve_schedule::SolveMode;
+use crate::edge_map::policy::EdgePolicy;
+use crate::edge_map::solve::SolverChoice;
+
+/// How one frame's landmark pairs are weighted as edge measurements.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum EdgeWeighting {
+    /// The paper's eq. 42: each pair's edge gets `(Σ_yi + Σ_yj)^-1`,
+    /// treating the pairs of one frame as independent. They are not (every
+    /// landmark's noise is in m - 1 of them), so with all pairs the map
+    /// information is about m/2 times too large and its covariance
+    /// correspondingly too small.
+    Paper,
+    /// The information the frame really carries about the landmarks with
+    /// its own (unknown) position marginalised out: `Λ = D - D W D`,
+    /// `D = blockdiag(S_i)`, `W = (Σ_k S_k)^-1`, which is a block
+    /// Laplacian over the complete graph with edge blocks `S_i W S_j`.
+    /// Exact with [`EdgePolicy::AllPairs`] when the `S_i` commute
+    /// (isotropic covariances), the symmetric part of `S_i W S_j`
+    /// otherwise; with another policy it keeps only the chosen pairs'
+    /// share. The map covariance `A^-1` is then the covariance of the
+    /// map, which the filter relies on.
+    FrameMarginal,
+    /// The paper's edge `(Σ_yi + Σ_yj)^-1` scaled by `2 / m` for a frame
+    /// of m landmarks: with all pairs and equal isotropic covariances that
+    /// is exactly [`EdgeWeighting::FrameMarginal`] (each landmark's noise
+    /// is counted once instead of m - 1 times), and unlike the
+    /// frame-marginal blocks it is positive definite for any covariances.
+    PaperScaled,
+}
+
+/// Which covariance of the visible landmarks the filter uses (eq. 59).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LandmarkCovariance {
+    /// Exact blocks of `A^-1` from the map's Cholesky factor, plus the
+    /// cross-covariance of the position error with the visible landmarks'
+    /// map errors (consider terms). Falls back to the sub-matrix rule after
+    /// a conjugate-gradient solve (no factor).
+    Exact,
+    /// The paper's approximation: the inverse of A's sub-matrix over the
+    /// visible landmarks grown by `hops` rings; no consider terms.
+    SubMatrix {
+        /// Rings of neighbours added around the visible landmarks.
+        hops: usize,
+    },
+}
+
+/// Configuration of the absolute stage.
+#[derive(Clone, Debug)]
+pub struct AbsoluteConfig {
+    /// Which landmark pairs of a frame become edges [frame nodes every 5 frames].
+    pub policy: EdgePolicy,
+    /// How those edges are weighted as measurements [the paper's, scaled].
+    pub weighting: EdgeWeighting,
+    /// Map solve every this many frames (the paper: 5).
+    pub solve_every_frames: usize,
+    /// Where the map solve runs \[pipelined\].
+    pub solve_mode: SolveMode,
+    /// Direct sparse Cholesky or conjugate gradients [auto: CG above 200 000 landmarks].
+    pub solver: SolverChoice,
+    /// How the visible landmarks' covariance for the correction is computed \[exact\].
+    pub covariance: LandmarkCovariance,
+    /// Prediction noise: `Q = sigma^2 * |Δ| * I` (a random walk per metre
+    /// travelled), sigma in m per sqrt(m).
+    pub translation_sigma_per_sqrt_m: f64,
+    /// Every landmark covariance the relative stage hands over is
+    /// multiplied by this: its window covariances leave out what it does
+    /// not model (tracking drift, calibration), and on real EuRoC frames
+    /// the corrections' NIS says they are too small (bench/README.md).
+    pub landmark_covariance_scale: f64,
+    /// At most this many visible landmarks (the most precise) correct a
+    /// frame.
+    pub max_correction_landmarks: usize,
+    /// Threads for the factorisation.
+    pub solver_threads: usize,
+    /// Recognise landmarks that come back under a new track id (None:
+    /// every new id is a new landmark).
+    pub recognition: Option<RecognitionConfig>,
+    /// Down-weight map edges that disagree with the solved map (a wrong
+    /// recognition) and solve again (None: plain least squares).
+    pub robust: Option<RobustWeights>,
+    /// Join consecutive frame nodes by the relative stage's translation
+    /// between them ([`EdgePolicy::FrameNodes`] only): a frame whose
+    /// landmarks are all new stays connected to the map.
+    pub odometry_edges: bool,
+}
+
+impl Default for AbsoluteConfig {
+    fn default() -> Self {
+        Self {
+            policy: EdgePolicy::FrameNodes { every: 5 },
+            weighting: EdgeWeighting::PaperScaled,
+            solve_every_frames: 5,
+            solve_mode: SolveMode::Pipelined,
+            solver: SolverChoice::Auto {
+                cg_above_landmarks: 200_000,
+            },
+            covariance: LandmarkCovariance::Exact,
+            translation_sigma_per_sqrt_m: 0.02,
+            max_correction_landmarks: 30,
+            landmark_covariance_scale: 1.0,
+            solver_threads: 1,
+            recognition: Some(RecognitionConfig::default()),
+            robust: Some(RobustWeights::default()),
+            odometry_edges: true,
+        }
+    }
+}

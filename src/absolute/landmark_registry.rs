@@ -1,0 +1,126 @@
+//! Which track is which map unknown. The relative stage names landmarks by
+//! track id, and a landmark that leaves view and comes back gets a new
+//! one; the map names its unknowns by map id, dense from 0, one per
+//! landmark and one per frame node. The registry keeps both directions:
+//! every track id mapped to its map id (several tracks may share one when
+//! recognition says they are the same landmark), and for every map id the
+//! track it entered the map under and its descriptor, for recognition and
+//! for saving the map.
+
+use std::collections::HashMap;
+
+use crate::features::orb::Descriptor;
+use crate::relative::types::LandmarkId;
+
+/// The track id recorded for a frame node (no track has it).
+const FRAME_NODE: LandmarkId = LandmarkId::MAX;
+
+/// Track ids and map ids of the map's unknowns.
+#[derive(Debug, Default)]
+pub(super) struct LandmarkRegistry {
+    /// Map id of every track id seen in a mapped frame, or recognised.
+    map_ids: HashMap<LandmarkId, u32>,
+    /// By map id: the track id it entered the map under ([`FRAME_NODE`]
+    /// for a frame node).
+    first_tracks: Vec<LandmarkId>,
+    /// By map id: the landmark's descriptor (None for frame nodes and
+    /// tracks that had none).
+    descriptors: Vec<Option<Descriptor>>,
+}
+
+impl LandmarkRegistry {
+    /// True before the first unknown.
+    pub(super) fn is_empty(&self) -> bool {
+        self.first_tracks.is_empty()
+    }
+
+    /// The map id of a track, if it has one.
+    pub(super) fn map_id_of(&self, track: LandmarkId) -> Option<u32> {
+        self.map_ids.get(&track).copied()
+    }
+
+    /// True when the track has a map id.
+    pub(super) fn contains(&self, track: LandmarkId) -> bool {
+        self.map_ids.contains_key(&track)
+    }
+
+    /// The map id of `track`, a new one if it has none. A landmark first
+    /// seen without a descriptor takes the first one it is seen with.
+    pub(super) fn assign(&mut self, track: LandmarkId, descriptor: Option<Descriptor>) -> u32 {
+        let next = self.first_tracks.len() as u32;
+        let map_id = *self.map_ids.entry(track).or_insert(next);
+        if map_id == next {
+            self.first_tracks.push(track);
+            self.descriptors.push(descriptor);
+        } else if let Some(slot @ None) = self.descriptors.get_mut(map_id as usize) {
+            *slot = descriptor;
+        }
+        map_id
+    }
+
+    /// A new map id for a frame node.
+    pub(super) fn add_frame_node(&mut self) -> u32 {
+        self.first_tracks.push(FRAME_NODE);
+        self.descriptors.push(None);
+        self.first_tracks.len() as u32 - 1
+    }
+
+    /// Records that `track` is the landmark `map_id` (a recognition).
+    pub(super) fn alias(&mut self, track: LandmarkId, map_id: u32) {
+        self.map_ids.insert(track, map_id);
+    }
+
+    /// The track a map landmark entered the map under; None for a frame
+    /// node or an unknown map id.
+    pub(super) fn first_track(&self, map_id: u32) -> Option<LandmarkId> {
+        self.first_tracks
+            .get(map_id as usize)
+            .copied()
+            .filter(|&track| track != FRAME_NODE)
+    }
+
+    /// True when `map_id` is a frame node.
+    pub(super) fn is_frame_node(&self, map_id: u32) -> bool {
+        self.first_tracks.get(map_id as usize) == Some(&FRAME_NODE)
+    }
+
+    /// Descriptors by map id.
+    pub(super) fn descriptors(&self) -> &[Option<Descriptor>] {
+        &self.descriptors
+    }
+
+    /// Track ids recognised as a landmark already in the map: (the track
+    /// id, the id the landmark entered the map with).
+    pub(super) fn aliases(&self) -> impl Iterator<Item = (LandmarkId, LandmarkId)> + '_ {
+        self.map_ids.iter().filter_map(|(&track, &map_id)| {
+            let first = self.first_tracks[map_id as usize];
+            (first != track).then_some((track, first))
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tracks_frame_nodes_and_aliases_get_the_ids_they_should() {
+        let mut registry = LandmarkRegistry::default();
+        assert!(registry.is_empty());
+        assert_eq!(registry.add_frame_node(), 0);
+        assert_eq!(registry.assign(7, None), 1);
+        assert_eq!(registry.assign(9, Some([3; 4])), 2);
+        // Seen again: the same id, and the first descriptor it has.
+        assert_eq!(registry.assign(7, Some([5; 4])), 1);
+        assert_eq!(registry.assign(9, Some([6; 4])), 2);
+        assert_eq!(registry.descriptors()[1], Some([5; 4]));
+        assert_eq!(registry.descriptors()[2], Some([3; 4]));
+        registry.alias(12, 1);
+        assert_eq!(registry.map_id_of(12), Some(1));
+        assert_eq!(registry.first_track(1), Some(7));
+        assert_eq!(registry.first_track(0), None);
+        assert!(registry.is_frame_node(0) && !registry.is_frame_node(1));
+        assert_eq!(registry.aliases().collect::<Vec<_>>(), vec![(12, 7)]);
+        assert_eq!(registry.assign(13, None), 3);
+    }
+}

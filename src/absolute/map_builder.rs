@@ -1,0 +1,340 @@
+//! The map as it is built, before it is solved: the edges fused so far
+//! (paper eq. 41-43), which track is which unknown
+//! ([`LandmarkRegistry`]), where the map is anchored in the relative
+//! stage's world frame, and the odometry that joins consecutive frame
+//! nodes. One frame's edges go in through [`MapBuilder::fuse`]; the map
+//! solve takes the edges from [`MapBuilder::edges_mut`].
+
+use nalgebra::{Matrix3, Vector3};
+
+use super::config::{AbsoluteConfig, EdgeWeighting};
+use super::landmark_registry::LandmarkRegistry;
+use super::map_file::MapLandmark;
+use super::map_worker::SolvedMap;
+use crate::edge_map::edge::{EdgeMap, LandmarkObservation};
+use crate::edge_map::policy::EdgePolicy;
+use crate::relative::types::{LandmarkId, RelativeOutput};
+
+/// What the map's reference (map id 0, fixed at the anchor) is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MapReference {
+    /// A landmark, by the track id it entered the map with.
+    Landmark(LandmarkId),
+    /// The robot's position in a frame, by the number of frames pushed
+    /// before it.
+    Frame {
+        /// Frames pushed before it.
+        index: usize,
+    },
+}
+
+/// The map's anchor: the world position of map id 0, and the frame (by
+/// the number of frames pushed before it) that chose it.
+#[derive(Clone, Copy, Debug)]
+struct Anchor {
+    world_m: Vector3<f64>,
+    frame: usize,
+}
+
+/// The last frame node, and the relative stage's translation since it
+/// (world frame, m) with the distance travelled: the odometry edge to the
+/// next node.
+#[derive(Clone, Copy, Debug)]
+struct OdometrySinceNode {
+    node: u32,
+    travelled_m: Vector3<f64>,
+    distance_m: f64,
+}
+
+/// The edges, the ids and the anchor of the map being built.
+pub(super) struct MapBuilder {
+    edges: EdgeMap,
+    registry: LandmarkRegistry,
+    anchor: Option<Anchor>,
+    /// None after lost tracking (no odometry edge across a gap).
+    odometry: Option<OdometrySinceNode>,
+    /// Tracking frames offered to the map ([`EdgePolicy::FrameNodes`]).
+    mapped_frames: usize,
+    policy: EdgePolicy,
+    weighting: EdgeWeighting,
+    /// Random walk of the odometry edges, m per sqrt(m); None without them.
+    odometry_sigma_per_sqrt_m: Option<f64>,
+}
+
+impl MapBuilder {
+    /// An empty map with the edge choices of `config`; `track_changes`
+    /// when the solve reuses its previous factorisation.
+    pub(super) fn new(config: &AbsoluteConfig, track_changes: bool) -> Self {
+        let mut edges = EdgeMap::new();
+        if track_changes {
+            edges.track_changes();
+        }
+        let frame_nodes = matches!(config.policy, EdgePolicy::FrameNodes { .. });
+        Self {
+            edges,
+            registry: LandmarkRegistry::default(),
+            anchor: None,
+            odometry: None,
+            mapped_frames: 0,
+            policy: config.policy,
+            weighting: config.weighting,
+            odometry_sigma_per_sqrt_m: (frame_nodes && config.odometry_edges)
+                .then_some(config.translation_sigma_per_sqrt_m),
+        }
+    }
+
+    /// The edges fused so far, for the map solve.
+    pub(super) fn edges_mut(&mut self) -> &mut EdgeMap {
+        &mut self.edges
+    }
+
+    /// Edges fused so far.
+    pub(super) fn edge_count(&self) -> usize {
+        self.edges.edge_count()
+    }
+
+    /// Track ids and map ids.
+    pub(super) fn registry(&self) -> &LandmarkRegistry {
+        &self.registry
+    }
+
+    /// Track ids and map ids, for recognition to add aliases.
+    pub(super) fn registry_mut(&mut self) -> &mut LandmarkRegistry {
+        &mut self.registry
+    }
+
+    /// True when a frame node is map id 0.
+    pub(super) fn has_frame_nodes(&self) -> bool {
+        matches!(self.policy, EdgePolicy::FrameNodes { .. })
+    }
+
+    /// Fixes map id 0 at `world_m`, chosen in the frame with `frame`
+    /// frames pushed before it.
+    pub(super) fn set_anchor(&mut self, world_m: Vector3<f64>, frame: usize) {
+        self.anchor = Some(Anchor { world_m, frame });
+    }
+
+    /// World position of map id 0, once chosen.
+    pub(super) fn anchor_world_m(&self) -> Option<Vector3<f64>> {
+        self.anchor.map(|a| a.world_m)
+    }
+
+    /// What map id 0 is, and its world position, once chosen.
+    pub(super) fn reference(&self) -> Option<(MapReference, Vector3<f64>)> {
+        let anchor = self.anchor?;
+        if self.registry.is_empty() {
+            return None;
+        }
+        let reference = match self.registry.first_track(0) {
+            Some(track) => MapReference::Landmark(track),
+            None => MapReference::Frame {
+                index: anchor.frame,
+            },
+        };
+        Some((reference, anchor.world_m))
+    }
+
+    /// Adds the relative stage's increment to the odometry since the last
+    /// frame node while tracking; forgets it otherwise.
+    pub(super) fn note_motion(&mut self, tracking: bool, delta_world_m: &Vector3<f64>) {
+        if !tracking {
+            self.odometry = None;
+        } else if let Some(odometry) = self.odometry.as_mut() {
+            odometry.travelled_m += delta_world_m;
+            odometry.distance_m += delta_world_m.norm();
+        }
+    }
+
+    /// World positions of the solved map's landmarks by map id (None for
+    /// frame nodes and unsolved ids), once anchored.
+    pub(super) fn landmark_world_positions(
+        &self,
+        map: &SolvedMap,
+    ) -> Option<Vec<Option<Vector3<f64>>>> {
+        let anchor = self.anchor?.world_m;
+        Some(
+            map.positions_m
+                .iter()
+                .enumerate()
+                .map(|(map_id, p)| {
+                    p.filter(|_| !self.registry.is_frame_node(map_id as u32))
+                        .map(|p| anchor + p)
+                })
+                .collect(),
+        )
+    }
+
+    /// The solved map's landmarks for saving: world position, covariance
+    /// given the neighbours (inverse of the landmark's diagonal block of
+    /// A, see [`super::map_file`]) and descriptor. None before the anchor.
+    pub(super) fn saved_landmarks(&self, map: &SolvedMap) -> Option<Vec<MapLandmark>> {
+        let anchor = self.anchor?.world_m;
+        let mut information = vec![Matrix3::zeros(); map.problem.landmark_count as usize];
+        for e in &map.problem.edges {
+            information[e.i as usize] += e.info;
+            information[e.j as usize] += e.info;
+        }
+        let descriptors = self.registry.descriptors();
+        Some(
+            map.positions_m
+                .iter()
+                .enumerate()
+                .filter(|(map_id, _)| !self.registry.is_frame_node(*map_id as u32))
+                .filter_map(|(map_id, p)| {
+                    let local = (*map.local_id.get(map_id)?)? as usize;
+                    let covariance_m2 = information.get(local)?.try_inverse()?;
+                    Some(MapLandmark {
+                        id: map_id as u32,
+                        position_m: anchor + (*p)?,
+                        covariance_m2: 0.5 * (covariance_m2 + covariance_m2.transpose()),
+                        descriptor: descriptors.get(map_id).copied().flatten(),
+                    })
+                })
+                .collect(),
+        )
+    }
+
+    /// Edges of one tracking frame (eq. 41-43) with the configured policy
+    /// and weighting. Tracks for which `pending` holds (a recognition not
+    /// yet confirmed) are left out: they get a map id once they are
+    /// confirmed or given up.
+    pub(super) fn fuse(
+        &mut self,
+        output: &RelativeOutput,
+        rotation: &Matrix3<f64>,
+        pending: impl Fn(LandmarkId) -> bool,
+    ) {
+        if output.landmarks.len() < 2 {
+            return;
+        }
+        // The first frame node is the map's reference, id 0 (its frame
+        // always has a node: the first of every `every`).
+        let anchor_node = self.has_frame_nodes() && self.registry.is_empty();
+        if anchor_node {
+            self.registry.add_frame_node();
+        }
+        let mut observations: Vec<LandmarkObservation> = output
+            .landmarks
+            .iter()
+            .filter(|l| !pending(l.id))
+            .map(|l| LandmarkObservation {
+                id: self.registry.assign(l.id, l.descriptor),
+                p_body_m: l.position_body_m,
+                cov_body_m2: l.covariance_body_m2,
+            })
+            .collect();
+        // Two live tracks recognised as one landmark: keep the first.
+        let mut seen = std::collections::HashSet::with_capacity(observations.len());
+        observations.retain(|o| seen.insert(o.id));
+        if observations.len() < 2 {
+            return;
+        }
+        if let EdgePolicy::FrameNodes { every } = self.policy {
+            self.fuse_frame_node(rotation, &observations, every, anchor_node);
+            return;
+        }
+        let positions: Vec<Vector3<f64>> = observations.iter().map(|o| o.p_body_m).collect();
+        let pairs = self.policy.pairs(&positions);
+        match self.weighting {
+            EdgeWeighting::Paper => self.edges.add_frame(rotation, &observations, &pairs),
+            EdgeWeighting::PaperScaled => {
+                let scale = 2.0 / observations.len() as f64;
+                for &(a, b) in &pairs {
+                    let (oa, ob) = (&observations[a], &observations[b]);
+                    let covariance =
+                        rotation * (oa.cov_body_m2 + ob.cov_body_m2) * rotation.transpose();
+                    let Some(info) = covariance.try_inverse() else {
+                        continue;
+                    };
+                    let info = (0.5 * scale) * (info + info.transpose());
+                    let y = rotation * (ob.p_body_m - oa.p_body_m);
+                    self.edges.add_measurement(oa.id, ob.id, &y, &info);
+                }
+            }
+            EdgeWeighting::FrameMarginal => {
+                let infos: Option<Vec<Matrix3<f64>>> = observations
+                    .iter()
+                    .map(|o| (rotation * o.cov_body_m2 * rotation.transpose()).try_inverse())
+                    .collect();
+                let Some(infos) = infos else { return };
+                let Some(w) = infos.iter().sum::<Matrix3<f64>>().try_inverse() else {
+                    return;
+                };
+                for &(a, b) in &pairs {
+                    let Some(info) = positive_part(&(infos[a] * w * infos[b])) else {
+                        continue;
+                    };
+                    let y = rotation * (observations[b].p_body_m - observations[a].p_body_m);
+                    self.edges
+                        .add_measurement(observations[a].id, observations[b].id, &y, &info);
+                }
+            }
+        }
+    }
+
+    /// [`EdgePolicy::FrameNodes`]: every `every`-th mapped frame becomes a
+    /// node joined to its landmarks, and to the previous node by the
+    /// odometry between them.
+    fn fuse_frame_node(
+        &mut self,
+        rotation: &Matrix3<f64>,
+        observations: &[LandmarkObservation],
+        every: usize,
+        anchor_node: bool,
+    ) {
+        self.mapped_frames += 1;
+        if (self.mapped_frames - 1) % every != 0 {
+            // The frame's landmarks still have their map ids: they may
+            // correct later frames once another frame maps them.
+            return;
+        }
+        let node = if anchor_node {
+            0
+        } else {
+            self.registry.add_frame_node()
+        };
+        self.edges.add_frame_node(rotation, node, observations);
+        if let (Some(odometry), Some(sigma)) = (self.odometry, self.odometry_sigma_per_sqrt_m) {
+            // The relative stage's own motion between the two nodes, a
+            // random walk of `sigma`: what the frames say about each
+            // other besides their landmarks.
+            let variance = sigma.powi(2) * odometry.distance_m.max(MIN_ODOMETRY_DISTANCE_M);
+            let info = Matrix3::identity() / variance;
+            self.edges
+                .add_measurement(odometry.node, node, &odometry.travelled_m, &info);
+        }
+        self.odometry = Some(OdometrySinceNode {
+            node,
+            travelled_m: Vector3::zeros(),
+            distance_m: 0.0,
+        });
+    }
+}
+
+/// The symmetric part of an edge block `S_i W S_j`, with eigenvalues below
+/// a small fraction of the largest raised to it. With anisotropic
+/// covariances (stereo depth along different rays) the symmetric part is
+/// often indefinite; an indefinite edge would make its fused information
+/// singular and the edge unusable, so the direction it is negative in is
+/// given (almost) no weight instead. None when nothing is positive.
+fn positive_part(block: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+    let symmetric = 0.5 * (block + block.transpose());
+    let eigen = symmetric.symmetric_eigen();
+    let largest = eigen.eigenvalues.max();
+    if !(largest > 0.0) || !largest.is_finite() {
+        return None;
+    }
+    let floor = largest * POSITIVE_PART_FLOOR;
+    let clamped = eigen.eigenvalues.map(|v| v.max(floor));
+    let q = eigen.eigenvectors;
+    let info = q * Matrix3::from_diagonal(&clamped) * q.transpose();
+    Some(0.5 * (info + info.transpose()))
+}
+
+/// Smallest eigenvalue kept in an edge's information, relative to its
+/// largest: keeps fused edges positive definite (see [`positive_part`]).
+const POSITIVE_PART_FLOOR: f64 = 1e-6;
+
+/// Shortest distance an odometry edge's variance is computed for, m (a
+/// robot at rest still gets a finite information).
+const MIN_ODOMETRY_DISTANCE_M: f64 = 0.01;

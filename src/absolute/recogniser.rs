@@ -1,0 +1,134 @@
+//! The absolute stage's recognition over frames: a new track that looks
+//! like a landmark already in the map ([`super::recognition`]'s gates,
+//! and the frame's consensus) becomes that landmark only when it is
+//! recognised as the same one in `confirm_frames` consecutive frames and
+//! is precise enough; until then it is pending and stays out of the map.
+//! The landmarks it searches are those of the last solved map, by world
+//! position.
+
+use std::collections::HashMap;
+
+use nalgebra::Vector3;
+
+use super::landmark_registry::LandmarkRegistry;
+use super::recognition::{
+    consistent_recognitions, recognise_tracks, FramePlacement, LandmarkIndex, RecognitionConfig,
+};
+use crate::relative::types::{LandmarkId, RelativeOutput};
+
+/// Grid cell of the recognition index, m.
+const INDEX_CELL_M: f64 = 1.0;
+
+/// What one frame's recognition did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub(super) struct RecognitionCounts {
+    /// Tracks confirmed as a map landmark (now aliases in the registry).
+    pub recognised: usize,
+    /// Recognitions dropped because they placed the robot elsewhere than
+    /// the frame's mapped landmarks do.
+    pub inconsistent: usize,
+    /// Pending tracks given up: not recognised again as the same landmark.
+    pub unconfirmed: usize,
+}
+
+/// Pending recognitions and the index of the solved map's landmarks.
+pub(super) struct Recogniser {
+    config: RecognitionConfig,
+    /// Tracks recognised as a map landmark in fewer than `confirm_frames`
+    /// consecutive frames: the landmark's map id and the count.
+    pending: HashMap<LandmarkId, (u32, u32)>,
+    /// Solved map landmarks by world position.
+    index: LandmarkIndex,
+    /// Scratch for the index's answers.
+    candidates: Vec<u32>,
+}
+
+impl Recogniser {
+    /// A recogniser with no map yet.
+    pub(super) fn new(config: RecognitionConfig) -> Self {
+        Self {
+            config,
+            pending: HashMap::new(),
+            index: LandmarkIndex::default(),
+            candidates: Vec::new(),
+        }
+    }
+
+    /// Searches these landmarks from now on: world positions by map id
+    /// (None for frame nodes and unsolved ids).
+    pub(super) fn set_map(&mut self, world_m: Vec<Option<Vector3<f64>>>) {
+        self.index = LandmarkIndex::build(world_m, INDEX_CELL_M);
+    }
+
+    /// True while `track` waits for its recognition to be confirmed.
+    pub(super) fn is_pending(&self, track: LandmarkId) -> bool {
+        self.pending.contains_key(&track)
+    }
+
+    /// Recognises the frame's tracks that have no map id, with the robot
+    /// at `placement`; confirmed ones become aliases in `registry`.
+    pub(super) fn recognise(
+        &mut self,
+        output: &RelativeOutput,
+        placement: &FramePlacement,
+        registry: &mut LandmarkRegistry,
+    ) -> RecognitionCounts {
+        let mut counts = RecognitionCounts::default();
+        if self.index.is_empty() {
+            return counts;
+        }
+        let config = &self.config;
+        let found = recognise_tracks(
+            &self.index,
+            registry.descriptors(),
+            &output.landmarks,
+            placement,
+            |track| registry.map_id_of(track),
+            config,
+            &mut self.candidates,
+        );
+        // A recognition must place the robot where the frame's landmarks
+        // already in the map place it.
+        let (found, inconsistent) = consistent_recognitions(
+            &self.index,
+            &output.landmarks,
+            &placement.rotation,
+            |track| registry.map_id_of(track),
+            found,
+            config,
+            1.0,
+        );
+        counts.inconsistent = inconsistent;
+        let mut pending = HashMap::with_capacity(found.len());
+        for (track, map_id) in found {
+            let count = match self.pending.get(&track) {
+                Some(&(earlier, count)) if earlier == map_id => count + 1,
+                _ => 1,
+            };
+            let precise = output
+                .landmarks
+                .iter()
+                .find(|l| l.id == track)
+                .is_some_and(|l| {
+                    l.covariance_body_m2.symmetric_eigenvalues().max()
+                        <= config.confirm_max_sigma_m.powi(2)
+                });
+            if count >= config.confirm_frames && precise {
+                counts.recognised += 1;
+                registry.alias(track, map_id);
+            } else if count < config.max_pending_frames {
+                pending.insert(track, (map_id, count));
+            }
+        }
+        // A pending track not recognised as the same landmark again, or
+        // gone from view, is dropped (and becomes a new landmark when its
+        // frame is fused).
+        counts.unconfirmed = self
+            .pending
+            .keys()
+            .filter(|&&track| !pending.contains_key(&track) && !registry.contains(track))
+            .count();
+        self.pending = pending;
+        counts
+    }
+}
