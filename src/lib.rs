@@ -43,6 +43,7 @@ pub mod run;
 pub mod shared_data;
 pub mod simulate;
 pub mod slam_config;
+pub mod slam_pipeline;
 pub mod text_file;
 pub mod trajectory;
 pub mod two_view;

@@ -68,7 +68,10 @@ fn run(
     let run = DatasetRun {
         mode: Some(SensorMode::StereoInertial),
         rig: Some(rig.clone()),
-        config,
+        settings: rigslam::slam_config::SlamSettings {
+            relative: config,
+            ..Default::default()
+        },
         ..DatasetRun::default()
     };
     let result = run_dataset(sequence, &run, |_, _| {}).expect("the run");

@@ -37,7 +37,7 @@ fn stage_settings() -> StageSettings {
     StageSettings {
         mode: SensorMode::StereoInertial,
         estimator: rigslam::relative::EstimatorKind::Window,
-        relative: Default::default(),
+        slam: Default::default(),
         imu_wait: Duration::from_millis(50),
         imu_stall_ns: 100_000_000,
         max_pending_imu: 4096,
@@ -51,7 +51,7 @@ struct StageUnderTest {
     doorbell: Arc<Doorbell>,
     health: Arc<Health>,
     sink: Collect,
-    thread: std::thread::JoinHandle<Result<(), rigslam::relative::OdometryError>>,
+    thread: std::thread::JoinHandle<Result<(), rigslam::slam_pipeline::PipelineError>>,
 }
 
 impl StageUnderTest {
@@ -223,7 +223,7 @@ fn camera_gap_gives_bounded_imu_only_poses_then_lost_then_recovery() {
         return;
     };
     let dataset = open_dataset(&root).expect("open");
-    let imu_only_max_s = stage_settings().relative.imu_only_max_s;
+    let imu_only_max_s = stage_settings().slam.relative.imu_only_max_s;
     let stage = StageUnderTest::start(&dataset);
     let sink = stage.sink.clone();
     // Two passes of the sequence back to back (the second shifted in
@@ -419,6 +419,73 @@ fn timestamps_jumping_are_refused_backwards_flagged_and_survived() {
         "no tracking after the stamps jumped forward: {:?}",
         after.iter().map(|m| m.tracking_state).collect::<Vec<_>>()
     );
+}
+
+/// `rigslam run`'s path (the library call behind it) and the daemon's
+/// replay as fast as possible, with the same settings, give the same poses
+/// bit for bit: with the relative stage alone, and with both stages (the
+/// daemon's `rigslam/pose` then carries the corrected position).
+#[test]
+fn rigslam_run_and_the_daemon_give_the_same_poses_with_one_or_both_stages() {
+    use rigslam::run::dataset_run::{run_dataset, DatasetRun};
+    let Some(dataset) = shared_data::path_or_skip("euroc/V1_01_micro") else {
+        return;
+    };
+    let mut corrections_seen = 0;
+    for both_stages in [false, true] {
+        let mut config = DaemonConfig::replay(&dataset, SensorMode::StereoInertial);
+        config.slam.absolute.enabled = both_stages;
+        let run = DatasetRun {
+            mode: Some(SensorMode::StereoInertial),
+            settings: config.slam.settings(),
+            ..DatasetRun::default()
+        };
+        let result = run_dataset(&dataset, &run, |_, _| {}).expect("rigslam run's path");
+        let (poses, _) = run_replay(config);
+        let tracked: Vec<&PoseMessage> = poses
+            .iter()
+            .filter(|m| m.tracking_state == TRACKING_STATE_TRACKING)
+            .collect();
+        let ran = &result.outcome.trajectory.poses;
+        assert!(ran.len() > 50, "{} poses", ran.len());
+        assert_eq!(tracked.len(), ran.len(), "both stages: {both_stages}");
+        for (i, (m, p)) in tracked.iter().zip(ran).enumerate() {
+            let q = p.T_world_body.rotation.coords;
+            let expected: Vec<u64> = [p.t_ns as u64]
+                .into_iter()
+                .chain(
+                    p.T_world_body
+                        .translation
+                        .vector
+                        .iter()
+                        .map(|v| v.to_bits()),
+                )
+                .chain([q.x, q.y, q.z, q.w].iter().map(|v| v.to_bits()))
+                .collect();
+            let published: Vec<u64> = [m.t_ns as u64]
+                .into_iter()
+                .chain(m.position_world_m.iter().map(|v| v.to_bits()))
+                .chain(m.orientation_world_body_xyzw.iter().map(|v| v.to_bits()))
+                .collect();
+            assert_eq!(published, expected, "pose {i}, both stages: {both_stages}");
+        }
+        if both_stages {
+            // The absolute stage really ran in both: its positions are not
+            // the relative stage's.
+            let relative = result
+                .trajectory_relative
+                .as_ref()
+                .expect("the relative trajectory beside the corrected one");
+            corrections_seen = ran
+                .iter()
+                .zip(&relative.poses)
+                .filter(|(a, b)| a.T_world_body.translation != b.T_world_body.translation)
+                .count();
+            let stats = result.report.absolute.as_ref().expect("absolute stats");
+            assert!(stats.solves > 0, "{stats:?}");
+        }
+    }
+    assert!(corrections_seen >= 5, "{corrections_seen} corrected poses");
 }
 
 #[test]

@@ -468,10 +468,13 @@ fn datasheet_noise_is_corrected_online() {
             // (on by default in stereo-inertial) changes what the
             // inertial residuals show. With it on, this sequence gave
             // ATE 0.0164 m but NEES 5.1 per dof (bench/README.md).
-            config: RelativeConfig {
-                imu_noise_adaptation: adapt,
-                camera_imu_refinement: rigslam::relative::CameraImuRefinement::Off,
-                ..RelativeConfig::default()
+            settings: rigslam::slam_config::SlamSettings {
+                relative: RelativeConfig {
+                    imu_noise_adaptation: adapt,
+                    camera_imu_refinement: rigslam::relative::CameraImuRefinement::Off,
+                    ..RelativeConfig::default()
+                },
+                ..Default::default()
             },
             ..DatasetRun::default()
         };

@@ -13,6 +13,9 @@ use crate::edge_map::policy::EdgePolicy;
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct AbsoluteSettings {
+    /// Run the absolute stage after the relative one: the map is built and
+    /// the position corrected (`rigslam run --absolute` sets it).
+    pub enabled: bool,
     /// Which edges a frame adds to the map: `frame` (a node for the
     /// frame joined to each landmark it sees), `frame:N` (the same for
     /// every N-th tracking frame), or landmark pairs: `all` co-visible
@@ -79,6 +82,7 @@ impl Default for AbsoluteSettings {
         let config = AbsoluteConfig::default();
         let recognition = RecognitionConfig::default();
         Self {
+            enabled: false,
             policy: config.policy.to_string(),
             solve_every_frames: config.solve_every_frames,
             solve: match config.solve_mode {

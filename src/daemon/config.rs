@@ -13,6 +13,7 @@ use std::path::{Path, PathBuf};
 use crate::absolute::settings::AbsoluteSettings;
 use crate::publish::IpcConfig;
 use crate::relative::{EstimatorKind, RelativeConfig, RigModel, SensorMode};
+use crate::slam_config::SlamSettings;
 
 /// The whole file.
 #[derive(Debug, Clone, PartialEq, serde::Deserialize)]
@@ -217,9 +218,19 @@ pub struct SlamConfig {
     /// `[slam.relative]`: the keys of `[relative]` in `rigslam run --config`.
     pub relative: RelativeConfig,
     /// `[slam.absolute]`: the keys of `[absolute]` in `rigslam run
-    /// --config`. Checked, but the daemon runs the relative stage only:
-    /// the absolute stage runs in `rigslam run --absolute`.
+    /// --config`; with `enabled = true` the absolute stage runs after
+    /// the relative one and `rigslam/pose` carries its corrected position.
     pub absolute: AbsoluteSettings,
+}
+
+impl SlamConfig {
+    /// Both stages' tables, as `rigslam run --config` reads them.
+    pub fn settings(&self) -> SlamSettings {
+        SlamSettings {
+            relative: self.relative.clone(),
+            absolute: self.absolute.clone(),
+        }
+    }
 }
 
 impl Default for SlamConfig {

@@ -10,8 +10,9 @@ use std::time::Duration;
 
 use crate::publish::{PoseMessage, QueueFill, StatusMessage, StreamPublisher};
 use crate::recording::{RecordedPose, RecordingError};
-use crate::relative::{OdometryError, RelativeOutput, RigModel};
+use crate::relative::{RelativeOutput, RigModel};
 use crate::sensors::ImuSample;
+use crate::slam_pipeline::PipelineError as SlamSetupError;
 
 use super::config::{CameraSource, DaemonConfig, ImuSource};
 use super::health::{Health, HealthRules, RateBase};
@@ -31,9 +32,9 @@ pub enum PipelineError {
     /// The recorder could not create or write its MCAP file.
     Recording(#[from] RecordingError),
     #[error("the SLAM stage failed: {0}")]
-    /// The SLAM stage could not build its estimator at start: the rig does not serve the mode,
+    /// The SLAM stage could not build its pipeline at start: the rig does not serve the mode,
     /// a setting is out of range, or the estimator refused the rig.
-    Stage(#[from] OdometryError),
+    Stage(#[from] SlamSetupError),
     #[error("the {0} thread panicked")]
     /// A pipeline thread (named by the field) panicked.
     Panicked(&'static str),
@@ -136,7 +137,7 @@ pub struct Pipeline {
     doorbell: Arc<Doorbell>,
     reload: Arc<Mutex<Option<RigModel>>>,
     sources: Vec<JoinHandle<()>>,
-    stage: Option<JoinHandle<Result<(), OdometryError>>>,
+    stage: Option<JoinHandle<Result<(), SlamSetupError>>>,
     recorder: Option<RecorderThread>,
     record: Option<RecordSender>,
     rules: HealthRules,
@@ -191,7 +192,7 @@ impl Pipeline {
         let settings = StageSettings {
             mode,
             estimator: config.slam.estimator,
-            relative: config.slam.relative.clone(),
+            slam: config.slam.settings(),
             imu_wait: if replay {
                 // The replay hands the sample past a frame over before
                 // the frame: never wait on a finished replay's IMU.

@@ -1,6 +1,8 @@
 //! The SLAM stage's thread: takes frames and IMU samples off their queues,
-//! hands them to the relative stage in time order, and publishes one pose
-//! per frame (`rigslam/pose`) and one per IMU sample (`rigslam/pose_fast`).
+//! hands them to the SLAM pipeline ([`crate::slam_pipeline`]: the relative
+//! stage, then the absolute stage when `[slam.absolute] enabled`) in time
+//! order, and publishes one pose per frame (`rigslam/pose`) and one per
+//! IMU sample (`rigslam/pose_fast`).
 //!
 //! Order rule (what makes a replay give the same poses bit for bit): the
 //! IMU samples received are held in `pending`; before a frame, the stage
@@ -14,13 +16,16 @@ use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use nalgebra::Matrix6;
+
 use crate::publish::{tracking_state_code, PoseMessage};
 use crate::relative::{
-    build_estimator, EstimatorKind, FrameInput, OdometryError, RelativeConfig, RelativeEstimator,
-    RelativeOutput, RigModel, SensorMode, TrackingState,
+    EstimatorKind, FrameInput, RelativeOutput, RigModel, SensorMode, TrackingState,
 };
 use crate::sensors::yei::device::host_monotonic_ns;
 use crate::sensors::{Frame, ImuSample};
+use crate::slam_config::SlamSettings;
+use crate::slam_pipeline::{PipelineError, PipelineFrame, SecondStage, SlamPipeline};
 
 use super::fast_pose::FastPropagator;
 use super::health::{Health, SkipLog};
@@ -59,8 +64,8 @@ pub struct StageSettings {
     pub mode: SensorMode,
     /// Which relative estimator runs (window or EKF).
     pub estimator: EstimatorKind,
-    /// Settings of the relative stage.
-    pub relative: RelativeConfig,
+    /// Settings of both stages.
+    pub slam: SlamSettings,
     /// How long to wait for the IMU sample past a frame, at most.
     pub imu_wait: Duration,
     /// With no IMU sample for this long the stage stops waiting for one, ns.
@@ -90,7 +95,7 @@ pub fn run_stage(
     rig: RigModel,
     inputs: StageInputs,
     mut sink: Box<dyn PoseSink>,
-) -> Result<(), OdometryError> {
+) -> Result<(), PipelineError> {
     let mut stage = Stage::new(settings, &rig, inputs)?;
     stage.run(sink.as_mut())
 }
@@ -118,7 +123,7 @@ impl RigClocks {
 
 struct Stage {
     settings: StageSettings,
-    estimator: Box<dyn RelativeEstimator>,
+    pipeline: SlamPipeline,
     clocks: RigClocks,
     inputs: StageInputs,
     pending: VecDeque<ImuSample>,
@@ -139,13 +144,12 @@ impl Stage {
         settings: StageSettings,
         rig: &RigModel,
         inputs: StageInputs,
-    ) -> Result<Self, OdometryError> {
-        let estimator =
-            build_estimator(settings.estimator, settings.mode, rig, &settings.relative)?;
-        let fast = FastPropagator::new(settings.relative.imu_only_max_s);
+    ) -> Result<Self, PipelineError> {
+        let pipeline = build_pipeline(&settings, rig)?;
+        let fast = FastPropagator::new(settings.slam.relative.imu_only_max_s);
         Ok(Self {
             settings,
-            estimator,
+            pipeline,
             clocks: RigClocks::of(rig),
             inputs,
             pending: VecDeque::new(),
@@ -166,7 +170,7 @@ impl Stage {
             .store(host_monotonic_ns(), Ordering::Relaxed);
     }
 
-    fn run(&mut self, sink: &mut dyn PoseSink) -> Result<(), OdometryError> {
+    fn run(&mut self, sink: &mut dyn PoseSink) -> Result<(), PipelineError> {
         loop {
             self.heartbeat();
             self.apply_reload()?;
@@ -193,7 +197,7 @@ impl Stage {
         }
     }
 
-    fn apply_reload(&mut self) -> Result<(), OdometryError> {
+    fn apply_reload(&mut self) -> Result<(), PipelineError> {
         let rig = self
             .inputs
             .reload
@@ -201,16 +205,13 @@ impl Stage {
             .unwrap_or_else(|e| e.into_inner())
             .take();
         if let Some(rig) = rig {
-            match build_estimator(
-                self.settings.estimator,
-                self.settings.mode,
-                &rig,
-                &self.settings.relative,
-            ) {
-                Ok(e) => {
-                    self.estimator = e;
+            // The relative stage starts again in a new world frame, so the
+            // absolute stage's map (in the old one) starts again too.
+            match build_pipeline(&self.settings, &rig) {
+                Ok(pipeline) => {
+                    self.pipeline = pipeline;
                     self.clocks = RigClocks::of(&rig);
-                    tracing::info!("calibration reloaded; the relative stage starts again");
+                    tracing::info!("calibration reloaded; the SLAM pipeline starts again");
                 }
                 Err(e) => tracing::error!("reloaded calibration refused, keeping the old one: {e}"),
             }
@@ -305,7 +306,7 @@ impl Stage {
             self.pending.push_back(sample);
             while self.pending.len() > self.settings.max_pending_imu {
                 if let Some(old) = self.pending.pop_front() {
-                    self.estimator.push_imu(&old);
+                    self.pipeline.push_imu(&old);
                 }
             }
         }
@@ -402,7 +403,7 @@ impl Stage {
             let past = s.t_ns > frame.t_ns;
             let s = *s;
             self.pending.pop_front();
-            self.estimator.push_imu(&s);
+            self.pipeline.push_imu(&s);
             if past {
                 break;
             }
@@ -412,32 +413,161 @@ impl Stage {
             left: &frame.left.image,
             right: frame.right.as_ref().map(|r| &r.image),
         };
-        let output = self.estimator.push_frame(&input);
-        health.record_noise_scale(
-            self.estimator.imu_noise_scale(),
-            self.estimator.noise_at_bound(),
-        );
-        health.record_camera_imu(self.estimator.camera_imu());
-        self.fast.on_frame(&output);
+        let frame_out = self.pipeline.push_frame(&input);
+        let relative = self.pipeline.relative();
+        health.record_noise_scale(relative.imu_noise_scale(), relative.noise_at_bound());
+        health.record_camera_imu(relative.camera_imu());
+        let output = &frame_out.relative;
+        self.fast.on_frame(output);
         health
             .tracking_state
             .store(tracking_state_code(output.state), Ordering::Relaxed);
-        let message = if output.state == TrackingState::Tracking {
-            let covariance = output.pose_covariance.as_ref().map(|c| &c.matrix);
-            PoseMessage::from_relative(&output, covariance)
-        } else {
-            // No usable pose yet: say so, with the estimator's numbers
-            // as they are (flags tell the reader not to use them).
-            let mut m = PoseMessage::from_relative(&output, None);
-            m.flags = 0;
-            m
-        };
-        if sink.pose(&message, &output) {
+        let message = frame_message(&frame_out);
+        if sink.pose(&message, output) {
             health.poses_out.fetch_add(1, Ordering::Relaxed);
             let latency_us = (host_monotonic_ns() - frame.arrival_ns) as f64 * 1e-3;
             health.record_latency_us(latency_us);
         } else {
             health.pose_drops.fetch_add(1, Ordering::Relaxed);
         }
+    }
+}
+
+/// The pipeline the settings ask for on `rig`.
+fn build_pipeline(settings: &StageSettings, rig: &RigModel) -> Result<SlamPipeline, PipelineError> {
+    SlamPipeline::new(
+        settings.estimator,
+        settings.mode,
+        rig,
+        &settings.slam,
+        SecondStage::from_settings(&settings.slam),
+    )
+}
+
+/// The `rigslam/pose` message of one frame. With the absolute stage, the
+/// position is the position filter's and its covariance block the
+/// filter's; the orientation, velocity and rotation block are the
+/// relative stage's, and the position-rotation cross terms are zero (the
+/// filter does not carry them). Without it, the relative stage's pose
+/// and covariance.
+fn frame_message(frame: &PipelineFrame) -> PoseMessage {
+    let output = &frame.relative;
+    if output.state != TrackingState::Tracking {
+        // No usable pose yet: say so, with the estimator's numbers as
+        // they are (flags tell the reader not to use them).
+        let mut m = PoseMessage::from_relative(output, None);
+        m.flags = 0;
+        return m;
+    }
+    let relative_covariance = output.pose_covariance.as_ref().map(|c| c.matrix);
+    let Some(corrected) = &frame.corrected else {
+        return PoseMessage::from_relative(output, relative_covariance.as_ref());
+    };
+    let covariance = match (relative_covariance, corrected.position_covariance_m2) {
+        (Some(relative), Some(position)) => {
+            let mut c = Matrix6::zeros();
+            c.fixed_view_mut::<3, 3>(0, 0).copy_from(&position);
+            c.fixed_view_mut::<3, 3>(3, 3)
+                .copy_from(&relative.fixed_view::<3, 3>(3, 3));
+            Some(c)
+        }
+        // Before the filter starts the position is the relative stage's.
+        (relative, None) => relative,
+        (None, Some(_)) => None,
+    };
+    let message = PoseMessage::new(output.t_ns, output.state, &corrected.T_world_body)
+        .with_velocity(&output.velocity_world_m_s);
+    match covariance {
+        Some(c) => message.with_covariance(&c),
+        None => message,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
+
+    use super::*;
+    use crate::absolute::CorrectedPose;
+    use crate::relative::types::PoseCovariance;
+
+    fn frame(corrected: Option<CorrectedPose>) -> PipelineFrame {
+        let mut relative = RelativeOutput::tracking_at_origin(7, Vec::new());
+        relative.T_world_body = Isometry3::from_parts(
+            Translation3::new(1.0, 2.0, 3.0),
+            UnitQuaternion::from_euler_angles(0.1, 0.2, 0.3),
+        );
+        relative.velocity_world_m_s = Vector3::new(0.5, 0.0, -0.5);
+        relative.pose_covariance = Some(PoseCovariance {
+            matrix: Matrix6::from_fn(|r, c| {
+                1.0 + (r * 6 + c) as f64 + (r == c) as u8 as f64 * 100.0
+            }),
+            origin_t_ns: 0,
+            T_world_origin: Isometry3::identity(),
+        });
+        PipelineFrame {
+            relative,
+            corrected,
+            localised: None,
+            second_stage_ms: 0.0,
+        }
+    }
+
+    #[test]
+    fn the_published_pose_takes_position_and_its_covariance_from_the_filter() {
+        let relative_only = frame(None);
+        let m = frame_message(&relative_only);
+        assert_eq!(m.position_world_m, [1.0, 2.0, 3.0]);
+        assert_eq!(
+            m.covariance_matrix(),
+            Some(
+                relative_only
+                    .relative
+                    .pose_covariance
+                    .as_ref()
+                    .unwrap()
+                    .matrix
+            )
+        );
+
+        let filter_covariance = Matrix3::from_diagonal(&Vector3::new(0.01, 0.02, 0.03));
+        let corrected = CorrectedPose {
+            t_ns: 7,
+            T_world_body: Isometry3::from_parts(
+                Translation3::new(1.1, 1.9, 3.0),
+                relative_only.relative.T_world_body.rotation,
+            ),
+            position_covariance_m2: Some(filter_covariance),
+            landmarks_used: 5,
+            map_version: 2,
+            nis: 1.0,
+        };
+        let both = frame(Some(corrected));
+        let m = frame_message(&both);
+        assert_eq!(m.position_world_m, [1.1, 1.9, 3.0]);
+        assert_eq!(
+            m.orientation_world_body_xyzw,
+            frame_message(&relative_only).orientation_world_body_xyzw
+        );
+        assert_eq!(m.velocity_world_m_s, [0.5, 0.0, -0.5]);
+        let c = m.covariance_matrix().expect("a covariance");
+        let relative = both.relative.pose_covariance.as_ref().unwrap().matrix;
+        assert_eq!(c.fixed_view::<3, 3>(0, 0), filter_covariance);
+        assert_eq!(
+            c.fixed_view::<3, 3>(3, 3),
+            relative.fixed_view::<3, 3>(3, 3)
+        );
+        assert_eq!(c.fixed_view::<3, 3>(0, 3), Matrix3::zeros());
+        assert_eq!(c.fixed_view::<3, 3>(3, 0), Matrix3::zeros());
+
+        // Before the filter starts: the relative stage's covariance.
+        let mut early = frame(Some(CorrectedPose {
+            position_covariance_m2: None,
+            ..both.corrected.clone().unwrap()
+        }));
+        assert_eq!(frame_message(&early).covariance_matrix(), Some(relative));
+        // Not tracking: nothing a reader may use.
+        early.relative.state = TrackingState::Lost;
+        assert_eq!(frame_message(&early).flags, 0);
     }
 }

@@ -1,14 +1,13 @@
-//! One whole run on a dataset folder: open it, build the estimator for the
-//! mode, stream it through, score it against the dataset's ground truth,
-//! and fill the report. `rigslam run` and `rigslam demo` both call this.
+//! One whole run on a dataset folder: open it, build the SLAM pipeline for
+//! the mode, stream it through, score it against the dataset's ground
+//! truth, and fill the report. `rigslam run` and `rigslam demo` both call
+//! this.
 
 use std::collections::BTreeMap;
 use std::path::Path;
 
 use super::recognition_check::{check_recognitions, SightingLog, WRONG_M};
-use crate::absolute::localise::MapLocaliser;
 use crate::absolute::map_file::{MapFileError, SavedMap};
-use crate::absolute::AbsoluteStage;
 use crate::dataset::{
     groundtruth_trajectory, open_dataset, Dataset, DatasetError, SensorStream, StreamOptions,
 };
@@ -16,15 +15,13 @@ use crate::eval::consistency::{pose_nees, CovariancePose};
 use crate::eval::report::Evaluation;
 use crate::eval::{evaluate, Alignment, EvalOptions};
 use crate::relative::TrackingState;
-use crate::relative::{
-    build_estimator, EstimatorKind, OdometryError, RelativeConfig, RelativeOutput, RigModel,
-    SensorMode,
-};
+use crate::relative::{EstimatorKind, OdometryError, RelativeOutput, RigModel, SensorMode};
+use crate::slam_config::SlamSettings;
+use crate::slam_pipeline::{PipelineError, SecondStage, SlamPipeline};
 use crate::trajectory::{StampedPose, Trajectory};
 
 use super::report::{resident_memory_mib, RunReport};
 use super::{run_stream, RunOptions, RunOutcome};
-use crate::absolute::settings::AbsoluteSettings;
 
 /// What to run.
 #[derive(Debug, Clone)]
@@ -33,8 +30,11 @@ pub struct DatasetRun {
     pub mode: Option<SensorMode>,
     /// Relative estimator to run.
     pub estimator: EstimatorKind,
-    /// Settings of the relative stage.
-    pub config: RelativeConfig,
+    /// Settings of both stages; `absolute.enabled` runs the absolute
+    /// stage (edge map + position filter) on the relative stage's outputs:
+    /// the corrected trajectory becomes the run's trajectory and the
+    /// relative one is kept beside it.
+    pub settings: SlamSettings,
     /// How the run is paced (as recorded, or as fast as possible).
     pub options: RunOptions,
     /// Skip the dataset's first seconds, s (from its first frame).
@@ -45,13 +45,7 @@ pub struct DatasetRun {
     pub groundtruth: Option<Trajectory>,
     /// `None`: se3 for metric modes, sim3 for `mono`.
     pub align: Option<Alignment>,
-    /// Run the absolute stage (edge map + position filter) on
-    /// the relative stage's outputs; the corrected trajectory becomes
-    /// the run's trajectory and the relative one is kept beside it.
-    pub absolute: bool,
-    /// The absolute stage's settings (with `absolute` or `load_map`).
-    pub absolute_settings: AbsoluteSettings,
-    /// With `absolute`: write the final map (landmarks, covariances,
+    /// With the absolute stage: write the final map (landmarks, covariances,
     /// descriptors) here at the end of the run.
     pub save_map: Option<std::path::PathBuf>,
     /// Localise in this saved map instead of building one: the run's
@@ -68,14 +62,12 @@ impl Default for DatasetRun {
         Self {
             mode: None,
             estimator: EstimatorKind::Window,
-            config: RelativeConfig::default(),
+            settings: SlamSettings::default(),
             options: RunOptions::default(),
             start_s: 0.0,
             max_frames: None,
             groundtruth: None,
             align: None,
-            absolute: false,
-            absolute_settings: AbsoluteSettings::default(),
             save_map: None,
             load_map: None,
             rig: None,
@@ -107,6 +99,9 @@ pub enum RunError {
     #[error(transparent)]
     /// The estimator could not be built for the rig and mode.
     Setup(#[from] OdometryError),
+    #[error(transparent)]
+    /// The pipeline could not be built (the rig, the mode or a setting).
+    Pipeline(#[from] PipelineError),
     #[error("--start-s must be a finite number >= 0, got {0}")]
     /// `--start-s` is negative or not finite (the field is the value given).
     BadStart(f64),
@@ -130,12 +125,6 @@ pub enum RunError {
     LoadMapAndAbsolute,
 }
 
-/// Relocalising an inertial run in a map made by one: the transform
-/// between their gravity-aligned worlds may tilt z by at most this. On
-/// V1_02 the right fit of one frame tilted it by 5.4 deg (76 inliers); a
-/// wrong fit in another room by 176 deg (7 inliers, upside down).
-const RELOCALISE_MAX_TILT_DEG: f64 = 15.0;
-
 /// Runs `run` on the dataset at `path`; `on_frame` sees every output and
 /// the number of frames the run will take at most.
 pub fn run_dataset(
@@ -146,16 +135,21 @@ pub fn run_dataset(
     if !(run.start_s.is_finite() && run.start_s >= 0.0) {
         return Err(RunError::BadStart(run.start_s));
     }
-    if run.save_map.is_some() && !run.absolute {
+    let build_map = run.settings.absolute.enabled;
+    if run.save_map.is_some() && !build_map {
         return Err(RunError::SaveMapWithoutAbsolute);
     }
-    if run.load_map.is_some() && run.absolute {
+    if run.load_map.is_some() && build_map {
         return Err(RunError::LoadMapAndAbsolute);
     }
     let dataset = open_dataset(path)?;
     let rig = run.rig.clone().unwrap_or_else(|| rig_of(&dataset));
     let mode = run.mode.unwrap_or_else(|| default_mode(&rig));
-    let mut estimator = build_estimator(run.estimator, mode, &rig, &run.config)?;
+    let second = match &run.load_map {
+        Some(map) => SecondStage::Localise(map.clone()),
+        None => SecondStage::from_settings(&run.settings),
+    };
+    let mut pipeline = SlamPipeline::new(run.estimator, mode, &rig, &run.settings, second)?;
     let first_ns =
         first_frame_ns(&dataset).ok_or_else(|| RunError::NoFrames(path.display().to_string()))?;
     let mut stream = SensorStream::new(
@@ -168,56 +162,30 @@ pub fn run_dataset(
         },
     )?;
     let listed = stream.frames_listed();
-    let mut absolute = run
-        .absolute
-        .then(|| run.absolute_settings.to_config())
-        .transpose()
-        .map_err(crate::relative::config::ConfigError::from)?
-        .map(AbsoluteStage::new);
-    let mut localiser = match &run.load_map {
-        Some(map) => {
-            let mut config = run
-                .absolute_settings
-                .to_localise_config()
-                .map_err(crate::relative::config::ConfigError::from)?;
-            // Inertial runs have gravity along -z; so has a map made by
-            // one (a vision-only map does not, and is not gated).
-            if mode.uses_imu() {
-                config.max_tilt_rad = Some(RELOCALISE_MAX_TILT_DEG.to_radians());
-            }
-            Some(MapLocaliser::new(map, config))
-        }
-        None => None,
-    };
     let mut corrected = Vec::new();
-    let mut absolute_ms = Vec::new();
     let ground_truth = run
         .groundtruth
         .clone()
         .or_else(|| dataset_groundtruth(&dataset));
     // Only kept when there is a ground truth to check recognitions with.
-    let mut sightings = ground_truth.as_ref().map(|_| SightingLog::default());
+    let mut sightings = ground_truth
+        .as_ref()
+        .filter(|_| build_map)
+        .map(|_| SightingLog::default());
     let mut covariance_poses = Vec::new();
-    let mut outcome = run_stream(&mut stream, estimator.as_mut(), run.options, |o| {
-        if let Some(localiser) = localiser.as_mut() {
-            let start = std::time::Instant::now();
-            let pose = localiser.push(o);
-            absolute_ms.push(start.elapsed().as_secs_f64() * 1e3);
-            if let Some(pose) = pose {
-                corrected.push(StampedPose::new(
-                    pose.t_ns,
-                    pose.T_map_body.translation.vector,
-                    pose.T_map_body.rotation,
-                ));
-            }
+    let mut outcome = run_stream(&mut stream, &mut pipeline, run.options, |frame| {
+        let o = &frame.relative;
+        if let Some(pose) = &frame.localised {
+            corrected.push(StampedPose::new(
+                pose.t_ns,
+                pose.T_map_body.translation.vector,
+                pose.T_map_body.rotation,
+            ));
         }
-        if let Some(stage) = absolute.as_mut() {
+        if let Some(pose) = &frame.corrected {
             if let Some(log) = sightings.as_mut() {
                 log.note(o);
             }
-            let start = std::time::Instant::now();
-            let pose = stage.push(o);
-            absolute_ms.push(start.elapsed().as_secs_f64() * 1e3);
             if o.state == TrackingState::Tracking {
                 corrected.push(StampedPose::new(
                     pose.t_ns,
@@ -237,9 +205,9 @@ pub fn run_dataset(
         }
         on_frame(o, listed)
     })?;
+    pipeline.finish();
     let mut trajectory_relative = None;
-    if let Some(stage) = absolute.as_mut() {
-        stage.wait_for_solve();
+    if let Some(stage) = pipeline.absolute_mut() {
         if let Some(path) = &run.save_map {
             let map = stage.finish_map().ok_or(RunError::NoMapToSave)?;
             map.write(path)?;
@@ -250,16 +218,7 @@ pub fn run_dataset(
             );
         }
     }
-    if absolute.is_some() || localiser.is_some() {
-        for (frame, ms) in outcome.frame_ms.iter_mut().zip(&absolute_ms) {
-            *frame += ms;
-        }
-        let stage = if localiser.is_some() {
-            "localise"
-        } else {
-            "absolute"
-        };
-        outcome.stage_ms.insert(stage, absolute_ms);
+    if pipeline.absolute().is_some() || pipeline.localiser().is_some() {
         trajectory_relative = Some(std::mem::replace(
             &mut outcome.trajectory,
             Trajectory::new(corrected),
@@ -288,8 +247,8 @@ pub fn run_dataset(
         _ => None,
     };
     let evaluation = score(&outcome.trajectory);
-    let recognition_check = absolute
-        .as_ref()
+    let recognition_check = pipeline
+        .absolute()
         .zip(ground_truth.as_ref())
         .zip(sightings.as_ref())
         .and_then(|((stage, gt), log)| check_recognitions(log, stage.aliases(), gt));
@@ -306,7 +265,8 @@ pub fn run_dataset(
 
     let (frame_stats, stages) = outcome.timing_report();
     let (rss_now, rss_peak) = resident_memory_mib();
-    let counters: BTreeMap<String, u64> = estimator
+    let counters: BTreeMap<String, u64> = pipeline
+        .relative()
         .counters()
         .into_iter()
         .map(|(k, v)| (k.to_string(), v))
@@ -340,8 +300,8 @@ pub fn run_dataset(
         poses_written: outcome.trajectory.len(),
         stream: stream_counts,
         counters,
-        imu_noise_scale: estimator.imu_noise_scale(),
-        camera_imu: estimator.camera_imu().map(Into::into),
+        imu_noise_scale: pipeline.relative().imu_noise_scale(),
+        camera_imu: pipeline.relative().camera_imu().map(Into::into),
         // Monocular vision alone has no metric scale: its covariance is in
         // its own arbitrary unit and a NEES against metric truth means nothing.
         nees: ground_truth
@@ -353,9 +313,9 @@ pub fn run_dataset(
         rss_at_end_mib: rss_now,
         eval: evaluation.as_ref().map(|e| e.report.clone()),
         eval_relative: evaluation_relative.as_ref().map(|e| e.report.clone()),
-        absolute: absolute.as_ref().map(|s| s.stats().clone()),
+        absolute: pipeline.absolute().map(|s| s.stats().clone()),
         recognition_check,
-        localise: localiser.as_ref().map(|l| l.stats().clone()),
+        localise: pipeline.localiser().map(|l| l.stats().clone()),
     };
     Ok(DatasetRunResult {
         report,

@@ -1,8 +1,8 @@
-//! A recorded sequence through the relative stage, frame by frame, as fast
+//! A recorded sequence through the SLAM pipeline, frame by frame, as fast
 //! as it goes or paced by its stamps: what `rigslam run` does. The
-//! estimator sees exactly what it would see live (the merged stream of
-//! [`crate::dataset::stream`]); this module only times it, keeps the
-//! poses and counts what happened.
+//! pipeline ([`crate::slam_pipeline`]) sees exactly what it would see live
+//! (the merged stream of [`crate::dataset::stream`]); this module only
+//! times it, keeps the poses and counts what happened.
 
 pub mod dataset_run;
 pub mod recognition_check;
@@ -14,7 +14,8 @@ use std::time::{Duration, Instant};
 use nalgebra::Isometry3;
 
 use crate::dataset::{DatasetError, SensorEvent, SensorStream};
-use crate::relative::{FrameInput, RelativeEstimator, RelativeOutput, TrackingState};
+use crate::relative::{FrameInput, RelativeOutput, TrackingState};
+use crate::slam_pipeline::{PipelineFrame, SlamPipeline};
 use crate::trajectory::{StampedPose, Trajectory};
 
 pub use report::{resident_memory_mib, RunReport, TimingStats};
@@ -29,11 +30,11 @@ pub struct RunOptions {
 /// What a run produced, before it is written anywhere.
 #[derive(Debug, Clone, Default)]
 pub struct RunOutcome {
-    /// One pose per frame with a usable estimate (tracking, or the mono
-    /// modes' consistently scaled initial poses).
+    /// One pose per frame with a usable estimate from the relative stage
+    /// (tracking, or the mono modes' consistently scaled initial poses).
     pub trajectory: Trajectory,
-    /// Wall time per frame: the frame's own call plus the IMU samples
-    /// delivered since the previous frame, ms.
+    /// Wall time per frame: the frame's own call through both stages plus
+    /// the IMU samples delivered since the previous frame, ms.
     pub frame_ms: Vec<f64>,
     /// Wall time of each estimator stage per frame (and `imu_push`, the IMU samples before it), ms,
     /// by stage name.
@@ -56,16 +57,21 @@ pub struct RunOutcome {
     pub last_output: Option<RelativeOutput>,
 }
 
-/// Feeds `stream` to `estimator`; `on_frame` sees every output (progress
-/// bars, live plots, the absolute stage). A dataset error (a corrupt
+/// Feeds `stream` to `pipeline`; `on_frame` sees every frame's answer
+/// (progress bars, the second stage's poses). A dataset error (a corrupt
 /// image) stops the run with that error; the estimator's own troubles are
 /// in its outputs.
 pub fn run_stream(
     stream: &mut SensorStream<'_>,
-    estimator: &mut dyn RelativeEstimator,
+    pipeline: &mut SlamPipeline,
     options: RunOptions,
-    mut on_frame: impl FnMut(&RelativeOutput),
+    mut on_frame: impl FnMut(&PipelineFrame),
 ) -> Result<RunOutcome, DatasetError> {
+    let second_stage = match (pipeline.absolute(), pipeline.localiser()) {
+        (Some(_), _) => Some("absolute"),
+        (None, Some(_)) => Some("localise"),
+        (None, None) => None,
+    };
     let mut out = RunOutcome::default();
     let listed = stream.frames_listed().max(1);
     let start = Instant::now();
@@ -77,7 +83,7 @@ pub fn run_stream(
             SensorEvent::Imu(sample) => {
                 pace(options, &out, start, sample.t_ns);
                 let t = Instant::now();
-                estimator.push_imu(&sample);
+                pipeline.push_imu(&sample);
                 imu_ms += t.elapsed().as_secs_f64() * 1e3;
             }
             SensorEvent::Frame { t_ns, left, right } => {
@@ -89,14 +95,21 @@ pub fn run_stream(
                     right: right.as_ref().map(|r| &r.image),
                 };
                 let t = Instant::now();
-                let output = estimator.push_frame(&input);
+                let frame = pipeline.push_frame(&input);
                 let frame_ms = t.elapsed().as_secs_f64() * 1e3 + imu_ms;
                 out.frame_ms.push(frame_ms);
                 out.stage_ms.entry("imu_push").or_default().push(imu_ms);
                 imu_ms = 0.0;
-                for &(name, ms) in &estimator.last_timings().stages_ms {
+                for &(name, ms) in &pipeline.relative().last_timings().stages_ms {
                     out.stage_ms.entry(name).or_default().push(ms);
                 }
+                if let Some(name) = second_stage {
+                    out.stage_ms
+                        .entry(name)
+                        .or_default()
+                        .push(frame.second_stage_ms);
+                }
+                let output = &frame.relative;
                 out.last_frame_ns = Some(t_ns);
                 match output.state {
                     TrackingState::Tracking => {
@@ -122,8 +135,8 @@ pub fn run_stream(
                 if out.frame_ms.len() == listed.div_ceil(10) {
                     out.rss_at_10pct_mib = resident_memory_mib().0;
                 }
-                on_frame(&output);
-                out.last_output = Some(output);
+                on_frame(&frame);
+                out.last_output = Some(frame.relative);
             }
         }
     }

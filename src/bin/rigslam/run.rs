@@ -41,16 +41,18 @@ pub struct RunArgs {
     #[arg(long, value_enum)]
     trajectory_format: Option<TrajectoryFormat>,
     /// Also run the absolute stage (the linear edge map and the Kalman
-    /// position filter) on the relative stage's output.
+    /// position filter) on the relative stage's output (as `[absolute]
+    /// enabled = true` in --config does).
     #[arg(long)]
     absolute: bool,
     /// With --absolute or --load-map: write the relative stage's own
     /// trajectory here.
     #[arg(long)]
     trajectory_relative: Option<PathBuf>,
-    /// With --absolute: save the final map here (text: one landmark per
-    /// line, position, covariance and descriptor) to localise in later.
-    #[arg(long, requires = "absolute")]
+    /// With the absolute stage: save the final map here (text: one
+    /// landmark per line, position, covariance and descriptor) to localise
+    /// in later.
+    #[arg(long)]
     save_map: Option<PathBuf>,
     /// Localise in a map saved by --save-map instead of building one. The
     /// trajectory is then in the map's frame, from the first frame the map
@@ -112,11 +114,12 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let Some(dataset) = args.dataset.clone() else {
         anyhow::bail!("--dataset is required (the sequence to run)");
     };
-    let settings = match &args.config {
+    let mut settings = match &args.config {
         Some(path) => SlamSettings::from_toml_file(path)?,
         None => SlamSettings::default(),
     };
-    if args.trajectory_relative.is_some() && !args.absolute && args.load_map.is_none() {
+    settings.absolute.enabled |= args.absolute;
+    if args.trajectory_relative.is_some() && !settings.absolute.enabled && args.load_map.is_none() {
         anyhow::bail!("--trajectory-relative needs --absolute or --load-map (otherwise --trajectory is the relative trajectory)");
     }
     let load_map = match &args.load_map {
@@ -157,8 +160,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let run = DatasetRun {
         mode: args.mode,
         estimator: args.estimator,
-        config: settings.relative,
-        absolute_settings: settings.absolute,
+        settings,
         options: RunOptions {
             realtime: args.realtime,
         },
@@ -166,7 +168,6 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         max_frames: args.max_frames,
         groundtruth,
         align: args.align,
-        absolute: args.absolute,
         save_map: args.save_map.clone(),
         load_map,
         rig,

@@ -1,0 +1,196 @@
+//! The SLAM pipeline: both stages of the method as one object that IMU
+//! samples and frames go into, in time order. The relative stage (the
+//! windowed visual-inertial odometry, or the EKF baseline) gives each
+//! frame's pose in its own world frame; on its output either the absolute
+//! stage builds a map and corrects the position ([`AbsoluteStage`]), or a
+//! localiser places the robot in a saved map ([`MapLocaliser`]), or
+//! nothing does. `rigslam run` ([`crate::run`]) and the daemon's SLAM
+//! thread ([`crate::daemon::slam_stage`]) both drive one of these, built
+//! from the same [`SlamSettings`], so that the same input gives the same
+//! poses in both.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use crate::absolute::localise::{LocalisedPose, MapLocaliser};
+use crate::absolute::map_file::SavedMap;
+use crate::absolute::{AbsoluteStage, CorrectedPose};
+use crate::relative::config::ConfigError;
+use crate::relative::{
+    build_estimator, EstimatorKind, FrameInput, OdometryError, RelativeEstimator, RelativeOutput,
+    RigModel, SensorMode,
+};
+use crate::sensors::ImuSample;
+use crate::slam_config::SlamSettings;
+
+/// Relocalising an inertial run in a map made by one: the transform
+/// between their gravity-aligned worlds may tilt z by at most this. On
+/// V1_02 the right fit of one frame tilted it by 5.4 deg (76 inliers); a
+/// wrong fit in another room by 176 deg (7 inliers, upside down).
+const RELOCALISE_MAX_TILT_DEG: f64 = 15.0;
+
+/// What follows the relative stage.
+#[derive(Debug, Clone, Default)]
+pub enum SecondStage {
+    /// Nothing: the relative stage's poses are the answer.
+    #[default]
+    None,
+    /// The absolute stage builds a map and corrects the position.
+    BuildMap,
+    /// The robot is placed in this saved map.
+    Localise(Arc<SavedMap>),
+}
+
+impl SecondStage {
+    /// What `settings` ask for with no saved map: the absolute stage when
+    /// `[absolute] enabled`, nothing otherwise.
+    pub fn from_settings(settings: &SlamSettings) -> Self {
+        if settings.absolute.enabled {
+            SecondStage::BuildMap
+        } else {
+            SecondStage::None
+        }
+    }
+}
+
+/// Why a pipeline could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    /// The relative stage refused the rig or mode.
+    #[error(transparent)]
+    Relative(#[from] OdometryError),
+    /// A setting is out of range.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+}
+
+/// One frame through the pipeline.
+#[derive(Debug, Clone)]
+pub struct PipelineFrame {
+    /// The relative stage's answer (its own world frame).
+    pub relative: RelativeOutput,
+    /// The absolute stage's answer, when it runs.
+    pub corrected: Option<CorrectedPose>,
+    /// The pose in the saved map, when localising and localised.
+    pub localised: Option<LocalisedPose>,
+    /// Time the second stage took on this frame, ms (0 without one).
+    pub second_stage_ms: f64,
+}
+
+/// The relative stage with what follows it.
+pub struct SlamPipeline {
+    mode: SensorMode,
+    relative: Box<dyn RelativeEstimator>,
+    absolute: Option<AbsoluteStage>,
+    localiser: Option<MapLocaliser>,
+}
+
+impl SlamPipeline {
+    /// The pipeline for `rig` in `mode` with `kind` as the relative
+    /// stage, `settings` for both stages, and `second` after it.
+    pub fn new(
+        kind: EstimatorKind,
+        mode: SensorMode,
+        rig: &RigModel,
+        settings: &SlamSettings,
+        second: SecondStage,
+    ) -> Result<Self, PipelineError> {
+        let relative = build_estimator(kind, mode, rig, &settings.relative)?;
+        let (absolute, localiser) = match second {
+            SecondStage::None => (None, None),
+            SecondStage::BuildMap => {
+                let config = settings.absolute.to_config().map_err(ConfigError::from)?;
+                (Some(AbsoluteStage::new(config)), None)
+            }
+            SecondStage::Localise(map) => {
+                let mut config = settings
+                    .absolute
+                    .to_localise_config()
+                    .map_err(ConfigError::from)?;
+                // Inertial runs have gravity along -z; so has a map made
+                // by one (a vision-only map does not, and is not gated).
+                if mode.uses_imu() {
+                    config.max_tilt_rad = Some(RELOCALISE_MAX_TILT_DEG.to_radians());
+                }
+                (None, Some(MapLocaliser::new(&map, config)))
+            }
+        };
+        Ok(Self {
+            mode,
+            relative,
+            absolute,
+            localiser,
+        })
+    }
+
+    /// The sensor mode it runs in.
+    pub fn mode(&self) -> SensorMode {
+        self.mode
+    }
+
+    /// One IMU sample (raw: the relative stage applies the rig's IMU
+    /// intrinsics).
+    pub fn push_imu(&mut self, sample: &ImuSample) {
+        self.relative.push_imu(sample);
+    }
+
+    /// One frame, after the IMU samples up to it and the first one past
+    /// it.
+    pub fn push_frame(&mut self, input: &FrameInput<'_>) -> PipelineFrame {
+        let relative = self.relative.push_frame(input);
+        self.second_stage(relative)
+    }
+
+    /// The second stage on a relative-stage output.
+    fn second_stage(&mut self, relative: RelativeOutput) -> PipelineFrame {
+        let start = Instant::now();
+        let corrected = self.absolute.as_mut().map(|stage| stage.push(&relative));
+        let localised = self
+            .localiser
+            .as_mut()
+            .and_then(|localiser| localiser.push(&relative));
+        let second_stage_ms = if self.absolute.is_some() || self.localiser.is_some() {
+            start.elapsed().as_secs_f64() * 1e3
+        } else {
+            0.0
+        };
+        PipelineFrame {
+            relative,
+            corrected,
+            localised,
+            second_stage_ms,
+        }
+    }
+
+    /// The relative stage (timings, counters, noise scale, camera-IMU
+    /// estimate).
+    pub fn relative(&self) -> &dyn RelativeEstimator {
+        self.relative.as_ref()
+    }
+
+    /// The absolute stage, when it runs.
+    pub fn absolute(&self) -> Option<&AbsoluteStage> {
+        self.absolute.as_ref()
+    }
+
+    /// The absolute stage, when it runs (to finish or save its map).
+    pub fn absolute_mut(&mut self) -> Option<&mut AbsoluteStage> {
+        self.absolute.as_mut()
+    }
+
+    /// The localiser, when localising in a saved map.
+    pub fn localiser(&self) -> Option<&MapLocaliser> {
+        self.localiser.as_ref()
+    }
+
+    /// Waits for the absolute stage's map solve in flight, if any (end of
+    /// a run).
+    pub fn finish(&mut self) {
+        if let Some(stage) = self.absolute.as_mut() {
+            stage.wait_for_solve();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;
