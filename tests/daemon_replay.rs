@@ -469,16 +469,51 @@ fn rigslam_run_and_the_daemon_give_the_same_poses_with_one_or_both_stages() {
                 .collect();
             assert_eq!(published, expected, "pose {i}, both stages: {both_stages}");
         }
+        // The odometry frame (REP-105 `odom`): the relative stage's poses,
+        // never moved by a correction; with one stage it is the world.
+        let relative = match &result.trajectory_relative {
+            Some(t) => &t.poses,
+            None => ran,
+        };
+        for (i, (m, p)) in tracked.iter().zip(relative).enumerate() {
+            let q = p.T_world_body.rotation.coords;
+            let odom: Vec<u64> = m
+                .position_odom_m
+                .iter()
+                .chain(&m.orientation_odom_body_xyzw)
+                .map(|v| v.to_bits())
+                .collect();
+            let expected: Vec<u64> = p
+                .T_world_body
+                .translation
+                .vector
+                .iter()
+                .chain([q.x, q.y, q.z, q.w].iter())
+                .map(|v| v.to_bits())
+                .collect();
+            assert_eq!(
+                odom, expected,
+                "odometry pose {i}, both stages: {both_stages}"
+            );
+            assert_eq!(
+                m.flags & rigslam::publish::POSE_FLAG_MAP_CORRECTED != 0,
+                both_stages,
+                "pose {i}"
+            );
+            let composed = m.T_world_odom() * m.T_odom_body();
+            let world = m.T_world_body();
+            assert!(
+                (composed.translation.vector - world.translation.vector).norm() < 1e-9
+                    && composed.rotation.angle_to(&world.rotation) < 1e-9,
+                "pose {i}: T_world_odom T_odom_body is not T_world_body"
+            );
+        }
         if both_stages {
             // The absolute stage really ran in both: its positions are not
             // the relative stage's.
-            let relative = result
-                .trajectory_relative
-                .as_ref()
-                .expect("the relative trajectory beside the corrected one");
             corrections_seen = ran
                 .iter()
-                .zip(&relative.poses)
+                .zip(relative)
                 .filter(|(a, b)| a.T_world_body.translation != b.T_world_body.translation)
                 .count();
             let stats = result.report.absolute.as_ref().expect("absolute stats");

@@ -11,7 +11,8 @@ use std::process::Command;
 
 use rigslam::publish::{
     PoseMessage, QueueFill, StatusMessage, POSE_FLAG_COVARIANCE_VALID, POSE_FLAG_IMU_PROPAGATED,
-    POSE_LAYOUT_VERSION, STATUS_LAYOUT_VERSION, TRACKING_STATE_LOST, TRACKING_STATE_TRACKING,
+    POSE_FLAG_MAP_CORRECTED, POSE_FLAG_VELOCITY_VALID, POSE_LAYOUT_VERSION, STATUS_LAYOUT_VERSION,
+    TRACKING_STATE_LOST, TRACKING_STATE_TRACKING,
 };
 
 const HEADER: &str = concat!(
@@ -94,6 +95,10 @@ fn rust_layout() -> Vec<(&'static str, usize, usize, Vec<Field>)> {
                 orientation_world_body_xyzw,
                 velocity_world_m_s,
                 covariance,
+                position_odom_m,
+                orientation_odom_body_xyzw,
+                translation_world_odom_m,
+                rotation_world_odom_xyzw,
             ),
         ),
         (
@@ -188,6 +193,21 @@ fn header_constants_match_rust() {
         define("RIGSLAM_STATUS_LAYOUT_VERSION"),
         format!("{STATUS_LAYOUT_VERSION}u")
     );
+    for (name, bit) in [
+        (
+            "RIGSLAM_POSE_FLAG_COVARIANCE_VALID",
+            POSE_FLAG_COVARIANCE_VALID,
+        ),
+        ("RIGSLAM_POSE_FLAG_VELOCITY_VALID", POSE_FLAG_VELOCITY_VALID),
+        ("RIGSLAM_POSE_FLAG_IMU_PROPAGATED", POSE_FLAG_IMU_PROPAGATED),
+        ("RIGSLAM_POSE_FLAG_MAP_CORRECTED", POSE_FLAG_MAP_CORRECTED),
+    ] {
+        assert_eq!(
+            define(name),
+            format!("(1u << {})", bit.trailing_zeros()),
+            "{name}"
+        );
+    }
     assert_eq!(
         define("RIGSLAM_TRACKING_STATE_TRACKING"),
         format!("{TRACKING_STATE_TRACKING}u")
@@ -224,10 +244,10 @@ fn pose(i: u32) -> PoseMessage {
         } else {
             TRACKING_STATE_TRACKING
         },
-        flags: if i == 2 {
-            POSE_FLAG_IMU_PROPAGATED
-        } else {
-            POSE_FLAG_COVARIANCE_VALID
+        flags: match i {
+            2 => POSE_FLAG_IMU_PROPAGATED,
+            3 => POSE_FLAG_COVARIANCE_VALID | POSE_FLAG_MAP_CORRECTED,
+            _ => POSE_FLAG_COVARIANCE_VALID,
         },
         reserved: 0,
         t_ns: 1_700_000_000_123_456_789 + i64::from(i),
@@ -237,6 +257,10 @@ fn pose(i: u32) -> PoseMessage {
         orientation_world_body_xyzw: [0.5, -0.5, 0.5, 0.5],
         velocity_world_m_s: [0.125, -f, 7.75],
         covariance,
+        position_odom_m: [1.0 + f, -2.0, 999.5 * f],
+        orientation_odom_body_xyzw: [0.5, -0.5, 0.5, 0.5],
+        translation_world_odom_m: [0.5, -0.25, 0.5 * f],
+        rotation_world_odom_xyzw: [0.0, 0.0, 0.0, 1.0],
     }
 }
 
@@ -260,6 +284,11 @@ fn expected_line(m: &PoseMessage) -> String {
         );
     } else {
         line += " cov=unknown";
+    }
+    if m.flags & POSE_FLAG_MAP_CORRECTED != 0 {
+        let [ox, oy, oz] = m.position_odom_m;
+        let [tx, ty, tz] = m.translation_world_odom_m;
+        line += &format!(" odom_p={ox},{oy},{oz} world_odom_t={tx},{ty},{tz}");
     }
     if m.flags & POSE_FLAG_IMU_PROPAGATED != 0 {
         line += " imu_propagated";
@@ -290,7 +319,7 @@ fn the_c_example_reads_what_rust_writes() {
         "gcc failed:\n{}",
         String::from_utf8_lossy(&build.stderr)
     );
-    let messages: Vec<PoseMessage> = (0..3).map(pose).collect();
+    let messages: Vec<PoseMessage> = (0..4).map(pose).collect();
     let records = dir.path().join("poses.bin");
     let bytes: Vec<u8> = messages
         .iter()

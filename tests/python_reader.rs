@@ -56,6 +56,10 @@ fn message(i: u64) -> PoseMessage {
     PoseMessage::new(1_000_000 * i as i64 + 17, TrackingState::Tracking, &pose)
         .with_velocity(&Vector3::new(0.1 * f, 0.2, -f))
         .with_covariance(&covariance)
+        .with_world_odom(&Isometry3::from_parts(
+            Translation3::new(0.01 * f, -0.5, 0.25 + f),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, 0.001 * f),
+        ))
 }
 
 #[test]
@@ -136,6 +140,22 @@ fn the_python_reader_receives_every_field() {
         );
         assert_eq!(floats("velocity_world_m_s"), m.velocity_world_m_s, "{line}");
         assert_eq!(floats("covariance"), m.covariance, "{line}");
+        assert_eq!(floats("position_odom_m"), m.position_odom_m, "{line}");
+        assert_eq!(
+            floats("orientation_odom_body_xyzw"),
+            m.orientation_odom_body_xyzw,
+            "{line}"
+        );
+        assert_eq!(
+            floats("translation_world_odom_m"),
+            m.translation_world_odom_m,
+            "{line}"
+        );
+        assert_eq!(
+            floats("rotation_world_odom_xyzw"),
+            m.rotation_world_odom_xyzw,
+            "{line}"
+        );
     }
 }
 

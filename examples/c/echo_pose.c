@@ -67,6 +67,12 @@ static int print_pose(const rigslam_pose_message_t *m) {
     } else {
         printf(" cov=unknown");
     }
+    if (m->flags & RIGSLAM_POSE_FLAG_MAP_CORRECTED) {
+        /* The relative stage's pose (odom) and the map <- odom transform. */
+        printf(" odom_p=%.9g,%.9g,%.9g world_odom_t=%.9g,%.9g,%.9g", m->position_odom_m[0],
+               m->position_odom_m[1], m->position_odom_m[2], m->translation_world_odom_m[0],
+               m->translation_world_odom_m[1], m->translation_world_odom_m[2]);
+    }
     printf("%s\n", (m->flags & RIGSLAM_POSE_FLAG_IMU_PROPAGATED) ? " imu_propagated" : "");
     return 0;
 }

@@ -21,13 +21,14 @@ import time
 
 import iceoryx2 as iox2
 
-POSE_LAYOUT_VERSION = 1
+POSE_LAYOUT_VERSION = 2
 TRACKING_STATES = {0: "initializing", 1: "tracking", 2: "lost"}
 POSE_FLAG_COVARIANCE_VALID = 1 << 0
+POSE_FLAG_MAP_CORRECTED = 1 << 3  # odom fields differ from the world pose
 
 
 class PoseMessage(ctypes.Structure):
-    """rigslam_pose_message_t: 408 bytes, 8-aligned, native byte order."""
+    """rigslam_pose_message_t: 520 bytes, 8-aligned, native byte order."""
 
     _fields_ = [
         ("layout_version", ctypes.c_uint32),
@@ -41,12 +42,16 @@ class PoseMessage(ctypes.Structure):
         ("orientation_world_body_xyzw", ctypes.c_double * 4),
         ("velocity_world_m_s", ctypes.c_double * 3),
         ("covariance", ctypes.c_double * 36),  # 6x6 row-major, position then rotation
+        ("position_odom_m", ctypes.c_double * 3),  # the relative stage's pose (odom)
+        ("orientation_odom_body_xyzw", ctypes.c_double * 4),
+        ("translation_world_odom_m", ctypes.c_double * 3),  # T_world_odom (map <- odom)
+        ("rotation_world_odom_xyzw", ctypes.c_double * 4),
     ]
 
     @staticmethod
     def type_name():
         """The name the daemon gives the payload type (RIGSLAM_POSE_TYPE_NAME)."""
-        return "rigslam_pose_message_v1"
+        return "rigslam_pose_message_v2"
 
 
 def line(m):
@@ -76,6 +81,10 @@ def as_dict(m):
         "orientation_world_body_xyzw": list(m.orientation_world_body_xyzw),
         "velocity_world_m_s": list(m.velocity_world_m_s),
         "covariance": covariance,
+        "position_odom_m": list(m.position_odom_m),
+        "orientation_odom_body_xyzw": list(m.orientation_odom_body_xyzw),
+        "translation_world_odom_m": list(m.translation_world_odom_m),
+        "rotation_world_odom_xyzw": list(m.rotation_world_odom_xyzw),
     }
 
 
@@ -89,7 +98,7 @@ def main():
                         help="give up when no pose comes for this long")
     args = parser.parse_args()
 
-    assert ctypes.sizeof(PoseMessage) == 408 and ctypes.alignment(PoseMessage) == 8
+    assert ctypes.sizeof(PoseMessage) == 520 and ctypes.alignment(PoseMessage) == 8
     config = iox2.config.default()
     if args.root_path:
         config.global_cfg.root_path = iox2.Path.new(args.root_path.rstrip("/") + "/")

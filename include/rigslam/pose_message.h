@@ -11,13 +11,17 @@
  * two cannot drift apart silently.
  *
  * iceoryx2 type names (what a C binding passes as the payload type name
- * when it opens the service): "rigslam_pose_message_v1" and
+ * when it opens the service): "rigslam_pose_message_v2" and
  * "rigslam_status_message_v3"; type variant FIXED_SIZE; size and alignment
  * as asserted here. Each service is paired with an event service of the
  * same name, notified after every sample.
  *
  * Frames and units: world W is gravity-aligned (z up) once initialised;
- * body B is the IMU frame. Times are int64 nanoseconds on the host's
+ * body B is the IMU frame. As REP-105 names them, W is `map` (where the
+ * absolute stage places the robot; a correction may move the pose in it)
+ * and O is `odom` (the relative stage's frame, in which the pose is
+ * continuous); T_world_odom joins them. Without the absolute stage they
+ * are one frame. Times are int64 nanoseconds on the host's
  * CLOCK_MONOTONIC (dataset time on replay for t_ns).
  */
 #ifndef RIGSLAM_POSE_MESSAGE_H
@@ -30,9 +34,9 @@
 extern "C" {
 #endif
 
-#define RIGSLAM_POSE_LAYOUT_VERSION 1u
+#define RIGSLAM_POSE_LAYOUT_VERSION 2u
 #define RIGSLAM_STATUS_LAYOUT_VERSION 3u
-#define RIGSLAM_POSE_TYPE_NAME "rigslam_pose_message_v1"
+#define RIGSLAM_POSE_TYPE_NAME "rigslam_pose_message_v2"
 #define RIGSLAM_STATUS_TYPE_NAME "rigslam_status_message_v3"
 
 /* tracking_state values */
@@ -44,6 +48,10 @@ extern "C" {
 #define RIGSLAM_POSE_FLAG_COVARIANCE_VALID (1u << 0) /* else covariance is all NaN */
 #define RIGSLAM_POSE_FLAG_VELOCITY_VALID (1u << 1)
 #define RIGSLAM_POSE_FLAG_IMU_PROPAGATED (1u << 2) /* pose_fast: propagated with the IMU */
+/* the absolute stage runs: position_world_m is its map-frame position; the
+ * odom fields hold the relative stage's pose and T_world_odom (else they
+ * repeat the world pose and the identity) */
+#define RIGSLAM_POSE_FLAG_MAP_CORRECTED (1u << 3)
 
 /* One pose of the body (IMU) frame in the world frame. */
 typedef struct rigslam_pose_message {
@@ -62,6 +70,10 @@ typedef struct rigslam_pose_message {
      * error as a rotation vector about W's axes (rad), R_true = Exp(dr) R_est
      * (fixed axes, as ROS PoseWithCovariance). Units m^2, m rad, rad^2. */
     double covariance[36];
+    double position_odom_m[3];            /* x, y, z of the body origin in O, m */
+    double orientation_odom_body_xyzw[4]; /* R_odom_body, Hamilton, x, y, z, w */
+    double translation_world_odom_m[3];   /* T_world_odom: O's origin in W, m */
+    double rotation_world_odom_xyzw[4];   /* T_world_odom's rotation, x, y, z, w */
 } rigslam_pose_message_t;
 
 /* sensor_health bits */
@@ -125,7 +137,7 @@ typedef struct rigslam_status_message {
 #endif
 
 /* Layout contract. The Rust test `publish_layout` parses these lines. */
-RIGSLAM_STATIC_ASSERT(sizeof(rigslam_pose_message_t) == 408, "pose size");
+RIGSLAM_STATIC_ASSERT(sizeof(rigslam_pose_message_t) == 520, "pose size");
 RIGSLAM_STATIC_ASSERT(RIGSLAM_ALIGNOF(rigslam_pose_message_t) == 8, "pose alignment");
 RIGSLAM_STATIC_ASSERT(offsetof(rigslam_pose_message_t, layout_version) == 0, "pose layout_version");
 RIGSLAM_STATIC_ASSERT(offsetof(rigslam_pose_message_t, tracking_state) == 4, "pose tracking_state");
@@ -138,6 +150,10 @@ RIGSLAM_STATIC_ASSERT(offsetof(rigslam_pose_message_t, position_world_m) == 40, 
 RIGSLAM_STATIC_ASSERT(offsetof(rigslam_pose_message_t, orientation_world_body_xyzw) == 64, "pose orientation");
 RIGSLAM_STATIC_ASSERT(offsetof(rigslam_pose_message_t, velocity_world_m_s) == 96, "pose velocity_world_m_s");
 RIGSLAM_STATIC_ASSERT(offsetof(rigslam_pose_message_t, covariance) == 120, "pose covariance");
+RIGSLAM_STATIC_ASSERT(offsetof(rigslam_pose_message_t, position_odom_m) == 408, "pose position_odom_m");
+RIGSLAM_STATIC_ASSERT(offsetof(rigslam_pose_message_t, orientation_odom_body_xyzw) == 432, "pose orientation_odom");
+RIGSLAM_STATIC_ASSERT(offsetof(rigslam_pose_message_t, translation_world_odom_m) == 464, "pose translation_world_odom_m");
+RIGSLAM_STATIC_ASSERT(offsetof(rigslam_pose_message_t, rotation_world_odom_xyzw) == 488, "pose rotation_world_odom");
 
 RIGSLAM_STATIC_ASSERT(sizeof(rigslam_queue_fill_t) == 24, "queue fill size");
 RIGSLAM_STATIC_ASSERT(RIGSLAM_ALIGNOF(rigslam_queue_fill_t) == 4, "queue fill alignment");

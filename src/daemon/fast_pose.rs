@@ -7,10 +7,15 @@
 //! published from the older one). Without frames the IMU alone carries the
 //! pose for at most `imu_only_max_s`; after that the stream says "lost"
 //! and holds the pose, until a frame brings tracking back.
+//!
+//! With the absolute stage the samples are propagated from the frame's
+//! map-frame pose (what `rigslam/pose` carries), so that the two streams
+//! agree, and each message also carries the pose in the odometry frame
+//! through that frame's `T_world_odom`.
 
 use std::collections::VecDeque;
 
-use nalgebra::Vector3;
+use nalgebra::{Isometry3, Vector3};
 
 use crate::imu::{strapdown, ImuBiases, NavState};
 use crate::publish::PoseMessage;
@@ -36,6 +41,8 @@ struct Anchor {
     state: TrackingState,
     nav: NavState,
     biases: ImuBiases,
+    /// The frame's `T_world_odom` when the absolute stage runs.
+    world_odom: Option<Isometry3<f64>>,
 }
 
 impl FastPropagator {
@@ -52,17 +59,36 @@ impl FastPropagator {
 
     /// A new frame answer: the anchor for the samples that follow.
     pub fn on_frame(&mut self, output: &RelativeOutput) {
+        self.on_frame_in_map(output, None);
+    }
+
+    /// [`Self::on_frame`] with the absolute stage's answer for the frame:
+    /// its map-frame pose and `T_world_odom` (None without one).
+    #[allow(non_snake_case)]
+    pub fn on_frame_in_map(
+        &mut self,
+        output: &RelativeOutput,
+        map: Option<(Isometry3<f64>, Isometry3<f64>)>,
+    ) {
+        let (pose, velocity) = match &map {
+            Some((T_world_body, T_world_odom)) => (
+                *T_world_body,
+                T_world_odom.rotation * output.velocity_world_m_s,
+            ),
+            None => (output.T_world_body, output.velocity_world_m_s),
+        };
         let nav = NavState {
             t_ns: output.t_ns,
-            R_world_body: output.T_world_body.rotation,
-            position_world_m: output.T_world_body.translation.vector,
-            velocity_world_m_s: output.velocity_world_m_s,
+            R_world_body: pose.rotation,
+            position_world_m: pose.translation.vector,
+            velocity_world_m_s: velocity,
         };
         self.anchor = Some(Anchor {
             t_ns: output.t_ns,
             state: output.state,
             nav,
             biases: output.biases,
+            world_odom: map.map(|(_, T_world_odom)| T_world_odom),
         });
         self.current = None;
         if output.state != TrackingState::Tracking || !finite(&nav) {
@@ -93,6 +119,14 @@ impl FastPropagator {
 
     /// One IMU sample (in time order): the `pose_fast` message for it.
     pub fn on_imu(&mut self, sample: &ImuSample) -> PoseMessage {
+        let message = self.propagate(sample);
+        match self.anchor.and_then(|a| a.world_odom) {
+            Some(world_odom) => message.with_world_odom(&world_odom),
+            None => message,
+        }
+    }
+
+    fn propagate(&mut self, sample: &ImuSample) -> PoseMessage {
         let previous = self.recent.back().copied();
         if self.recent.len() == KEPT_SAMPLES {
             self.recent.pop_front();

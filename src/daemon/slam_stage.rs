@@ -16,7 +16,7 @@ use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use nalgebra::Matrix6;
+use nalgebra::{Isometry3, Matrix6};
 
 use crate::publish::{tracking_state_code, PoseMessage};
 use crate::relative::{
@@ -418,7 +418,7 @@ impl Stage {
         health.record_noise_scale(relative.imu_noise_scale(), relative.noise_at_bound());
         health.record_camera_imu(relative.camera_imu());
         let output = &frame_out.relative;
-        self.fast.on_frame(output);
+        self.fast.on_frame_in_map(output, map_pose(&frame_out));
         health
             .tracking_state
             .store(tracking_state_code(output.state), Ordering::Relaxed);
@@ -444,12 +444,25 @@ fn build_pipeline(settings: &StageSettings, rig: &RigModel) -> Result<SlamPipeli
     )
 }
 
+/// The absolute stage's pose of a tracked frame and `T_world_odom`, the
+/// transform from the relative stage's (odometry) frame to its map frame.
+#[allow(non_snake_case)]
+fn map_pose(frame: &PipelineFrame) -> Option<(Isometry3<f64>, Isometry3<f64>)> {
+    let corrected = frame.corrected.as_ref()?;
+    if frame.relative.state != TrackingState::Tracking {
+        return None;
+    }
+    let T_world_odom = corrected.T_world_body * frame.relative.T_world_body.inverse();
+    Some((corrected.T_world_body, T_world_odom))
+}
+
 /// The `rigslam/pose` message of one frame. With the absolute stage, the
 /// position is the position filter's and its covariance block the
 /// filter's; the orientation, velocity and rotation block are the
 /// relative stage's, and the position-rotation cross terms are zero (the
-/// filter does not carry them). Without it, the relative stage's pose
-/// and covariance.
+/// filter does not carry them); the odometry fields carry the relative
+/// stage's pose as it is and `T_world_odom`. Without it, the relative
+/// stage's pose and covariance.
 fn frame_message(frame: &PipelineFrame) -> PoseMessage {
     let output = &frame.relative;
     if output.state != TrackingState::Tracking {
@@ -460,7 +473,7 @@ fn frame_message(frame: &PipelineFrame) -> PoseMessage {
         return m;
     }
     let relative_covariance = output.pose_covariance.as_ref().map(|c| c.matrix);
-    let Some(corrected) = &frame.corrected else {
+    let (Some(corrected), Some((_, world_odom))) = (&frame.corrected, map_pose(frame)) else {
         return PoseMessage::from_relative(output, relative_covariance.as_ref());
     };
     let covariance = match (relative_covariance, corrected.position_covariance_m2) {
@@ -476,7 +489,8 @@ fn frame_message(frame: &PipelineFrame) -> PoseMessage {
         (None, Some(_)) => None,
     };
     let message = PoseMessage::new(output.t_ns, output.state, &corrected.T_world_body)
-        .with_velocity(&output.velocity_world_m_s);
+        .with_velocity(&(world_odom.rotation * output.velocity_world_m_s))
+        .with_odometry(&output.T_world_body, &world_odom);
     match covariance {
         Some(c) => message.with_covariance(&c),
         None => message,
@@ -559,6 +573,35 @@ mod tests {
         );
         assert_eq!(c.fixed_view::<3, 3>(0, 3), Matrix3::zeros());
         assert_eq!(c.fixed_view::<3, 3>(3, 0), Matrix3::zeros());
+        // REP-105: the odometry pose is the relative stage's as it is, and
+        // T_world_odom takes it to the world (map) pose.
+        assert_ne!(m.flags & crate::publish::POSE_FLAG_MAP_CORRECTED, 0);
+        assert_eq!(m.position_odom_m, [1.0, 2.0, 3.0]);
+        let composed = m.T_world_odom() * m.T_odom_body();
+        assert!((composed.translation.vector - Vector3::new(1.1, 1.9, 3.0)).norm() < 1e-12);
+        assert!(composed.rotation.angle_to(&m.T_world_body().rotation) < 1e-12);
+        assert_eq!(
+            frame_message(&relative_only).flags & crate::publish::POSE_FLAG_MAP_CORRECTED,
+            0
+        );
+        assert_eq!(
+            frame_message(&relative_only).position_odom_m,
+            frame_message(&relative_only).position_world_m
+        );
+
+        // The IMU-rate stream starts from the map-frame pose and carries
+        // the same odometry transform.
+        let mut fast = FastPropagator::new(1.0);
+        fast.on_frame_in_map(&both.relative, map_pose(&both));
+        let sample = ImuSample {
+            t_ns: 8,
+            gyro_rad_s: [0.0; 3],
+            accel_m_s2: [0.0, 0.0, 9.81],
+        };
+        let f = fast.on_imu(&sample);
+        assert!((f.T_world_body().translation.vector - Vector3::new(1.1, 1.9, 3.0)).norm() < 1e-6);
+        assert!((f.T_odom_body().translation.vector - Vector3::new(1.0, 2.0, 3.0)).norm() < 1e-6);
+        assert_ne!(f.flags & crate::publish::POSE_FLAG_MAP_CORRECTED, 0);
 
         // Before the filter starts: the relative stage's covariance.
         let mut early = frame(Some(CorrectedPose {

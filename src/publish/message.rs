@@ -20,7 +20,7 @@ use crate::imu::NavState;
 use crate::relative::types::{RelativeOutput, TrackingState};
 
 /// Layout version of [`PoseMessage`]; bump it on any change of the layout.
-pub const POSE_LAYOUT_VERSION: u32 = 1;
+pub const POSE_LAYOUT_VERSION: u32 = 2;
 /// Layout version of [`StatusMessage`]; bump it on any change of the layout.
 pub const STATUS_LAYOUT_VERSION: u32 = 3;
 
@@ -40,10 +40,24 @@ pub const POSE_FLAG_VELOCITY_VALID: u32 = 1 << 1;
 /// last visual-inertial estimate (the `pose_fast` stream), not estimated
 /// from a frame.
 pub const POSE_FLAG_IMU_PROPAGATED: u32 = 1 << 2;
+/// [`PoseMessage::flags`]: the absolute stage runs: the world pose is its
+/// map-frame pose, which a correction may move, and the odometry fields
+/// hold the relative stage's smooth pose and the `world <- odom`
+/// transform between the two. When clear the two poses are the same and
+/// the transform is the identity.
+pub const POSE_FLAG_MAP_CORRECTED: u32 = 1 << 3;
 
-/// One pose of the body (IMU) frame in the world frame.
+/// One pose of the body (IMU) frame in the world frame, with the same
+/// pose in the odometry frame.
 ///
-/// Byte layout (size 408, alignment 8, no padding):
+/// Frames as REP-105 names them: the world frame is `map` (gravity-aligned,
+/// where the absolute stage places the robot; a correction may move the
+/// pose in it), the odometry frame is `odom` (the relative stage's: the
+/// pose in it is continuous, corrections never move it), and
+/// `T_world_odom` joins them (`T_world_body = T_world_odom T_odom_body`).
+/// Without the absolute stage the two frames are one.
+///
+/// Byte layout (size 520, alignment 8, no padding):
 ///
 /// | offset | field | type |
 /// |---|---|---|
@@ -58,8 +72,12 @@ pub const POSE_FLAG_IMU_PROPAGATED: u32 = 1 << 2;
 /// | 64 | `orientation_world_body_xyzw` | f64\[4\] |
 /// | 96 | `velocity_world_m_s` | f64\[3\] |
 /// | 120 | `covariance` | f64\[36\] |
+/// | 408 | `position_odom_m` | f64\[3\] |
+/// | 432 | `orientation_odom_body_xyzw` | f64\[4\] |
+/// | 464 | `translation_world_odom_m` | f64\[3\] |
+/// | 488 | `rotation_world_odom_xyzw` | f64\[4\] |
 #[derive(Debug, Clone, Copy, PartialEq, ZeroCopySend)]
-#[type_name("rigslam_pose_message_v1")]
+#[type_name("rigslam_pose_message_v2")]
 #[repr(C)]
 pub struct PoseMessage {
     /// [`POSE_LAYOUT_VERSION`] of the writer; a reader rejects others.
@@ -96,6 +114,15 @@ pub struct PoseMessage {
     /// units m^2, m rad and rad^2. All NaN when
     /// [`POSE_FLAG_COVARIANCE_VALID`] is clear.
     pub covariance: [f64; 36],
+    /// Position of the body origin in the odometry frame, m.
+    pub position_odom_m: [f64; 3],
+    /// Orientation `R_odom_body`, Hamilton, order x, y, z, w.
+    pub orientation_odom_body_xyzw: [f64; 4],
+    /// Translation of `T_world_odom` (the odometry frame's origin in the
+    /// world frame), m.
+    pub translation_world_odom_m: [f64; 3],
+    /// Rotation of `T_world_odom`, Hamilton, order x, y, z, w.
+    pub rotation_world_odom_xyzw: [f64; 4],
 }
 
 /// The queue in front of one pipeline stage, as [`StatusMessage`] reports it.
@@ -342,6 +369,14 @@ impl StatusMessage {
     }
 }
 
+/// The isometry of a position and an x, y, z, w quaternion (renormalised).
+fn isometry(position: &[f64; 3], xyzw: &[f64; 4]) -> Isometry3<f64> {
+    let [x, y, z, w] = *xyzw;
+    let rotation = UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z));
+    let [px, py, pz] = *position;
+    Isometry3::from_parts(Translation3::new(px, py, pz), rotation)
+}
+
 /// The wire value of a tracking state.
 pub fn tracking_state_code(state: TrackingState) -> u32 {
     match state {
@@ -381,7 +416,48 @@ impl PoseMessage {
             orientation_world_body_xyzw: [q.i, q.j, q.k, q.w],
             velocity_world_m_s: [0.0; 3],
             covariance: [f64::NAN; 36],
+            position_odom_m: [p.x, p.y, p.z],
+            orientation_odom_body_xyzw: [q.i, q.j, q.k, q.w],
+            translation_world_odom_m: [0.0; 3],
+            rotation_world_odom_xyzw: [0.0, 0.0, 0.0, 1.0],
         }
+    }
+
+    /// Sets the pose in the odometry frame and the `world <- odom`
+    /// transform, and flags [`POSE_FLAG_MAP_CORRECTED`].
+    pub fn with_odometry(
+        mut self,
+        T_odom_body: &Isometry3<f64>,
+        T_world_odom: &Isometry3<f64>,
+    ) -> Self {
+        let (p, q) = (T_odom_body.translation.vector, T_odom_body.rotation);
+        self.position_odom_m = [p.x, p.y, p.z];
+        self.orientation_odom_body_xyzw = [q.i, q.j, q.k, q.w];
+        let (t, r) = (T_world_odom.translation.vector, T_world_odom.rotation);
+        self.translation_world_odom_m = [t.x, t.y, t.z];
+        self.rotation_world_odom_xyzw = [r.i, r.j, r.k, r.w];
+        self.flags |= POSE_FLAG_MAP_CORRECTED;
+        self
+    }
+
+    /// [`Self::with_odometry`] with the odometry pose that `T_world_odom`
+    /// gives the world pose (`T_odom_body = T_world_odom^-1 T_world_body`).
+    pub fn with_world_odom(self, T_world_odom: &Isometry3<f64>) -> Self {
+        let T_odom_body = T_world_odom.inverse() * self.T_world_body();
+        self.with_odometry(&T_odom_body, T_world_odom)
+    }
+
+    /// The pose in the odometry frame (the quaternion renormalised).
+    pub fn T_odom_body(&self) -> Isometry3<f64> {
+        isometry(&self.position_odom_m, &self.orientation_odom_body_xyzw)
+    }
+
+    /// The `world <- odom` transform (the quaternion renormalised).
+    pub fn T_world_odom(&self) -> Isometry3<f64> {
+        isometry(
+            &self.translation_world_odom_m,
+            &self.rotation_world_odom_xyzw,
+        )
     }
 
     /// Sets the velocity and its flag.
@@ -434,10 +510,7 @@ impl PoseMessage {
 
     /// The pose as an isometry (the quaternion renormalised).
     pub fn T_world_body(&self) -> Isometry3<f64> {
-        let [x, y, z, w] = self.orientation_world_body_xyzw;
-        let rotation = UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z));
-        let [px, py, pz] = self.position_world_m;
-        Isometry3::from_parts(Translation3::new(px, py, pz), rotation)
+        isometry(&self.position_world_m, &self.orientation_world_body_xyzw)
     }
 
     /// The covariance as a matrix, `None` when the flag says it is unknown.

@@ -241,8 +241,15 @@ fn print_pose(m: &PoseMessage, latency_us: f64) {
     let [px, py, pz] = m.position_world_m;
     let [qx, qy, qz, qw] = m.orientation_world_body_xyzw;
     let [vx, vy, vz] = m.velocity_world_m_s;
+    // With the absolute stage: the relative stage's (odometry) position too.
+    let odom = if m.flags & rigslam::publish::POSE_FLAG_MAP_CORRECTED != 0 {
+        let [ox, oy, oz] = m.position_odom_m;
+        format!(" odom_p=[{ox:.4} {oy:.4} {oz:.4}] m")
+    } else {
+        String::new()
+    };
     println!(
-        "#{} t={:.6} s {state} p=[{px:.4} {py:.4} {pz:.4}] m q_xyzw=[{qx:.4} {qy:.4} {qz:.4} {qw:.4}] v=[{vx:.3} {vy:.3} {vz:.3}] m/s latency={}",
+        "#{} t={:.6} s {state} p=[{px:.4} {py:.4} {pz:.4}] m q_xyzw=[{qx:.4} {qy:.4} {qz:.4} {qw:.4}] v=[{vx:.3} {vy:.3} {vz:.3}] m/s{odom} latency={}",
         m.sequence,
         m.t_ns as f64 * 1e-9,
         latency_text(latency_us),
