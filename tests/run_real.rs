@@ -283,12 +283,18 @@ fn a_saved_map_is_localised_in_again() {
     let text = std::fs::read_to_string(&map).expect("map written");
     let header = text.lines().next().expect("header");
     let count: usize = header
-        .strip_prefix("# rigslam map v1 landmarks ")
+        .strip_prefix("# rigslam map v2 landmarks ")
         .and_then(|n| n.parse().ok())
         .unwrap_or_else(|| panic!("header {header}"));
     assert!(count > 50, "{count} landmarks");
     let rows = text.lines().filter(|l| !l.starts_with('#')).count();
     assert_eq!(rows, count);
+    assert!(
+        text.lines()
+            .last()
+            .is_some_and(|l| l.starts_with("# crc32 ")),
+        "the map ends with its checksum"
+    );
     let localised = dir.path().join("loc.tum");
     let out = succeeds(
         rigslam_run()

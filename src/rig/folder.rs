@@ -14,7 +14,6 @@
 //! The same names are used for a recording's calibration attachments, so
 //! a recording replays with exactly the files the robot ran on.
 
-use std::io::Write as _;
 use std::path::{Path, PathBuf};
 
 use super::{kalibr, RigModel};
@@ -200,38 +199,7 @@ pub fn load_folder(dir: &Path, needs_imu: bool) -> Result<RigModel, DatasetError
     rig_from_files(&read_folder(dir)?, dir, needs_imu)
 }
 
-/// Writes `bytes` to `path` so that a reader sees the old file or the new
-/// one, never a part: a temporary file beside it, flushed to disk, then
-/// renamed over it, and the folder synced.
-pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let name = path
-        .file_name()
-        .ok_or_else(|| std::io::Error::new(std::io::ErrorKind::InvalidInput, "no file name"))?;
-    let tmp = dir.join(format!(
-        ".{}.tmp{}",
-        name.to_string_lossy(),
-        std::process::id()
-    ));
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)?;
-        if let Ok(d) = std::fs::File::open(&dir) {
-            // Directory fsync is best effort: not every filesystem allows it.
-            let _ = d.sync_all();
-        }
-        Ok(())
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
-}
+pub use crate::text_file::write_atomically;
 
 #[cfg(test)]
 mod tests {

@@ -3,7 +3,9 @@
 //! file, and the line or field when there is one. Datasets, calibration
 //! files and noise tables all go through here.
 
+pub mod atomic;
 pub mod error;
 pub mod text;
 
+pub use atomic::write_atomically;
 pub use error::DatasetError;
