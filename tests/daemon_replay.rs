@@ -38,6 +38,7 @@ fn stage_settings() -> StageSettings {
         mode: SensorMode::StereoInertial,
         estimator: rigslam::relative::EstimatorKind::Window,
         slam: Default::default(),
+        map: Default::default(),
         imu_wait: Duration::from_millis(50),
         imu_stall_ns: 100_000_000,
         max_pending_imu: 4096,
@@ -521,6 +522,101 @@ fn rigslam_run_and_the_daemon_give_the_same_poses_with_one_or_both_stages() {
         }
     }
     assert!(corrections_seen >= 5, "{corrections_seen} corrected poses");
+}
+
+/// `[map] path`: the first run builds a map and saves it (periodically
+/// and at the end); the next run starts from it and localises in it, its
+/// poses in the same frame as the first run's; a file that is not a whole
+/// map is set aside under a new name, untouched, and a new map is built.
+#[test]
+fn the_map_outlives_the_daemon_and_a_broken_one_is_set_aside() {
+    use rigslam::absolute::map_file::SavedMap;
+    use rigslam::publish::POSE_FLAG_MAP_CORRECTED;
+    let Some(dataset) = shared_data::path_or_skip("euroc/V1_01_micro") else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("robot.map");
+    let run = |path: &std::path::Path| {
+        let mut config = DaemonConfig::replay(&dataset, SensorMode::StereoInertial);
+        config.map.path = Some(path.to_path_buf());
+        config.map.save_every_s = 1.0;
+        run_replay(config)
+    };
+    let in_map = |poses: &[PoseMessage]| -> Vec<PoseMessage> {
+        poses
+            .iter()
+            .filter(|m| m.flags & POSE_FLAG_MAP_CORRECTED != 0)
+            .copied()
+            .collect()
+    };
+
+    let (built, report) = run(&path);
+    let words = report.map.clone().expect("map words");
+    assert!(words.contains("building"), "{words}");
+    assert!(
+        report.map_saves >= 2,
+        "periodic and final saves: {report:?}"
+    );
+    let map = SavedMap::read(&path).expect("a whole map");
+    assert!(
+        map.landmarks.len() > 20,
+        "{} landmarks",
+        map.landmarks.len()
+    );
+    let built = in_map(&built);
+    assert!(
+        built.len() > 30,
+        "{} poses from the absolute stage",
+        built.len()
+    );
+
+    let (again, report) = run(&path);
+    let words = report.map.clone().expect("map words");
+    assert!(words.contains("localising"), "{words}");
+    let localised = in_map(&again);
+    // The sequence is nearly still: the relative stage hands landmarks
+    // over in its last frames only (as `rigslam run --load-map` sees).
+    assert!(
+        localised.len() >= 3,
+        "{} of {} poses localised in the saved map",
+        localised.len(),
+        again.len()
+    );
+    // The same frames placed in the same map: the two runs agree.
+    let mut gaps: Vec<f64> = localised
+        .iter()
+        .filter_map(|m| {
+            let b = built.iter().find(|b| b.t_ns == m.t_ns)?;
+            Some((m.T_world_body().translation.vector - b.T_world_body().translation.vector).norm())
+        })
+        .collect();
+    assert!(gaps.len() >= 3, "{} frames in both", gaps.len());
+    gaps.sort_by(f64::total_cmp);
+    let median = gaps[gaps.len() / 2];
+    assert!(median < 0.02, "median gap {median:.3} m between the runs");
+    // Localising does not change the map.
+    assert_eq!(SavedMap::read(&path).expect("still whole"), map);
+
+    // A damaged map and the remains of a save cut short.
+    std::fs::write(&path, "# rigslam map v2 landmarks 3\n0 1 2\n").expect("damage");
+    let stale = dir.path().join(".robot.map.tmp999-0");
+    std::fs::write(&stale, "half a map").expect("stale temporary");
+    let (_, report) = run(&path);
+    assert!(report.map.expect("map words").contains("building"));
+    let aside = dir.path().join("robot.map.unusable-1");
+    assert_eq!(
+        std::fs::read_to_string(&aside).expect("the damaged map kept"),
+        "# rigslam map v2 landmarks 3\n0 1 2\n"
+    );
+    assert!(
+        SavedMap::read(&path)
+            .expect("a new whole map")
+            .landmarks
+            .len()
+            > 20
+    );
+    assert!(!stale.exists(), "the stale temporary is removed");
 }
 
 #[test]

@@ -288,6 +288,14 @@ impl AbsoluteStage {
         Some(super::map_file::SavedMap { landmarks })
     }
 
+    /// The landmarks of the last solved map for saving, as
+    /// [`Self::finish_map`] gives them but without solving again (so
+    /// without the edges fused since that solve). None before a solve.
+    pub fn solved_map(&self) -> Option<super::map_file::SavedMap> {
+        let landmarks = self.builder.saved_landmarks(self.map.as_ref()?)?;
+        Some(super::map_file::SavedMap { landmarks })
+    }
+
     /// The track id a map landmark was first seen under.
     pub fn landmark_track(&self, map_id: u32) -> Option<LandmarkId> {
         self.builder.registry().first_track(map_id)

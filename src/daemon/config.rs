@@ -42,6 +42,31 @@ pub struct DaemonConfig {
     #[serde(default)]
     /// `[pipeline]`: queue bounds and the health rules.
     pub pipeline: PipelineConfig,
+    #[serde(default)]
+    /// `[map]`: the map on disk that outlives the process (off by default).
+    pub map: MapConfig,
+}
+
+/// `[map]`: where the absolute stage's map is kept between runs.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MapConfig {
+    /// The map file (e.g. `/var/lib/rigslam/map.txt`). When it holds a
+    /// map at start the robot localises in it; otherwise the absolute
+    /// stage builds one and saves it here. Unset: no map on disk.
+    pub path: Option<PathBuf>,
+    /// Save the map being built this often, s of sensor time (it is also
+    /// saved on SIGTERM and on reload).
+    pub save_every_s: f64,
+}
+
+impl Default for MapConfig {
+    fn default() -> Self {
+        Self {
+            path: None,
+            save_every_s: 60.0,
+        }
+    }
 }
 
 /// `[camera]`: where frames come from.
@@ -397,6 +422,7 @@ impl DaemonConfig {
             publish: IpcConfig::default(),
             recording: RecordingConfig::default(),
             pipeline: PipelineConfig::default(),
+            map: MapConfig::default(),
         }
     }
 
@@ -554,6 +580,27 @@ pub fn check(config: &DaemonConfig, file: &Path) -> Result<RigModel, Vec<Problem
         .and(config.slam.absolute.to_localise_config())
     {
         bad("slam", crate::relative::ConfigError::from(e).to_string());
+    }
+    if !(config.map.save_every_s.is_finite() && config.map.save_every_s > 0.0) {
+        bad(
+            "map.save_every_s",
+            format!("{} (a time > 0 s)", config.map.save_every_s),
+        );
+    }
+    if let Some(path) = &config.map.path {
+        let dir = path.parent().filter(|d| !d.as_os_str().is_empty());
+        if path.file_name().is_none() || path.is_dir() {
+            bad("map.path", format!("{}: not a file name", path.display()));
+        } else if let Some(dir) = dir.filter(|d| !d.is_dir()) {
+            bad(
+                "map.path",
+                format!(
+                    "{}: the folder {} does not exist",
+                    path.display(),
+                    dir.display()
+                ),
+            );
+        }
     }
     let p = &config.pipeline;
     for (key, value, ok, allowed) in [

@@ -59,6 +59,12 @@ pub struct Health {
     /// Set by a replay source that stopped on an error (the file could
     /// not be read on): the daemon then exits with a failure status.
     pub source_failed: AtomicBool,
+    /// [`MAP_NONE`], [`MAP_BUILDING`] or [`MAP_LOCALISING`] (`[map]`).
+    pub map_mode: AtomicU32,
+    /// Landmarks of the map last loaded or saved.
+    pub map_landmarks: AtomicU64,
+    /// Saves of the map so far.
+    pub map_saves: AtomicU64,
     /// The estimator's noise scales (gyro, accel, pixel) as f64 bits,
     /// valid when `noise_known`; `noise_at_bound` when one hit a bound.
     noise_scale_bits: [AtomicU64; 3],
@@ -245,7 +251,29 @@ pub struct HealthRules {
     pub uses_imu: bool,
 }
 
+/// [`Health::map_mode`]: no map on disk (`[map] path` unset).
+pub const MAP_NONE: u32 = 0;
+/// [`Health::map_mode`]: building a map, saved to `[map] path`.
+pub const MAP_BUILDING: u32 = 1;
+/// [`Health::map_mode`]: localising in the map loaded from `[map] path`.
+pub const MAP_LOCALISING: u32 = 2;
+
 impl Health {
+    /// The map's state in words (the status line), None without a map.
+    pub fn map_words(&self) -> Option<String> {
+        let landmarks = self.map_landmarks.load(Ordering::Relaxed);
+        match self.map_mode.load(Ordering::Relaxed) {
+            MAP_BUILDING => Some(format!(
+                "map: building, {} saves ({landmarks} landmarks at the last)",
+                self.map_saves.load(Ordering::Relaxed)
+            )),
+            MAP_LOCALISING => Some(format!(
+                "map: localising in the saved map ({landmarks} landmarks)"
+            )),
+            _ => None,
+        }
+    }
+
     /// All counters zero, the SLAM stage's heartbeat set to now (host `CLOCK_MONOTONIC`), so it
     /// does not count as stuck before it starts.
     pub fn new() -> Self {

@@ -3,9 +3,10 @@
 //!
 //! Follow the data: [`config`] says where it comes from; [`sources`] are
 //! the driver (or replay) threads that feed the bounded [`queue`]s;
-//! [`slam_stage`] is the thread that runs the relative stage on them and
+//! [`slam_stage`] is the thread that runs the SLAM pipeline on them and
 //! publishes a pose per frame and, through [`fast_pose`], one per IMU
-//! sample; [`health`] collects what the threads report into the status;
+//! sample; [`map_keeper`] loads and saves its map (`[map]`); [`health`]
+//! collects what the threads report into the status;
 //! [`recorder`] writes the streams to MCAP; [`pipeline`] starts, watches
 //! and stops all of it.
 //!
@@ -17,6 +18,7 @@
 pub mod config;
 pub mod fast_pose;
 pub mod health;
+pub mod map_keeper;
 pub mod pipeline;
 pub mod queue;
 pub mod recorder;

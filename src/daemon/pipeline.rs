@@ -126,6 +126,10 @@ pub struct PipelineReport {
     pub latency_p99_us: f64,
     /// Largest latency, us.
     pub latency_max_us: f64,
+    /// The map on disk (`[map]`): what it did, in words (None without one).
+    pub map: Option<String>,
+    /// Saves of the map.
+    pub map_saves: u64,
 }
 
 /// The running daemon pipeline.
@@ -193,6 +197,7 @@ impl Pipeline {
             mode,
             estimator: config.slam.estimator,
             slam: config.slam.settings(),
+            map: config.map.clone(),
             imu_wait: if replay {
                 // The replay hands the sample past a frame over before
                 // the frame: never wait on a finished replay's IMU.
@@ -360,6 +365,8 @@ impl Pipeline {
             recording_drops,
             recordings,
             source_failed: h.source_failed.load(Ordering::Relaxed),
+            map: h.map_words(),
+            map_saves: h.map_saves.load(Ordering::Relaxed),
             latency_p50_us: latencies.quantile_us(0.5).unwrap_or(0.0),
             latency_p99_us: latencies.quantile_us(0.99).unwrap_or(0.0),
             latency_max_us: latencies.max_us(),

@@ -29,6 +29,7 @@ use crate::slam_pipeline::{PipelineError, PipelineFrame, SecondStage, SlamPipeli
 
 use super::fast_pose::FastPropagator;
 use super::health::{Health, SkipLog};
+use super::map_keeper::MapKeeper;
 use super::queue::BoundedQueue;
 
 /// One exposure on its way to the SLAM stage.
@@ -66,6 +67,9 @@ pub struct StageSettings {
     pub estimator: EstimatorKind,
     /// Settings of both stages.
     pub slam: SlamSettings,
+    /// The map on disk (`[map]`): with a path, the absolute stage runs and
+    /// its map outlives the process.
+    pub map: super::config::MapConfig,
     /// How long to wait for the IMU sample past a frame, at most.
     pub imu_wait: Duration,
     /// With no IMU sample for this long the stage stops waiting for one, ns.
@@ -124,6 +128,8 @@ impl RigClocks {
 struct Stage {
     settings: StageSettings,
     pipeline: SlamPipeline,
+    /// The map file, with `[map] path`.
+    map: Option<MapKeeper>,
     clocks: RigClocks,
     inputs: StageInputs,
     pending: VecDeque<ImuSample>,
@@ -145,11 +151,16 @@ impl Stage {
         rig: &RigModel,
         inputs: StageInputs,
     ) -> Result<Self, PipelineError> {
-        let pipeline = build_pipeline(&settings, rig)?;
+        let (map, second) = match MapKeeper::open(&settings.map, Arc::clone(&inputs.health)) {
+            Some((keeper, second)) => (Some(keeper), second),
+            None => (None, SecondStage::from_settings(&settings.slam)),
+        };
+        let pipeline = build_pipeline(&settings, rig, second)?;
         let fast = FastPropagator::new(settings.slam.relative.imu_only_max_s);
         Ok(Self {
             settings,
             pipeline,
+            map,
             clocks: RigClocks::of(rig),
             inputs,
             pending: VecDeque::new(),
@@ -189,6 +200,11 @@ impl Stage {
                 // close was taken above).
                 if self.inputs.frames.is_empty() && self.inputs.imu.is_empty() {
                     self.refuse_held_frame("the stream ended before another frame followed it");
+                    // Stopping (SIGTERM, or the replay ended): the map
+                    // being built is saved in full.
+                    if let Some(keeper) = self.map.as_mut() {
+                        keeper.save_now(&mut self.pipeline);
+                    }
                     return Ok(());
                 }
                 continue;
@@ -206,8 +222,16 @@ impl Stage {
             .take();
         if let Some(rig) = rig {
             // The relative stage starts again in a new world frame, so the
-            // absolute stage's map (in the old one) starts again too.
-            match build_pipeline(&self.settings, &rig) {
+            // absolute stage's map (in the old one) starts again too: with
+            // a map file it is saved first and localised in afterwards.
+            let second = match self.map.as_mut() {
+                Some(keeper) => {
+                    keeper.save_now(&mut self.pipeline);
+                    keeper.restart()
+                }
+                None => SecondStage::from_settings(&self.settings.slam),
+            };
+            match build_pipeline(&self.settings, &rig, second) {
                 Ok(pipeline) => {
                     self.pipeline = pipeline;
                     self.clocks = RigClocks::of(&rig);
@@ -423,6 +447,9 @@ impl Stage {
             .tracking_state
             .store(tracking_state_code(output.state), Ordering::Relaxed);
         let message = frame_message(&frame_out);
+        if let Some(keeper) = self.map.as_mut() {
+            keeper.after_frame(frame.t_ns, &self.pipeline);
+        }
         if sink.pose(&message, output) {
             health.poses_out.fetch_add(1, Ordering::Relaxed);
             let latency_us = (host_monotonic_ns() - frame.arrival_ns) as f64 * 1e-3;
@@ -433,14 +460,19 @@ impl Stage {
     }
 }
 
-/// The pipeline the settings ask for on `rig`.
-fn build_pipeline(settings: &StageSettings, rig: &RigModel) -> Result<SlamPipeline, PipelineError> {
+/// The pipeline the settings ask for on `rig`, with `second` after the
+/// relative stage.
+fn build_pipeline(
+    settings: &StageSettings,
+    rig: &RigModel,
+    second: SecondStage,
+) -> Result<SlamPipeline, PipelineError> {
     SlamPipeline::new(
         settings.estimator,
         settings.mode,
         rig,
         &settings.slam,
-        SecondStage::from_settings(&settings.slam),
+        second,
     )
 }
 
@@ -448,12 +480,16 @@ fn build_pipeline(settings: &StageSettings, rig: &RigModel) -> Result<SlamPipeli
 /// transform from the relative stage's (odometry) frame to its map frame.
 #[allow(non_snake_case)]
 fn map_pose(frame: &PipelineFrame) -> Option<(Isometry3<f64>, Isometry3<f64>)> {
-    let corrected = frame.corrected.as_ref()?;
     if frame.relative.state != TrackingState::Tracking {
         return None;
     }
-    let T_world_odom = corrected.T_world_body * frame.relative.T_world_body.inverse();
-    Some((corrected.T_world_body, T_world_odom))
+    let T_world_body = match (&frame.corrected, &frame.localised) {
+        (Some(corrected), _) => corrected.T_world_body,
+        (None, Some(localised)) => localised.T_map_body,
+        (None, None) => return None,
+    };
+    let T_world_odom = T_world_body * frame.relative.T_world_body.inverse();
+    Some((T_world_body, T_world_odom))
 }
 
 /// The `rigslam/pose` message of one frame. With the absolute stage, the
@@ -463,6 +499,7 @@ fn map_pose(frame: &PipelineFrame) -> Option<(Isometry3<f64>, Isometry3<f64>)> {
 /// filter does not carry them); the odometry fields carry the relative
 /// stage's pose as it is and `T_world_odom`. Without it, the relative
 /// stage's pose and covariance.
+#[allow(non_snake_case)]
 fn frame_message(frame: &PipelineFrame) -> PoseMessage {
     let output = &frame.relative;
     if output.state != TrackingState::Tracking {
@@ -473,10 +510,15 @@ fn frame_message(frame: &PipelineFrame) -> PoseMessage {
         return m;
     }
     let relative_covariance = output.pose_covariance.as_ref().map(|c| c.matrix);
-    let (Some(corrected), Some((_, world_odom))) = (&frame.corrected, map_pose(frame)) else {
+    let Some((T_world_body, world_odom)) = map_pose(frame) else {
         return PoseMessage::from_relative(output, relative_covariance.as_ref());
     };
-    let covariance = match (relative_covariance, corrected.position_covariance_m2) {
+    let position_covariance = match (&frame.corrected, &frame.localised) {
+        (Some(corrected), _) => corrected.position_covariance_m2,
+        (None, Some(localised)) => Some(localised.position_covariance_m2),
+        (None, None) => None,
+    };
+    let covariance = match (relative_covariance, position_covariance) {
         (Some(relative), Some(position)) => {
             let mut c = Matrix6::zeros();
             c.fixed_view_mut::<3, 3>(0, 0).copy_from(&position);
@@ -488,7 +530,7 @@ fn frame_message(frame: &PipelineFrame) -> PoseMessage {
         (relative, None) => relative,
         (None, Some(_)) => None,
     };
-    let message = PoseMessage::new(output.t_ns, output.state, &corrected.T_world_body)
+    let message = PoseMessage::new(output.t_ns, output.state, &T_world_body)
         .with_velocity(&(world_odom.rotation * output.velocity_world_m_s))
         .with_odometry(&output.T_world_body, &world_odom);
     match covariance {
