@@ -31,6 +31,18 @@ pub struct LoopComparison {
     pub false_recognitions: usize,
     /// Laps driven (the last one may be partial).
     pub laps: usize,
+    /// The recognising stage's map at the end of each lap.
+    pub map_per_lap: Vec<LapMap>,
+}
+
+/// The size of the map at the end of a lap.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct LapMap {
+    /// Frame nodes in the map.
+    pub frame_nodes: usize,
+    /// Unknowns of the last solve (landmarks and frame nodes, reference
+    /// excluded).
+    pub unknowns: usize,
 }
 
 /// RMS of the errors in lap `lap` (NaN when it has none).
@@ -92,12 +104,19 @@ pub fn compare_loops(options: &RoomRunOptions, config: &AbsoluteConfig) -> LoopC
             recognition,
             ..config.clone()
         });
+        let mut map_per_lap = vec![LapMap::default(); laps];
         let errors: Vec<Option<f64>> = run
             .outputs
             .iter()
             .zip(&run.truth_position_m)
-            .map(|(output, truth)| {
+            .zip(&lap)
+            .map(|((output, truth), &lap)| {
                 let pose = stage.push(output);
+                let stats = stage.stats();
+                map_per_lap[lap] = LapMap {
+                    frame_nodes: stats.frame_nodes,
+                    unknowns: stats.last_unknowns / 3,
+                };
                 pose.position_covariance_m2?;
                 let (reference, anchor) = stage.reference()?;
                 let reference_truth = run.reference_truth_m(reference)?;
@@ -111,11 +130,11 @@ pub fn compare_loops(options: &RoomRunOptions, config: &AbsoluteConfig) -> LoopC
             .aliases()
             .filter(|(track, first)| run.track_landmark.get(track) != run.track_landmark.get(first))
             .count();
-        (errors, stage.stats().recognised, wrong)
+        (errors, stage.stats().recognised, wrong, map_per_lap)
     };
-    let (recognised_error_m, recognised, false_recognitions) =
+    let (recognised_error_m, recognised, false_recognitions, map_per_lap) =
         absolute(config.recognition.or(Some(Default::default())));
-    let (unrecognised_error_m, _, _) = absolute(None);
+    let (unrecognised_error_m, _, _, _) = absolute(None);
     LoopComparison {
         t_s: run.outputs.iter().map(|o| o.t_ns as f64 * 1e-9).collect(),
         lap,
@@ -125,6 +144,7 @@ pub fn compare_loops(options: &RoomRunOptions, config: &AbsoluteConfig) -> LoopC
         recognised,
         false_recognitions,
         laps,
+        map_per_lap,
     }
 }
 
@@ -180,6 +200,22 @@ mod tests {
             // chain of new landmarks drifts, slowly: the edges do not
             // depend on the odometry).
             assert!(last_rec < 0.5 * last_unrec, "{summary}");
+            // The map's size is reported per lap: frame nodes (one per
+            // five frames) are part of the unknowns and never removed.
+            assert_eq!(c.map_per_lap.len(), c.laps);
+            for pair in c.map_per_lap.windows(2) {
+                assert!(
+                    pair[1].frame_nodes > pair[0].frame_nodes,
+                    "{:?}",
+                    c.map_per_lap
+                );
+            }
+            for lap in &c.map_per_lap {
+                assert!(
+                    lap.frame_nodes > 0 && lap.frame_nodes < lap.unknowns,
+                    "{lap:?}"
+                );
+            }
         }
     }
 

@@ -59,6 +59,8 @@ pub(super) struct MapBuilder {
     weighting: EdgeWeighting,
     /// Random walk of the odometry edges, m per sqrt(m); None without them.
     odometry_sigma_per_sqrt_m: Option<f64>,
+    /// Frame nodes added.
+    frame_nodes: usize,
 }
 
 impl MapBuilder {
@@ -80,7 +82,13 @@ impl MapBuilder {
             weighting: config.weighting,
             odometry_sigma_per_sqrt_m: (frame_nodes && config.odometry_edges)
                 .then_some(config.translation_sigma_per_sqrt_m),
+            frame_nodes: 0,
         }
+    }
+
+    /// Frame nodes in the map.
+    pub(super) fn frame_nodes(&self) -> usize {
+        self.frame_nodes
     }
 
     /// The edges fused so far, for the map solve.
@@ -293,6 +301,7 @@ impl MapBuilder {
         } else {
             self.registry.add_frame_node()
         };
+        self.frame_nodes += 1;
         self.edges.add_frame_node(rotation, node, observations);
         if let (Some(odometry), Some(sigma)) = (self.odometry, self.odometry_sigma_per_sqrt_m) {
             // The relative stage's own motion between the two nodes, a

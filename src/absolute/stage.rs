@@ -164,6 +164,8 @@ pub struct AbsoluteStats {
     /// before they came into view (recognised since the last solve): they
     /// join after the next.
     pub uncached_landmarks: usize,
+    /// Frame nodes in the map ([`crate::edge_map::policy::EdgePolicy::FrameNodes`]).
+    pub frame_nodes: usize,
     /// Mean normalised innovation squared per degree of freedom of the
     /// corrections: about 1 when the covariances the filter is given are
     /// right, far above when they are overconfident.
@@ -360,6 +362,7 @@ impl AbsoluteStage {
                 recogniser.is_some_and(|r| r.is_pending(track))
             });
             self.note_in_view(output);
+            self.stats.frame_nodes = self.builder.frame_nodes();
         }
         self.frames_since_solve += 1;
         if self.frames_since_solve >= self.config.solve_every_frames

@@ -123,6 +123,7 @@ mod tests {
             recognised: 3,
             false_recognitions: 0,
             laps: 2,
+            map_per_lap: Vec::new(),
         };
         let dir = tempfile::tempdir().expect("temp dir");
         let png = dir.path().join("loops.png");

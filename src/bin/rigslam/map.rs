@@ -180,6 +180,8 @@ fn loop_comparison(args: LoopArgs) -> anyhow::Result<()> {
                 "relative_rmse_m": c.relative_lap_rmse(lap),
                 "without_recognition_rmse_m": c.unrecognised_lap_rmse(lap),
                 "with_recognition_rmse_m": c.recognised_lap_rmse(lap),
+                "frame_nodes": c.map_per_lap[lap].frame_nodes,
+                "map_unknowns": c.map_per_lap[lap].unknowns,
             })
         })
         .collect();
@@ -205,15 +207,17 @@ fn loop_comparison(args: LoopArgs) -> anyhow::Result<()> {
         );
         return Ok(());
     }
-    println!("| lap | relative stage alone m | absolute, no recognition m | absolute with recognition m |");
-    println!("|---|---|---|---|");
+    println!("| lap | relative stage alone m | absolute, no recognition m | absolute with recognition m | its map: frame nodes, unknowns |");
+    println!("|---|---|---|---|---|");
     for l in &laps {
         println!(
-            "| {} | {:.3} | {:.3} | {:.3} |",
+            "| {} | {:.3} | {:.3} | {:.3} | {}, {} |",
             l["lap"],
             l["relative_rmse_m"].as_f64().unwrap_or(f64::NAN),
             l["without_recognition_rmse_m"].as_f64().unwrap_or(f64::NAN),
             l["with_recognition_rmse_m"].as_f64().unwrap_or(f64::NAN),
+            l["frame_nodes"],
+            l["map_unknowns"],
         );
     }
     println!(
