@@ -51,9 +51,10 @@ pub struct DaemonConfig {
 #[derive(Debug, Clone, PartialEq, serde::Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct MapConfig {
-    /// The map file (e.g. `/var/lib/rigslam/map.txt`). When it holds a
-    /// map at start the robot localises in it; otherwise the absolute
-    /// stage builds one and saves it here. Unset: no map on disk.
+    /// The map file (e.g. `/var/lib/rigslam/map.txt`; a relative path is
+    /// taken from the config file's folder). When it holds a map at start
+    /// the robot localises in it; otherwise the absolute stage builds one
+    /// and saves it here. Unset: no map on disk.
     pub path: Option<PathBuf>,
     /// Save the map being built this often, s of sensor time (it is also
     /// saved on SIGTERM and on reload).
@@ -445,6 +446,9 @@ impl DaemonConfig {
             fix(&mut r.dataset);
         }
         fix(&mut self.recording.dir);
+        if let Some(p) = self.map.path.as_mut() {
+            fix(p);
+        }
     }
 
     /// The bytes of the rig's calibration files as a recording carries

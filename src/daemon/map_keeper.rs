@@ -157,8 +157,8 @@ fn save(path: &Path, map: &SavedMap, health: &Health) {
             health
                 .map_landmarks
                 .store(map.landmarks.len() as u64, Ordering::Relaxed);
-            tracing::debug!(
-                "saved {} landmarks to {}",
+            tracing::info!(
+                "map saved: {} landmarks to {}",
                 map.landmarks.len(),
                 path.display()
             );
