@@ -119,6 +119,27 @@ fn replay_command(dataset: &Path, ipc: &IpcConfig) -> Command {
     c
 }
 
+/// `dir/rig.toml`: a replay of `dataset` published under a private
+/// prefix and root in `dir/iox`; `rest` goes after the `[replay]` table's
+/// `dataset` key (more of its keys, then further tables).
+fn write_replay_config(test: &str, dir: &Path, dataset: &Path, rest: &str) -> PathBuf {
+    let ipc = private_ipc(test, &dir.join("iox"));
+    let config = dir.join("rig.toml");
+    std::fs::write(
+        &config,
+        format!(
+            "[camera]\nsource = \"replay\"\n[imu]\nsource = \"replay\"\n\
+             [replay]\ndataset = {:?}\n{rest}\
+             [publish]\nservice_prefix = {:?}\nroot_path = {:?}\n",
+            dataset.display().to_string(),
+            ipc.service_prefix,
+            dir.join("iox").display().to_string()
+        ),
+    )
+    .expect("write config");
+    config
+}
+
 fn check_config(text: &str, dir: &Path) -> (bool, String) {
     let path = dir.join("rig.toml");
     std::fs::write(&path, text).expect("write config");
@@ -324,21 +345,12 @@ fn sighup_reloads_the_calibration_and_refuses_a_broken_one() {
         )
         .expect("copy calibration");
     }
-    let ipc = private_ipc("sighup", &dir.path().join("iox"));
-    let config = dir.path().join("rig.toml");
-    std::fs::write(
-        &config,
-        format!(
-            "[camera]\nsource = \"replay\"\n[imu]\nsource = \"replay\"\n\
-             [replay]\ndataset = {:?}\n\
-             [calibration]\ncameras = [\"cam0.yaml\", \"cam1.yaml\"]\nimu = \"imu0.yaml\"\n\
-             [publish]\nservice_prefix = {:?}\nroot_path = {:?}\n",
-            dataset.display().to_string(),
-            ipc.service_prefix,
-            dir.path().join("iox").display().to_string()
-        ),
-    )
-    .expect("write config");
+    let config = write_replay_config(
+        "sighup",
+        dir.path(),
+        &dataset,
+        "[calibration]\ncameras = [\"cam0.yaml\", \"cam1.yaml\"]\nimu = \"imu0.yaml\"\n",
+    );
     let report = dir.path().join("report.json");
     let mut command = rigslamd();
     command
@@ -375,21 +387,12 @@ fn the_map_is_saved_on_reload_and_stop_and_the_next_start_localises_in_it() {
         return;
     };
     let dir = tempfile::tempdir().expect("tempdir");
-    let ipc = private_ipc("map", &dir.path().join("iox"));
-    let config = dir.path().join("rig.toml");
-    std::fs::write(
-        &config,
-        format!(
-            "[camera]\nsource = \"replay\"\n[imu]\nsource = \"replay\"\n\
-             [replay]\ndataset = {:?}\nloops = 2\n\
-             [map]\npath = \"robot.map\"\nsave_every_s = 0.2\n\
-             [publish]\nservice_prefix = {:?}\nroot_path = {:?}\n",
-            dataset.display().to_string(),
-            ipc.service_prefix,
-            dir.path().join("iox").display().to_string()
-        ),
-    )
-    .expect("write config");
+    let config = write_replay_config(
+        "map",
+        dir.path(),
+        &dataset,
+        "loops = 2\n[map]\npath = \"robot.map\"\nsave_every_s = 0.2\n",
+    );
     let map = dir.path().join("robot.map");
     let report = dir.path().join("report.json");
     let start = || {

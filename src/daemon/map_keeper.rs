@@ -39,7 +39,7 @@ impl MapKeeper {
     /// pipeline starts with: localising in the saved map, or building one.
     pub fn open(config: &MapConfig, health: Arc<Health>) -> Option<(Self, SecondStage)> {
         let path = config.path.clone()?;
-        remove_stale_temporaries(&path);
+        crate::text_file::atomic::remove_stale_temporaries(&path);
         let (found, saving) = match start_from(&path) {
             Ok(found) => (found, true),
             Err(()) => (None, false),
@@ -209,25 +209,4 @@ fn set_aside(path: &Path) -> std::io::Result<PathBuf> {
         }
     }
     Err(std::io::Error::other("10 000 maps set aside already"))
-}
-
-/// Removes the temporary files of saves that a crash cut short.
-fn remove_stale_temporaries(path: &Path) {
-    let (Some(dir), Some(name)) = (path.parent(), path.file_name()) else {
-        return;
-    };
-    let dir = if dir.as_os_str().is_empty() {
-        Path::new(".")
-    } else {
-        dir
-    };
-    let prefix = format!(".{}.tmp", name.to_string_lossy());
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    for entry in entries.flatten() {
-        if entry.file_name().to_string_lossy().starts_with(&prefix) {
-            let _ = std::fs::remove_file(entry.path());
-        }
-    }
 }
