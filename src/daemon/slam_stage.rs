@@ -256,13 +256,18 @@ impl Stage {
 
     fn accept_imu(&mut self, sample: ImuSample, sink: &mut dyn PoseSink) {
         let health = Arc::clone(&self.inputs.health);
-        if !sample.is_finite() {
+        if !sample.is_plausible() {
             let total = health.imu_rejected.fetch_add(1, Ordering::Relaxed) + 1;
             self.refused_imu.skipped(
                 || {
                     format!(
-                        "the sample at {} ns has NaN or infinite values",
-                        sample.t_ns
+                        "the sample at {} ns has NaN, infinite or impossible values \
+                         (|gyro| > {} rad/s or |accel| > {} m/s^2): gyro {:?}, accel {:?}",
+                        sample.t_ns,
+                        ImuSample::MAX_GYRO_RAD_S,
+                        ImuSample::MAX_ACCEL_M_S2,
+                        sample.gyro_rad_s,
+                        sample.accel_m_s2
                     )
                 },
                 total,
