@@ -22,6 +22,7 @@ use rand_chacha::ChaCha8Rng;
 use rigslam::daemon::config::{DaemonConfig, ReplayPace};
 use rigslam::daemon::{check, Pipeline, PipelineReport};
 use rigslam::publish::{PoseMessage, StatusMessage, TRACKING_STATE_TRACKING};
+use rigslam::recording::schemas::ImuSampleProto;
 use rigslam::relative::SensorMode;
 use rigslam::shared_data;
 
@@ -68,9 +69,10 @@ struct Damage {
     duplicated: u64,
     swapped: u64,
     flipped: u64,
-    /// Flipped messages that are no longer JSON at all: each must be
+    /// Flipped messages that no longer decode as their schema says (or
+    /// decode into an image that does not hold its pixels): each must be
     /// counted as left out.
-    flipped_not_json: BTreeMap<String, u64>,
+    flipped_undecodable: BTreeMap<String, u64>,
     /// The IMU sample whose stamp was thrown ahead.
     stamp_thrown_ahead: bool,
     /// Messages damaged in any of these ways, per topic.
@@ -79,6 +81,22 @@ struct Damage {
 
 fn is_sensor(topic: &str) -> bool {
     matches!(topic, "/cam0" | "/cam1" | "/imu0")
+}
+
+/// Whether a sensor message decodes into a sample or a mono8 image, by
+/// the protobuf schemas alone.
+fn decodes(topic: &str, data: &[u8]) -> bool {
+    use prost::Message;
+    if topic == "/imu0" {
+        return ImuSampleProto::decode(data)
+            .is_ok_and(|m| m.gyro_rad_s.len() == 3 && m.accel_m_s2.len() == 3);
+    }
+    foxglove::messages::RawImage::decode(data).is_ok_and(|m| {
+        m.encoding == "mono8"
+            && m.timestamp.is_some()
+            && m.step >= m.width
+            && m.data.len() as u64 >= u64::from(m.step) * u64::from(m.height)
+    })
 }
 
 /// Rewrites the recording at `src` into `dst` with its sensor messages
@@ -110,10 +128,10 @@ fn damage(src: &Path, dst: &Path, seed: u64) -> Damage {
             imu_seen += 1;
             if imu_seen == 300 {
                 // One stamp with bit 40 set: 18 minutes ahead.
-                let mut v: serde_json::Value = serde_json::from_slice(&m.data).expect("json");
-                let t = v["t_ns"].as_i64().expect("t_ns");
-                v["t_ns"] = serde_json::json!(t | (1 << 40));
-                m.data = serde_json::to_vec(&v).expect("json").into();
+                use prost::Message;
+                let mut v = ImuSampleProto::decode(&m.data[..]).expect("an IMU sample");
+                v.t_ns |= 1 << 40;
+                m.data = v.encode_to_vec().into();
                 damage.stamp_thrown_ahead = true;
             }
         }
@@ -130,8 +148,8 @@ fn damage(src: &Path, dst: &Path, seed: u64) -> Damage {
                 let bit = rng.gen_range(0..data.len() * 8);
                 data[bit / 8] ^= 1 << (bit % 8);
             }
-            if serde_json::from_slice::<serde_json::Value>(&data).is_err() {
-                *damage.flipped_not_json.entry(topic.clone()).or_default() += 1;
+            if !decodes(&topic, &data) {
+                *damage.flipped_undecodable.entry(topic.clone()).or_default() += 1;
             }
             m.data = data.into();
             damage.flipped += 1;
@@ -235,17 +253,17 @@ fn a_damaged_recording_plays_to_the_end_counting_what_it_left_out() {
             "seed {seed}: the replay stopped at {last} ns, the file ends at {last_clean} ns"
         );
 
-        // Counted: every message that is no longer JSON, in the report
+        // Counted: every message that no longer decodes, in the report
         // and the status; every duplicate refused or left unpaired.
-        let not_json_images = d.flipped_not_json.get("/cam0").unwrap_or(&0)
-            + d.flipped_not_json.get("/cam1").unwrap_or(&0);
-        let not_json_imu = *d.flipped_not_json.get("/imu0").unwrap_or(&0);
+        let undecodable_images = d.flipped_undecodable.get("/cam0").unwrap_or(&0)
+            + d.flipped_undecodable.get("/cam1").unwrap_or(&0);
+        let undecodable_imu = *d.flipped_undecodable.get("/imu0").unwrap_or(&0);
         assert!(
-            r.frames_skipped >= not_json_images && r.imu_skipped >= not_json_imu,
+            r.frames_skipped >= undecodable_images && r.imu_skipped >= undecodable_imu,
             "seed {seed}: {d:?} {r:?}"
         );
         assert!(
-            r.frame_drops + r.imu_drops >= not_json_images + not_json_imu + d.duplicated + 1,
+            r.frame_drops + r.imu_drops >= undecodable_images + undecodable_imu + d.duplicated + 1,
             "seed {seed}: duplicates and the stamp thrown ahead are refused: {d:?} {r:?}"
         );
         // Nothing lost beyond the damage: an image message damaged costs

@@ -658,37 +658,51 @@ fn a_recording_replays_with_the_shorthand() {
     // No colour codes where stderr is not a terminal (the journal).
     assert!(!second.log().contains('\x1b'), "{}", second.log());
 
-    // A recording whose middle chunk is corrupt (its CRC no longer
-    // matches): --check-config cannot see it without reading every chunk,
-    // so the replay starts, stops there with the error said once, and
-    // the daemon exits with a failure status, not 0.
+    // A recording whose middle chunk is damaged (one byte of its
+    // compressed data changed): the replay skips that chunk, says which
+    // once, plays the rest to the end and counts it in the report.
     let bytes = std::fs::read(&files[0].0).expect("read");
-    let needle = b"\"data\":\"";
-    let images: Vec<usize> = bytes
-        .windows(needle.len())
-        .enumerate()
-        .filter(|(_, w)| *w == needle)
-        .map(|(i, _)| i)
-        .collect();
-    let at = images[images.len() / 2] + needle.len() + 1000;
+    let summary = mcap::Summary::read(&bytes)
+        .expect("summary")
+        .expect("a closed file");
+    let chunks = &summary.chunk_indexes;
+    assert!(chunks.len() >= 3, "{} chunks", chunks.len());
+    let middle = &chunks[chunks.len() / 2];
+    let at = (middle.chunk_start_offset + middle.chunk_length / 2) as usize;
     let mut damaged = bytes.clone();
-    damaged[at] = if damaged[at] == b'A' { b'B' } else { b'A' };
+    damaged[at] ^= 0x20;
     let damaged_path = dir.path().join("damaged.mcap");
     std::fs::write(&damaged_path, &damaged).expect("write");
+    let report = dir.path().join("damaged.json");
     let mut replay = replay_command(&damaged_path, &ipc);
-    replay.arg("--as-fast-as-possible");
+    replay
+        .arg("--as-fast-as-possible")
+        .arg("--report")
+        .arg(&report);
     let mut third = Daemon::start(replay);
     let status = third.wait_exit(Duration::from_secs(60));
     let log = third.log();
+    assert!(status.success(), "{log}");
+    let chunk = format!("chunk at byte {}", middle.chunk_start_offset);
+    assert_eq!(log.matches(&chunk).count(), 1, "named once:\n{log}");
+    assert!(log.contains("its messages are skipped"), "{log}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&report).expect("report")).expect("json");
+    assert_eq!(report["replay_damaged"], 1, "{report}");
+    assert_eq!(report["replay_cut"], false, "{report}");
+    let frames = report["frames"].as_u64().expect("frames");
+    assert!((60..95).contains(&frames), "{report}");
+
+    // A file that is not MCAP at all: refused by name, once, with a
+    // failure status.
+    let junk = dir.path().join("junk.mcap");
+    std::fs::write(&junk, vec![7u8; 4096]).expect("write");
+    let mut replay = replay_command(&junk, &ipc);
+    replay.arg("--as-fast-as-possible");
+    let mut fourth = Daemon::start(replay);
+    let status = fourth.wait_exit(Duration::from_secs(60));
+    let log = fourth.log();
     assert!(!status.success(), "{log}");
-    let said = log.matches("damaged.mcap").count();
-    assert!(
-        log.contains("replay stopped") && log.contains("CRC"),
-        "{log}"
-    );
-    assert_eq!(said, 1, "the error is said once:\n{log}");
-    assert!(
-        log.contains("rigslamd: the replay stopped on an error"),
-        "{log}"
-    );
+    assert!(log.contains("not an MCAP file"), "{log}");
+    assert_eq!(log.matches("junk.mcap").count(), 1, "said once:\n{log}");
 }

@@ -150,7 +150,9 @@ mod seeds {
     use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion, Vector3};
     use rigslam::dataset::write_png;
     use rigslam::publish::{PoseMessage, QueueFill, StatusMessage};
-    use rigslam::recording::{calibration_attachment_name, McapRecorder, RecordedPose};
+    use rigslam::recording::{
+        calibration_attachment_name, Compression, McapRecorder, RecordedPose,
+    };
     use rigslam::relative::types::TrackingState;
     use rigslam::sensors::{Image, ImuSample};
 
@@ -181,8 +183,8 @@ mod seeds {
         data
     }
 
-    fn recording(path: &Path, stereo: bool, finish: bool) {
-        let mut rec = McapRecorder::create(path).expect("create");
+    fn recording(path: &Path, stereo: bool, finish: bool, compression: Compression) {
+        let mut rec = McapRecorder::create(path, compression).expect("create");
         let imu = rec
             .add_imu_channel(
                 "/imu0",
@@ -229,13 +231,13 @@ mod seeds {
                     rec.write_image(cam1, t, &image, "cam1", t + 300)
                         .expect("cam1");
                 }
-                let recorded = RecordedPose {
-                    t_ns: t,
-                    tracking_state: 1,
-                    position_world_m: [0.1, 0.2, 0.3],
-                    orientation_world_body_xyzw: [0.0, 0.0, 0.0, 1.0],
-                    velocity_world_m_s: [0.0, 0.0, 0.01],
-                };
+                let recorded = RecordedPose::map_only(
+                    t,
+                    1,
+                    [0.1, 0.2, 0.3],
+                    [0.0, 0.0, 0.0, 1.0],
+                    [0.0, 0.0, 0.01],
+                );
                 rec.write_pose(pose, &recorded, t + 400).expect("pose");
             }
         }
@@ -246,16 +248,23 @@ mod seeds {
 
     pub fn write(corpus: &Path) {
         // MCAP recordings as the daemon's recorder writes them: stereo
-        // with the calibration attached, and mono cut off before its
-        // summary (a recorder that died).
+        // with the calibration attached (zstd chunks), and mono (lz4) cut
+        // off before its summary (a recorder that died). The seeds without
+        // "protobuf" in their names are the earlier JSON layout, kept as
+        // they were written.
         let dir = corpus.join("mcap_recording");
-        recording(&dir.join("stereo_imu_calibration.mcap"), true, true);
+        recording(
+            &dir.join("stereo_imu_calibration_protobuf.mcap"),
+            true,
+            true,
+            Compression::Zstd,
+        );
         let tmp = tempfile::tempdir().expect("temp dir");
         let unfinished = tmp.path().join("unfinished.mcap");
-        recording(&unfinished, false, true);
+        recording(&unfinished, false, true, Compression::Lz4);
         let mut bytes = std::fs::read(&unfinished).expect("bytes");
         bytes.truncate(bytes.len() * 2 / 3);
-        std::fs::write(dir.join("mono_cut_off.mcap"), bytes).expect("write");
+        std::fs::write(dir.join("mono_cut_off_protobuf.mcap"), bytes).expect("write");
 
         // Dataset folders: EuRoC stereo-inertial (cam1's listing names an
         // image that is not there) and KITTI with times and poses.

@@ -111,7 +111,8 @@ fn a_recording_of_the_grid_gives_frames_and_imu() {
     let Some(april) = april() else { return };
     let dir = tempfile::tempdir().expect("temp dir");
     let path = dir.path().join("target.mcap");
-    let mut recorder = McapRecorder::create(&path).expect("create");
+    let mut recorder =
+        McapRecorder::create(&path, rigslam::recording::Compression::Zstd).expect("create");
     let cam0 = recorder.add_image_channel("/cam0").expect("channel");
     let cam1 = recorder.add_image_channel("/cam1").expect("channel");
     let imu = recorder
@@ -197,7 +198,8 @@ fn check_holds_a_folder_against_a_recording_of_another_camera() {
     .expect("write");
     // A recording whose camera gives 640x480 images.
     let path = dir.path().join("other.mcap");
-    let mut recorder = McapRecorder::create(&path).expect("create");
+    let mut recorder =
+        McapRecorder::create(&path, rigslam::recording::Compression::Zstd).expect("create");
     let cam0 = recorder.add_image_channel("/cam0").expect("channel");
     let imu = recorder
         .add_imu_channel("/imu0", &BTreeMap::new())

@@ -283,6 +283,9 @@ pub struct RecordingConfig {
     pub budget_mib: u64,
     /// A file is closed and a new one started at this size, MiB.
     pub rotate_mib: u64,
+    /// How chunks are compressed: `"zstd"` (smallest files), `"lz4"`
+    /// (less CPU) or `"none"` [zstd].
+    pub compression: crate::recording::Compression,
 }
 
 impl Default for RecordingConfig {
@@ -292,6 +295,7 @@ impl Default for RecordingConfig {
             dir: PathBuf::from("/var/lib/rigslam/recordings"),
             budget_mib: 4096,
             rotate_mib: 256,
+            compression: crate::recording::Compression::Zstd,
         }
     }
 }
@@ -825,12 +829,16 @@ fn check_resolution(config: &DaemonConfig, rig: &RigModel, bad: &mut impl FnMut(
     }
 }
 
-/// An MCAP recording to replay: complete (closed, with its summary) and
-/// holding the streams `mode` needs.
+/// An MCAP recording to replay, holding the streams `mode` needs: counted
+/// from its summary, or, for a file that was never closed, from what it
+/// holds (the replay plays that and says where the file ends).
 fn check_recording(path: &Path, mode: SensorMode, bad: &mut impl FnMut(&str, String)) {
     let counts = match crate::recording::channel_counts(path) {
         Ok(c) => c,
-        Err(e) => return bad("replay.dataset", e.to_string()),
+        Err(_) => match crate::recording::message_counts(path) {
+            Ok((counts, _)) => counts,
+            Err(e) => return bad("replay.dataset", e.to_string()),
+        },
     };
     let mut needed = vec!["/cam0"];
     if mode.uses_stereo() {

@@ -59,6 +59,11 @@ pub struct Health {
     /// Set by a replay source that stopped on an error (the file could
     /// not be read on): the daemon then exits with a failure status.
     pub source_failed: AtomicBool,
+    /// A replayed recording was cut short (never closed): it played as
+    /// far as its bytes go.
+    pub replay_cut: AtomicBool,
+    /// Chunks or records of a replayed recording skipped as damaged.
+    pub replay_damaged: AtomicU64,
     /// [`MAP_NONE`], [`MAP_BUILDING`] or [`MAP_LOCALISING`] (`[map]`).
     pub map_mode: AtomicU32,
     /// Landmarks of the map last loaded or saved.

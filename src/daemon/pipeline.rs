@@ -75,9 +75,15 @@ impl PoseSink for RecordingSink {
         self.record.pose(RecordedPose {
             t_ns: m.t_ns,
             tracking_state: m.tracking_state,
+            flags: m.flags,
             position_world_m: m.position_world_m,
             orientation_world_body_xyzw: m.orientation_world_body_xyzw,
             velocity_world_m_s: m.velocity_world_m_s,
+            covariance: m.covariance,
+            position_odom_m: m.position_odom_m,
+            orientation_odom_body_xyzw: m.orientation_odom_body_xyzw,
+            translation_world_odom_m: m.translation_world_odom_m,
+            rotation_world_odom_xyzw: m.rotation_world_odom_xyzw,
         });
         self.inner.pose(m, output)
     }
@@ -119,6 +125,10 @@ pub struct PipelineReport {
     pub recordings: Vec<PathBuf>,
     /// A replay stopped on an error before its end.
     pub source_failed: bool,
+    /// The replayed recording was cut short (it played as far as it goes).
+    pub replay_cut: bool,
+    /// Chunks or records of the replayed recording skipped as damaged.
+    pub replay_damaged: u64,
     /// Frame arrival to pose published, every frame of the run (within
     /// 1 %, see [`super::health::LatencyHistogram`]).
     pub latency_p50_us: f64,
@@ -180,7 +190,7 @@ impl Pipeline {
                     crate::recording::calibration_attachments(&rig, config.slam.mode)
                 }
             };
-            let (tx, handle) = spawn_recorder(config.recording.clone(), attachments)?;
+            let (tx, handle) = spawn_recorder(config.recording.clone(), attachments, rig.clone())?;
             (Some(tx), Some(handle))
         } else {
             (None, None)
@@ -292,12 +302,28 @@ impl Pipeline {
             ),
             QueueFill::new("imu", self.imu.len() as u32, self.imu.capacity() as u32),
         ];
-        self.health.status(
+        let status = self.health.status(
             &self.rules,
             &mut self.base,
             &queues,
             (self.frames.dropped(), self.imu.dropped()),
-        )
+        );
+        if let Some(record) = &self.record {
+            record.status(crate::recording::schemas::StatusProto {
+                t_ns: status.t_ns,
+                sensor_health: status.sensor_health,
+                health: super::health::health_words(status.sensor_health),
+                camera_rate_hz: status.camera_rate_hz,
+                imu_rate_hz: status.imu_rate_hz,
+                pose_rate_hz: status.pose_rate_hz,
+                camera_drops: status.camera_drops,
+                imu_drops: status.imu_drops,
+                pose_drops: status.pose_drops,
+                latency_p50_us: status.latency_p50_us,
+                latency_p99_us: status.latency_p99_us,
+            });
+        }
+        status
     }
 
     /// Whether the SLAM stage has stopped making progress.
@@ -365,6 +391,8 @@ impl Pipeline {
             recording_drops,
             recordings,
             source_failed: h.source_failed.load(Ordering::Relaxed),
+            replay_cut: h.replay_cut.load(Ordering::Relaxed),
+            replay_damaged: h.replay_damaged.load(Ordering::Relaxed),
             map: h.map_words(),
             map_saves: h.map_saves.load(Ordering::Relaxed),
             latency_p50_us: latencies.quantile_us(0.5).unwrap_or(0.0),

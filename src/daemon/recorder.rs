@@ -5,6 +5,13 @@
 //! `rotate_mib`, deletes the oldest to stay within `budget_mib`, and
 //! closes the current file properly when the daemon stops (its summary
 //! and index written, so it opens in Foxglove and replays).
+//!
+//! Each file has the raw streams (`/imu0`, `/cam0`, `/cam1`), the pose
+//! estimates with covariance and both frames (`/rigslam/pose`), the poses
+//! for Foxglove's 3D panel (`/rigslam/pose_map`, `/rigslam/pose_odom`),
+//! the transform tree map -> odom -> body -> cam0/cam1/imu (`/tf`), each
+//! camera's calibration (`/cam0/calibration`, `/cam1/calibration`) and the
+//! daemon's status (`/rigslam/status`).
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -12,7 +19,12 @@ use std::sync::mpsc::{self, Receiver, SyncSender, TrySendError};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 
+use foxglove::messages::{CameraCalibration, FrameTransform, FrameTransforms, PoseInFrame};
+use nalgebra::Isometry3;
+
+use crate::recording::schemas::{timestamp, StatusProto};
 use crate::recording::{ChannelId, McapRecorder, RecordedPose, RecordingError};
+use crate::relative::RigModel;
 use crate::sensors::yei::device::host_monotonic_ns;
 use crate::sensors::ImuSample;
 
@@ -25,7 +37,8 @@ const CHANNEL_BOUND: usize = 4096;
 enum Record {
     Imu(ImuSample, i64),
     Frame(FrameItem, i64),
-    Pose(RecordedPose, i64),
+    Pose(Box<RecordedPose>, i64),
+    Status(StatusProto, i64),
 }
 
 /// The producers' end; cheap to clone.
@@ -57,7 +70,13 @@ impl RecordSender {
     /// Hands a published pose to the recorder, stamped with the host's `CLOCK_MONOTONIC` now;
     /// dropped and counted if the channel is full.
     pub fn pose(&self, pose: RecordedPose) {
-        self.send(Record::Pose(pose, host_monotonic_ns()));
+        self.send(Record::Pose(Box::new(pose), host_monotonic_ns()));
+    }
+
+    /// Hands a status to the recorder; dropped and counted if the channel
+    /// is full.
+    pub fn status(&self, status: StatusProto) {
+        self.send(Record::Status(status, host_monotonic_ns()));
     }
 
     /// Records dropped because the recorder was behind.
@@ -73,10 +92,12 @@ pub type RecorderThread = JoinHandle<Result<Vec<PathBuf>, RecordingError>>;
 /// [`RecordSender`] is dropped.
 ///
 /// `attachments` (name, bytes) go into every file, so that each one
-/// replays on its own (the rig's calibration).
+/// replays on its own (the rig's calibration); `rig` gives each file its
+/// camera calibrations and the body's static transforms.
 pub fn spawn_recorder(
     config: RecordingConfig,
     attachments: crate::recording::Attachments,
+    rig: RigModel,
 ) -> Result<(RecordSender, RecorderThread), RecordingError> {
     std::fs::create_dir_all(&config.dir).map_err(|source| RecordingError::Create {
         path: config.dir.clone(),
@@ -85,7 +106,7 @@ pub fn spawn_recorder(
     let (tx, rx) = mpsc::sync_channel(CHANNEL_BOUND);
     let handle = std::thread::Builder::new()
         .name("recorder".into())
-        .spawn(move || record_loop(&config, &attachments, rx))
+        .spawn(move || record_loop(&config, &attachments, &rig, rx))
         .map_err(|source| RecordingError::Create {
             path: PathBuf::from("(recorder thread)"),
             source,
@@ -102,12 +123,25 @@ pub fn spawn_recorder(
 struct OpenFile {
     recorder: McapRecorder,
     imu: ChannelId,
-    cam0: ChannelId,
-    cam1: ChannelId,
+    cams: [ChannelId; 2],
     pose: ChannelId,
+    pose_map: ChannelId,
+    pose_odom: ChannelId,
+    tf: ChannelId,
+    status: ChannelId,
 }
 
-fn open_file(dir: &Path, attachments: &[(String, Vec<u8>)]) -> Result<OpenFile, RecordingError> {
+/// Frame ids of the transform tree (REP-105).
+const MAP: &str = "map";
+const ODOM: &str = "odom";
+const BODY: &str = "body";
+
+fn open_file(
+    dir: &Path,
+    compression: crate::recording::Compression,
+    attachments: &[(String, Vec<u8>)],
+    rig: &RigModel,
+) -> Result<OpenFile, RecordingError> {
     // Wall-clock-free name: the next free number, so files sort by age.
     let next = list_recordings(dir)
         .iter()
@@ -115,22 +149,174 @@ fn open_file(dir: &Path, attachments: &[(String, Vec<u8>)]) -> Result<OpenFile, 
         .max()
         .map_or(0, |n| n + 1);
     let path = dir.join(format!("rigslam-{next:06}.mcap"));
-    let mut recorder = McapRecorder::create(&path)?;
-    let imu = recorder.add_imu_channel("/imu0", &Default::default())?;
-    let cam0 = recorder.add_image_channel("/cam0")?;
-    let cam1 = recorder.add_image_channel("/cam1")?;
-    let pose = recorder.add_pose_channel("/rigslam/pose")?;
+    let mut recorder = McapRecorder::create(&path, compression)?;
     for (name, data) in attachments {
         recorder.attach(name, "application/x-yaml", data)?;
     }
+    let none = Default::default();
+    let imu = recorder.add_imu_channel("/imu0", &none)?;
+    let cams = [
+        recorder.add_image_channel("/cam0")?,
+        recorder.add_image_channel("/cam1")?,
+    ];
+    let pose = recorder.add_pose_channel("/rigslam/pose")?;
+    let pose_map = recorder.add_channel::<PoseInFrame>("/rigslam/pose_map", &none)?;
+    let pose_odom = recorder.add_channel::<PoseInFrame>("/rigslam/pose_odom", &none)?;
+    let tf = recorder.add_channel::<FrameTransforms>("/tf", &none)?;
+    let status = recorder.add_channel::<StatusProto>("/rigslam/status", &none)?;
+    // What does not change while the file is written: the cameras'
+    // calibrations and where the sensors sit on the body, stamped 0 so
+    // that they hold from the start.
+    let now = host_monotonic_ns();
+    let mut statics = Vec::new();
+    for (i, camera) in rig.cameras.iter().enumerate().take(2) {
+        let name = format!("cam{i}");
+        let channel =
+            recorder.add_channel::<CameraCalibration>(&format!("/{name}/calibration"), &none)?;
+        recorder.write(channel, &camera_calibration(camera, &name), now)?;
+        statics.push(transform(0, BODY, &name, &camera.T_body_cam));
+    }
+    if let Some(imu) = &rig.imu {
+        statics.push(transform(0, BODY, "imu", &imu.T_body_imu));
+    }
+    recorder.write(
+        tf,
+        &FrameTransforms {
+            transforms: statics,
+        },
+        now,
+    )?;
     tracing::info!("recording to {}", path.display());
     Ok(OpenFile {
         recorder,
         imu,
-        cam0,
-        cam1,
+        cams,
         pose,
+        pose_map,
+        pose_odom,
+        tf,
+        status,
     })
+}
+
+/// A camera's calibration as Foxglove's image and 3D panels read it
+/// (ROS's `CameraInfo` conventions: `plumb_bob` is OpenCV's k1, k2, p1,
+/// p2, k3; `kannala_brandt` the equidistant k1..k4).
+fn camera_calibration(camera: &crate::rig::CameraCalibration, frame_id: &str) -> CameraCalibration {
+    let model = &camera.model;
+    let [fx, fy, cx, cy] = model.pinhole();
+    let distortion_model = match model {
+        crate::camera::CameraModel::PinholeRadtan(_) => "plumb_bob",
+        crate::camera::CameraModel::PinholeEquidistant(_) => "kannala_brandt",
+    };
+    CameraCalibration {
+        timestamp: Some(timestamp(0)),
+        frame_id: frame_id.to_owned(),
+        width: model.width(),
+        height: model.height(),
+        distortion_model: distortion_model.to_owned(),
+        d: model.distortion_coefficients(),
+        k: vec![fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0],
+        r: vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        p: vec![fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+    }
+}
+
+/// `parent <- child` (maps child coordinates into the parent frame).
+fn transform(t_ns: i64, parent: &str, child: &str, pose: &Isometry3<f64>) -> FrameTransform {
+    let t = pose.translation.vector;
+    let q = pose.rotation.coords;
+    FrameTransform {
+        timestamp: Some(timestamp(t_ns)),
+        parent_frame_id: parent.to_owned(),
+        child_frame_id: child.to_owned(),
+        translation: Some(foxglove::messages::Vector3 {
+            x: t.x,
+            y: t.y,
+            z: t.z,
+        }),
+        rotation: Some(foxglove::messages::Quaternion {
+            x: q.x,
+            y: q.y,
+            z: q.z,
+            w: q.w,
+        }),
+    }
+}
+
+/// A pose for the 3D panel.
+fn pose_in_frame(t_ns: i64, frame: &str, p: [f64; 3], q: [f64; 4]) -> PoseInFrame {
+    PoseInFrame {
+        timestamp: Some(timestamp(t_ns)),
+        frame_id: frame.to_owned(),
+        pose: Some(foxglove::messages::Pose {
+            position: Some(foxglove::messages::Vector3 {
+                x: p[0],
+                y: p[1],
+                z: p[2],
+            }),
+            orientation: Some(foxglove::messages::Quaternion {
+                x: q[0],
+                y: q[1],
+                z: q[2],
+                w: q[3],
+            }),
+        }),
+    }
+}
+
+/// An isometry from a translation and an x, y, z, w quaternion.
+fn isometry(t: [f64; 3], q: [f64; 4]) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        nalgebra::Translation3::new(t[0], t[1], t[2]),
+        nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+            q[3], q[0], q[1], q[2],
+        )),
+    )
+}
+
+impl OpenFile {
+    fn write_pose(&mut self, p: &RecordedPose, receipt: i64) -> Result<(), RecordingError> {
+        let r = &mut self.recorder;
+        r.write_pose(self.pose, p, receipt)?;
+        r.write(
+            self.pose_map,
+            &pose_in_frame(
+                p.t_ns,
+                MAP,
+                p.position_world_m,
+                p.orientation_world_body_xyzw,
+            ),
+            receipt,
+        )?;
+        r.write(
+            self.pose_odom,
+            &pose_in_frame(
+                p.t_ns,
+                ODOM,
+                p.position_odom_m,
+                p.orientation_odom_body_xyzw,
+            ),
+            receipt,
+        )?;
+        let tree = FrameTransforms {
+            transforms: vec![
+                transform(
+                    p.t_ns,
+                    MAP,
+                    ODOM,
+                    &isometry(p.translation_world_odom_m, p.rotation_world_odom_xyzw),
+                ),
+                transform(
+                    p.t_ns,
+                    ODOM,
+                    BODY,
+                    &isometry(p.position_odom_m, p.orientation_odom_body_xyzw),
+                ),
+            ],
+        };
+        r.write(self.tf, &tree, receipt)
+    }
 }
 
 fn number_of(path: &Path) -> Option<u64> {
@@ -180,28 +366,31 @@ fn enforce_budget(dir: &Path, budget: u64, reserve: u64) {
 fn record_loop(
     config: &RecordingConfig,
     attachments: &[(String, Vec<u8>)],
+    rig: &RigModel,
     rx: Receiver<Record>,
 ) -> Result<Vec<PathBuf>, RecordingError> {
     let rotate = config.rotate_mib.max(1) << 20;
     let budget = config.budget_mib << 20;
+    let open = || open_file(&config.dir, config.compression, attachments, rig);
     enforce_budget(&config.dir, budget, rotate);
-    let mut file = open_file(&config.dir, attachments)?;
+    let mut file = open()?;
     let mut closed = Vec::new();
     for record in rx {
         match record {
             Record::Imu(s, receipt) => file.recorder.write_imu(file.imu, &s, receipt)?,
             Record::Frame(f, receipt) => {
                 file.recorder
-                    .write_image(file.cam0, f.t_ns, &f.left.image, "cam0", receipt)?;
+                    .write_image(file.cams[0], f.t_ns, &f.left.image, "cam0", receipt)?;
                 if let Some(r) = &f.right {
                     file.recorder
-                        .write_image(file.cam1, f.t_ns, &r.image, "cam1", receipt)?;
+                        .write_image(file.cams[1], f.t_ns, &r.image, "cam1", receipt)?;
                 }
             }
-            Record::Pose(p, receipt) => file.recorder.write_pose(file.pose, &p, receipt)?,
+            Record::Pose(p, receipt) => file.write_pose(&p, receipt)?,
+            Record::Status(s, receipt) => file.recorder.write(file.status, &s, receipt)?,
         }
-        if file.recorder.message_bytes() >= rotate {
-            let next = open_file(&config.dir, attachments)?;
+        if file.recorder.bytes() >= rotate {
+            let next = open()?;
             let done = std::mem::replace(&mut file, next);
             closed.push(done.recorder.finish()?);
             enforce_budget(&config.dir, budget, rotate);
@@ -244,8 +433,13 @@ mod tests {
             dir: dir.path().to_path_buf(),
             budget_mib: 3,
             rotate_mib: 1,
+            compression: crate::recording::Compression::None,
         };
-        let (tx, handle) = spawn_recorder(config, vec![]).expect("recorder");
+        let rig = RigModel {
+            cameras: vec![],
+            imu: None,
+        };
+        let (tx, handle) = spawn_recorder(config, vec![], rig).expect("recorder");
         for i in 0..12 {
             tx.frame(&frame(i * 50_000_000));
             tx.imu(&ImuSample {

@@ -23,6 +23,25 @@ use super::queue::{BoundedQueue, Pushed};
 use super::slam_stage::FrameItem;
 use super::Doorbell;
 
+/// Says in the log what a replayed recording was missing: a file cut
+/// short plays as far as it goes, a damaged chunk is skipped.
+fn report_file_end(path: &std::path::Path, end: &crate::recording::ReplayEnd) {
+    if let crate::recording::FileEnd::Cut { .. } = end.file.end {
+        tracing::warn!(
+            "replay: {} is {}; replayed the {} events it holds ({} messages). \
+             `rigslamd --repair {}` rewrites it as a closed file",
+            path.display(),
+            end.file.end,
+            end.events,
+            end.file.messages,
+            path.display()
+        );
+    }
+    for skipped in &end.file.skipped {
+        tracing::warn!("replay: {}: {skipped}", path.display());
+    }
+}
+
 /// What every source thread shares.
 #[derive(Clone)]
 pub struct SourceLinks {
@@ -258,7 +277,7 @@ fn replay_loop(replay: &ReplayConfig, mode: SensorMode, links: &SourceLinks) -> 
                     stereo: mode.uses_stereo(),
                     imu: mode.uses_imu(),
                 };
-                for_each_sensor_event(path, topics, |item| {
+                let end = for_each_sensor_event(path, topics, |item| {
                     let event = match item {
                         ReplayItem::Event(e) => e,
                         ReplayItem::Skipped(m) => {
@@ -276,6 +295,16 @@ fn replay_loop(replay: &ReplayConfig, mode: SensorMode, links: &SourceLinks) -> 
                     stopped = flow.is_break();
                     flow
                 })?;
+                // Only the first loop says what the file is missing.
+                if k == 0 {
+                    report_file_end(path, &end);
+                    let h = &player.links.health;
+                    if end.file.end != crate::recording::FileEnd::Complete {
+                        h.replay_cut.store(true, Ordering::Relaxed);
+                    }
+                    h.replay_damaged
+                        .store(end.file.skipped.len() as u64, Ordering::Relaxed);
+                }
                 stopped
             }
         };

@@ -13,7 +13,7 @@
 //! a cut-off file, unknown channels) the crate still reports.
 
 /// MCAP's magic, at both ends of the file.
-const MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
+pub(super) const MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
 
 const HEADER: u8 = 0x01;
 const FOOTER: u8 = 0x02;
@@ -29,7 +29,7 @@ const METADATA: u8 = 0x0C;
 const METADATA_INDEX: u8 = 0x0D;
 
 /// Opcode and length before every record's body.
-const RECORD_HEADER: usize = 9;
+pub(super) const RECORD_HEADER: usize = 9;
 
 /// Why a file is refused: the byte offset of the record (or field) and
 /// what does not fit.
@@ -161,17 +161,20 @@ fn check_record(opcode: u8, body: &[u8], at: usize, cut: bool) -> Result<(), Ref
         }
         CHUNK => {
             field!(b.fixed(28));
-            field!(b.string("compression"));
-            // The crate streams a chunk's records as they come, so those of
-            // a chunk cut off with its file are parsed too.
-            // A record may only run past the chunk's end where the file
-            // ends too: the crate reads on past the chunk (see above).
+            let compression = field!(b.prefixed(4, "compression"));
             let (records, whole) = if cut {
                 field!(b.prefixed_cut())
             } else {
                 (field!(b.prefixed(8, "chunk records")), true)
             };
-            walk(records, at + b.pos - records.len(), whole, true)?;
+            // A compressed chunk's records are checked once decompressed
+            // (`check_chunk_records`).
+            if compression.is_empty() {
+                // Records of a chunk cut off with its file are read too. A
+                // record may only run past the chunk's end where the file
+                // ends too.
+                walk(records, at + b.pos - records.len(), whole, true)?;
+            }
         }
         MESSAGE_INDEX => {
             field!(b.fixed(2));
@@ -298,6 +301,18 @@ fn walk(bytes: &[u8], at: usize, complete: bool, in_chunk: bool) -> Result<(), R
     Ok(())
 }
 
+/// Checks the records of a decompressed chunk (which starts at byte
+/// `at` of the file): each must fit the chunk whole.
+pub(super) fn check_chunk_records(records: &[u8], at: usize) -> Result<(), Refusal> {
+    walk(records, at, true, true)
+}
+
+/// Checks the length fields of one whole top-level record (its body, which
+/// starts at byte `at` of the file), before the crate parses it.
+pub(super) fn check_whole_record(opcode: u8, body: &[u8], at: usize) -> Result<(), Refusal> {
+    check_record(opcode, body, at, false)
+}
+
 /// Checks every length field the crate will trust: in the records it
 /// reads from the start, and in those its summary reader reads from
 /// wherever the footer's summary start points to the end of the file.
@@ -349,6 +364,7 @@ mod tests {
     use std::path::Path;
 
     use super::super::{read_attachments_in, read_imu_channel_in, McapRecorder, RecordingError};
+    use super::{MAGIC, RECORD_HEADER};
     use crate::sensors::ImuSample;
 
     /// A small closed recording: an IMU channel with three samples and an
@@ -356,7 +372,7 @@ mod tests {
     fn recording() -> Vec<u8> {
         let dir = tempfile::tempdir().expect("temp dir");
         let path = dir.path().join("r.mcap");
-        let mut rec = McapRecorder::create(&path).expect("create");
+        let mut rec = McapRecorder::create(&path, super::super::Compression::None).expect("create");
         let imu = rec
             .add_imu_channel("/imu0", &BTreeMap::new())
             .expect("channel");
@@ -383,6 +399,23 @@ mod tests {
             .windows(needle.len())
             .position(|w| w == needle)
             .expect("present")
+    }
+
+    /// The first top-level record with `opcode`, by walking the records.
+    fn first_record(bytes: &[u8], opcode: u8) -> usize {
+        let mut pos = MAGIC.len();
+        while bytes[pos] != opcode {
+            let len = u64::from_le_bytes(bytes[pos + 1..pos + 9].try_into().expect("8"));
+            pos += RECORD_HEADER + len as usize;
+        }
+        pos
+    }
+
+    /// What `check` refuses; the reader walks the same bytes without a
+    /// panic (it skips what it cannot read, or stops where the file ends).
+    fn refused(bytes: &[u8]) -> (u64, String) {
+        let _ = read_imu_channel_in(bytes, Path::new("r.mcap"), "/imu0");
+        super::check(bytes).expect_err("refused")
     }
 
     fn malformed(e: RecordingError) -> (u64, String) {
@@ -414,12 +447,18 @@ mod tests {
         // The topic of the channel record in the data section: u32 length 5.
         let at = find(&bytes, b"\x05\x00\x00\x00/imu0");
         bytes[at..at + 4].copy_from_slice(&u32::MAX.to_le_bytes());
-        let e = read_imu_channel_in(&bytes, Path::new("r.mcap"), "/imu0").unwrap_err();
-        let message = e.to_string();
-        let (offset, _) = malformed(e);
+        let (offset, message) = refused(&bytes);
         assert_eq!(offset, at as u64);
         assert!(
-            message.starts_with("r.mcap: malformed MCAP: record 0x04")
+            message.starts_with("record 0x04")
+                && message.contains(&format!("topic of 4294967295 bytes at byte {at}")),
+            "{message}"
+        );
+        // Reading the channel names the damaged chunk.
+        let e = read_imu_channel_in(&bytes, Path::new("r.mcap"), "/imu0").unwrap_err();
+        let message = e.to_string();
+        assert!(
+            message.starts_with("r.mcap: malformed MCAP: chunk at byte")
                 && message.contains(&format!("topic of 4294967295 bytes at byte {at}")),
             "{message}"
         );
@@ -433,8 +472,7 @@ mod tests {
         let at = find(&bytes, b"\x05\x00\x00\x00/imu0");
         bytes[at..at + 4].copy_from_slice(&u32::MAX.to_le_bytes());
         bytes.truncate(at + 100);
-        let e = read_imu_channel_in(&bytes, Path::new("r.mcap"), "/imu0").unwrap_err();
-        let (offset, reason) = malformed(e);
+        let (offset, reason) = refused(&bytes);
         assert_eq!(offset, at as u64);
         assert!(reason.contains("topic"), "{reason}");
     }
@@ -446,13 +484,11 @@ mod tests {
         let mut bytes = recording();
         // The chunk's records length (after the 28 fixed bytes and the
         // empty compression string) made 23, then the file cut off.
-        let chunk = find(&bytes, b"\x06");
-        assert_eq!(chunk, 39, "the chunk follows the 31-byte header record");
+        let chunk = first_record(&bytes, 0x06);
         let at = chunk + 9 + 28 + 4;
         bytes[at..at + 8].copy_from_slice(&23u64.to_le_bytes());
-        bytes.truncate(500);
-        let e = read_imu_channel_in(&bytes, Path::new("r.mcap"), "/imu0").unwrap_err();
-        let (offset, reason) = malformed(e);
+        bytes.truncate(chunk + 9 + 28 + 4 + 8 + 23 + 14);
+        let (offset, reason) = refused(&bytes);
         assert_eq!(offset, at as u64 + 8);
         assert!(
             reason.contains("claims") && reason.contains("14 are left"),
@@ -467,8 +503,7 @@ mod tests {
         let mut bytes = recording();
         // The header record's length, right after the magic and opcode.
         bytes[9..17].copy_from_slice(&u64::MAX.to_le_bytes());
-        let e = read_imu_channel_in(&bytes, Path::new("r.mcap"), "/imu0").unwrap_err();
-        let (offset, reason) = malformed(e);
+        let (offset, reason) = refused(&bytes);
         assert_eq!(offset, 8);
         assert!(
             reason.contains("claims 18446744073709551615 bytes"),
@@ -482,7 +517,7 @@ mod tests {
     #[test]
     fn a_chunk_header_longer_than_its_record_is_refused() {
         let mut bytes = recording();
-        let chunk = find(&bytes, b"\x06");
+        let chunk = first_record(&bytes, 0x06);
         bytes[chunk + 1..chunk + 9].copy_from_slice(&0u64.to_le_bytes());
         bytes[chunk + 9 + 28..chunk + 9 + 32].copy_from_slice(&0x6800_0000u32.to_le_bytes());
         let e = super::super::channel_counts_in(&bytes, Path::new("r.mcap")).unwrap_err();
@@ -501,7 +536,7 @@ mod tests {
     fn a_map_entry_past_the_map_is_checked_against_the_record() {
         let dir = tempfile::tempdir().expect("temp dir");
         let path = dir.path().join("m.mcap");
-        let mut rec = McapRecorder::create(&path).expect("create");
+        let mut rec = McapRecorder::create(&path, super::super::Compression::None).expect("create");
         let meta = BTreeMap::from([
             ("a".to_string(), "b".to_string()),
             ("k".to_string(), "v".to_string()),
@@ -547,12 +582,18 @@ mod tests {
     #[test]
     fn a_record_running_past_its_chunk_is_refused() {
         let mut bytes = recording();
-        // The first message record (opcode 5) inside the chunk: its length.
-        let at = find(&bytes, b"{\"t_ns\":1000") - 22 - 8;
-        assert_eq!(bytes[at - 1], 0x05);
+        // The first message record (opcode 5) inside the chunk (after its
+        // 28 fixed bytes, the empty compression string and the records'
+        // length): its length.
+        let chunk = first_record(&bytes, 0x06);
+        let mut pos = chunk + 9 + 28 + 4 + 8;
+        while bytes[pos] != 0x05 {
+            let len = u64::from_le_bytes(bytes[pos + 1..pos + 9].try_into().expect("8"));
+            pos += RECORD_HEADER + len as usize;
+        }
+        let at = pos + 1;
         bytes[at..at + 8].copy_from_slice(&(1u64 << 40).to_le_bytes());
-        let e = read_imu_channel_in(&bytes, Path::new("r.mcap"), "/imu0").unwrap_err();
-        let (offset, reason) = malformed(e);
+        let (offset, reason) = refused(&bytes);
         assert_eq!(offset, at as u64 - 1);
         assert!(reason.contains("claims 1099511627776 bytes"), "{reason}");
     }

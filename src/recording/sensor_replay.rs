@@ -6,9 +6,11 @@
 use std::ops::ControlFlow;
 use std::path::Path;
 
-use rigslam_drivers::{Frame, Image, ImuSample};
+use rigslam_drivers::{Frame, Image};
 
-use super::{ImageJson, ImuMessage, RecordingError};
+use super::json_v1::RawFrame;
+use super::reader::{self, Item, MessageView, WalkReport};
+use super::RecordingError;
 use crate::dataset::euroc::sensor_yaml::{camera_yaml, imu_yaml};
 use crate::dataset::SensorEvent;
 use crate::relative::{RigModel, SensorMode};
@@ -168,12 +170,22 @@ impl std::fmt::Display for SkippedMessage {
     }
 }
 
+/// How a replay of a recording ended.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ReplayEnd {
+    /// IMU samples and frames handed over.
+    pub events: u64,
+    /// How far the file could be read, and what was skipped.
+    pub file: WalkReport,
+}
+
 /// Calls `f` with every IMU sample and frame of the recording at `path`,
 /// in file order, until the file ends or `f` breaks. A message that does
 /// not decode, and a stereo half without its partner, reach `f` as
-/// [`ReplayItem::Skipped`] and the replay goes on; an error is returned
-/// only when the file itself cannot be read on. Returns the number of
-/// events handed over.
+/// [`ReplayItem::Skipped`] and the replay goes on. A file cut short plays
+/// as far as its bytes go and a damaged chunk is skipped: the returned
+/// [`ReplayEnd`] says so. An error is returned only when the file is not
+/// an MCAP file at all or cannot be read.
 ///
 /// The file is read into memory whole (the recorder rotates its files at
 /// `rotate_mib`, 256 MiB by default).
@@ -181,7 +193,7 @@ pub fn for_each_sensor_event(
     path: &Path,
     topics: SensorTopics,
     f: impl FnMut(ReplayItem) -> ControlFlow<()>,
-) -> Result<u64, RecordingError> {
+) -> Result<ReplayEnd, RecordingError> {
     for_each_sensor_event_in(&super::read_bytes(path)?, path, topics, f)
 }
 
@@ -192,13 +204,7 @@ pub fn for_each_sensor_event_in(
     path: &Path,
     topics: SensorTopics,
     mut f: impl FnMut(ReplayItem) -> ControlFlow<()>,
-) -> Result<u64, RecordingError> {
-    let mcap_err = |source| RecordingError::Mcap {
-        path: path.to_path_buf(),
-        source,
-    };
-    super::check_bounds(bytes, path)?;
-    let stream = mcap::MessageStream::new(bytes).map_err(mcap_err)?;
+) -> Result<ReplayEnd, RecordingError> {
     // The left image waiting for its right one: (frame, sequence).
     let mut left: Option<(Frame, u32)> = None;
     let mut count = 0u64;
@@ -209,56 +215,40 @@ pub fn for_each_sensor_event_in(
             t_ns: frame.t_ns,
         })
     };
-    for message in stream {
-        let message = message.map_err(mcap_err)?;
-        let topic = message.channel.topic.as_str();
-        let bad = |source| RecordingError::BadMessage {
-            path: path.to_path_buf(),
-            topic: topic.to_string(),
-            sequence: message.sequence,
-            source,
+    let file = reader::walk(bytes, path, |item| {
+        let Item::Message(message) = item else {
+            return ControlFlow::Continue(());
         };
-        let unreadable = |image, error| {
+        let topic = message.channel.topic.as_str();
+        let unreadable = |image, reason| {
             Some(ReplayItem::Skipped(SkippedMessage::Unreadable {
                 image,
-                error,
+                error: RecordingError::BadMessage {
+                    path: path.to_path_buf(),
+                    topic: topic.to_string(),
+                    sequence: message.sequence,
+                    reason,
+                },
             }))
         };
         let mut items: [Option<ReplayItem>; 2] = [None, None];
         match topic {
             "/imu0" if topics.imu => {
-                items[0] = match serde_json::from_slice::<ImuMessage>(&message.data) {
-                    Ok(m) => Some(ReplayItem::Event(SensorEvent::Imu(ImuSample {
-                        t_ns: m.t_ns,
-                        gyro_rad_s: m.gyro_rad_s,
-                        accel_m_s2: m.accel_m_s2,
-                    }))),
-                    Err(e) => unreadable(false, bad(e)),
+                items[0] = match super::decode_imu(&message) {
+                    Ok(s) => Some(ReplayItem::Event(SensorEvent::Imu(s))),
+                    Err(e) => unreadable(false, e),
                 };
             }
             "/cam0" | "/cam1" if topic == "/cam0" || topics.stereo => {
                 let index = u8::from(topic == "/cam1");
-                let frame = serde_json::from_slice::<ImageJson>(&message.data)
-                    .map_err(bad)
-                    .and_then(|m| {
-                        decode_frame(&m, index).map_err(|reason| RecordingError::BadImage {
-                            path: path.to_path_buf(),
-                            topic: topic.to_string(),
-                            sequence: message.sequence,
-                            reason,
-                        })
-                    });
-                let frame = match frame {
+                let frame = match decode_image(&message).and_then(|m| decode_frame(m, index)) {
                     Ok(frame) => frame,
-                    Err(error) => {
-                        items[0] = unreadable(true, error);
+                    Err(reason) => {
+                        items[0] = unreadable(true, reason);
                         // A right image that does not decode leaves its
                         // left one waiting (counted when the next left
                         // one replaces it).
-                        if emit(&mut f, items, &mut count).is_break() {
-                            return Ok(count);
-                        }
-                        continue;
+                        return emit(&mut f, items, &mut count);
                     }
                 };
                 match (index, topics.stereo) {
@@ -294,14 +284,42 @@ pub fn for_each_sensor_event_in(
             }
             _ => {}
         }
-        if emit(&mut f, items, &mut count).is_break() {
-            return Ok(count);
-        }
-    }
+        emit(&mut f, items, &mut count)
+    })?;
     if let Some(l) = left.take() {
         let _ = emit(&mut f, [Some(unpaired("/cam0", l)), None], &mut count);
     }
-    Ok(count)
+    Ok(ReplayEnd {
+        events: count,
+        file,
+    })
+}
+
+/// An image message of either layout (`foxglove.RawImage` in protobuf, or
+/// in the older JSON).
+fn decode_image(m: &MessageView<'_>) -> Result<RawFrame, String> {
+    match m.channel.message_encoding.as_str() {
+        "protobuf" => {
+            let image: foxglove::messages::RawImage =
+                prost::Message::decode(m.data).map_err(|e| e.to_string())?;
+            Ok(RawFrame {
+                t_ns: image
+                    .timestamp
+                    .as_ref()
+                    .map(super::schemas::timestamp_ns)
+                    .ok_or("the image has no timestamp")?,
+                width: image.width,
+                height: image.height,
+                step: image.step,
+                encoding: image.encoding,
+                data: image.data.to_vec(),
+            })
+        }
+        "json" => super::json_v1::image(m.data),
+        other => Err(format!(
+            "message encoding {other:?} is not one rigslam wrote"
+        )),
+    }
 }
 
 /// Hands `items` to `f` in order, counting events; stops when `f` breaks.
@@ -319,17 +337,16 @@ fn emit(
     ControlFlow::Continue(())
 }
 
-/// A `foxglove.RawImage` as the recorder writes it (mono8, base64).
-fn decode_frame(m: &ImageJson, camera_index: u8) -> Result<Frame, String> {
+/// A frame from an 8-bit grey image (what the recorder writes).
+fn decode_frame(m: RawFrame, camera_index: u8) -> Result<Frame, String> {
     if m.encoding != "mono8" {
         return Err(format!("encoding {:?}: only mono8 is replayed", m.encoding));
     }
-    let data = base64_decode(&m.data)?;
     let (w, h, step) = (m.width as usize, m.height as usize, m.step as usize);
-    if step < w || data.len() < step * h {
+    if step < w || m.data.len() < step * h {
         return Err(format!(
             "{} bytes for {}x{} with step {}",
-            data.len(),
+            m.data.len(),
             m.width,
             m.height,
             m.step
@@ -340,90 +357,13 @@ fn decode_frame(m: &ImageJson, camera_index: u8) -> Result<Frame, String> {
         m.height,
         step,
         rigslam_drivers::PixelFormat::Mono8,
-        data.into(),
+        m.data.into(),
     )
     .map_err(|e| e.to_string())?;
-    let t_ns = m
-        .timestamp
-        .sec
-        .checked_mul(1_000_000_000)
-        .and_then(|s| s.checked_add(m.timestamp.nsec))
-        .ok_or_else(|| {
-            format!(
-                "timestamp {}.{} s is out of range",
-                m.timestamp.sec, m.timestamp.nsec
-            )
-        })?;
     Ok(Frame {
-        t_ns,
+        t_ns: m.t_ns,
         seq: 0,
         camera_index,
         image,
     })
-}
-
-/// Standard base64 with padding (what [`super::base64_encode`] writes).
-fn base64_decode(text: &str) -> Result<Vec<u8>, String> {
-    let value = |c: u8| -> Result<u32, String> {
-        Ok(match c {
-            b'A'..=b'Z' => c - b'A',
-            b'a'..=b'z' => c - b'a' + 26,
-            b'0'..=b'9' => c - b'0' + 52,
-            b'+' => 62,
-            b'/' => 63,
-            _ => return Err(format!("byte {c:#04x} is not base64")),
-        } as u32)
-    };
-    let bytes = text.as_bytes();
-    if bytes.len() % 4 != 0 {
-        return Err(format!(
-            "base64 length {} is not a multiple of 4",
-            bytes.len()
-        ));
-    }
-    let mut out = Vec::with_capacity(bytes.len() / 4 * 3);
-    for (i, chunk) in bytes.chunks(4).enumerate() {
-        let last = i + 1 == bytes.len() / 4;
-        let pad = chunk.iter().rev().take_while(|&&c| c == b'=').count();
-        if pad > 2 || (pad > 0 && !last) {
-            return Err("misplaced base64 padding".into());
-        }
-        let mut n = 0u32;
-        for &c in &chunk[..4 - pad] {
-            n = (n << 6) | value(c)?;
-        }
-        n <<= 6 * pad as u32;
-        let got = [(n >> 16) as u8, (n >> 8) as u8, n as u8];
-        out.extend_from_slice(&got[..3 - pad]);
-    }
-    Ok(out)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn base64_round_trips_every_length() {
-        for len in 0..20 {
-            let bytes: Vec<u8> = (0..len).map(|i| (i * 37 + 11) as u8).collect();
-            let text = super::super::base64_encode(&bytes);
-            assert_eq!(base64_decode(&text), Ok(bytes), "length {len}");
-        }
-    }
-
-    #[test]
-    fn base64_refuses_garbage() {
-        assert!(base64_decode("abc").is_err());
-        assert!(base64_decode("ab!d").is_err());
-        assert!(base64_decode("a===").is_err());
-        assert!(base64_decode("ab==abcd").is_err());
-    }
-
-    #[test]
-    fn mcap_by_extension() {
-        assert!(is_mcap(Path::new("/x/rigslam-000001.mcap")));
-        assert!(is_mcap(Path::new("a.MCAP")));
-        assert!(!is_mcap(Path::new("/data/euroc/V1_01")));
-    }
 }

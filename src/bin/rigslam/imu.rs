@@ -108,7 +108,7 @@ pub fn run(args: ImuArgs) -> anyhow::Result<()> {
     }
     let mut recorder = match &args.record {
         Some(path) => {
-            let mut rec = McapRecorder::create(path)?;
+            let mut rec = McapRecorder::create(path, rigslam::recording::Compression::Zstd)?;
             let meta = BTreeMap::from([
                 ("device".to_string(), "YEI 3-Space".to_string()),
                 ("serial".to_string(), identity.serial_hex()),

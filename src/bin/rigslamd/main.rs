@@ -57,6 +57,15 @@ struct Args {
     /// At exit, write a JSON report (counts, latencies, CPU) to this file.
     #[arg(long)]
     report: Option<PathBuf>,
+    /// Rewrite a recording cut short (power loss, SIGKILL) or damaged as a
+    /// closed, indexed MCAP file with everything it still holds, then
+    /// exit. The original is left as it is; the new file goes beside it
+    /// as NAME.repaired.mcap (or to --repair-to).
+    #[arg(long, value_name = "MCAP", conflicts_with_all = ["config", "replay", "check_config"])]
+    repair: Option<PathBuf>,
+    /// With --repair: where the repaired file goes.
+    #[arg(long, value_name = "MCAP", requires = "repair")]
+    repair_to: Option<PathBuf>,
 }
 
 fn main() -> std::process::ExitCode {
@@ -83,6 +92,32 @@ fn main() -> std::process::ExitCode {
 fn colour_wanted() -> bool {
     use std::io::IsTerminal;
     std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").map_or(true, |v| v.is_empty())
+}
+
+/// `--repair`: what the file held, what was lost, where the new one is.
+fn repair(
+    source: &std::path::Path,
+    target: Option<&std::path::Path>,
+) -> anyhow::Result<std::process::ExitCode> {
+    let target = target.map_or_else(
+        || rigslam::recording::repair::repaired_name(source),
+        std::path::Path::to_path_buf,
+    );
+    let done = rigslam::recording::repair::repair(source, &target)?;
+    println!("{}: {}", source.display(), done.source.end);
+    for skipped in &done.source.skipped {
+        println!("  skipped: {skipped}");
+    }
+    let total: u64 = done.messages.values().sum();
+    println!(
+        "recovered {total} messages and {} attachment(s):",
+        done.attachments
+    );
+    for (topic, n) in &done.messages {
+        println!("  {topic}: {n}");
+    }
+    println!("wrote {}", done.path.display());
+    Ok(std::process::ExitCode::SUCCESS)
 }
 
 fn load(args: &Args) -> anyhow::Result<(DaemonConfig, PathBuf)> {
@@ -132,6 +167,9 @@ fn load(args: &Args) -> anyhow::Result<(DaemonConfig, PathBuf)> {
 }
 
 fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
+    if let Some(source) = &args.repair {
+        return repair(source, args.repair_to.as_deref());
+    }
     let (config, file) = load(&args)?;
     let rig = match check(&config, &file) {
         Ok(rig) => rig,

@@ -1,0 +1,291 @@
+//! Recordings as other tools read them. The Python `mcap` package (the
+//! MCAP project's own reader, with `mcap-protobuf-support` decoding every
+//! message through the descriptors the file carries) reads a recording
+//! `rigslamd` made, with CRC checks on, through its summary and indexes
+//! and again as a stream, and must find what rigslam's own reader finds:
+//! the same messages on every channel, the same values, images with the
+//! same pixels. `tests/readers/check_mcap.py` is the Python side.
+//!
+//! It needs a Python with those packages: `RIGSLAM_PYTHON`, which
+//! `scripts/test` points at the venv it makes in `target/py`. Without one
+//! the test skips, except with `CI` set.
+
+use std::collections::BTreeMap;
+use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use rigslam::dataset::SensorEvent;
+use rigslam::recording::{
+    for_each_sensor_event, read_imu_channel, read_pose_channel, Compression, McapRecorder,
+    ReplayItem, SensorTopics,
+};
+use rigslam::shared_data;
+use serde_json::Value;
+
+/// A Python that imports the MCAP readers, or `None` (skip) outside CI.
+fn python() -> Option<PathBuf> {
+    let candidate = std::env::var_os("RIGSLAM_PYTHON").map(PathBuf::from);
+    let usable = candidate.as_ref().is_some_and(|p| {
+        Command::new(p)
+            .args(["-c", "import mcap, mcap_protobuf, zstandard, lz4"])
+            .status()
+            .is_ok_and(|s| s.success())
+    });
+    if usable {
+        return candidate;
+    }
+    assert!(
+        std::env::var_os("CI").is_none(),
+        "CI is set but RIGSLAM_PYTHON ({candidate:?}) is not a Python with mcap, \
+         mcap-protobuf-support, zstandard and lz4 (scripts/test makes one in target/py)"
+    );
+    eprintln!("skipping: set RIGSLAM_PYTHON to a Python with `pip install mcap mcap-protobuf-support zstandard lz4`");
+    None
+}
+
+/// What `check_mcap.py` found in `file`.
+fn python_reads(python: &Path, file: &Path) -> Value {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/readers/check_mcap.py");
+    let out = Command::new(python)
+        .arg(script)
+        .arg(file)
+        .output()
+        .expect("run python");
+    assert!(
+        out.status.success(),
+        "check_mcap.py failed on {}: {}",
+        file.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("JSON from check_mcap.py")
+}
+
+fn f64s(v: &Value) -> Vec<f64> {
+    v.as_array()
+        .expect("array")
+        .iter()
+        .map(|x| x.as_f64().expect("number"))
+        .collect()
+}
+
+fn unix_now_ns() -> u64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .expect("after 1970")
+        .as_nanos() as u64
+}
+
+#[test]
+fn the_python_mcap_reader_reads_a_daemon_recording_as_rigslam_wrote_it() {
+    let Some(python) = python() else { return };
+    let Some(euroc) = shared_data::path_or_skip("euroc/V1_01_micro") else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let before = unix_now_ns();
+    let status = Command::new(env!("CARGO_BIN_EXE_rigslamd"))
+        .arg("--replay")
+        .arg(&euroc)
+        .arg("--as-fast-as-possible")
+        .arg("--record")
+        .arg(dir.path())
+        .args(["--service-prefix", "recording_readers"])
+        .arg("--root-path")
+        .arg(dir.path().join("iox"))
+        .env_remove("NOTIFY_SOCKET")
+        .status()
+        .expect("run rigslamd");
+    assert!(status.success());
+    let after = unix_now_ns();
+    let files = rigslam::daemon::recorder::list_recordings(dir.path());
+    assert_eq!(files.len(), 1, "{files:?}");
+    let file = &files[0].0;
+    let py = python_reads(&python, file);
+
+    // Summary, indexes, compression, attachments and the clock mapping.
+    let ours = rigslam::recording::channel_counts(file).expect("closed file");
+    let total: u64 = ours.values().sum();
+    let theirs: BTreeMap<String, u64> =
+        serde_json::from_value(py["messages"].clone()).expect("counts");
+    let ours_nonzero: BTreeMap<String, u64> = ours.into_iter().filter(|(_, n)| *n > 0).collect();
+    assert_eq!(theirs, ours_nonzero);
+    assert_eq!(py["statistics_messages"], total);
+    assert_eq!(py["streamed_messages"], total);
+    assert!(py["chunk_indexes"].as_u64().expect("count") >= 2);
+    assert_eq!(py["chunk_compression"], serde_json::json!(["zstd"]));
+    for name in [
+        "calibration/cam0.yaml",
+        "calibration/cam1.yaml",
+        "calibration/imu0.yaml",
+    ] {
+        assert!(
+            py["attachments"]
+                .as_array()
+                .expect("names")
+                .iter()
+                .any(|n| n == name),
+            "{name} not attached: {}",
+            py["attachments"]
+        );
+    }
+    assert!(py["metadata"]["rigslam.clock"]["unix_ns"].is_string());
+    // Log times on the epoch, within the run.
+    for (topic, times) in py["log_times"].as_object().expect("topics") {
+        for t in times.as_array().expect("times") {
+            let t = t.as_u64().expect("ns");
+            assert!(
+                (before..=after).contains(&t),
+                "{topic}: log time {t} outside the run ({before}..{after})"
+            );
+        }
+    }
+
+    // IMU samples: every value exact.
+    let imu = read_imu_channel(file, "/imu0").expect("imu");
+    let py_imu = py["values"]["/imu0"].as_array().expect("imu values");
+    assert_eq!(py_imu.len(), imu.len());
+    for (s, v) in imu.iter().zip(py_imu) {
+        let v = v.as_array().expect("fields");
+        assert_eq!(v[0].as_i64(), Some(s.t_ns));
+        let numbers = f64s(&Value::Array(v[1..].to_vec()));
+        let expected: Vec<f64> = s.gyro_rad_s.iter().chain(&s.accel_m_s2).copied().collect();
+        assert_eq!(numbers, expected, "sample at {}", s.t_ns);
+    }
+
+    // Images: stamps, sizes and every pixel (CRC-32 of the data).
+    let mut frames = Vec::new();
+    for_each_sensor_event(
+        file,
+        SensorTopics {
+            stereo: true,
+            imu: false,
+        },
+        |item| {
+            if let ReplayItem::Event(SensorEvent::Frame { left, right, .. }) = item {
+                frames.push((left, right.expect("stereo")));
+            }
+            ControlFlow::Continue(())
+        },
+    )
+    .expect("replay");
+    for (topic, side) in [("/cam0", 0), ("/cam1", 1)] {
+        let values = py["values"][topic].as_array().expect("images");
+        assert_eq!(values.len(), frames.len(), "{topic}");
+        for (v, (l, r)) in values.iter().zip(&frames) {
+            let frame = if side == 0 { l } else { r };
+            let t_ns = v[0].as_i64().expect("s") * 1_000_000_000 + v[1].as_i64().expect("ns");
+            assert_eq!(t_ns, frame.t_ns);
+            assert_eq!(v[2], frame.image.width());
+            assert_eq!(v[3], frame.image.height());
+            assert_eq!(v[5], "mono8");
+            assert_eq!(v[6], format!("cam{side}"));
+            assert_eq!(
+                v[7],
+                crc32fast::hash(frame.image.data()),
+                "{topic} at {t_ns}"
+            );
+        }
+    }
+
+    // Poses: both frames and the covariance.
+    let poses = read_pose_channel(file, "/rigslam/pose").expect("poses");
+    let py_poses = py["values"]["/rigslam/pose"].as_array().expect("poses");
+    assert_eq!(py_poses.len(), poses.len());
+    assert!(poses.len() > 50);
+    for (p, v) in poses.iter().zip(py_poses) {
+        let v = v.as_array().expect("fields");
+        assert_eq!(v[0].as_i64(), Some(p.t_ns));
+        assert_eq!(v[1], p.tracking_state);
+        assert_eq!(v[2], p.flags);
+        let numbers = f64s(&Value::Array(v[3..16].to_vec()));
+        let expected: Vec<f64> = p
+            .position_world_m
+            .iter()
+            .chain(&p.orientation_world_body_xyzw)
+            .chain(&p.position_odom_m)
+            .chain(&p.translation_world_odom_m)
+            .copied()
+            .collect();
+        assert_eq!(numbers, expected, "pose at {}", p.t_ns);
+        let covariance_len = if p.covariance.iter().all(|c| c.is_nan()) {
+            0
+        } else {
+            36
+        };
+        assert_eq!(v[16], covariance_len);
+    }
+    for (topic, frame) in [("/rigslam/pose_map", "map"), ("/rigslam/pose_odom", "odom")] {
+        let values = py["values"][topic].as_array().expect(topic);
+        assert_eq!(values.len(), poses.len(), "{topic}");
+        assert!(values.iter().all(|v| v[0] == frame), "{topic}");
+    }
+
+    // The transform tree: the sensors on the body first, then map -> odom
+    // -> body with every pose.
+    let tf = py["values"]["/tf"].as_array().expect("tf");
+    assert_eq!(tf.len(), poses.len() + 1);
+    assert_eq!(
+        tf[0],
+        serde_json::json!([["body", "cam0"], ["body", "cam1"], ["body", "imu"]])
+    );
+    assert!(tf[1..]
+        .iter()
+        .all(|t| *t == serde_json::json!([["map", "odom"], ["odom", "body"]])));
+
+    // Each camera's calibration, as the rig has it.
+    let rig = rigslam::recording::rig_of_recording(file)
+        .expect("read")
+        .expect("a rig");
+    for (i, camera) in rig.cameras.iter().enumerate() {
+        let v = &py["values"][format!("/cam{i}/calibration")][0];
+        let [fx, fy, cx, cy] = camera.model.pinhole();
+        assert_eq!(v[0], format!("cam{i}"));
+        assert_eq!(v[1], camera.model.width());
+        assert_eq!(v[3], "plumb_bob");
+        assert_eq!(f64s(&v[4]), vec![fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]);
+        assert_eq!(f64s(&v[5]), camera.model.distortion_coefficients());
+    }
+}
+
+#[test]
+fn the_python_mcap_reader_reads_lz4_and_uncompressed_recordings() {
+    let Some(python) = python() else { return };
+    let dir = tempfile::tempdir().expect("tempdir");
+    for (compression, name) in [(Compression::Lz4, "lz4"), (Compression::None, "")] {
+        let path = dir.path().join(format!("r-{name}.mcap"));
+        let mut rec = McapRecorder::create(&path, compression).expect("create");
+        let imu = rec
+            .add_imu_channel("/imu0", &BTreeMap::new())
+            .expect("channel");
+        let cam = rec.add_image_channel("/cam0").expect("channel");
+        for k in 0..400i64 {
+            let s = rigslam::sensors::ImuSample {
+                t_ns: k * 5_000_000,
+                gyro_rad_s: [k as f64 * 1e-3, 1.0 / 3.0, -0.5],
+                accel_m_s2: [0.25, 9.81, k as f64],
+            };
+            rec.write_imu(imu, &s, s.t_ns).expect("imu");
+            if k % 10 == 0 {
+                let pixels = (0..320 * 240u32)
+                    .map(|i| (i % 251) as u8 ^ k as u8)
+                    .collect();
+                let image = rigslam::sensors::Image::mono8(320, 240, pixels).expect("image");
+                rec.write_image(cam, s.t_ns, &image, "cam0", s.t_ns)
+                    .expect("image");
+            }
+        }
+        rec.finish().expect("finish");
+        let py = python_reads(&python, &path);
+        assert_eq!(py["chunk_compression"], serde_json::json!([name]));
+        assert_eq!(py["messages"]["/imu0"], 400);
+        assert_eq!(py["messages"]["/cam0"], 40);
+        assert_eq!(py["streamed_messages"], 440);
+        let last = &py["values"]["/imu0"][399];
+        assert_eq!(last[0], 399 * 5_000_000);
+        assert_eq!(
+            f64s(&Value::Array(last.as_array().expect("v")[1..].to_vec())),
+            vec![399.0 * 1e-3, 1.0 / 3.0, -0.5, 0.25, 9.81, 399.0]
+        );
+    }
+}
