@@ -428,3 +428,76 @@ fn the_trajectory_format_follows_the_extension_or_the_flag() {
     // The flag wins over the extension.
     kitti_lines_match_tum(write("forced.csv", Some("kitti")));
 }
+
+/// A pseudo-terminal: (the side we read, the side the child writes to).
+fn pseudo_terminal() -> (std::fs::File, std::os::fd::OwnedFd) {
+    use std::os::fd::FromRawFd;
+    let (mut reader, mut terminal) = (-1, -1);
+    // SAFETY: two valid out-pointers; no name, terminal settings or size.
+    let r = unsafe {
+        libc::openpty(
+            &mut reader,
+            &mut terminal,
+            std::ptr::null_mut(),
+            std::ptr::null(),
+            std::ptr::null(),
+        )
+    };
+    assert_eq!(r, 0, "openpty: {}", std::io::Error::last_os_error());
+    // SAFETY: openpty opened both and nothing else owns them.
+    unsafe {
+        (
+            std::fs::File::from_raw_fd(reader),
+            std::os::fd::OwnedFd::from_raw_fd(terminal),
+        )
+    }
+}
+
+/// The log carries colour codes on a terminal only, and not there either
+/// with NO_COLOR set (an empty NO_COLOR counts as unset); in a pipe, as
+/// under systemd, never. (V1_01_micro lacks some right images, which
+/// `rigslam run` warns about.)
+#[test]
+fn the_log_is_in_colour_only_on_a_terminal_without_no_color() {
+    use std::io::Read;
+    let Some(root) = shared("euroc/V1_01_micro") else {
+        return;
+    };
+    let log = |terminal: bool, no_color: Option<&str>| -> String {
+        let mut cmd = rigslam_run();
+        cmd.args(["--mode", "stereo", "--max-frames", "2", "--dataset"])
+            .arg(&root)
+            .env_remove("NO_COLOR")
+            .env_remove("RUST_LOG");
+        if let Some(v) = no_color {
+            cmd.env("NO_COLOR", v);
+        }
+        if !terminal {
+            return String::from_utf8_lossy(&succeeds(&mut cmd).stderr).into_owned();
+        }
+        let (mut reader, stderr) = pseudo_terminal();
+        cmd.stdout(std::process::Stdio::null()).stderr(stderr);
+        let mut child = cmd.spawn().expect("run rigslam");
+        // Our copy of the terminal's end goes, so reading ends with the child.
+        drop(cmd);
+        let mut text = Vec::new();
+        let mut buf = [0u8; 4096];
+        // Linux says EIO, not end of file, once no one holds the other end.
+        while let Ok(n @ 1..) = reader.read(&mut buf) {
+            text.extend_from_slice(&buf[..n]);
+        }
+        assert!(child.wait().expect("wait").success());
+        String::from_utf8_lossy(&text).into_owned()
+    };
+    for (terminal, no_color, coloured) in [
+        (true, None, true),
+        (true, Some(""), true),
+        (true, Some("1"), false),
+        (false, None, false),
+    ] {
+        let text = log(terminal, no_color);
+        let case = format!("terminal {terminal}, NO_COLOR={no_color:?}");
+        assert!(text.contains("WARN"), "{case}: {text:?}");
+        assert_eq!(text.contains("\x1b["), coloured, "{case}: {text:?}");
+    }
+}

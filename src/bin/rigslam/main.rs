@@ -75,20 +75,8 @@ fn error_chain(e: &anyhow::Error) -> String {
     out
 }
 
-/// Colour codes only for a terminal, and not with NO_COLOR set.
-fn colour_wanted() -> bool {
-    use std::io::IsTerminal;
-    std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").map_or(true, |v| v.is_empty())
-}
-
 fn run() -> anyhow::Result<()> {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
-        )
-        .with_writer(std::io::stderr)
-        .with_ansi(colour_wanted())
-        .init();
+    rigslam::console::init_logging();
     match Cli::parse().command {
         Command::Bench(args) => bench::run(args),
         Command::Camera(args) => camera::run(args),

@@ -60,14 +60,7 @@ struct Args {
 }
 
 fn main() -> std::process::ExitCode {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
-        .with_writer(std::io::stderr)
-        .with_ansi(colour_wanted())
-        .init();
+    rigslam::console::init_logging();
     let args = Args::parse();
     match run(args) {
         Ok(code) => code,
@@ -76,13 +69,6 @@ fn main() -> std::process::ExitCode {
             std::process::ExitCode::FAILURE
         }
     }
-}
-
-/// Colour codes only for a terminal, and not with NO_COLOR set: under
-/// systemd the journal would keep them as text.
-fn colour_wanted() -> bool {
-    use std::io::IsTerminal;
-    std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").map_or(true, |v| v.is_empty())
 }
 
 fn load(args: &Args) -> anyhow::Result<(DaemonConfig, PathBuf)> {
