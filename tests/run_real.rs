@@ -501,3 +501,24 @@ fn the_log_is_in_colour_only_on_a_terminal_without_no_color() {
         assert_eq!(text.contains("\x1b["), coloured, "{case}: {text:?}");
     }
 }
+
+/// A command that fails says its error once, on stderr, and exits
+/// non-zero (anyhow's `{:#}` would repeat a cause the error already
+/// carries).
+#[test]
+fn a_missing_input_is_said_once() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let missing = dir.path().join("missing");
+    let mut run = rigslam_run();
+    run.arg("--dataset").arg(missing.join("euroc"));
+    let mut eval = Command::new(env!("CARGO_BIN_EXE_rigslam"));
+    eval.args(["eval", "--estimate"])
+        .arg(missing.join("estimate.tum"))
+        .arg("--groundtruth")
+        .arg(missing.join("groundtruth.csv"));
+    for mut cmd in [run, eval] {
+        let err = fails(&mut cmd);
+        assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
+        assert!(err.contains(&*missing.to_string_lossy()), "{err}");
+    }
+}

@@ -274,3 +274,30 @@ fn warnings_are_logged_without_colour_codes_off_a_terminal() {
         assert!(!err.contains("\x1b["), "NO_COLOR={no_color:?}: {err:?}");
     }
 }
+
+/// A step that fails says its error once and exits non-zero (anyhow's
+/// `{:#}` repeated a cause the error already carried).
+#[test]
+fn a_missing_input_is_said_once() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let missing = dir.path().join("missing");
+    let mut imu = Command::new(BIN);
+    imu.arg("imu")
+        .arg("--input")
+        .arg(missing.join("session.csv"))
+        .arg("--out")
+        .arg(dir.path().join("out"));
+    let mut check = Command::new(BIN);
+    check
+        .arg("check")
+        .arg(dir.path())
+        .arg("--dataset")
+        .arg(missing.join("recording"));
+    for mut cmd in [imu, check] {
+        let out = cmd.output().expect("runs");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{err}");
+        assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
+        assert!(err.contains(&*missing.to_string_lossy()), "{err}");
+    }
+}

@@ -65,7 +65,7 @@ fn main() -> std::process::ExitCode {
     match run(args) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("rigslamd: {e:#}");
+            eprintln!("rigslamd: {}", rigslam::console::error_chain(&e));
             std::process::ExitCode::FAILURE
         }
     }
@@ -315,7 +315,10 @@ fn reload(args: &Args, pipeline: &mut Pipeline) {
     let (config, file) = match loaded {
         Ok(c) => c,
         Err(e) => {
-            tracing::error!("reload refused, keeping the running calibration: {e:#}");
+            tracing::error!(
+                "reload refused, keeping the running calibration: {}",
+                rigslam::console::error_chain(&e)
+            );
             return;
         }
     };

@@ -70,7 +70,7 @@ fn main() -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", rigslam::console::error_chain(&e));
             std::process::ExitCode::FAILURE
         }
     }
