@@ -6,6 +6,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use rigslam::daemon::health::rate_words;
 use rigslam::dataset::write_tum;
 use rigslam::publish::{
     IpcConfig, Message, PoseMessage, StatusMessage, Stream, Subscription, DEFAULT_SERVICE_PREFIX,
@@ -284,11 +285,11 @@ fn print_status(m: &StatusMessage, _latency_us: f64) {
         .map(|q| format!("{} {}/{}", q.name_str(), q.len, q.capacity))
         .collect();
     println!(
-        "#{} camera {:.1} Hz imu {:.1} Hz pose {:.1} Hz, drops camera {} imu {} pose {}, latency p50 {:.0} us p99 {:.0} us, health 0x{:x}, noise scale gyro {:.2} accel {:.2} pixel {:.2}, camera-imu {:.3} deg {:.4} m {:+.5} s from the file, queues [{}]",
+        "#{} camera {} imu {} pose {}, drops camera {} imu {} pose {}, latency p50 {:.0} us p99 {:.0} us, health 0x{:x}, noise scale gyro {:.2} accel {:.2} pixel {:.2}, camera-imu {:.3} deg {:.4} m {:+.5} s from the file, queues [{}]",
         m.sequence,
-        m.camera_rate_hz,
-        m.imu_rate_hz,
-        m.pose_rate_hz,
+        rate_words(m.camera_rate_hz, 1),
+        rate_words(m.imu_rate_hz, 1),
+        rate_words(m.pose_rate_hz, 1),
         m.camera_drops,
         m.imu_drops,
         m.pose_drops,

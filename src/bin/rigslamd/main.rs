@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use clap::Parser;
 use rigslam::daemon::config::ReplayPace;
-use rigslam::daemon::health::{health_words, is_healthy};
+use rigslam::daemon::health::{health_words, is_healthy, rate_words};
 use rigslam::daemon::{check, DaemonConfig, IpcSink, Pipeline};
 use rigslam::publish::{cleanup_dead_nodes, PosePublisher};
 use rigslam::relative::SensorMode;
@@ -222,10 +222,10 @@ fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             let status = pipeline.status();
             let words = health_words(status.sensor_health);
             let mut line = format!(
-                "camera {:.1} Hz, imu {:.0} Hz, pose {:.1} Hz, latency p50 {:.1} ms p99 {:.1} ms, drops {}/{}; {words}",
-                status.camera_rate_hz,
-                status.imu_rate_hz,
-                status.pose_rate_hz,
+                "camera {}, imu {}, pose {}, latency p50 {:.1} ms p99 {:.1} ms, drops {}/{}; {words}",
+                rate_words(status.camera_rate_hz, 1),
+                rate_words(status.imu_rate_hz, 0),
+                rate_words(status.pose_rate_hz, 1),
                 status.latency_p50_us * 1e-3,
                 status.latency_p99_us * 1e-3,
                 status.camera_drops,
