@@ -18,8 +18,9 @@
 //! [`eval`] scores an estimate against ground truth (`plot`, behind the
 //! feature of that name, draws it), [`simulate`] renders synthetic
 //! sequences, and [`shared_data`] finds the real test recordings;
-//! [`slam_config`] is the settings file of both stages. No two sibling
-//! modules depend on each other (`tests/module_boundaries.rs` checks it).
+//! [`slam_config`] is the settings file of both stages, and [`console`]
+//! what the binaries write on stderr. No two sibling modules depend on
+//! each other (`tests/module_boundaries.rs` checks it).
 
 #![warn(missing_docs)]
 
@@ -27,6 +28,7 @@ pub use rigslam_drivers as sensors;
 
 pub mod absolute;
 pub mod camera;
+pub mod console;
 pub mod daemon;
 pub mod dataset;
 pub mod edge_map;

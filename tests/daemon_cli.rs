@@ -369,6 +369,12 @@ fn sighup_reloads_the_calibration_and_refuses_a_broken_one() {
     daemon.signal(libc::SIGHUP);
     daemon.wait_for("reload refused", Duration::from_secs(5));
     assert!(daemon.log().contains("imu0.yaml"), "{}", daemon.log());
+    // The config gone: refused too, its cause said once.
+    std::fs::rename(&config, dir.path().join("moved.toml")).expect("move");
+    daemon.signal(libc::SIGHUP);
+    daemon.wait_for("No such file", Duration::from_secs(5));
+    let log = daemon.log();
+    assert_eq!(log.matches("No such file or directory").count(), 1, "{log}");
     let status = daemon.wait_exit(Duration::from_secs(30));
     assert!(status.success(), "{}", daemon.log());
     let report: serde_json::Value =
@@ -705,4 +711,33 @@ fn a_recording_replays_with_the_shorthand() {
     assert!(!status.success(), "{log}");
     assert!(log.contains("not an MCAP file"), "{log}");
     assert_eq!(log.matches("junk.mcap").count(), 1, "said once:\n{log}");
+}
+
+/// A daemon that cannot start says why once and exits non-zero: the
+/// cause ("No such file or directory") used to be printed a second time,
+/// as the source of an error that already carried it.
+#[test]
+fn a_failed_start_says_its_error_once() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let missing = dir.path().join("missing");
+    for (flag, path) in [
+        ("--config", missing.join("rig.toml")),
+        ("--replay", missing.join("recording.mcap")),
+        ("--replay", missing.join("euroc")),
+    ] {
+        let out = rigslamd()
+            .arg(flag)
+            .arg(&path)
+            .output()
+            .expect("run rigslamd");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{flag} {}: {err}", path.display());
+        assert_eq!(
+            err.matches("No such file or directory").count(),
+            1,
+            "{flag} {}: {err}",
+            path.display()
+        );
+        assert!(err.contains(&*path.to_string_lossy()), "{err}");
+    }
 }

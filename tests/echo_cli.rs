@@ -91,19 +91,30 @@ fn echo_json_reports_the_samples_of_a_short_run() {
         "latency {p50}/{p99} < transport {t50}/{t99}"
     );
     assert!(report["missed"].as_u64().is_some());
+    // Every sample is stamped on the host clock.
+    assert_eq!(report["latency_samples"], report["received"], "{report}");
 }
 
-/// Poses stamped on another clock (a replay publishes the dataset's
-/// stamps, 2014 in EuRoC): the latency is null, not a huge number; the
-/// transport latency is still measured.
+/// Poses stamped on another clock: the latency is null, not a huge
+/// number, and counted over no sample; the transport latency is still
+/// measured. A replay publishes the dataset's stamps (2014 Unix times in
+/// EuRoC, far ahead of the host's uptime: a large negative "latency"); a
+/// clock an hour behind gives an hour.
 #[test]
 fn echo_json_gives_null_for_a_latency_on_another_clock() {
     let dataset_clock_ns = 1_403_715_273_262_142_976 - host_monotonic_ns();
-    let (report, _) = echo_json("other_clock", dataset_clock_ns);
-    assert!(report["latency_p50_us"].is_null(), "{report}");
-    assert!(report["latency_p99_us"].is_null(), "{report}");
-    let t50 = report["transport_latency_p50_us"].as_f64().expect("number");
-    assert!(t50 > 0.0 && t50 < 60e6, "{report}");
+    let hour_ns = 3_600_000_000_000;
+    for (name, offset_ns) in [
+        ("dataset_clock", dataset_clock_ns),
+        ("hour_behind", -hour_ns),
+    ] {
+        let (report, _) = echo_json(name, offset_ns);
+        assert!(report["latency_p50_us"].is_null(), "{name}: {report}");
+        assert!(report["latency_p99_us"].is_null(), "{name}: {report}");
+        assert_eq!(report["latency_samples"], 0, "{name}: {report}");
+        let t50 = report["transport_latency_p50_us"].as_f64().expect("number");
+        assert!(t50 > 0.0 && t50 < 60e6, "{name}: {report}");
+    }
 }
 
 #[test]

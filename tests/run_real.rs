@@ -350,3 +350,175 @@ fn map_options_that_cannot_work_say_why() {
     );
     assert!(err.contains("bad.map:2"), "{err}");
 }
+
+/// `--trajectory` writes the format its extension names (`.txt` TUM,
+/// `.csv` EuRoC, `.kitti` KITTI) and `--trajectory-format` overrides the
+/// extension; each file holds the same poses as the TUM one.
+#[test]
+fn the_trajectory_format_follows_the_extension_or_the_flag() {
+    let Some(root) = shared("euroc/V1_01_micro") else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let write = |name: &str, format: Option<&str>| -> PathBuf {
+        let path = dir.path().join(name);
+        let mut cmd = rigslam_run();
+        cmd.args(["--mode", "stereo", "--max-frames", "10", "--dataset"])
+            .arg(&root)
+            .arg("--trajectory")
+            .arg(&path);
+        if let Some(format) = format {
+            cmd.args(["--trajectory-format", format]);
+        }
+        succeeds(&mut cmd);
+        path
+    };
+    let close = |a: f64, b: f64| (a - b).abs() < 1e-6;
+    let tum = read_poses(&write("poses.txt", None));
+    assert_eq!(tum.len(), 10);
+
+    let euroc = std::fs::read_to_string(write("poses.csv", None)).expect("written");
+    let mut lines = euroc.lines();
+    assert_eq!(
+        lines.next(),
+        Some("#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z []")
+    );
+    let rows: Vec<&str> = lines.collect();
+    assert_eq!(rows.len(), tum.len(), "{euroc}");
+    for (row, p) in rows.iter().zip(&tum) {
+        let fields: Vec<&str> = row.split(',').collect();
+        assert_eq!(fields.len(), 8, "{row}");
+        let t_ns: i64 = fields[0].parse().expect("integer nanoseconds");
+        let v: Vec<f64> = fields[1..]
+            .iter()
+            .map(|x| x.parse().expect("number"))
+            .collect();
+        // TUM: t x y z qx qy qz qw; EuRoC: x y z qw qx qy qz.
+        let tum_as_euroc = [p[1], p[2], p[3], p[7], p[4], p[5], p[6]];
+        assert!(close(t_ns as f64 * 1e-9, p[0]), "{row} vs {p:?}");
+        assert!(
+            v.iter().zip(tum_as_euroc).all(|(&a, b)| close(a, b)),
+            "{row} vs {p:?}"
+        );
+    }
+
+    let kitti_lines_match_tum = |path: PathBuf| {
+        let text = std::fs::read_to_string(&path).expect("written");
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), tum.len(), "{}: {text}", path.display());
+        for (line, p) in lines.iter().zip(&tum) {
+            let v: Vec<f64> = line
+                .split_whitespace()
+                .map(|x| x.parse().expect("number"))
+                .collect();
+            assert_eq!(v.len(), 12, "{line}");
+            let q = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+                p[7], p[4], p[5], p[6],
+            ));
+            let r = q.to_rotation_matrix();
+            for row in 0..3 {
+                for col in 0..3 {
+                    assert!(close(v[4 * row + col], r[(row, col)]), "{line} vs {p:?}");
+                }
+                assert!(close(v[4 * row + 3], p[1 + row]), "{line} vs {p:?}");
+            }
+        }
+    };
+    kitti_lines_match_tum(write("poses.kitti", None));
+    // The flag wins over the extension.
+    kitti_lines_match_tum(write("forced.csv", Some("kitti")));
+}
+
+/// A pseudo-terminal: (the side we read, the side the child writes to).
+fn pseudo_terminal() -> (std::fs::File, std::os::fd::OwnedFd) {
+    use std::os::fd::FromRawFd;
+    let (mut reader, mut terminal) = (-1, -1);
+    // SAFETY: two valid out-pointers; no name, terminal settings or size.
+    let r = unsafe {
+        libc::openpty(
+            &mut reader,
+            &mut terminal,
+            std::ptr::null_mut(),
+            std::ptr::null(),
+            std::ptr::null(),
+        )
+    };
+    assert_eq!(r, 0, "openpty: {}", std::io::Error::last_os_error());
+    // SAFETY: openpty opened both and nothing else owns them.
+    unsafe {
+        (
+            std::fs::File::from_raw_fd(reader),
+            std::os::fd::OwnedFd::from_raw_fd(terminal),
+        )
+    }
+}
+
+/// The log carries colour codes on a terminal only, and not there either
+/// with NO_COLOR set (an empty NO_COLOR counts as unset); in a pipe, as
+/// under systemd, never. (V1_01_micro lacks some right images, which
+/// `rigslam run` warns about.)
+#[test]
+fn the_log_is_in_colour_only_on_a_terminal_without_no_color() {
+    use std::io::Read;
+    let Some(root) = shared("euroc/V1_01_micro") else {
+        return;
+    };
+    let log = |terminal: bool, no_color: Option<&str>| -> String {
+        let mut cmd = rigslam_run();
+        cmd.args(["--mode", "stereo", "--max-frames", "2", "--dataset"])
+            .arg(&root)
+            .env_remove("NO_COLOR")
+            .env_remove("RUST_LOG");
+        if let Some(v) = no_color {
+            cmd.env("NO_COLOR", v);
+        }
+        if !terminal {
+            return String::from_utf8_lossy(&succeeds(&mut cmd).stderr).into_owned();
+        }
+        let (mut reader, stderr) = pseudo_terminal();
+        cmd.stdout(std::process::Stdio::null()).stderr(stderr);
+        let mut child = cmd.spawn().expect("run rigslam");
+        // Our copy of the terminal's end goes, so reading ends with the child.
+        drop(cmd);
+        let mut text = Vec::new();
+        let mut buf = [0u8; 4096];
+        // Linux says EIO, not end of file, once no one holds the other end.
+        while let Ok(n @ 1..) = reader.read(&mut buf) {
+            text.extend_from_slice(&buf[..n]);
+        }
+        assert!(child.wait().expect("wait").success());
+        String::from_utf8_lossy(&text).into_owned()
+    };
+    for (terminal, no_color, coloured) in [
+        (true, None, true),
+        (true, Some(""), true),
+        (true, Some("1"), false),
+        (false, None, false),
+    ] {
+        let text = log(terminal, no_color);
+        let case = format!("terminal {terminal}, NO_COLOR={no_color:?}");
+        assert!(text.contains("WARN"), "{case}: {text:?}");
+        assert_eq!(text.contains("\x1b["), coloured, "{case}: {text:?}");
+    }
+}
+
+/// A command that fails says its error once, on stderr, and exits
+/// non-zero (anyhow's `{:#}` would repeat a cause the error already
+/// carries).
+#[test]
+fn a_missing_input_is_said_once() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let missing = dir.path().join("missing");
+    let mut run = rigslam_run();
+    run.arg("--dataset").arg(missing.join("euroc"));
+    let mut eval = Command::new(env!("CARGO_BIN_EXE_rigslam"));
+    eval.args(["eval", "--estimate"])
+        .arg(missing.join("estimate.tum"))
+        .arg("--groundtruth")
+        .arg(missing.join("groundtruth.csv"));
+    for mut cmd in [run, eval] {
+        let err = fails(&mut cmd);
+        assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
+        assert!(err.contains(&*missing.to_string_lossy()), "{err}");
+    }
+}

@@ -215,3 +215,89 @@ fn noise_refuses_a_moving_log_and_measures_a_still_one() {
     );
     assert!(dir.path().join("imu_allan.png").exists() && dir.path().join("imu_report.md").exists());
 }
+
+/// The core's warnings reach `rigslam-calibrate`'s stderr (here: a
+/// recording's IMU row that is not a number, read by `check --dataset`),
+/// and as plain text: stderr is a pipe here, as under systemd, so no
+/// colour codes, with `NO_COLOR` set or not.
+#[test]
+fn warnings_are_logged_without_colour_codes_off_a_terminal() {
+    use rigslam::dataset::EurocWriter;
+    use rigslam::sensors::{Image, ImuSample, PixelFormat};
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let recording = dir.path().join("recording");
+    let mut writer = EurocWriter::create(&recording).expect("create");
+    writer
+        .write_camera("cam0", &rigslam::rig::euroc::euroc_cam0())
+        .expect("camera");
+    let image = Image::new(
+        752,
+        480,
+        752,
+        PixelFormat::Mono8,
+        vec![128u8; 752 * 480].into(),
+    )
+    .expect("image");
+    writer
+        .add_image("cam0", 1_000_000_000, &image)
+        .expect("png");
+    let samples: Vec<ImuSample> = (0..400)
+        .map(|i| ImuSample {
+            t_ns: 1_000_000_000 + i * 5_000_000,
+            gyro_rad_s: if i == 100 { [f64::NAN; 3] } else { [0.0; 3] },
+            accel_m_s2: [0.0, 0.0, 9.81],
+        })
+        .collect();
+    writer
+        .write_imu(&rigslam::rig::euroc::euroc_imu0(), &samples)
+        .expect("imu");
+    writer.finish().expect("finish");
+
+    for no_color in [None, Some("1")] {
+        let mut cmd = Command::new(BIN);
+        cmd.arg("check")
+            .arg(dir.path().join("no calibration here"))
+            .arg("--dataset")
+            .arg(&recording)
+            .env_remove("NO_COLOR")
+            .env_remove("RUST_LOG");
+        if let Some(v) = no_color {
+            cmd.env("NO_COLOR", v);
+        }
+        let out = cmd.output().expect("runs");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            err.contains("WARN") && err.contains("imu0/data.csv") && err.contains("left out"),
+            "NO_COLOR={no_color:?}: {err}"
+        );
+        assert!(!err.contains("\x1b["), "NO_COLOR={no_color:?}: {err:?}");
+    }
+}
+
+/// A step that fails says its error once and exits non-zero (anyhow's
+/// `{:#}` repeated a cause the error already carried).
+#[test]
+fn a_missing_input_is_said_once() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let missing = dir.path().join("missing");
+    let mut imu = Command::new(BIN);
+    imu.arg("imu")
+        .arg("--input")
+        .arg(missing.join("session.csv"))
+        .arg("--out")
+        .arg(dir.path().join("out"));
+    let mut check = Command::new(BIN);
+    check
+        .arg("check")
+        .arg(dir.path())
+        .arg("--dataset")
+        .arg(missing.join("recording"));
+    for mut cmd in [imu, check] {
+        let out = cmd.output().expect("runs");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{err}");
+        assert_eq!(err.matches("No such file or directory").count(), 1, "{err}");
+        assert!(err.contains(&*missing.to_string_lossy()), "{err}");
+    }
+}

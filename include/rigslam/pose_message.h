@@ -106,6 +106,9 @@ typedef struct rigslam_status_message {
     int64_t t_ns;            /* CLOCK_MONOTONIC when taken, ns */
     int64_t published_t_ns;  /* CLOCK_MONOTONIC when sent, ns */
     uint64_t sequence;
+    /* per second over the status period, or since the stream's first
+     * arrival when it began in the period; NaN: one arrival so far, rate
+     * not known yet; 0: none came */
     double camera_rate_hz;
     double imu_rate_hz;
     double pose_rate_hz;

@@ -46,6 +46,11 @@ pub struct Health {
     pub last_frame_ns: AtomicI64,
     /// Host `CLOCK_MONOTONIC` of the last IMU sample handed to the queue, ns (0: none yet).
     pub last_imu_ns: AtomicI64,
+    /// Host time of the first frame, IMU sample and pose (0: none yet),
+    /// ns: a stream that began during a status period is timed from there.
+    first_frame_ns: AtomicI64,
+    first_imu_ns: AtomicI64,
+    first_pose_ns: AtomicI64,
     /// Host time the SLAM stage last went round its loop, ns.
     pub stage_heartbeat_ns: AtomicI64,
     /// The IMU driver lost its port and is reopening it.
@@ -232,15 +237,29 @@ pub struct RateBase {
     jumps: u64,
 }
 
-impl RateBase {
-    /// Counting from now, with nothing counted yet: the first status then
-    /// has rates over the time since the start, not zeros.
-    pub fn starting_now() -> Self {
-        Self {
-            t_ns: host_monotonic_ns(),
-            ..Self::default()
-        }
+/// Arrivals per second over a status period that began at `base_t_ns`
+/// (0: the first period) and ends at `now_ns`, with `count` arrivals so
+/// far, `base_count` of them before the period, the first ever at
+/// `first_ns` (0: none seen). A stream that began during the period is
+/// timed from its first arrival, not from the period's start (a camera
+/// that took a while to start streaming is not under-counted): that
+/// arrival opens the interval and the ones after it are counted. NaN,
+/// "not known yet", when nothing has come after it; 0 only when nothing
+/// arrived in the period.
+pub fn rate_hz(count: u64, base_count: u64, base_t_ns: i64, first_ns: i64, now_ns: i64) -> f64 {
+    let n = count.saturating_sub(base_count);
+    if n == 0 {
+        return 0.0;
     }
+    let (arrivals, since_ns) = if first_ns == 0 || first_ns >= base_t_ns {
+        (n - 1, first_ns)
+    } else {
+        (n, base_t_ns)
+    };
+    if arrivals == 0 || since_ns == 0 || now_ns <= since_ns {
+        return f64::NAN;
+    }
+    arrivals as f64 / ((now_ns - since_ns) as f64 * 1e-9)
 }
 
 /// Rules for the health bits.
@@ -286,6 +305,23 @@ impl Health {
         h.stage_heartbeat_ns
             .store(host_monotonic_ns(), Ordering::Relaxed);
         h
+    }
+
+    /// A frame handed to the frame queue at host time `now_ns`.
+    pub fn frame_arrived(&self, now_ns: i64) {
+        self.last_frame_ns.store(now_ns, Ordering::Relaxed);
+        arrived(&self.first_frame_ns, &self.frames_in, now_ns);
+    }
+
+    /// An IMU sample handed to the IMU queue at host time `now_ns`.
+    pub fn imu_arrived(&self, now_ns: i64) {
+        self.last_imu_ns.store(now_ns, Ordering::Relaxed);
+        arrived(&self.first_imu_ns, &self.imu_in, now_ns);
+    }
+
+    /// A pose sent on `rigslam/pose` at host time `now_ns`.
+    pub fn pose_published(&self, now_ns: i64) {
+        arrived(&self.first_pose_ns, &self.poses_out, now_ns);
     }
 
     /// Frames and samples left out as bad input (refused by the stage or
@@ -371,28 +407,40 @@ impl Health {
         queues: &[QueueFill],
         drops: (u64, u64),
     ) -> StatusMessage {
-        let now = host_monotonic_ns();
-        let frames = self.frames_in.load(Ordering::Relaxed);
-        let imu = self.imu_in.load(Ordering::Relaxed);
-        let poses = self.poses_out.load(Ordering::Relaxed);
+        self.status_at(host_monotonic_ns(), rules, base, queues, drops)
+    }
+
+    /// [`Self::status`] at host time `now` (ns), the period since the
+    /// previous one (`base`) or since the start: the rates are over the
+    /// time since a stream's first arrival when it began in the period
+    /// (NaN until a second one came, see [`rate_hz`]).
+    pub fn status_at(
+        &self,
+        now: i64,
+        rules: &HealthRules,
+        base: &mut RateBase,
+        queues: &[QueueFill],
+        drops: (u64, u64),
+    ) -> StatusMessage {
+        // Acquire: a count seen comes with its stream's first stamp.
+        let frames = self.frames_in.load(Ordering::Acquire);
+        let imu = self.imu_in.load(Ordering::Acquire);
+        let poses = self.poses_out.load(Ordering::Acquire);
         let jumps = self.timestamp_jumps.load(Ordering::Relaxed);
-        let dt_s = if base.t_ns > 0 {
-            (now - base.t_ns) as f64 * 1e-9
-        } else {
-            0.0
-        };
-        let rate = |n: u64, b: u64| {
-            if dt_s > 0.0 {
-                n.saturating_sub(b) as f64 / dt_s
-            } else {
-                0.0
-            }
+        let rate = |count: u64, base_count: u64, first: &AtomicI64| {
+            rate_hz(
+                count,
+                base_count,
+                base.t_ns,
+                first.load(Ordering::Relaxed),
+                now,
+            )
         };
         let mut m = StatusMessage {
             t_ns: now,
-            camera_rate_hz: rate(frames, base.frames),
-            imu_rate_hz: rate(imu, base.imu),
-            pose_rate_hz: rate(poses, base.poses),
+            camera_rate_hz: rate(frames, base.frames, &self.first_frame_ns),
+            imu_rate_hz: rate(imu, base.imu, &self.first_imu_ns),
+            pose_rate_hz: rate(poses, base.poses, &self.first_pose_ns),
             camera_drops: drops.0 + self.input_drops().0,
             imu_drops: drops.1 + self.input_drops().1,
             pose_drops: self.pose_drops.load(Ordering::Relaxed),
@@ -464,6 +512,25 @@ impl Health {
     }
 }
 
+/// One more arrival at `now_ns` on a stream counted by `count` whose
+/// first arrival is kept in `first`.
+fn arrived(first: &AtomicI64, count: &AtomicU64, now_ns: i64) {
+    // Only the first arrival finds 0 there; later ones leave it.
+    let _ = first.compare_exchange(0, now_ns, Ordering::Relaxed, Ordering::Relaxed);
+    // Release: whoever sees this count sees the first stamp stored above.
+    count.fetch_add(1, Ordering::Release);
+}
+
+/// A rate for people: "20.0 Hz", or "measuring" while it is not known
+/// yet (NaN, see [`rate_hz`]).
+pub fn rate_words(hz: f64, decimals: usize) -> String {
+    if hz.is_finite() {
+        format!("{hz:.decimals$} Hz")
+    } else {
+        "measuring".into()
+    }
+}
+
 /// Whether a status says the daemon is fully working: sensors streaming
 /// (the IMU only when the mode uses it), nothing stuck.
 pub fn is_healthy(status: &StatusMessage, uses_imu: bool) -> bool {
@@ -516,22 +583,62 @@ mod tests {
         }
     }
 
-    /// The first status after the start gives the rates since the start:
-    /// it once said 0 Hz while frames flowed (no previous status to count
-    /// from).
+    /// The first status gives each stream's rate over the time since its
+    /// first arrival, not since the start (it once said 0 Hz while frames
+    /// flowed, then, counted from the start, a fraction of the true rate
+    /// when the camera took a while to begin), and says "not known yet"
+    /// (NaN) rather than 0 Hz while only one has come; later periods
+    /// count from the previous status.
     #[test]
-    fn the_first_status_has_rates_not_zeros() {
+    fn the_first_status_times_each_stream_from_its_first_arrival() {
+        const MS: i64 = 1_000_000;
         let health = Health::new();
         let rules = rules();
-        let mut base = RateBase::starting_now();
-        std::thread::sleep(std::time::Duration::from_millis(20));
-        health.frames_in.fetch_add(4, Ordering::Relaxed);
-        health.imu_in.fetch_add(40, Ordering::Relaxed);
-        let m = health.status(&rules, &mut base, &[], (0, 0));
-        assert!(
-            m.camera_rate_hz > 0.0 && m.imu_rate_hz > m.camera_rate_hz,
-            "{m:?}"
-        );
+        let mut base = RateBase::default();
+        let start = 1_000_000 * MS;
+        // The IMU at 200 Hz from the start, the camera at 20 Hz from
+        // 700 ms on, one pose so far at 990 ms.
+        for k in 0..200 {
+            health.imu_arrived(start + k * 5 * MS);
+        }
+        for k in 0..6 {
+            health.frame_arrived(start + 700 * MS + k * 50 * MS);
+        }
+        health.pose_published(start + 990 * MS);
+        let now = start + 1000 * MS;
+        let m = health.status_at(now, &rules, &mut base, &[], (0, 0));
+        // 199 samples after the first, over 1 s; 5 frames after the
+        // first, over 300 ms.
+        assert!((m.imu_rate_hz - 199.0).abs() < 1e-9, "{m:?}");
+        assert!((m.camera_rate_hz - 5.0 / 0.3).abs() < 1e-9, "{m:?}");
+        assert!(m.pose_rate_hz.is_nan(), "{m:?}");
+        assert_eq!(rate_words(m.pose_rate_hz, 1), "measuring");
+        assert_eq!(rate_words(m.camera_rate_hz, 1), "16.7 Hz");
+
+        // The next period: from the previous status, every arrival counted.
+        for k in 6..26 {
+            health.frame_arrived(start + 700 * MS + k * 50 * MS);
+        }
+        for k in 1..21 {
+            health.pose_published(start + 990 * MS + k * 50 * MS);
+        }
+        let m = health.status_at(now + 1000 * MS, &rules, &mut base, &[], (0, 0));
+        assert!((m.camera_rate_hz - 20.0).abs() < 1e-9, "{m:?}");
+        assert!((m.pose_rate_hz - 20.0).abs() < 1e-9, "{m:?}");
+        // The IMU stopped: 0 Hz is then the truth.
+        assert_eq!(m.imu_rate_hz, 0.0, "{m:?}");
+    }
+
+    #[test]
+    fn rates_over_a_period() {
+        // Nothing yet: 0 Hz.
+        assert_eq!(rate_hz(0, 0, 0, 0, 1_000), 0.0);
+        // A stream that began before the period: every arrival counts.
+        assert!((rate_hz(30, 10, 1_000_000_000, 5, 2_000_000_000) - 20.0).abs() < 1e-9);
+        // A stream that began in it: timed from its first arrival.
+        assert!((rate_hz(11, 0, 1_000_000_000, 1_500_000_000, 2_000_000_000) - 20.0).abs() < 1e-9);
+        // One arrival: not known.
+        assert!(rate_hz(1, 0, 0, 1_500_000_000, 2_000_000_000).is_nan());
     }
 
     #[test]

@@ -282,7 +282,7 @@ impl Pipeline {
                 stuck_ns: (p.stuck_after_s * 1e9) as i64,
                 uses_imu: mode.uses_imu(),
             },
-            base: RateBase::starting_now(),
+            base: RateBase::default(),
         })
     }
 

@@ -456,8 +456,9 @@ impl Stage {
             keeper.after_frame(frame.t_ns, &self.pipeline);
         }
         if sink.pose(&message, output) {
-            health.poses_out.fetch_add(1, Ordering::Relaxed);
-            let latency_us = (host_monotonic_ns() - frame.arrival_ns) as f64 * 1e-3;
+            let now_ns = host_monotonic_ns();
+            health.pose_published(now_ns);
+            let latency_us = (now_ns - frame.arrival_ns) as f64 * 1e-3;
             health.record_latency_us(latency_us);
         } else {
             health.pose_drops.fetch_add(1, Ordering::Relaxed);

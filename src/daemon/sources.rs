@@ -82,10 +82,7 @@ impl SourceLinks {
         if let Some(r) = &self.record {
             r.imu(&sample);
         }
-        self.health
-            .last_imu_ns
-            .store(host_monotonic_ns(), Ordering::Relaxed);
-        self.health.imu_in.fetch_add(1, Ordering::Relaxed);
+        self.health.imu_arrived(host_monotonic_ns());
         if self.imu.push(sample) == Pushed::DroppedOldest {
             log.dropped("imu", self.imu.dropped());
         }
@@ -97,10 +94,7 @@ impl SourceLinks {
             r.frame(&frame);
         }
         frame.arrival_ns = host_monotonic_ns();
-        self.health
-            .last_frame_ns
-            .store(frame.arrival_ns, Ordering::Relaxed);
-        self.health.frames_in.fetch_add(1, Ordering::Relaxed);
+        self.health.frame_arrived(frame.arrival_ns);
         if self.frames.push(frame) == Pushed::DroppedOldest {
             log.dropped("frame", self.frames.dropped());
         }

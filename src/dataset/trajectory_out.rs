@@ -2,11 +2,12 @@
 //! `tum`, stamps in seconds), EuRoC csv (evo's `euroc`, stamps in ns) or
 //! KITTI poses (evo's `kitti`: a 3x4 `[R | t]` per line, no stamps).
 
-use std::io::Write as _;
+use std::fmt::Write as _;
 use std::path::Path;
 
 use super::error::DatasetError;
-use super::tum::write_tum;
+use super::tum::tum_text;
+use crate::text_file::write_atomically;
 use crate::trajectory::Trajectory;
 
 /// A trajectory file format.
@@ -38,60 +39,64 @@ impl TrajectoryFormat {
     }
 }
 
-/// Writes `trajectory` to `path` in `format`.
+/// EuRoC's header, as in its ground truth csv (the first 8 columns).
+const EUROC_HEADER: &str = "#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z []";
+
+/// Writes `trajectory` to `path` in `format`, atomically (a reader sees
+/// the old file or the new one, never a part: a run killed while writing
+/// leaves no cut trajectory to score).
 pub fn write_trajectory(
     path: &Path,
     trajectory: &Trajectory,
     format: TrajectoryFormat,
 ) -> Result<(), DatasetError> {
-    if format == TrajectoryFormat::Tum {
-        return write_tum(path, trajectory);
-    }
-    let file = std::fs::File::create(path).map_err(|e| DatasetError::io(path, e))?;
-    let mut out = std::io::BufWriter::new(file);
-    let io = |e| DatasetError::io(path, e);
-    if format == TrajectoryFormat::Euroc {
-        writeln!(
-            out,
-            "#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z []"
-        )
-        .map_err(io)?;
-    }
+    let text = match format {
+        TrajectoryFormat::Tum => tum_text(trajectory),
+        TrajectoryFormat::Euroc => euroc_text(trajectory),
+        TrajectoryFormat::Kitti => kitti_text(trajectory),
+    };
+    write_atomically(path, text.as_bytes()).map_err(|e| DatasetError::io(path, e))
+}
+
+/// `t[ns],px,py,pz,qw,qx,qy,qz` lines under EuRoC's header.
+fn euroc_text(trajectory: &Trajectory) -> String {
+    let mut out = format!("{EUROC_HEADER}\n");
     for p in &trajectory.poses {
         let t = p.position();
-        match format {
-            TrajectoryFormat::Euroc => {
-                let q = p.orientation();
-                writeln!(
-                    out,
-                    "{},{:.9},{:.9},{:.9},{:.9},{:.9},{:.9},{:.9}",
-                    p.t_ns, t.x, t.y, t.z, q.w, q.i, q.j, q.k
-                )
-            }
-            _ => {
-                let r = p.T_world_body.rotation.to_rotation_matrix();
-                let m = r.matrix();
-                writeln!(
-                    out,
-                    "{:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9}",
-                    m[(0, 0)],
-                    m[(0, 1)],
-                    m[(0, 2)],
-                    t.x,
-                    m[(1, 0)],
-                    m[(1, 1)],
-                    m[(1, 2)],
-                    t.y,
-                    m[(2, 0)],
-                    m[(2, 1)],
-                    m[(2, 2)],
-                    t.z
-                )
-            }
-        }
-        .map_err(io)?;
+        let q = p.orientation();
+        writeln!(
+            out,
+            "{},{:.9},{:.9},{:.9},{:.9},{:.9},{:.9},{:.9}",
+            p.t_ns, t.x, t.y, t.z, q.w, q.i, q.j, q.k
+        )
+        .expect("writing to a String cannot fail");
     }
-    out.flush().map_err(io)
+    out
+}
+
+/// The 3x4 `[R | t]` of each pose, row-major, one pose a line, no header
+/// and no stamps (KITTI's poses files, evo's `kitti` mode).
+fn kitti_text(trajectory: &Trajectory) -> String {
+    let mut out = String::new();
+    for p in &trajectory.poses {
+        let t = p.position();
+        let r = p.T_world_body.rotation.to_rotation_matrix();
+        let m = r.matrix();
+        for row in 0..3 {
+            let sep = if row == 0 { "" } else { " " };
+            write!(
+                out,
+                "{sep}{:.9} {:.9} {:.9} {:.9}",
+                m[(row, 0)],
+                m[(row, 1)],
+                m[(row, 2)],
+                t[row]
+            )
+            .expect("writing to a String cannot fail");
+        }
+        out.push('\n');
+    }
+    out
 }
 
 #[cfg(test)]
@@ -145,5 +150,79 @@ mod tests {
         assert!(kitti
             .lines()
             .all(|l| l.split_whitespace().count() == 12 && !l.starts_with('#')));
+        let euroc = std::fs::read_to_string(dir.path().join("t.csv")).expect("read");
+        assert_eq!(
+            euroc.lines().next(),
+            Some("#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z []")
+        );
+    }
+
+    /// Each KITTI line is `[R | t]` row by row: R orthonormal with
+    /// determinant 1 and the rotation of the pose's quaternion, t its
+    /// position (read here by hand, not by the reader, which would accept
+    /// a transposed R as another rotation).
+    #[test]
+    fn kitti_lines_are_the_rotation_matrix_row_by_row() {
+        let written = sample();
+        let text = kitti_text(&written);
+        assert_eq!(text.lines().count(), written.len());
+        for (line, pose) in text.lines().zip(&written.poses) {
+            let v: Vec<f64> = line
+                .split(' ')
+                .map(|x| x.parse().expect("a number"))
+                .collect();
+            assert_eq!(v.len(), 12, "{line}");
+            let r = nalgebra::Matrix3::new(v[0], v[1], v[2], v[4], v[5], v[6], v[8], v[9], v[10]);
+            assert!(
+                (r.transpose() * r - nalgebra::Matrix3::identity()).amax() < 1e-8,
+                "{line}"
+            );
+            assert!((r.determinant() - 1.0).abs() < 1e-8, "{line}");
+            let expected = pose.orientation().to_rotation_matrix();
+            assert!((r - expected.matrix()).amax() < 1e-8, "{line}");
+            let t = Vector3::new(v[3], v[7], v[11]);
+            assert!((t - pose.position()).norm() < 1e-8, "{line}");
+        }
+    }
+
+    #[test]
+    fn the_extension_names_the_format() {
+        for (name, format) in [
+            ("a.tum", TrajectoryFormat::Tum),
+            ("a.txt", TrajectoryFormat::Tum),
+            ("a", TrajectoryFormat::Tum),
+            ("dir.csv/a.TUM", TrajectoryFormat::Tum),
+            ("a.CSV", TrajectoryFormat::Euroc),
+            ("a.kitti", TrajectoryFormat::Kitti),
+        ] {
+            assert_eq!(TrajectoryFormat::of_path(Path::new(name)), format, "{name}");
+        }
+    }
+
+    /// The file is replaced whole, and no temporary is left beside it.
+    #[test]
+    fn a_write_replaces_the_file_and_leaves_nothing_else() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("t.csv");
+        std::fs::write(
+            &path,
+            "a longer file that was there before, to be replaced whole\n".repeat(100),
+        )
+        .expect("write");
+        let written = sample();
+        write_trajectory(&path, &written, TrajectoryFormat::Euroc).expect("write");
+        assert_eq!(
+            std::fs::read_to_string(&path).expect("read"),
+            euroc_text(&written)
+        );
+        let names: Vec<_> = std::fs::read_dir(dir.path())
+            .expect("list")
+            .map(|e| e.expect("entry").file_name())
+            .collect();
+        assert_eq!(names, vec![std::ffi::OsString::from("t.csv")]);
+        let missing = dir.path().join("no such folder").join("t.tum");
+        let err =
+            write_trajectory(&missing, &written, TrajectoryFormat::Tum).expect_err("no folder");
+        assert!(err.to_string().contains("no such folder"), "{err}");
     }
 }

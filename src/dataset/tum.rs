@@ -1,13 +1,14 @@
 //! TUM trajectory files: `t[s] tx ty tz qx qy qz qw`, one pose per line,
 //! `#` comments. Pose of the body frame in the world frame.
 
-use std::io::Write;
+use std::fmt::Write as _;
 use std::path::Path;
 
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
 use super::error::DatasetError;
 use super::text::{check_not_decreasing, data_lines, parse_fields, parse_seconds_ns, read_text};
+use crate::text_file::write_atomically;
 use crate::trajectory::{StampedPose, Trajectory};
 
 /// Reads a TUM file. Stamps may repeat but not go back: published
@@ -46,12 +47,15 @@ pub fn parse_tum(text: &str, path: &Path) -> Result<Trajectory, DatasetError> {
     Ok(Trajectory::new(poses))
 }
 
-/// Writes a TUM file with nanosecond-exact seconds (9 decimals).
+/// Writes a TUM file with nanosecond-exact seconds (9 decimals), atomically
+/// (a reader sees the old file or the new one, never a part).
 pub fn write_tum(path: &Path, trajectory: &Trajectory) -> Result<(), DatasetError> {
-    let file = std::fs::File::create(path).map_err(|e| DatasetError::io(path, e))?;
-    let mut out = std::io::BufWriter::new(file);
-    let io = |e| DatasetError::io(path, e);
-    writeln!(out, "# timestamp[s] tx ty tz qx qy qz qw (T_world_body)").map_err(io)?;
+    write_atomically(path, tum_text(trajectory).as_bytes()).map_err(|e| DatasetError::io(path, e))
+}
+
+/// The text of a TUM file of `trajectory`.
+pub(crate) fn tum_text(trajectory: &Trajectory) -> String {
+    let mut out = String::from("# timestamp[s] tx ty tz qx qy qz qw (T_world_body)\n");
     for p in &trajectory.poses {
         let t = p.position();
         let q = p.orientation();
@@ -64,9 +68,9 @@ pub fn write_tum(path: &Path, trajectory: &Trajectory) -> Result<(), DatasetErro
             "{sign}{secs}.{nanos:09} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9}",
             t.x, t.y, t.z, q.i, q.j, q.k, q.w
         )
-        .map_err(io)?;
+        .expect("writing to a String cannot fail");
     }
-    out.flush().map_err(io)
+    out
 }
 
 /// Normalises a quaternion read from a file, rejecting ones far from unit norm.

@@ -217,11 +217,14 @@ pub struct StatusMessage {
     pub published_t_ns: i64,
     /// Per-service counter set by the publisher.
     pub sequence: u64,
-    /// Camera frames per second over the last status period.
+    /// Camera frames per second over the last status period; when the
+    /// camera began during it, over the time since its first frame. NaN
+    /// while that first frame is the only one: not known yet (0 means
+    /// none came).
     pub camera_rate_hz: f64,
-    /// IMU samples per second over the last status period.
+    /// IMU samples per second, as `camera_rate_hz`.
     pub imu_rate_hz: f64,
-    /// Poses published on `rigslam/pose` per second.
+    /// Poses published on `rigslam/pose` per second, as `camera_rate_hz`.
     pub pose_rate_hz: f64,
     /// Camera frames dropped since start (full queue or driver gap).
     pub camera_drops: u64,

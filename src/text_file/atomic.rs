@@ -12,8 +12,14 @@ static TEMPORARIES: AtomicU64 = AtomicU64::new(0);
 
 /// Writes `bytes` to `path` so that a reader sees the old file or the new
 /// one, never a part: a temporary file beside it, flushed to disk, then
-/// renamed over it, and the folder synced.
+/// renamed over it, and the folder synced. A path that is a device or a
+/// pipe (`--trajectory /dev/stdout`, a FIFO) is written in place: it has
+/// no old content to keep, and renaming over it would replace the device
+/// node itself.
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    if std::fs::metadata(path).is_ok_and(|m| !m.is_file() && !m.is_dir()) {
+        return std::fs::write(path, bytes);
+    }
     let dir = folder_of(path);
     let name = path
         .file_name()
@@ -69,5 +75,46 @@ fn folder_of(path: &Path) -> PathBuf {
     match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::os::unix::fs::FileTypeExt;
+
+    #[test]
+    fn a_file_is_replaced_whole_and_no_temporary_stays() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("a.txt");
+        std::fs::write(&path, "the old content, longer than the new").expect("write");
+        write_atomically(&path, b"new").expect("write");
+        assert_eq!(std::fs::read(&path).expect("read"), b"new");
+        let names: Vec<_> = std::fs::read_dir(dir.path())
+            .expect("list")
+            .map(|e| e.expect("entry").file_name())
+            .collect();
+        assert_eq!(names, vec![std::ffi::OsString::from("a.txt")]);
+    }
+
+    /// A pipe (as /dev/stdout may be) is written to, not replaced by a
+    /// regular file.
+    #[test]
+    fn a_pipe_is_written_in_place() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let fifo = dir.path().join("fifo");
+        let c_path = std::ffi::CString::new(fifo.as_os_str().as_encoded_bytes()).expect("no NUL");
+        // SAFETY: a valid NUL-terminated path; mkfifo only creates a file.
+        assert_eq!(unsafe { libc::mkfifo(c_path.as_ptr(), 0o600) }, 0);
+        let reader = {
+            let fifo = fifo.clone();
+            std::thread::spawn(move || std::fs::read(fifo).expect("read the pipe"))
+        };
+        write_atomically(&fifo, b"through the pipe").expect("write");
+        let file_type = std::fs::symlink_metadata(&fifo)
+            .expect("still there")
+            .file_type();
+        assert!(file_type.is_fifo(), "replaced by {file_type:?}");
+        assert_eq!(reader.join().expect("reader"), b"through the pipe");
     }
 }

@@ -6,6 +6,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
+use rigslam::daemon::health::rate_words;
 use rigslam::dataset::write_tum;
 use rigslam::publish::{
     IpcConfig, Message, PoseMessage, StatusMessage, Stream, Subscription, DEFAULT_SERVICE_PREFIX,
@@ -35,9 +36,11 @@ pub struct EchoArgs {
     root_path: Option<PathBuf>,
     /// Print one JSON object at the end and nothing per sample: received,
     /// rate_hz, latency_p50_us, latency_p99_us (now - the message's t_ns on
-    /// CLOCK_MONOTONIC; null when the stamps are not on this host's clock,
-    /// as in a replay), transport_latency_p50_us, transport_latency_p99_us
-    /// (now - the publisher's send time), missed (sequence gaps), service.
+    /// CLOCK_MONOTONIC, over the latency_samples samples whose stamp is on
+    /// this host's clock: a latency from 0 to 60 s; null when none is, as
+    /// in a replay, which keeps the recording's stamps),
+    /// transport_latency_p50_us, transport_latency_p99_us (now - the
+    /// publisher's send time), missed (sequence gaps), service.
     #[arg(long)]
     json: bool,
     /// Print one line per this many samples (the rest are still measured).
@@ -64,10 +67,13 @@ struct EchoReport {
     received: u64,
     missed: u64,
     rate_hz: f64,
-    /// None (null) when the stamps are not on this host's clock (a
-    /// replay's dataset stamps): that "latency" would be a clock offset.
+    /// Over the samples stamped on this host's clock ([`on_host_clock`]);
+    /// None (null) when none was (a replay's dataset stamps): that
+    /// "latency" would be a clock offset.
     latency_p50_us: Option<f64>,
     latency_p99_us: Option<f64>,
+    /// How many samples the latency is over.
+    latency_samples: u64,
     transport_latency_p50_us: f64,
     transport_latency_p99_us: f64,
 }
@@ -143,13 +149,15 @@ pub fn run(args: EchoArgs) -> anyhow::Result<()> {
             args.timeout_s, args.count
         );
     }
+    let latency = LatencySummary::of(&measured.latency_us);
     let report = EchoReport {
         service,
         received,
         missed,
         rate_hz: rate_hz(&measured.receive_t_ns),
-        latency_p50_us: plausible(percentile(&measured.latency_us, 0.50)),
-        latency_p99_us: plausible(percentile(&measured.latency_us, 0.99)),
+        latency_p50_us: latency.as_ref().map(|l| l.p50_us),
+        latency_p99_us: latency.as_ref().map(|l| l.p99_us),
+        latency_samples: latency.as_ref().map_or(0, |l| l.samples),
         transport_latency_p50_us: percentile(&measured.transport_latency_us, 0.50),
         transport_latency_p99_us: percentile(&measured.transport_latency_us, 0.99),
     };
@@ -160,11 +168,13 @@ pub fn run(args: EchoArgs) -> anyhow::Result<()> {
     if args.json {
         println!("{}", serde_json::to_string(&report)?);
     } else {
-        let latency = match (report.latency_p50_us, report.latency_p99_us) {
-            (Some(p50), Some(p99)) => {
-                format!("p50 {} p99 {}", latency_text(p50), latency_text(p99))
-            }
-            _ => latency_text(f64::NAN),
+        let latency = match &latency {
+            Some(l) if l.samples < received => format!(
+                "p50 {:.1} us p99 {:.1} us over the {} samples stamped on this host's clock",
+                l.p50_us, l.p99_us, l.samples
+            ),
+            Some(l) => format!("p50 {:.1} us p99 {:.1} us", l.p50_us, l.p99_us),
+            None => latency_text(None),
         };
         println!(
             "{}: {} received, {} missed, {:.1} Hz, latency {latency}, transport p50 {:.1} us p99 {:.1} us",
@@ -252,30 +262,56 @@ fn print_pose(m: &PoseMessage, latency_us: f64) {
         "#{} t={:.6} s {state} p=[{px:.4} {py:.4} {pz:.4}] m q_xyzw=[{qx:.4} {qy:.4} {qz:.4} {qw:.4}] v=[{vx:.3} {vy:.3} {vz:.3}] m/s{odom} latency={}",
         m.sequence,
         m.t_ns as f64 * 1e-9,
-        latency_text(latency_us),
+        latency_text(on_host_clock(latency_us)),
     );
 }
 
-/// A sensor-to-here latency for people: stamps that are not on this
-/// host's monotonic clock (a replay keeps the recording's time) give
-/// numbers of days or negative ones, which say nothing.
-/// A latency, or None when it is a clock mismatch.
-fn plausible(latency_us: f64) -> Option<f64> {
-    (0.0..PLAUSIBLE_LATENCY_US)
+/// The latency `now - t_ns` when the stamp is on this host's
+/// `CLOCK_MONOTONIC`, None when it is not: a replay publishes the
+/// recording's stamps (EuRoC's are Unix times of 2014), a simulation its
+/// own clock, and their "latency" is a clock offset, negative or of hours
+/// or days, that says nothing. The rule: from 0 to 60 s. A stamp on the
+/// host clock is never in the future, and no pose worth reading is a
+/// minute old; a live daemon's poses are milliseconds old.
+fn on_host_clock(latency_us: f64) -> Option<f64> {
+    (0.0..MAX_LATENCY_US)
         .contains(&latency_us)
         .then_some(latency_us)
 }
 
-fn latency_text(latency_us: f64) -> String {
-    if (0.0..PLAUSIBLE_LATENCY_US).contains(&latency_us) {
-        format!("{latency_us:.1} us")
-    } else {
-        "n/a (stamps not on this host's clock)".into()
+/// Beyond this a "latency" is a clock mismatch, us (1 min).
+const MAX_LATENCY_US: f64 = 60e6;
+
+/// The latency percentiles over the samples stamped on this host's clock.
+#[derive(Debug, PartialEq)]
+struct LatencySummary {
+    p50_us: f64,
+    p99_us: f64,
+    samples: u64,
+}
+
+impl LatencySummary {
+    /// None when no sample's stamp is on this host's clock.
+    fn of(latencies_us: &[f64]) -> Option<Self> {
+        let on_host: Vec<f64> = latencies_us
+            .iter()
+            .filter_map(|&l| on_host_clock(l))
+            .collect();
+        (!on_host.is_empty()).then(|| Self {
+            p50_us: percentile(&on_host, 0.50),
+            p99_us: percentile(&on_host, 0.99),
+            samples: on_host.len() as u64,
+        })
     }
 }
 
-/// Beyond this a "latency" is a clock mismatch, us (1 min).
-const PLAUSIBLE_LATENCY_US: f64 = 60e6;
+/// A latency for people, "n/a" with the reason when there is none.
+fn latency_text(latency_us: Option<f64>) -> String {
+    match latency_us {
+        Some(us) => format!("{us:.1} us"),
+        None => "n/a (stamps not on this host's clock)".into(),
+    }
+}
 
 fn print_status(m: &StatusMessage, _latency_us: f64) {
     let queues: Vec<String> = m
@@ -284,11 +320,11 @@ fn print_status(m: &StatusMessage, _latency_us: f64) {
         .map(|q| format!("{} {}/{}", q.name_str(), q.len, q.capacity))
         .collect();
     println!(
-        "#{} camera {:.1} Hz imu {:.1} Hz pose {:.1} Hz, drops camera {} imu {} pose {}, latency p50 {:.0} us p99 {:.0} us, health 0x{:x}, noise scale gyro {:.2} accel {:.2} pixel {:.2}, camera-imu {:.3} deg {:.4} m {:+.5} s from the file, queues [{}]",
+        "#{} camera {} imu {} pose {}, drops camera {} imu {} pose {}, latency p50 {:.0} us p99 {:.0} us, health 0x{:x}, noise scale gyro {:.2} accel {:.2} pixel {:.2}, camera-imu {:.3} deg {:.4} m {:+.5} s from the file, queues [{}]",
         m.sequence,
-        m.camera_rate_hz,
-        m.imu_rate_hz,
-        m.pose_rate_hz,
+        rate_words(m.camera_rate_hz, 1),
+        rate_words(m.imu_rate_hz, 1),
+        rate_words(m.pose_rate_hz, 1),
         m.camera_drops,
         m.imu_drops,
         m.pose_drops,
@@ -341,10 +377,33 @@ mod tests {
 
     #[test]
     fn replay_stamps_give_no_latency_number() {
-        assert_eq!(latency_text(12.34), "12.3 us");
-        assert!(latency_text(26457717438.2).starts_with("n/a"));
-        assert!(latency_text(-5.0).starts_with("n/a"));
-        assert!(latency_text(f64::NAN).starts_with("n/a"));
+        assert_eq!(latency_text(on_host_clock(12.34)), "12.3 us");
+        assert_eq!(on_host_clock(0.0), Some(0.0));
+        // A day old (a simulated clock from 0), in the future (a
+        // dataset's 2014 Unix stamps against the host's uptime), a
+        // minute or more old, no number.
+        for latency_us in [86_400e6, -1.4e15, -5.0, 60e6, f64::NAN] {
+            assert_eq!(on_host_clock(latency_us), None, "{latency_us}");
+        }
+        assert!(latency_text(None).starts_with("n/a"));
+    }
+
+    /// The percentiles are over the samples stamped on the host clock
+    /// only (say a daemon restarted from a replay to the live rig while
+    /// echo listened), and there are none without such samples.
+    #[test]
+    fn latency_percentiles_leave_out_other_clocks() {
+        let mixed = [300.0, -1.4e15, 100.0, 86_400e6, 200.0];
+        assert_eq!(
+            LatencySummary::of(&mixed),
+            Some(LatencySummary {
+                p50_us: 200.0,
+                p99_us: 300.0,
+                samples: 3
+            })
+        );
+        assert_eq!(LatencySummary::of(&[-1.4e15, 86_400e6]), None);
+        assert_eq!(LatencySummary::of(&[]), None);
     }
 
     #[test]

@@ -52,43 +52,14 @@ fn main() -> std::process::ExitCode {
     match run() {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {}", error_chain(&e));
+            eprintln!("error: {}", rigslam::console::error_chain(&e));
             std::process::ExitCode::FAILURE
         }
     }
 }
 
-/// The error and its causes joined by ": ", leaving out a cause whose text
-/// the message before it already carries (many of our errors print their
-/// source inline, e.g. "file: No such file or directory").
-fn error_chain(e: &anyhow::Error) -> String {
-    let mut out = String::new();
-    for cause in e.chain() {
-        let text = cause.to_string();
-        if !out.contains(&text) {
-            if !out.is_empty() {
-                out.push_str(": ");
-            }
-            out.push_str(&text);
-        }
-    }
-    out
-}
-
-/// Colour codes only for a terminal, and not with NO_COLOR set.
-fn colour_wanted() -> bool {
-    use std::io::IsTerminal;
-    std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").map_or(true, |v| v.is_empty())
-}
-
 fn run() -> anyhow::Result<()> {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
-        )
-        .with_writer(std::io::stderr)
-        .with_ansi(colour_wanted())
-        .init();
+    rigslam::console::init_logging();
     match Cli::parse().command {
         Command::Bench(args) => bench::run(args),
         Command::Camera(args) => camera::run(args),

@@ -1,6 +1,7 @@
 //! `rigslam run`: a recorded sequence through the relative stage; the
-//! trajectory (TUM), a one-line summary, and a report with per-stage
-//! timings and, when the dataset has ground truth, the accuracy.
+//! trajectory (TUM, EuRoC csv or KITTI poses), a one-line summary, and a
+//! report with per-stage timings and, when the dataset has ground truth,
+//! the accuracy.
 
 use std::path::PathBuf;
 
@@ -31,9 +32,11 @@ pub struct RunArgs {
     #[arg(long, value_enum, default_value_t = EstimatorKind::Window)]
     estimator: EstimatorKind,
     /// Write the body trajectory here; with --absolute, the corrected one.
-    /// The format follows the extension (`.csv` EuRoC: t[ns],p,q wxyz;
-    /// `.kitti` KITTI: a 3x4 [R|t] per line; anything else TUM: t[s] tx
-    /// ty tz qx qy qz qw) unless --trajectory-format says.
+    /// The format follows the extension unless --trajectory-format says:
+    /// `.csv` EuRoC (t[ns],px,py,pz,qw,qx,qy,qz under EuRoC's ground-truth
+    /// header); `.kitti` KITTI poses (the 3x4 [R|t] row-major, 12 numbers
+    /// a line, no stamps); `.tum`, `.txt` or anything else TUM (t[s] tx ty
+    /// tz qx qy qz qw).
     #[arg(long)]
     trajectory: Option<PathBuf>,
     /// The format of --trajectory and --trajectory-relative, whatever

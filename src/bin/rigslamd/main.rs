@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use clap::Parser;
 use rigslam::daemon::config::ReplayPace;
-use rigslam::daemon::health::{health_words, is_healthy};
+use rigslam::daemon::health::{health_words, is_healthy, rate_words};
 use rigslam::daemon::{check, DaemonConfig, IpcSink, Pipeline};
 use rigslam::publish::{cleanup_dead_nodes, PosePublisher};
 use rigslam::relative::SensorMode;
@@ -69,29 +69,15 @@ struct Args {
 }
 
 fn main() -> std::process::ExitCode {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
-        .with_writer(std::io::stderr)
-        .with_ansi(colour_wanted())
-        .init();
+    rigslam::console::init_logging();
     let args = Args::parse();
     match run(args) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("rigslamd: {e:#}");
+            eprintln!("rigslamd: {}", rigslam::console::error_chain(&e));
             std::process::ExitCode::FAILURE
         }
     }
-}
-
-/// Colour codes only for a terminal, and not with NO_COLOR set: under
-/// systemd the journal would keep them as text.
-fn colour_wanted() -> bool {
-    use std::io::IsTerminal;
-    std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").map_or(true, |v| v.is_empty())
 }
 
 /// `--repair`: what the file held, what was lost, where the new one is.
@@ -274,10 +260,10 @@ fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
             let status = pipeline.status();
             let words = health_words(status.sensor_health);
             let mut line = format!(
-                "camera {:.1} Hz, imu {:.0} Hz, pose {:.1} Hz, latency p50 {:.1} ms p99 {:.1} ms, drops {}/{}; {words}",
-                status.camera_rate_hz,
-                status.imu_rate_hz,
-                status.pose_rate_hz,
+                "camera {}, imu {}, pose {}, latency p50 {:.1} ms p99 {:.1} ms, drops {}/{}; {words}",
+                rate_words(status.camera_rate_hz, 1),
+                rate_words(status.imu_rate_hz, 0),
+                rate_words(status.pose_rate_hz, 1),
                 status.latency_p50_us * 1e-3,
                 status.latency_p99_us * 1e-3,
                 status.camera_drops,
@@ -367,7 +353,10 @@ fn reload(args: &Args, pipeline: &mut Pipeline) {
     let (config, file) = match loaded {
         Ok(c) => c,
         Err(e) => {
-            tracing::error!("reload refused, keeping the running calibration: {e:#}");
+            tracing::error!(
+                "reload refused, keeping the running calibration: {}",
+                rigslam::console::error_chain(&e)
+            );
             return;
         }
     };

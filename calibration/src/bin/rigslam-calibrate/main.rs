@@ -56,6 +56,9 @@ pub(crate) fn output_file(dir: &std::path::Path, name: &str) -> anyhow::Result<s
 }
 
 fn main() -> std::process::ExitCode {
+    // The core's warnings (a recording's unreadable rows, say) reach the
+    // user as the other binaries' do.
+    rigslam::console::init_logging();
     let result = match Cli::parse().command {
         Command::Imu(args) => imu::run(args),
         Command::Noise(args) => noise::run(args),
@@ -67,7 +70,7 @@ fn main() -> std::process::ExitCode {
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", rigslam::console::error_chain(&e));
             std::process::ExitCode::FAILURE
         }
     }
