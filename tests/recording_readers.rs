@@ -94,9 +94,13 @@ fn the_python_mcap_reader_reads_a_daemon_recording_as_rigslam_wrote_it() {
         .arg("--root-path")
         .arg(dir.path().join("iox"))
         .env_remove("NOTIFY_SOCKET")
-        .status()
+        .output()
         .expect("run rigslamd");
-    assert!(status.success());
+    assert!(
+        status.status.success(),
+        "{}",
+        String::from_utf8_lossy(&status.stderr)
+    );
     let after = unix_now_ns();
     let files = rigslam::daemon::recorder::list_recordings(dir.path());
     assert_eq!(files.len(), 1, "{files:?}");

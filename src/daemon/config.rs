@@ -286,6 +286,8 @@ pub struct RecordingConfig {
     /// How chunks are compressed: `"zstd"` (smallest files), `"lz4"`
     /// (less CPU) or `"none"` [zstd].
     pub compression: crate::recording::Compression,
+    /// zstd's level, 1 (fastest) to 19 [1]; lz4's acceleration.
+    pub compression_level: u32,
 }
 
 impl Default for RecordingConfig {
@@ -296,6 +298,7 @@ impl Default for RecordingConfig {
             budget_mib: 4096,
             rotate_mib: 256,
             compression: crate::recording::Compression::Zstd,
+            compression_level: crate::recording::writer::DEFAULT_ZSTD_LEVEL,
         }
     }
 }
@@ -661,6 +664,17 @@ pub fn check(config: &DaemonConfig, file: &Path) -> Result<RigModel, Vec<Problem
                 format!(
                     "{} MiB: must be at least 1 and at most recording.budget_mib ({} MiB)",
                     r.rotate_mib, r.budget_mib
+                ),
+            );
+        }
+        if r.compression == crate::recording::Compression::Zstd
+            && !(1..=19).contains(&r.compression_level)
+        {
+            bad(
+                "recording.compression_level",
+                format!(
+                    "{}: zstd's levels go from 1 (fastest) to 19 (smallest)",
+                    r.compression_level
                 ),
             );
         }

@@ -137,11 +137,11 @@ const ODOM: &str = "odom";
 const BODY: &str = "body";
 
 fn open_file(
-    dir: &Path,
-    compression: crate::recording::Compression,
+    config: &RecordingConfig,
     attachments: &[(String, Vec<u8>)],
     rig: &RigModel,
 ) -> Result<OpenFile, RecordingError> {
+    let dir = &config.dir;
     // Wall-clock-free name: the next free number, so files sort by age.
     let next = list_recordings(dir)
         .iter()
@@ -149,7 +149,12 @@ fn open_file(
         .max()
         .map_or(0, |n| n + 1);
     let path = dir.join(format!("rigslam-{next:06}.mcap"));
-    let mut recorder = McapRecorder::create(&path, compression)?;
+    let mut recorder = McapRecorder::create_with(
+        &path,
+        config.compression,
+        config.compression_level,
+        crate::recording::ClockMapping::now(),
+    )?;
     for (name, data) in attachments {
         recorder.attach(name, "application/x-yaml", data)?;
     }
@@ -371,7 +376,7 @@ fn record_loop(
 ) -> Result<Vec<PathBuf>, RecordingError> {
     let rotate = config.rotate_mib.max(1) << 20;
     let budget = config.budget_mib << 20;
-    let open = || open_file(&config.dir, config.compression, attachments, rig);
+    let open = || open_file(config, attachments, rig);
     enforce_budget(&config.dir, budget, rotate);
     let mut file = open()?;
     let mut closed = Vec::new();
@@ -434,6 +439,7 @@ mod tests {
             budget_mib: 3,
             rotate_mib: 1,
             compression: crate::recording::Compression::None,
+            compression_level: 0,
         };
         let rig = RigModel {
             cameras: vec![],

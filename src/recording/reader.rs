@@ -510,9 +510,11 @@ impl State {
                     .map_err(|e| fail(format!("lz4: {e}")))?;
                 Cow::Owned(out)
             }
-            (other, _) => return Err(fail(format!(
+            (other, _) => {
+                return Err(fail(format!(
                 "compression {other:?} is not one the MCAP specification names (zstd, lz4 or none)"
-            ))),
+            )))
+            }
         };
         if records.len() != size {
             return Err(fail(format!(

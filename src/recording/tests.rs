@@ -59,7 +59,8 @@ fn imu_samples_replay_bit_for_bit(compression: Compression) {
 /// uncompressed) per 8 frames.
 fn stereo_recording(path: &Path, compression: Compression, frames: i64, clock: ClockMapping) {
     let mut rng = ChaCha8Rng::seed_from_u64(3);
-    let mut rec = McapRecorder::create_with_clock(path, compression, clock).expect("create");
+    let mut rec = McapRecorder::create_with(path, compression, writer::DEFAULT_ZSTD_LEVEL, clock)
+        .expect("create");
     rec.attach("calibration/cam0.yaml", "application/x-yaml", b"cam0")
         .expect("attach");
     let imu = rec.add_imu_channel("/imu0", &BTreeMap::new()).expect("imu");
