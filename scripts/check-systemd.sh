@@ -21,3 +21,17 @@ if [ "$rc" -ne 0 ]; then
     echo "systemd-analyze security: exposure above 2.5 (exit $rc)" >&2
     exit 1
 fi
+# The same with the live view's drop-in (systemd/viewer.conf) beside it,
+# which the offline review reads as systemd would.
+mkdir -p "$tmp/viewer/rigslamd.service.d"
+cp "$tmp/rigslamd.service" "$tmp/viewer/rigslamd.service"
+cp "$root/systemd/viewer.conf" "$tmp/viewer/rigslamd.service.d/viewer.conf"
+systemd-analyze verify "$tmp/viewer/rigslamd.service"
+rc=0
+systemd-analyze security --offline=true --threshold=25 "$tmp/viewer/rigslamd.service" >"$tmp/security-viewer" 2>&1 || rc=$?
+echo "with viewer.conf: $(tail -n 1 "$tmp/security-viewer")"
+if [ "$rc" -ne 0 ]; then
+    cat "$tmp/security-viewer" >&2
+    echo "systemd-analyze security with viewer.conf: exposure above 2.5 (exit $rc)" >&2
+    exit 1
+fi

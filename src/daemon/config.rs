@@ -45,6 +45,42 @@ pub struct DaemonConfig {
     #[serde(default)]
     /// `[map]`: the map on disk that outlives the process (off by default).
     pub map: MapConfig,
+    #[serde(default)]
+    /// `[viewer]`: the live view for Foxglove (off by default).
+    pub viewer: ViewerConfig,
+}
+
+/// `[viewer]`: a Foxglove WebSocket server inside the daemon with the
+/// recording's channels, live.
+#[derive(Debug, Clone, PartialEq, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ViewerConfig {
+    /// Serve at all [false].
+    pub enabled: bool,
+    /// Address and port to listen on ["127.0.0.1:8765"]: loopback, so
+    /// that only this machine (or an SSH tunnel) sees the robot's cameras.
+    pub listen: String,
+}
+
+impl Default for ViewerConfig {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            listen: "127.0.0.1:8765".to_owned(),
+        }
+    }
+}
+
+impl ViewerConfig {
+    /// The address to listen on, or why `listen` is not one.
+    pub fn address(&self) -> Result<std::net::SocketAddr, String> {
+        self.listen.parse().map_err(|_| {
+            format!(
+                "{:?} is not an address and port, e.g. \"127.0.0.1:8765\"",
+                self.listen
+            )
+        })
+    }
 }
 
 /// `[map]`: where the absolute stage's map is kept between runs.
@@ -429,6 +465,7 @@ impl DaemonConfig {
             },
             publish: IpcConfig::default(),
             recording: RecordingConfig::default(),
+            viewer: ViewerConfig::default(),
             pipeline: PipelineConfig::default(),
             map: MapConfig::default(),
         }
@@ -683,6 +720,11 @@ pub fn check(config: &DaemonConfig, file: &Path) -> Result<RigModel, Vec<Problem
                 "recording.dir",
                 format!("{} is not a folder", r.dir.display()),
             );
+        }
+    }
+    if config.viewer.enabled {
+        if let Err(why) = config.viewer.address() {
+            bad("viewer.listen", why);
         }
     }
     if let Some(root) = &config.publish.root_path {

@@ -24,6 +24,7 @@ pub mod queue;
 pub mod recorder;
 pub mod slam_stage;
 pub mod sources;
+pub mod viewer;
 
 use std::sync::{Condvar, Mutex};
 use std::time::Duration;

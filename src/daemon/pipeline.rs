@@ -20,6 +20,7 @@ use super::queue::{BoundedQueue, WhenFull};
 use super::recorder::{spawn_recorder, RecordSender, RecorderThread};
 use super::slam_stage::{run_stage, FrameItem, PoseSink, StageInputs, StageSettings};
 use super::sources::{spawn_camera, spawn_replay, spawn_yei, SourceLinks};
+use super::viewer::{spawn_viewer, ViewerThread};
 use super::Doorbell;
 
 /// Why the pipeline could not start or stopped badly.
@@ -120,6 +121,8 @@ pub struct PipelineReport {
     pub timestamp_jumps: u64,
     /// Records the recorder dropped because its channel was full.
     pub recording_drops: u64,
+    /// Records the live view dropped because its channel was full.
+    pub viewer_drops: u64,
     /// The MCAP files the recorder wrote and kept (older ones may have been deleted to stay within
     /// the budget).
     pub recordings: Vec<PathBuf>,
@@ -153,6 +156,12 @@ pub struct Pipeline {
     sources: Vec<JoinHandle<()>>,
     stage: Option<JoinHandle<Result<(), SlamSetupError>>>,
     recorder: Option<RecorderThread>,
+    /// The recorder's end alone (its drops).
+    recording: Option<RecordSender>,
+    viewer: Option<ViewerThread>,
+    /// The viewer's end alone (its drops).
+    viewing: Option<RecordSender>,
+    /// Both ends: what the threads hand records to.
     record: Option<RecordSender>,
     rules: HealthRules,
     base: RateBase,
@@ -194,6 +203,24 @@ impl Pipeline {
             (Some(tx), Some(handle))
         } else {
             (None, None)
+        };
+        // The live view: a port that cannot be had is said, and the daemon
+        // goes on publishing and recording without it.
+        let (viewing, viewer) = if config.viewer.enabled {
+            match spawn_viewer(&config.viewer, rig.clone()) {
+                Ok((tx, thread)) => (Some(tx), Some(thread)),
+                Err(e) => {
+                    tracing::error!("{e}; running without the live view");
+                    (None, None)
+                }
+            }
+        } else {
+            (None, None)
+        };
+        let recording = record;
+        let record = match (recording.clone(), viewing.clone()) {
+            (Some(r), Some(v)) => Some(r.and(v)),
+            (r, v) => r.or(v),
         };
         let sink: Box<dyn PoseSink> = match &record {
             Some(r) => Box::new(RecordingSink {
@@ -275,6 +302,9 @@ impl Pipeline {
             sources,
             stage: Some(stage),
             recorder,
+            recording,
+            viewer,
+            viewing,
             record,
             rules: HealthRules {
                 camera_stall_ns: (p.camera_stall_s * 1e9) as i64,
@@ -326,6 +356,11 @@ impl Pipeline {
         status
     }
 
+    /// The port the live view listens on, when it runs.
+    pub fn viewer_port(&self) -> Option<u16> {
+        self.viewer.as_ref().map(ViewerThread::port)
+    }
+
     /// Whether the SLAM stage has stopped making progress.
     pub fn stuck(&self) -> bool {
         self.health.stage_stuck(
@@ -366,8 +401,16 @@ impl Pipeline {
             .expect("stop consumes the pipeline, so the stage is joined once")
             .join()
             .map_err(|_| PipelineError::Panicked("slam"))?;
-        let recording_drops = self.record.as_ref().map_or(0, |r| r.dropped());
+        let recording_drops = self.recording.as_ref().map_or(0, |r| r.dropped());
+        let viewer_drops = self.viewing.as_ref().map_or(0, |r| r.dropped());
         self.record = None;
+        self.recording = None;
+        self.viewing = None;
+        if let Some(viewer) = self.viewer.take() {
+            viewer
+                .join()
+                .map_err(|()| PipelineError::Panicked("viewer"))?;
+        }
         let recordings = match self.recorder.take() {
             Some(r) => r
                 .join()
@@ -389,6 +432,7 @@ impl Pipeline {
             pose_drops: h.pose_drops.load(Ordering::Relaxed),
             timestamp_jumps: h.timestamp_jumps.load(Ordering::Relaxed),
             recording_drops,
+            viewer_drops,
             recordings,
             source_failed: h.source_failed.load(Ordering::Relaxed),
             replay_cut: h.replay_cut.load(Ordering::Relaxed),

@@ -34,54 +34,95 @@ use super::slam_stage::FrameItem;
 /// Records in flight before new ones are dropped.
 const CHANNEL_BOUND: usize = 4096;
 
-enum Record {
+/// What the sensor and SLAM threads hand to the recorder (and the viewer),
+/// with the host time it was handed over.
+#[derive(Clone)]
+pub(super) enum Record {
     Imu(ImuSample, i64),
     Frame(FrameItem, i64),
     Pose(Box<RecordedPose>, i64),
     Status(StatusProto, i64),
 }
 
-/// The producers' end; cheap to clone.
+/// One consumer's bounded channel and its drop count.
 #[derive(Clone)]
-pub struct RecordSender {
+struct Out {
     tx: SyncSender<Record>,
     dropped: Arc<AtomicU64>,
 }
 
+/// The producers' end; cheap to clone. It hands every record to each
+/// consumer it was joined with ([`Self::and`]) without waiting.
+#[derive(Clone)]
+pub struct RecordSender {
+    outs: Vec<Out>,
+}
+
 impl RecordSender {
-    fn send(&self, record: Record) {
-        if let Err(TrySendError::Full(_)) = self.tx.try_send(record) {
-            self.dropped.fetch_add(1, Ordering::Relaxed);
+    /// A sender to one consumer's channel.
+    pub(super) fn to(tx: SyncSender<Record>) -> Self {
+        Self {
+            outs: vec![Out {
+                tx,
+                dropped: Arc::new(AtomicU64::new(0)),
+            }],
         }
     }
 
-    /// Hands an IMU sample to the recorder, stamped with the host's `CLOCK_MONOTONIC` now; dropped
-    /// and counted if the channel is full.
+    /// A sender that hands every record to this one's consumers and `other`'s.
+    pub fn and(mut self, other: RecordSender) -> RecordSender {
+        self.outs.extend(other.outs);
+        self
+    }
+
+    fn send(&self, record: Record) {
+        let Some((last, rest)) = self.outs.split_last() else {
+            return;
+        };
+        for out in rest {
+            out.offer(record.clone());
+        }
+        last.offer(record);
+    }
+
+    /// Hands an IMU sample over, stamped with the host's `CLOCK_MONOTONIC` now; dropped
+    /// and counted if a channel is full.
     pub fn imu(&self, sample: &ImuSample) {
         self.send(Record::Imu(*sample, host_monotonic_ns()));
     }
 
-    /// Hands a frame to the recorder, stamped with the host's `CLOCK_MONOTONIC` now; dropped and
-    /// counted if the channel is full.
+    /// Hands a frame over, stamped with the host's `CLOCK_MONOTONIC` now; dropped and
+    /// counted if a channel is full.
     pub fn frame(&self, frame: &FrameItem) {
         self.send(Record::Frame(frame.clone(), host_monotonic_ns()));
     }
 
-    /// Hands a published pose to the recorder, stamped with the host's `CLOCK_MONOTONIC` now;
-    /// dropped and counted if the channel is full.
+    /// Hands a published pose over, stamped with the host's `CLOCK_MONOTONIC` now;
+    /// dropped and counted if a channel is full.
     pub fn pose(&self, pose: RecordedPose) {
         self.send(Record::Pose(Box::new(pose), host_monotonic_ns()));
     }
 
-    /// Hands a status to the recorder; dropped and counted if the channel
-    /// is full.
+    /// Hands a status over; dropped and counted if a channel is full.
     pub fn status(&self, status: StatusProto) {
         self.send(Record::Status(status, host_monotonic_ns()));
     }
 
-    /// Records dropped because the recorder was behind.
+    /// Records dropped because a consumer was behind (all of this
+    /// sender's consumers together).
     pub fn dropped(&self) -> u64 {
-        self.dropped.load(Ordering::Relaxed)
+        self.outs
+            .iter()
+            .map(|o| o.dropped.load(Ordering::Relaxed))
+            .sum()
+    }
+}
+
+impl Out {
+    fn offer(&self, record: Record) {
+        if let Err(TrySendError::Full(_)) = self.tx.try_send(record) {
+            self.dropped.fetch_add(1, Ordering::Relaxed);
+        }
     }
 }
 
@@ -111,13 +152,7 @@ pub fn spawn_recorder(
             path: PathBuf::from("(recorder thread)"),
             source,
         })?;
-    Ok((
-        RecordSender {
-            tx,
-            dropped: Arc::new(AtomicU64::new(0)),
-        },
-        handle,
-    ))
+    Ok((RecordSender::to(tx), handle))
 }
 
 struct OpenFile {
@@ -132,9 +167,9 @@ struct OpenFile {
 }
 
 /// Frame ids of the transform tree (REP-105).
-const MAP: &str = "map";
-const ODOM: &str = "odom";
-const BODY: &str = "body";
+pub(super) const MAP: &str = "map";
+pub(super) const ODOM: &str = "odom";
+pub(super) const BODY: &str = "body";
 
 fn open_file(
     config: &RecordingConfig,
@@ -173,24 +208,13 @@ fn open_file(
     // calibrations and where the sensors sit on the body, stamped 0 so
     // that they hold from the start.
     let now = host_monotonic_ns();
-    let mut statics = Vec::new();
     for (i, camera) in rig.cameras.iter().enumerate().take(2) {
         let name = format!("cam{i}");
         let channel =
             recorder.add_channel::<CameraCalibration>(&format!("/{name}/calibration"), &none)?;
         recorder.write(channel, &camera_calibration(camera, &name), now)?;
-        statics.push(transform(0, BODY, &name, &camera.T_body_cam));
     }
-    if let Some(imu) = &rig.imu {
-        statics.push(transform(0, BODY, "imu", &imu.T_body_imu));
-    }
-    recorder.write(
-        tf,
-        &FrameTransforms {
-            transforms: statics,
-        },
-        now,
-    )?;
+    recorder.write(tf, &static_transforms(rig), now)?;
     tracing::info!("recording to {}", path.display());
     Ok(OpenFile {
         recorder,
@@ -207,7 +231,10 @@ fn open_file(
 /// A camera's calibration as Foxglove's image and 3D panels read it
 /// (ROS's `CameraInfo` conventions: `plumb_bob` is OpenCV's k1, k2, p1,
 /// p2, k3; `kannala_brandt` the equidistant k1..k4).
-fn camera_calibration(camera: &crate::rig::CameraCalibration, frame_id: &str) -> CameraCalibration {
+pub(super) fn camera_calibration(
+    camera: &crate::rig::CameraCalibration,
+    frame_id: &str,
+) -> CameraCalibration {
     let model = &camera.model;
     let [fx, fy, cx, cy] = model.pinhole();
     let distortion_model = match model {
@@ -250,7 +277,7 @@ fn transform(t_ns: i64, parent: &str, child: &str, pose: &Isometry3<f64>) -> Fra
 }
 
 /// A pose for the 3D panel.
-fn pose_in_frame(t_ns: i64, frame: &str, p: [f64; 3], q: [f64; 4]) -> PoseInFrame {
+pub(super) fn pose_in_frame(t_ns: i64, frame: &str, p: [f64; 3], q: [f64; 4]) -> PoseInFrame {
     PoseInFrame {
         timestamp: Some(timestamp(t_ns)),
         frame_id: frame.to_owned(),
@@ -267,6 +294,41 @@ fn pose_in_frame(t_ns: i64, frame: &str, p: [f64; 3], q: [f64; 4]) -> PoseInFram
                 w: q[3],
             }),
         }),
+    }
+}
+
+/// Where the sensors sit on the body, stamped 0 (they hold from the start).
+pub(super) fn static_transforms(rig: &RigModel) -> FrameTransforms {
+    let mut transforms: Vec<FrameTransform> = rig
+        .cameras
+        .iter()
+        .take(2)
+        .enumerate()
+        .map(|(i, camera)| transform(0, BODY, &format!("cam{i}"), &camera.T_body_cam))
+        .collect();
+    if let Some(imu) = &rig.imu {
+        transforms.push(transform(0, BODY, "imu", &imu.T_body_imu));
+    }
+    FrameTransforms { transforms }
+}
+
+/// map -> odom and odom -> body at a pose.
+pub(super) fn pose_transforms(p: &RecordedPose) -> FrameTransforms {
+    FrameTransforms {
+        transforms: vec![
+            transform(
+                p.t_ns,
+                MAP,
+                ODOM,
+                &isometry(p.translation_world_odom_m, p.rotation_world_odom_xyzw),
+            ),
+            transform(
+                p.t_ns,
+                ODOM,
+                BODY,
+                &isometry(p.position_odom_m, p.orientation_odom_body_xyzw),
+            ),
+        ],
     }
 }
 
@@ -304,23 +366,7 @@ impl OpenFile {
             ),
             receipt,
         )?;
-        let tree = FrameTransforms {
-            transforms: vec![
-                transform(
-                    p.t_ns,
-                    MAP,
-                    ODOM,
-                    &isometry(p.translation_world_odom_m, p.rotation_world_odom_xyzw),
-                ),
-                transform(
-                    p.t_ns,
-                    ODOM,
-                    BODY,
-                    &isometry(p.position_odom_m, p.orientation_odom_body_xyzw),
-                ),
-            ],
-        };
-        r.write(self.tf, &tree, receipt)
+        r.write(self.tf, &pose_transforms(p), receipt)
     }
 }
 

@@ -380,7 +380,7 @@ impl McapRecorder {
 }
 
 /// The image as 8-bit grey rows without padding.
-fn grey_bytes(image: &rigslam_drivers::Image) -> Vec<u8> {
+pub fn grey_bytes(image: &rigslam_drivers::Image) -> Vec<u8> {
     let (w, h) = (image.width(), image.height());
     if image.format() == rigslam_drivers::PixelFormat::Mono8 {
         let stride = image.stride_bytes();

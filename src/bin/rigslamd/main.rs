@@ -57,6 +57,10 @@ struct Args {
     /// At exit, write a JSON report (counts, latencies, CPU) to this file.
     #[arg(long)]
     report: Option<PathBuf>,
+    /// Overrides `viewer`: serve the live view for Foxglove on this address
+    /// and port (e.g. 127.0.0.1:8765; port 0 picks a free one, logged).
+    #[arg(long, value_name = "ADDR:PORT")]
+    viewer: Option<String>,
     /// Rewrite a recording cut short (power loss, SIGKILL) or damaged as a
     /// closed, indexed MCAP file with everything it still holds, then
     /// exit. The original is left as it is; the new file goes beside it
@@ -148,6 +152,10 @@ fn load(args: &Args) -> anyhow::Result<(DaemonConfig, PathBuf)> {
     if let Some(dir) = &args.record {
         config.recording.enabled = true;
         config.recording.dir = dir.clone();
+    }
+    if let Some(listen) = &args.viewer {
+        config.viewer.enabled = true;
+        config.viewer.listen = listen.clone();
     }
     Ok((config, file))
 }
