@@ -2,7 +2,8 @@
 //! bundled EuRoC sequence at its recorded pace while a WebSocket client
 //! speaking Foxglove's protocol (`foxglove.sdk.v1`: server info,
 //! advertise, subscribe, binary message data) subscribes and receives
-//! poses, transforms, a camera calibration and images, decoded through
+//! poses, transforms, a camera calibration, images, the tracks over them
+//! and the landmark cloud, decoded through
 //! the schemas the server advertised. A second client connects, subscribes
 //! to the images and never reads: the daemon still publishes every pose.
 //! A second daemon asked for the same port says so and runs on without
@@ -229,7 +230,16 @@ fn an_operator_sees_poses_transforms_and_images_live() {
     ] {
         assert_eq!(client.channels[topic].1, schema, "{topic}");
     }
-    let topics = client.subscribe(&["/rigslam/pose", "/cam0", "/tf", "/cam0/calibration"]);
+    let topics = client.subscribe(&[
+        "/rigslam/pose",
+        "/cam0",
+        "/tf",
+        "/cam0/calibration",
+        "/cam0/tracks",
+        "/rigslam/landmarks",
+    ]);
+    let mut tracks = 0;
+    let mut clouds = 0;
     let mut poses: Vec<PoseEstimateProto> = Vec::new();
     let mut images = 0;
     let mut frames = std::collections::BTreeSet::new();
@@ -250,13 +260,31 @@ fn an_operator_sees_poses_transforms_and_images_live() {
                     frames.insert((t.parent_frame_id, t.child_frame_id));
                 }
             }
+            "/cam0/tracks" => {
+                let a = foxglove::messages::ImageAnnotations::decode(&data[..]).expect("tracks");
+                let points = &a.points[0].points;
+                assert!(points
+                    .iter()
+                    .all(|p| (0.0..752.0).contains(&p.x) && (0.0..480.0).contains(&p.y)));
+                if points.len() >= 10 {
+                    tracks += 1;
+                }
+            }
+            "/rigslam/landmarks" => {
+                let c = foxglove::messages::PointCloud::decode(&data[..]).expect("cloud");
+                assert_eq!((c.frame_id.as_str(), c.point_stride), ("odom", 12));
+                assert_eq!(c.data.len() % 12, 0);
+                if c.data.len() >= 10 * 12 {
+                    clouds += 1;
+                }
+            }
             _ => {
                 let c = foxglove::messages::CameraCalibration::decode(&data[..]).expect("calib");
                 assert_eq!((c.width, c.height, c.k.len()), (752, 480, 9));
                 calibrations += 1;
             }
         }
-        if poses.len() >= 40 && images >= 5 && calibrations >= 1 {
+        if poses.len() >= 40 && images >= 5 && calibrations >= 1 && tracks >= 5 && clouds >= 5 {
             break;
         }
     }
@@ -267,6 +295,10 @@ fn an_operator_sees_poses_transforms_and_images_live() {
         daemon.log()
     );
     assert!(images >= 5, "{images} images");
+    assert!(
+        tracks >= 5 && clouds >= 5,
+        "{tracks} track sets, {clouds} clouds"
+    );
     assert!(poses.windows(2).all(|w| w[0].t_ns < w[1].t_ns));
     assert!(
         poses

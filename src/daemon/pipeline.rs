@@ -86,6 +86,18 @@ impl PoseSink for RecordingSink {
             translation_world_odom_m: m.translation_world_odom_m,
             rotation_world_odom_xyzw: m.rotation_world_odom_xyzw,
         });
+        if !output.landmarks.is_empty() {
+            self.record.landmarks(super::recorder::Landmarks {
+                t_ns: m.t_ns,
+                position_odom_m: m.position_odom_m,
+                orientation_odom_body_xyzw: m.orientation_odom_body_xyzw,
+                points_body_m: output
+                    .landmarks
+                    .iter()
+                    .map(|l| l.position_body_m.into())
+                    .collect(),
+            });
+        }
         self.inner.pose(m, output)
     }
 

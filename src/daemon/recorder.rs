@@ -10,7 +10,9 @@
 //! estimates with covariance and both frames (`/rigslam/pose`), the poses
 //! for Foxglove's 3D panel (`/rigslam/pose_map`, `/rigslam/pose_odom`),
 //! the transform tree map -> odom -> body -> cam0/cam1/imu (`/tf`), each
-//! camera's calibration (`/cam0/calibration`, `/cam1/calibration`) and the
+//! camera's calibration (`/cam0/calibration`, `/cam1/calibration`), the
+//! tracked landmarks as points over camera 0's image (`/cam0/tracks`) and
+//! as a point cloud in the odometry frame (`/rigslam/landmarks`), and the
 //! daemon's status (`/rigslam/status`).
 
 use std::path::{Path, PathBuf};
@@ -19,7 +21,11 @@ use std::sync::mpsc::{self, Receiver, SyncSender, TrySendError};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 
-use foxglove::messages::{CameraCalibration, FrameTransform, FrameTransforms, PoseInFrame};
+use foxglove::messages::{
+    packed_element_field, points_annotation, CameraCalibration, Color, FrameTransform,
+    FrameTransforms, ImageAnnotations, PackedElementField, Point2, PointCloud, PointsAnnotation,
+    PoseInFrame,
+};
 use nalgebra::Isometry3;
 
 use crate::recording::schemas::{timestamp, StatusProto};
@@ -41,7 +47,23 @@ pub(super) enum Record {
     Imu(ImuSample, i64),
     Frame(FrameItem, i64),
     Pose(Box<RecordedPose>, i64),
+    Landmarks(Box<Landmarks>, i64),
     Status(StatusProto, i64),
+}
+
+/// The landmarks the relative stage tracked in a frame, with the frame's
+/// odometry-frame pose: the tracks on the image and the map around the
+/// robot, as the viewer and the recording show them.
+#[derive(Clone, Debug)]
+pub struct Landmarks {
+    /// The frame's stamp, ns.
+    pub t_ns: i64,
+    /// Body position in the odometry frame, m.
+    pub position_odom_m: [f64; 3],
+    /// `R_odom_body`, x, y, z, w.
+    pub orientation_odom_body_xyzw: [f64; 4],
+    /// Each landmark in the body frame, m.
+    pub points_body_m: Vec<[f64; 3]>,
 }
 
 /// One consumer's bounded channel and its drop count.
@@ -101,6 +123,12 @@ impl RecordSender {
     /// dropped and counted if a channel is full.
     pub fn pose(&self, pose: RecordedPose) {
         self.send(Record::Pose(Box::new(pose), host_monotonic_ns()));
+    }
+
+    /// Hands a frame's tracked landmarks over; dropped and counted if a
+    /// channel is full.
+    pub fn landmarks(&self, landmarks: Landmarks) {
+        self.send(Record::Landmarks(Box::new(landmarks), host_monotonic_ns()));
     }
 
     /// Hands a status over; dropped and counted if a channel is full.
@@ -164,6 +192,9 @@ struct OpenFile {
     pose_odom: ChannelId,
     tf: ChannelId,
     status: ChannelId,
+    tracks: ChannelId,
+    landmarks: ChannelId,
+    rig: RigModel,
 }
 
 /// Frame ids of the transform tree (REP-105).
@@ -204,6 +235,8 @@ fn open_file(
     let pose_odom = recorder.add_channel::<PoseInFrame>("/rigslam/pose_odom", &none)?;
     let tf = recorder.add_channel::<FrameTransforms>("/tf", &none)?;
     let status = recorder.add_channel::<StatusProto>("/rigslam/status", &none)?;
+    let tracks = recorder.add_channel::<ImageAnnotations>("/cam0/tracks", &none)?;
+    let landmarks = recorder.add_channel::<PointCloud>("/rigslam/landmarks", &none)?;
     // What does not change while the file is written: the cameras'
     // calibrations and where the sensors sit on the body, stamped 0 so
     // that they hold from the start.
@@ -225,6 +258,9 @@ fn open_file(
         pose_odom,
         tf,
         status,
+        tracks,
+        landmarks,
+        rig: rig.clone(),
     })
 }
 
@@ -294,6 +330,81 @@ pub(super) fn pose_in_frame(t_ns: i64, frame: &str, p: [f64; 3], q: [f64; 4]) ->
                 w: q[3],
             }),
         }),
+    }
+}
+
+/// The tracked landmarks projected into camera 0 as points over its image
+/// (`/cam0/tracks`); `None` without a camera.
+pub(super) fn tracks_annotation(rig: &RigModel, l: &Landmarks) -> Option<ImageAnnotations> {
+    let camera = rig.cameras.first()?;
+    let cam_from_body = camera.T_body_cam.inverse();
+    let points = l
+        .points_body_m
+        .iter()
+        .filter_map(|p| {
+            let p_cam = cam_from_body * nalgebra::Point3::new(p[0], p[1], p[2]);
+            camera.model.project(&p_cam.coords)
+        })
+        .map(|px| Point2 { x: px.x, y: px.y })
+        .collect();
+    Some(ImageAnnotations {
+        timestamp: Some(timestamp(l.t_ns)),
+        circles: vec![],
+        points: vec![PointsAnnotation {
+            timestamp: Some(timestamp(l.t_ns)),
+            r#type: points_annotation::Type::Points as i32,
+            points,
+            outline_color: Some(Color {
+                r: 0.1,
+                g: 1.0,
+                b: 0.2,
+                a: 1.0,
+            }),
+            outline_colors: vec![],
+            fill_color: None,
+            thickness: 4.0,
+            metadata: vec![],
+        }],
+        texts: vec![],
+        metadata: vec![],
+    })
+}
+
+/// The tracked landmarks in the odometry frame (`/rigslam/landmarks`):
+/// the map around the robot, x, y, z as 32-bit floats.
+pub(super) fn landmark_cloud(l: &Landmarks) -> PointCloud {
+    let odom_from_body = isometry(l.position_odom_m, l.orientation_odom_body_xyzw);
+    let mut data = Vec::with_capacity(l.points_body_m.len() * 12);
+    for p in &l.points_body_m {
+        let q = odom_from_body * nalgebra::Point3::new(p[0], p[1], p[2]);
+        for v in [q.x, q.y, q.z] {
+            data.extend_from_slice(&(v as f32).to_le_bytes());
+        }
+    }
+    let field = |name: &str, offset| PackedElementField {
+        name: name.to_owned(),
+        offset,
+        r#type: packed_element_field::NumericType::Float32 as i32,
+    };
+    PointCloud {
+        timestamp: Some(timestamp(l.t_ns)),
+        frame_id: ODOM.to_owned(),
+        pose: Some(foxglove::messages::Pose {
+            position: Some(foxglove::messages::Vector3 {
+                x: 0.0,
+                y: 0.0,
+                z: 0.0,
+            }),
+            orientation: Some(foxglove::messages::Quaternion {
+                x: 0.0,
+                y: 0.0,
+                z: 0.0,
+                w: 1.0,
+            }),
+        }),
+        point_stride: 12,
+        fields: vec![field("x", 0), field("y", 4), field("z", 8)],
+        data: data.into(),
     }
 }
 
@@ -439,6 +550,13 @@ fn record_loop(
             }
             Record::Pose(p, receipt) => file.write_pose(&p, receipt)?,
             Record::Status(s, receipt) => file.recorder.write(file.status, &s, receipt)?,
+            Record::Landmarks(l, receipt) => {
+                if let Some(tracks) = tracks_annotation(&file.rig, &l) {
+                    file.recorder.write(file.tracks, &tracks, receipt)?;
+                }
+                file.recorder
+                    .write(file.landmarks, &landmark_cloud(&l), receipt)?;
+            }
         }
         if file.recorder.bytes() >= rotate {
             let next = open()?;
@@ -473,6 +591,63 @@ mod tests {
             left: f(0),
             right: Some(f(1)),
             arrival_ns: 0,
+        }
+    }
+
+    #[test]
+    fn tracks_land_where_the_camera_sees_them_and_the_cloud_is_in_the_odometry_frame() {
+        use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+        let model = crate::camera::CameraModel::from_kalibr(
+            640,
+            480,
+            "radtan",
+            &[400.0, 400.0, 320.0, 240.0],
+            &[0.0; 4],
+        )
+        .expect("camera");
+        // The camera looks along the body's x axis (camera z = body x),
+        // 0.1 m ahead of the body origin.
+        let body_from_cam = Isometry3::from_parts(
+            Translation3::new(0.1, 0.0, 0.0),
+            UnitQuaternion::from_matrix(&nalgebra::Matrix3::new(
+                0.0, 0.0, 1.0, -1.0, 0.0, 0.0, 0.0, -1.0, 0.0,
+            )),
+        );
+        let rig = RigModel {
+            cameras: vec![crate::rig::CameraCalibration {
+                model,
+                T_body_cam: body_from_cam,
+                rate_hz: 20.0,
+                time_shift_cam_imu_s: 0.0,
+            }],
+            imu: None,
+        };
+        let quarter =
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), std::f64::consts::FRAC_PI_2);
+        let q = quarter.coords;
+        let l = Landmarks {
+            t_ns: 7,
+            position_odom_m: [1.0, 0.0, 0.0],
+            orientation_odom_body_xyzw: [q.x, q.y, q.z, q.w],
+            // On the optical axis 2.1 m ahead; 0.5 m left of it at 2.1 m
+            // (camera x = -body y); behind the camera.
+            points_body_m: vec![[2.1, 0.0, 0.0], [2.1, -0.5, 0.0], [-1.0, 0.0, 0.0]],
+        };
+        let tracks = tracks_annotation(&rig, &l).expect("a camera");
+        let points = &tracks.points[0].points;
+        assert_eq!(points.len(), 2, "the point behind the camera is left out");
+        assert!((points[0].x - 320.0).abs() < 1e-9 && (points[0].y - 240.0).abs() < 1e-9);
+        // x = cx + fx * 0.5 / 2.0
+        assert!((points[1].x - 420.0).abs() < 1e-9, "{:?}", points[1]);
+        // The cloud: odom = (1, 0, 0) + Rz(90 deg) * body.
+        let cloud = landmark_cloud(&l);
+        assert_eq!(cloud.frame_id, "odom");
+        assert_eq!(cloud.data.len(), 3 * 12);
+        let f = |i: usize| f32::from_le_bytes(cloud.data[4 * i..4 * i + 4].try_into().expect("4"));
+        let first = [f(0), f(1), f(2)];
+        let expected = [1.0f32, 2.1, 0.0];
+        for k in 0..3 {
+            assert!((first[k] - expected[k]).abs() < 1e-6, "{first:?}");
         }
     }
 

@@ -1,7 +1,8 @@
 //! The live view (`[viewer]`): a Foxglove WebSocket server inside the
 //! daemon with the recording's channels, so that an operator opens
-//! Foxglove on `ws://127.0.0.1:8765` and sees the cameras, the trajectory
-//! and the transform tree as the robot runs.
+//! Foxglove on `ws://127.0.0.1:8765` and sees the cameras with the tracked
+//! landmarks over them, the trajectory, the landmarks around the robot and
+//! the transform tree as the robot runs.
 //!
 //! The sensor and SLAM threads hand their records over the same kind of
 //! bounded channel as the recorder's ([`RecordSender`]), never waiting; the
@@ -18,13 +19,15 @@ use std::sync::mpsc::{self, Receiver};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 
-use foxglove::messages::{CameraCalibration, FrameTransforms, PoseInFrame, RawImage};
+use foxglove::messages::{
+    CameraCalibration, FrameTransforms, ImageAnnotations, PointCloud, PoseInFrame, RawImage,
+};
 use foxglove::{Channel, Context, WebSocketServer, WebSocketServerHandle};
 
 use super::config::ViewerConfig;
 use super::recorder::{
-    camera_calibration, pose_in_frame, pose_transforms, static_transforms, Record, RecordSender,
-    MAP, ODOM,
+    camera_calibration, landmark_cloud, pose_in_frame, pose_transforms, static_transforms,
+    tracks_annotation, Record, RecordSender, MAP, ODOM,
 };
 use crate::recording::schemas::{timestamp, ImuSampleProto, PoseEstimateProto, StatusProto};
 use crate::relative::RigModel;
@@ -92,6 +95,8 @@ struct Channels {
     pose_odom: Channel<PoseInFrame>,
     tf: Channel<FrameTransforms>,
     status: Channel<StatusProto>,
+    tracks: Channel<ImageAnnotations>,
+    landmarks: Channel<PointCloud>,
 }
 
 impl Channels {
@@ -109,6 +114,8 @@ impl Channels {
             pose_odom: channel("/rigslam/pose_odom").build(),
             tf: channel("/tf").build(),
             status: channel("/rigslam/status").build(),
+            tracks: channel("/cam0/tracks").build(),
+            landmarks: channel("/rigslam/landmarks").build(),
         }
     }
 }
@@ -193,6 +200,16 @@ fn view_loop(
                     p.orientation_odom_body_xyzw,
                 ));
                 channels.tf.log(&pose_transforms(&p));
+            }
+            Record::Landmarks(l, _) => {
+                if channels.tracks.has_sinks() {
+                    if let Some(tracks) = tracks_annotation(rig, &l) {
+                        channels.tracks.log(&tracks);
+                    }
+                }
+                if channels.landmarks.has_sinks() {
+                    channels.landmarks.log(&landmark_cloud(&l));
+                }
             }
             Record::Status(s, _) => {
                 channels.status.log(&s);
