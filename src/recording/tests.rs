@@ -393,3 +393,62 @@ fn recordings_in_the_earlier_json_layout_still_replay() {
     assert_eq!(poses[1].position_world_m, [0.1, 0.2, 0.3]);
     assert_eq!(poses[1].position_odom_m, poses[1].position_world_m);
 }
+
+#[test]
+fn messages_in_a_schema_rigslam_does_not_know_are_skipped_by_name() {
+    // A file another tool wrote: /imu0 in CBOR, /cam0 without a schema.
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    let mut w = mcap::WriteOptions::new()
+        .compression(None)
+        .create(&mut bytes)
+        .expect("writer");
+    let schema = w
+        .add_schema("other.Imu", "cbor-schema", b"{}")
+        .expect("schema");
+    let imu = w
+        .add_channel(schema, "/imu0", "cbor", &BTreeMap::new())
+        .expect("channel");
+    let cam = w
+        .add_channel(0, "/cam0", "raw", &BTreeMap::new())
+        .expect("channel");
+    for (channel, sequence) in [(imu, 1), (cam, 1), (imu, 2)] {
+        let header = mcap::records::MessageHeader {
+            channel_id: channel,
+            sequence,
+            log_time: u64::from(sequence),
+            publish_time: u64::from(sequence),
+        };
+        w.write_to_known_channel(&header, b"\xa1\x01\x02")
+            .expect("write");
+    }
+    w.finish().expect("finish");
+    drop(w);
+    let bytes = bytes.into_inner();
+    let mut skipped = Vec::new();
+    let end = for_each_sensor_event_in(
+        &bytes,
+        Path::new("other.mcap"),
+        SensorTopics {
+            stereo: false,
+            imu: true,
+        },
+        |item| {
+            match item {
+                ReplayItem::Skipped(s) => skipped.push(s.to_string()),
+                ReplayItem::Event(e) => panic!("{e:?} from an unknown schema"),
+            }
+            std::ops::ControlFlow::Continue(())
+        },
+    )
+    .expect("the file itself reads");
+    assert_eq!(end.events, 0);
+    assert_eq!(skipped.len(), 3, "{skipped:?}");
+    assert!(
+        skipped[0].contains("other.mcap") && skipped[0].contains("\"cbor\""),
+        "{skipped:?}"
+    );
+    assert!(
+        skipped[1].contains("/cam0") && skipped[1].contains("\"raw\""),
+        "{skipped:?}"
+    );
+}
