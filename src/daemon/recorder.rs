@@ -11,7 +11,8 @@
 //! for Foxglove's 3D panel (`/rigslam/pose_map`, `/rigslam/pose_odom`),
 //! the transform tree map -> odom -> body -> cam0/cam1/imu (`/tf`), each
 //! camera's calibration (`/cam0/calibration`, `/cam1/calibration`) and the
-//! daemon's status (`/rigslam/status`).
+//! daemon's status (`/rigslam/status`). With `format = "ros2"` it has the
+//! ROS 2 topics [`crate::recording::ros2`] lists instead (no status).
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -23,7 +24,7 @@ use foxglove::messages::{CameraCalibration, FrameTransform, FrameTransforms, Pos
 use nalgebra::Isometry3;
 
 use crate::recording::schemas::{timestamp, StatusProto};
-use crate::recording::{ChannelId, McapRecorder, RecordedPose, RecordingError};
+use crate::recording::{ros2, ChannelId, Format, McapRecorder, RecordedPose, RecordingError};
 use crate::relative::RigModel;
 use crate::sensors::yei::device::host_monotonic_ns;
 use crate::sensors::ImuSample;
@@ -120,8 +121,19 @@ pub fn spawn_recorder(
     ))
 }
 
+/// The file being written and its channels.
 struct OpenFile {
     recorder: McapRecorder,
+    channels: Channels,
+}
+
+/// The channels of a file, by format.
+enum Channels {
+    Foxglove(FoxgloveChannels),
+    Ros2(Ros2Channels),
+}
+
+struct FoxgloveChannels {
     imu: ChannelId,
     cams: [ChannelId; 2],
     pose: ChannelId,
@@ -131,10 +143,19 @@ struct OpenFile {
     status: ChannelId,
 }
 
+struct Ros2Channels {
+    imu: ChannelId,
+    cams: [ChannelId; 2],
+    odom: ChannelId,
+    tf: ChannelId,
+    /// Per-sample variances of the IMU's rate and specific force.
+    imu_variances: Option<[f64; 2]>,
+}
+
 /// Frame ids of the transform tree (REP-105).
-const MAP: &str = "map";
-const ODOM: &str = "odom";
-const BODY: &str = "body";
+const MAP: &str = ros2::convert::MAP;
+const ODOM: &str = ros2::convert::ODOM;
+const BODY: &str = ros2::convert::BODY;
 
 fn open_file(
     config: &RecordingConfig,
@@ -154,10 +175,26 @@ fn open_file(
         config.compression,
         config.compression_level,
         crate::recording::ClockMapping::now(),
+        config.format,
     )?;
     for (name, data) in attachments {
         recorder.attach(name, "application/x-yaml", data)?;
     }
+    let channels = match config.format {
+        Format::Foxglove => Channels::Foxglove(foxglove_channels(&mut recorder, rig)?),
+        Format::Ros2 => Channels::Ros2(ros2_channels(&mut recorder, rig)?),
+    };
+    tracing::info!("recording to {}", path.display());
+    Ok(OpenFile { recorder, channels })
+}
+
+/// Registers the protobuf channels and writes what does not change while
+/// the file is written: the cameras' calibrations and where the sensors
+/// sit on the body, stamped 0 so that they hold from the start.
+fn foxglove_channels(
+    recorder: &mut McapRecorder,
+    rig: &RigModel,
+) -> Result<FoxgloveChannels, RecordingError> {
     let none = Default::default();
     let imu = recorder.add_imu_channel("/imu0", &none)?;
     let cams = [
@@ -169,9 +206,6 @@ fn open_file(
     let pose_odom = recorder.add_channel::<PoseInFrame>("/rigslam/pose_odom", &none)?;
     let tf = recorder.add_channel::<FrameTransforms>("/tf", &none)?;
     let status = recorder.add_channel::<StatusProto>("/rigslam/status", &none)?;
-    // What does not change while the file is written: the cameras'
-    // calibrations and where the sensors sit on the body, stamped 0 so
-    // that they hold from the start.
     let now = host_monotonic_ns();
     let mut statics = Vec::new();
     for (i, camera) in rig.cameras.iter().enumerate().take(2) {
@@ -191,9 +225,7 @@ fn open_file(
         },
         now,
     )?;
-    tracing::info!("recording to {}", path.display());
-    Ok(OpenFile {
-        recorder,
+    Ok(FoxgloveChannels {
         imu,
         cams,
         pose,
@@ -201,6 +233,43 @@ fn open_file(
         pose_odom,
         tf,
         status,
+    })
+}
+
+/// Registers the ROS 2 channels and writes, once per file, the cameras'
+/// `CameraInfo` and the body's static transforms (`/tf_static`), both
+/// offered transient-local.
+fn ros2_channels(
+    recorder: &mut McapRecorder,
+    rig: &RigModel,
+) -> Result<Ros2Channels, RecordingError> {
+    use ros2::messages::{CameraInfo, Image, Imu, Odometry, TfMessage};
+    let stream = ros2::channel_metadata(false);
+    let latched = ros2::channel_metadata(true);
+    let imu = recorder.add_channel::<Imu>(ros2::IMU_TOPIC, &stream)?;
+    let cams = [
+        recorder.add_channel::<Image>(&ros2::image_topic(0), &stream)?,
+        recorder.add_channel::<Image>(&ros2::image_topic(1), &stream)?,
+    ];
+    let odom = recorder.add_channel::<Odometry>(ros2::ODOM_TOPIC, &stream)?;
+    let tf = recorder.add_channel::<TfMessage>(ros2::TF_TOPIC, &stream)?;
+    let tf_static = recorder.add_channel::<TfMessage>(ros2::TF_STATIC_TOPIC, &latched)?;
+    let now = host_monotonic_ns();
+    for (i, camera) in rig.cameras.iter().enumerate().take(2) {
+        let channel = recorder.add_channel::<CameraInfo>(&ros2::camera_info_topic(i), &latched)?;
+        recorder.write(
+            channel,
+            &ros2::convert::camera_info(camera, &format!("cam{i}")),
+            now,
+        )?;
+    }
+    recorder.write(tf_static, &ros2::convert::static_transforms(rig), now)?;
+    Ok(Ros2Channels {
+        imu,
+        cams,
+        odom,
+        tf,
+        imu_variances: rig.imu.as_ref().map(ros2::convert::imu_variances),
     })
 }
 
@@ -281,11 +350,53 @@ fn isometry(t: [f64; 3], q: [f64; 4]) -> Isometry3<f64> {
 }
 
 impl OpenFile {
+    fn write_imu(&mut self, s: &ImuSample, receipt: i64) -> Result<(), RecordingError> {
+        let r = &mut self.recorder;
+        match &self.channels {
+            Channels::Foxglove(c) => r.write_imu(c.imu, s, receipt),
+            Channels::Ros2(c) => r.write(c.imu, &ros2::convert::imu(s, c.imu_variances), receipt),
+        }
+    }
+
+    fn write_frame(&mut self, f: &FrameItem, receipt: i64) -> Result<(), RecordingError> {
+        let r = &mut self.recorder;
+        let sides = std::iter::once(&f.left).chain(&f.right).enumerate();
+        for (i, side) in sides {
+            let name = if i == 0 { "cam0" } else { "cam1" };
+            match &self.channels {
+                Channels::Foxglove(c) => {
+                    r.write_image(c.cams[i], f.t_ns, &side.image, name, receipt)?
+                }
+                Channels::Ros2(c) => r.write(
+                    c.cams[i],
+                    &ros2::convert::image(f.t_ns, &side.image, name),
+                    receipt,
+                )?,
+            }
+        }
+        Ok(())
+    }
+
+    fn write_status(&mut self, s: &StatusProto, receipt: i64) -> Result<(), RecordingError> {
+        match &self.channels {
+            Channels::Foxglove(c) => self.recorder.write(c.status, s, receipt),
+            // No ROS message carries it; the ROS 2 files leave it out.
+            Channels::Ros2(_) => Ok(()),
+        }
+    }
+
     fn write_pose(&mut self, p: &RecordedPose, receipt: i64) -> Result<(), RecordingError> {
         let r = &mut self.recorder;
-        r.write_pose(self.pose, p, receipt)?;
+        let c = match &self.channels {
+            Channels::Foxglove(c) => c,
+            Channels::Ros2(c) => {
+                r.write(c.odom, &ros2::convert::odometry(p), receipt)?;
+                return r.write(c.tf, &ros2::convert::pose_transforms(p), receipt);
+            }
+        };
+        r.write_pose(c.pose, p, receipt)?;
         r.write(
-            self.pose_map,
+            c.pose_map,
             &pose_in_frame(
                 p.t_ns,
                 MAP,
@@ -295,7 +406,7 @@ impl OpenFile {
             receipt,
         )?;
         r.write(
-            self.pose_odom,
+            c.pose_odom,
             &pose_in_frame(
                 p.t_ns,
                 ODOM,
@@ -320,7 +431,7 @@ impl OpenFile {
                 ),
             ],
         };
-        r.write(self.tf, &tree, receipt)
+        r.write(c.tf, &tree, receipt)
     }
 }
 
@@ -382,17 +493,10 @@ fn record_loop(
     let mut closed = Vec::new();
     for record in rx {
         match record {
-            Record::Imu(s, receipt) => file.recorder.write_imu(file.imu, &s, receipt)?,
-            Record::Frame(f, receipt) => {
-                file.recorder
-                    .write_image(file.cams[0], f.t_ns, &f.left.image, "cam0", receipt)?;
-                if let Some(r) = &f.right {
-                    file.recorder
-                        .write_image(file.cams[1], f.t_ns, &r.image, "cam1", receipt)?;
-                }
-            }
+            Record::Imu(s, receipt) => file.write_imu(&s, receipt)?,
+            Record::Frame(f, receipt) => file.write_frame(&f, receipt)?,
             Record::Pose(p, receipt) => file.write_pose(&p, receipt)?,
-            Record::Status(s, receipt) => file.recorder.write(file.status, &s, receipt)?,
+            Record::Status(s, receipt) => file.write_status(&s, receipt)?,
         }
         if file.recorder.bytes() >= rotate {
             let next = open()?;
@@ -440,6 +544,7 @@ mod tests {
             rotate_mib: 1,
             compression: crate::recording::Compression::None,
             compression_level: 0,
+            format: Format::Foxglove,
         };
         let rig = RigModel {
             cameras: vec![],
