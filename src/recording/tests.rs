@@ -553,6 +553,27 @@ fn ros2_recordings_replay_bit_for_bit() {
         "{skipped:?}"
     );
 
+    // A repair of the file cut short keeps the profile and the records.
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).expect("write");
+    let repaired = dir.path().join("repaired.mcap");
+    repair::repair(&cut, &repaired).expect("repair");
+    let repaired = std::fs::read(&repaired).expect("repaired");
+    assert_eq!(profile_of(&repaired), "ros2");
+    let summary = mcap::Summary::read(&repaired)
+        .expect("summary")
+        .expect("closed");
+    assert!(summary
+        .metadata_indexes
+        .iter()
+        .any(|i| i.name == ros2::BAG_METADATA_NAME));
+    // The profile of a foxglove file stays empty.
+    let plain = dir.path().join("plain.mcap");
+    stereo_recording(&plain, Compression::None, 1, CLOCK);
+    let again = dir.path().join("plain.repaired.mcap");
+    repair::repair(&plain, &again).expect("repair");
+    assert_eq!(profile_of(&std::fs::read(&again).expect("read")), "");
+
     // A ROS message of another type on /imu0 is refused, naming both.
     let other = dir.path().join("other.mcap");
     let mut rec = McapRecorder::create_with(&other, Compression::None, 0, CLOCK, Format::Ros2)
