@@ -286,12 +286,12 @@ pub struct RecordingConfig {
     /// How chunks are compressed: `"zstd"` (smallest files), `"lz4"`
     /// (less CPU) or `"none"` [zstd].
     pub compression: crate::recording::Compression,
-    /// zstd's level, 1 (fastest) to 19 [1]; lz4's acceleration.
+    /// zstd's level, 1 (fastest) to 19 \[1\]; lz4's acceleration.
     pub compression_level: u32,
     /// Which messages the files hold: `"foxglove"` (protobuf, every
     /// stream; Foxglove, the MCAP tools) or `"ros2"` (ROS 2 messages in
     /// CDR for `ros2 bag play`; see [`crate::recording::ros2`])
-    /// [foxglove]. `rigslamd --replay` plays both.
+    /// \[foxglove\]. `rigslamd --replay` plays both.
     #[serde(deserialize_with = "recording_format")]
     pub format: crate::recording::Format,
 }

@@ -7,7 +7,9 @@
 //! `rigslam.*` ones of [`schemas`] otherwise (IMU samples, pose estimates
 //! with covariance and both frames, status). Chunks are compressed (zstd by
 //! default). [`writer`] says how times are kept. Older files, whose
-//! messages are JSON, are still read.
+//! messages are JSON, are still read. With [`Format::Ros2`] the files
+//! hold ROS 2 messages instead ([`ros2`]), for `ros2 bag play`; the
+//! replay reads their images and IMU samples too.
 //!
 //! Reading ([`reader`]) goes record by record and recovers what a file
 //! cut short or damaged still holds.

@@ -17,10 +17,11 @@
 //! (`/tf_static`, camera infos), which are transient-local so that a node
 //! started later still gets them (tf2 listens to `/tf_static` that way and
 //! hears no volatile publisher). The profiles are in rosbag2's older
-//! numeric YAML form, which every rosbag2 from Humble on reads; a
-//! `rosbag2` metadata record without `serialized_metadata` tells newer
-//! ones that the profiles are in that form (rosbag2_storage_mcap's
-//! `read_metadata`).
+//! numeric YAML form, the one Humble's rosbag2 reads; later ones read it
+//! in files of bag format 8 and before, and a `rosbag2` metadata record
+//! with an empty `serialized_metadata` is what makes
+//! rosbag2_storage_mcap's `read_metadata` take a file as such. This
+//! follows rosbag2's source; it was not run against rosbag2.
 
 use std::collections::BTreeMap;
 
@@ -70,7 +71,7 @@ pub fn channel_metadata(latched: bool) -> BTreeMap<String, String> {
 /// Name of the metadata record rosbag2 reads.
 pub const BAG_METADATA_NAME: &str = "rosbag2";
 
-/// The `rosbag2` metadata record: no `serialized_metadata`, so that
+/// The `rosbag2` metadata record: an empty `serialized_metadata`, so that
 /// rosbag2 reads the QoS profiles in their numeric form (see the module
 /// documentation).
 pub fn bag_metadata() -> BTreeMap<String, String> {
