@@ -173,7 +173,13 @@ fn the_python_binding_pin_is_the_daemons_iceoryx2() {
         .map(|v| v.trim_end_matches('"').to_string())
         .expect("iceoryx2 in Cargo.lock");
     let pin = format!("iceoryx2=={version}");
-    for file in ["scripts/test", "examples/python/echo_pose.py", "README.md"] {
+    for file in [
+        "scripts/test",
+        "examples/python/echo_pose.py",
+        "examples/ros2/pose_bridge.py",
+        "docs/ros2.md",
+        "README.md",
+    ] {
         let text = std::fs::read_to_string(root.join(file)).expect(file);
         assert!(text.contains(&pin), "{file} must install {pin}");
     }

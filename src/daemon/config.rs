@@ -322,8 +322,23 @@ pub struct RecordingConfig {
     /// How chunks are compressed: `"zstd"` (smallest files), `"lz4"`
     /// (less CPU) or `"none"` [zstd].
     pub compression: crate::recording::Compression,
-    /// zstd's level, 1 (fastest) to 19 [1]; lz4's acceleration.
+    /// zstd's level, 1 (fastest) to 19 \[1\]; lz4's acceleration.
     pub compression_level: u32,
+    /// Which messages the files hold: `"foxglove"` (protobuf, every
+    /// stream; Foxglove, the MCAP tools) or `"ros2"` (ROS 2 messages in
+    /// CDR for `ros2 bag play`; see [`crate::recording::ros2`])
+    /// \[foxglove\]. `rigslamd --replay` plays both.
+    #[serde(deserialize_with = "recording_format")]
+    pub format: crate::recording::Format,
+}
+
+/// `recording.format`, refused with the key's name and the choices.
+fn recording_format<'de, D: serde::Deserializer<'de>>(
+    d: D,
+) -> Result<crate::recording::Format, D::Error> {
+    let name = <String as serde::Deserialize>::deserialize(d)?;
+    name.parse()
+        .map_err(|why| serde::de::Error::custom(format!("recording.format: {why}")))
 }
 
 impl Default for RecordingConfig {
@@ -335,6 +350,7 @@ impl Default for RecordingConfig {
             rotate_mib: 256,
             compression: crate::recording::Compression::Zstd,
             compression_level: crate::recording::writer::DEFAULT_ZSTD_LEVEL,
+            format: crate::recording::Format::Foxglove,
         }
     }
 }
@@ -896,20 +912,24 @@ fn check_recording(path: &Path, mode: SensorMode, bad: &mut impl FnMut(&str, Str
             Err(e) => return bad("replay.dataset", e.to_string()),
         },
     };
-    let mut needed = vec!["/cam0"];
+    // Each stream under either of its names (rigslam's, ROS 2's).
+    let [cam0, cam1] = crate::recording::CAMERA_TOPICS;
+    let mut needed = vec![cam0.to_vec()];
     if mode.uses_stereo() {
-        needed.push("/cam1");
+        needed.push(cam1.to_vec());
     }
     if mode.uses_imu() {
-        needed.push("/imu0");
+        needed.push(vec!["/imu0"]);
     }
-    for topic in needed {
-        if counts.get(topic).copied().unwrap_or(0) == 0 {
+    for topics in needed {
+        let messages: u64 = topics.iter().filter_map(|t| counts.get(*t)).sum();
+        if messages == 0 {
             bad(
                 "replay.dataset",
                 format!(
-                    "{}: no {topic} messages, which mode {mode} needs",
-                    path.display()
+                    "{}: no {} messages, which mode {mode} needs",
+                    path.display(),
+                    topics.join(" or ")
                 ),
             );
         }
@@ -1015,4 +1035,34 @@ pub fn rig_from_files(
 /// Reads the calibration again (SIGHUP): the rig, or every problem.
 pub fn reload_rig(config: &DaemonConfig, file: &Path) -> Result<RigModel, Vec<Problem>> {
     check(config, file)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const LIVE: &str = "[camera]\nsource = \"pattern\"\n[imu]\nsource = \"yei\"\n";
+
+    #[test]
+    fn the_recording_format_is_foxglove_unless_set_to_ros2() {
+        let config = DaemonConfig::parse(LIVE).expect("valid");
+        assert_eq!(config.recording.format, crate::recording::Format::Foxglove);
+        let config =
+            DaemonConfig::parse(&format!("{LIVE}[recording]\nformat = \"ros2\"\n")).expect("valid");
+        assert_eq!(config.recording.format, crate::recording::Format::Ros2);
+    }
+
+    /// An unknown format names the key, the value and the choices.
+    #[test]
+    fn an_unknown_recording_format_is_refused_by_key() {
+        let e = DaemonConfig::parse(&format!("{LIVE}[recording]\nformat = \"ros1\"\n"))
+            .expect_err("not a format");
+        assert!(
+            e.contains("format = \"ros1\"")
+                && e.contains("recording.format")
+                && e.contains("foxglove")
+                && e.contains("ros2"),
+            "{e}"
+        );
+    }
 }

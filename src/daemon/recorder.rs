@@ -13,7 +13,9 @@
 //! camera's calibration (`/cam0/calibration`, `/cam1/calibration`), the
 //! tracked landmarks as points over camera 0's image (`/cam0/tracks`) and
 //! as a point cloud in the odometry frame (`/rigslam/landmarks`), and the
-//! daemon's status (`/rigslam/status`).
+//! daemon's status (`/rigslam/status`). With `format = "ros2"` it has the
+//! ROS 2 topics [`crate::recording::ros2`] lists instead (no status, no
+//! tracks or landmark cloud).
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -29,7 +31,7 @@ use foxglove::messages::{
 use nalgebra::Isometry3;
 
 use crate::recording::schemas::{timestamp, StatusProto};
-use crate::recording::{ChannelId, McapRecorder, RecordedPose, RecordingError};
+use crate::recording::{ros2, ChannelId, Format, McapRecorder, RecordedPose, RecordingError};
 use crate::relative::RigModel;
 use crate::sensors::yei::device::host_monotonic_ns;
 use crate::sensors::ImuSample;
@@ -183,8 +185,20 @@ pub fn spawn_recorder(
     Ok((RecordSender::to(tx), handle))
 }
 
+/// The file being written and its channels.
 struct OpenFile {
     recorder: McapRecorder,
+    channels: Channels,
+    rig: RigModel,
+}
+
+/// The channels of a file, by format.
+enum Channels {
+    Foxglove(FoxgloveChannels),
+    Ros2(Ros2Channels),
+}
+
+struct FoxgloveChannels {
     imu: ChannelId,
     cams: [ChannelId; 2],
     pose: ChannelId,
@@ -194,13 +208,21 @@ struct OpenFile {
     status: ChannelId,
     tracks: ChannelId,
     landmarks: ChannelId,
-    rig: RigModel,
+}
+
+struct Ros2Channels {
+    imu: ChannelId,
+    cams: [ChannelId; 2],
+    odom: ChannelId,
+    tf: ChannelId,
+    /// Per-sample variances of the IMU's rate and specific force.
+    imu_variances: Option<[f64; 2]>,
 }
 
 /// Frame ids of the transform tree (REP-105).
-pub(super) const MAP: &str = "map";
-pub(super) const ODOM: &str = "odom";
-pub(super) const BODY: &str = "body";
+pub(super) const MAP: &str = ros2::convert::MAP;
+pub(super) const ODOM: &str = ros2::convert::ODOM;
+pub(super) const BODY: &str = ros2::convert::BODY;
 
 fn open_file(
     config: &RecordingConfig,
@@ -220,10 +242,30 @@ fn open_file(
         config.compression,
         config.compression_level,
         crate::recording::ClockMapping::now(),
+        config.format,
     )?;
     for (name, data) in attachments {
         recorder.attach(name, "application/x-yaml", data)?;
     }
+    let channels = match config.format {
+        Format::Foxglove => Channels::Foxglove(foxglove_channels(&mut recorder, rig)?),
+        Format::Ros2 => Channels::Ros2(ros2_channels(&mut recorder, rig)?),
+    };
+    tracing::info!("recording to {}", path.display());
+    Ok(OpenFile {
+        recorder,
+        channels,
+        rig: rig.clone(),
+    })
+}
+
+/// Registers the protobuf channels and writes what does not change while
+/// the file is written: the cameras' calibrations and where the sensors
+/// sit on the body, stamped 0 so that they hold from the start.
+fn foxglove_channels(
+    recorder: &mut McapRecorder,
+    rig: &RigModel,
+) -> Result<FoxgloveChannels, RecordingError> {
     let none = Default::default();
     let imu = recorder.add_imu_channel("/imu0", &none)?;
     let cams = [
@@ -248,9 +290,7 @@ fn open_file(
         recorder.write(channel, &camera_calibration(camera, &name), now)?;
     }
     recorder.write(tf, &static_transforms(rig), now)?;
-    tracing::info!("recording to {}", path.display());
-    Ok(OpenFile {
-        recorder,
+    Ok(FoxgloveChannels {
         imu,
         cams,
         pose,
@@ -260,7 +300,43 @@ fn open_file(
         status,
         tracks,
         landmarks,
-        rig: rig.clone(),
+    })
+}
+
+/// Registers the ROS 2 channels and writes, once per file, the cameras'
+/// `CameraInfo` and the body's static transforms (`/tf_static`), both
+/// offered transient-local.
+fn ros2_channels(
+    recorder: &mut McapRecorder,
+    rig: &RigModel,
+) -> Result<Ros2Channels, RecordingError> {
+    use ros2::messages::{CameraInfo, Image, Imu, Odometry, TfMessage};
+    let stream = ros2::channel_metadata(false);
+    let latched = ros2::channel_metadata(true);
+    let imu = recorder.add_channel::<Imu>(ros2::IMU_TOPIC, &stream)?;
+    let cams = [
+        recorder.add_channel::<Image>(&ros2::image_topic(0), &stream)?,
+        recorder.add_channel::<Image>(&ros2::image_topic(1), &stream)?,
+    ];
+    let odom = recorder.add_channel::<Odometry>(ros2::ODOM_TOPIC, &stream)?;
+    let tf = recorder.add_channel::<TfMessage>(ros2::TF_TOPIC, &stream)?;
+    let tf_static = recorder.add_channel::<TfMessage>(ros2::TF_STATIC_TOPIC, &latched)?;
+    let now = host_monotonic_ns();
+    for (i, camera) in rig.cameras.iter().enumerate().take(2) {
+        let channel = recorder.add_channel::<CameraInfo>(&ros2::camera_info_topic(i), &latched)?;
+        recorder.write(
+            channel,
+            &ros2::convert::camera_info(camera, &format!("cam{i}")),
+            now,
+        )?;
+    }
+    recorder.write(tf_static, &ros2::convert::static_transforms(rig), now)?;
+    Ok(Ros2Channels {
+        imu,
+        cams,
+        odom,
+        tf,
+        imu_variances: rig.imu.as_ref().map(ros2::convert::imu_variances),
     })
 }
 
@@ -454,11 +530,65 @@ fn isometry(t: [f64; 3], q: [f64; 4]) -> Isometry3<f64> {
 }
 
 impl OpenFile {
+    fn write_imu(&mut self, s: &ImuSample, receipt: i64) -> Result<(), RecordingError> {
+        let r = &mut self.recorder;
+        match &self.channels {
+            Channels::Foxglove(c) => r.write_imu(c.imu, s, receipt),
+            Channels::Ros2(c) => r.write(c.imu, &ros2::convert::imu(s, c.imu_variances), receipt),
+        }
+    }
+
+    fn write_frame(&mut self, f: &FrameItem, receipt: i64) -> Result<(), RecordingError> {
+        let r = &mut self.recorder;
+        let sides = std::iter::once(&f.left).chain(&f.right).enumerate();
+        for (i, side) in sides {
+            let name = if i == 0 { "cam0" } else { "cam1" };
+            match &self.channels {
+                Channels::Foxglove(c) => {
+                    r.write_image(c.cams[i], f.t_ns, &side.image, name, receipt)?
+                }
+                Channels::Ros2(c) => r.write(
+                    c.cams[i],
+                    &ros2::convert::image(f.t_ns, &side.image, name),
+                    receipt,
+                )?,
+            }
+        }
+        Ok(())
+    }
+
+    fn write_status(&mut self, s: &StatusProto, receipt: i64) -> Result<(), RecordingError> {
+        match &self.channels {
+            Channels::Foxglove(c) => self.recorder.write(c.status, s, receipt),
+            // No ROS message carries it; the ROS 2 files leave it out.
+            Channels::Ros2(_) => Ok(()),
+        }
+    }
+
+    fn write_landmarks(&mut self, l: &Landmarks, receipt: i64) -> Result<(), RecordingError> {
+        let Channels::Foxglove(c) = &self.channels else {
+            // The ROS 2 files keep to the messages ROS tools replay.
+            return Ok(());
+        };
+        if let Some(tracks) = tracks_annotation(&self.rig, l) {
+            self.recorder.write(c.tracks, &tracks, receipt)?;
+        }
+        self.recorder
+            .write(c.landmarks, &landmark_cloud(l), receipt)
+    }
+
     fn write_pose(&mut self, p: &RecordedPose, receipt: i64) -> Result<(), RecordingError> {
         let r = &mut self.recorder;
-        r.write_pose(self.pose, p, receipt)?;
+        let c = match &self.channels {
+            Channels::Foxglove(c) => c,
+            Channels::Ros2(c) => {
+                r.write(c.odom, &ros2::convert::odometry(p), receipt)?;
+                return r.write(c.tf, &ros2::convert::pose_transforms(p), receipt);
+            }
+        };
+        r.write_pose(c.pose, p, receipt)?;
         r.write(
-            self.pose_map,
+            c.pose_map,
             &pose_in_frame(
                 p.t_ns,
                 MAP,
@@ -468,7 +598,7 @@ impl OpenFile {
             receipt,
         )?;
         r.write(
-            self.pose_odom,
+            c.pose_odom,
             &pose_in_frame(
                 p.t_ns,
                 ODOM,
@@ -477,7 +607,7 @@ impl OpenFile {
             ),
             receipt,
         )?;
-        r.write(self.tf, &pose_transforms(p), receipt)
+        r.write(c.tf, &pose_transforms(p), receipt)
     }
 }
 
@@ -539,24 +669,11 @@ fn record_loop(
     let mut closed = Vec::new();
     for record in rx {
         match record {
-            Record::Imu(s, receipt) => file.recorder.write_imu(file.imu, &s, receipt)?,
-            Record::Frame(f, receipt) => {
-                file.recorder
-                    .write_image(file.cams[0], f.t_ns, &f.left.image, "cam0", receipt)?;
-                if let Some(r) = &f.right {
-                    file.recorder
-                        .write_image(file.cams[1], f.t_ns, &r.image, "cam1", receipt)?;
-                }
-            }
+            Record::Imu(s, receipt) => file.write_imu(&s, receipt)?,
+            Record::Frame(f, receipt) => file.write_frame(&f, receipt)?,
             Record::Pose(p, receipt) => file.write_pose(&p, receipt)?,
-            Record::Status(s, receipt) => file.recorder.write(file.status, &s, receipt)?,
-            Record::Landmarks(l, receipt) => {
-                if let Some(tracks) = tracks_annotation(&file.rig, &l) {
-                    file.recorder.write(file.tracks, &tracks, receipt)?;
-                }
-                file.recorder
-                    .write(file.landmarks, &landmark_cloud(&l), receipt)?;
-            }
+            Record::Status(s, receipt) => file.write_status(&s, receipt)?,
+            Record::Landmarks(l, receipt) => file.write_landmarks(&l, receipt)?,
         }
         if file.recorder.bytes() >= rotate {
             let next = open()?;
@@ -661,6 +778,7 @@ mod tests {
             rotate_mib: 1,
             compression: crate::recording::Compression::None,
             compression_level: 0,
+            format: Format::Foxglove,
         };
         let rig = RigModel {
             cameras: vec![],

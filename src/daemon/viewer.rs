@@ -254,6 +254,6 @@ fn raw_image(t_ns: i64, frame: &crate::sensors::Frame) -> RawImage {
         height: image.height(),
         encoding: "mono8".to_owned(),
         step: image.width(),
-        data: crate::recording::writer::grey_bytes(image).into(),
+        data: crate::recording::grey_bytes(image).into(),
     }
 }

@@ -7,7 +7,9 @@
 //! `rigslam.*` ones of [`schemas`] otherwise (IMU samples, pose estimates
 //! with covariance and both frames, status). Chunks are compressed (zstd by
 //! default). [`writer`] says how times are kept. Older files, whose
-//! messages are JSON, are still read.
+//! messages are JSON, are still read. With [`Format::Ros2`] the files
+//! hold ROS 2 messages instead ([`ros2`]), for `ros2 bag play`; the
+//! replay reads their images and IMU samples too.
 //!
 //! Reading ([`reader`]) goes record by record and recovers what a file
 //! cut short or damaged still holds.
@@ -22,18 +24,19 @@ mod json_v1;
 mod mcap_bounds;
 pub mod reader;
 pub mod repair;
+pub mod ros2;
 pub mod schemas;
 mod sensor_replay;
 pub mod writer;
 pub use reader::{FileEnd, WalkReport};
 pub use schemas::{IMU_SCHEMA_NAME, POSE_SCHEMA_NAME};
-pub use writer::{ChannelId, ClockMapping, Compression, McapRecorder};
+pub use writer::{ChannelId, ClockMapping, Compression, Format, McapRecorder};
 /// Files carried in a recording: (attachment name, bytes).
 pub type Attachments = Vec<(String, Vec<u8>)>;
 pub use sensor_replay::{
     calibration_attachment_name, calibration_attachments, for_each_sensor_event,
     for_each_sensor_event_in, is_mcap, rig_of_recording, rig_of_recording_in, ReplayEnd,
-    ReplayItem, SensorTopics, SkippedMessage,
+    ReplayItem, SensorTopics, SkippedMessage, CAMERA_TOPICS,
 };
 
 #[derive(Debug, Error)]
@@ -109,6 +112,15 @@ pub enum RecordingError {
         /// The attachment's name.
         name: String,
         /// Why it cannot be used.
+        reason: String,
+    },
+    #[error("{path}: a message cannot be encoded: {reason}")]
+    /// A message that cannot be written (a string or sequence longer than
+    /// its encoding allows).
+    Encode {
+        /// The file.
+        path: PathBuf,
+        /// Why.
         reason: String,
     },
     #[error("{path}: message {sequence} on {topic}: {reason}")]
@@ -287,10 +299,30 @@ pub fn read_imu_channel_in(
     read_channel(bytes, path, topic, decode_imu)
 }
 
-/// An IMU sample from a message of either layout (protobuf, or the older JSON).
+/// A message's schema must be `name` (a ROS 2 message of another type
+/// would decode into nonsense, or fail further in).
+pub(crate) fn expect_schema(m: &reader::MessageView<'_>, name: &str) -> Result<(), String> {
+    if m.channel.schema_name == name {
+        Ok(())
+    } else {
+        Err(format!("schema {:?}, not {name:?}", m.channel.schema_name))
+    }
+}
+
+/// An IMU sample from a message of any layout rigslam writes (protobuf,
+/// ROS 2's `sensor_msgs/msg/Imu`, or the older JSON).
 pub(crate) fn decode_imu(m: &reader::MessageView<'_>) -> Result<ImuSample, String> {
     match m.channel.message_encoding.as_str() {
         "protobuf" => imu_of(prost::Message::decode(m.data).map_err(|e| e.to_string())?),
+        ros2::messages::MESSAGE_ENCODING => {
+            expect_schema(m, ros2::messages::IMU.name)?;
+            let imu = ros2::messages::Imu::decode(m.data)?;
+            Ok(ImuSample {
+                t_ns: imu.header.stamp.ns(),
+                gyro_rad_s: imu.angular_velocity,
+                accel_m_s2: imu.linear_acceleration,
+            })
+        }
         "json" => json_v1::imu(m.data),
         other => Err(format!(
             "message encoding {other:?} is not one rigslam wrote"
@@ -307,6 +339,11 @@ pub(crate) fn decode_pose(m: &reader::MessageView<'_>) -> Result<RecordedPose, S
             RecordedPose::try_from(message)
         }
         "json" => json_v1::pose(m.data),
+        ros2::messages::MESSAGE_ENCODING => Err(
+            "a ROS 2 message: poses are read back from rigslam.PoseEstimate channels \
+             (format = \"foxglove\" recordings) only"
+                .to_owned(),
+        ),
         other => Err(format!(
             "message encoding {other:?} is not one rigslam wrote"
         )),
@@ -472,6 +509,27 @@ pub fn channel_counts_in(
         counts.insert(channel.topic.clone(), n);
     }
     Ok(counts)
+}
+
+/// The image as 8-bit grey rows without padding.
+pub(crate) fn grey_bytes(image: &rigslam_drivers::Image) -> Vec<u8> {
+    let (w, h) = (image.width(), image.height());
+    if image.format() == rigslam_drivers::PixelFormat::Mono8 {
+        let stride = image.stride_bytes();
+        let data = image.data();
+        let mut grey = Vec::with_capacity(w as usize * h as usize);
+        for row in 0..h as usize {
+            grey.extend_from_slice(&data[row * stride..row * stride + w as usize]);
+        }
+        return grey;
+    }
+    let mut grey = Vec::with_capacity(w as usize * h as usize);
+    for y in 0..h {
+        for x in 0..w {
+            grey.push(image.grey8_at(x, y).unwrap_or(0));
+        }
+    }
+    grey
 }
 
 #[cfg(test)]

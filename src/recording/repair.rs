@@ -34,6 +34,22 @@ pub fn repaired_name(path: &Path) -> PathBuf {
     path.with_file_name(format!("{stem}.repaired.mcap"))
 }
 
+/// The profile in the header record that opens an MCAP file (`ros2` for
+/// a ROS 2 recording), so that the repaired file keeps it; empty when the
+/// header cannot be read.
+fn profile_of(bytes: &[u8]) -> &str {
+    // Magic (8), opcode 0x01 (1), record length (8), then the profile
+    // as a u32 length and its bytes.
+    let field = |from: usize, len: usize| bytes.get(from..from.checked_add(len)?);
+    let Some([0x01]) = field(8, 1) else {
+        return "";
+    };
+    let len = field(17, 4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize);
+    len.and_then(|len| field(21, len))
+        .and_then(|b| std::str::from_utf8(b).ok())
+        .unwrap_or("")
+}
+
 /// Rewrites the recording at `source` into `target` (which must not be
 /// `source`).
 pub fn repair(source: &Path, target: &Path) -> Result<Repaired, RecordingError> {
@@ -58,7 +74,7 @@ pub fn repair(source: &Path, target: &Path) -> Result<Repaired, RecordingError> 
     let mut writer = mcap::WriteOptions::new()
         .compression(Some(mcap::Compression::Zstd))
         .compression_threads(0)
-        .profile("")
+        .profile(profile_of(&bytes))
         .library(concat!("rigslam ", env!("CARGO_PKG_VERSION"), " (repair)"))
         .create(Cursor::new(Vec::new()))
         .map_err(mcap_err)?;

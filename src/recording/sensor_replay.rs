@@ -205,10 +205,10 @@ pub fn for_each_sensor_event_in(
     topics: SensorTopics,
     mut f: impl FnMut(ReplayItem) -> ControlFlow<()>,
 ) -> Result<ReplayEnd, RecordingError> {
-    // The left image waiting for its right one: (frame, sequence).
-    let mut left: Option<(Frame, u32)> = None;
+    // The left image waiting for its right one: (frame, sequence, topic).
+    let mut left: Option<(Frame, u32, String)> = None;
     let mut count = 0u64;
-    let unpaired = |topic: &str, (frame, sequence): (Frame, u32)| {
+    let unpaired = |topic: &str, frame: Frame, sequence: u32| {
         ReplayItem::Skipped(SkippedMessage::Unpaired {
             topic: topic.to_string(),
             sequence,
@@ -232,15 +232,14 @@ pub fn for_each_sensor_event_in(
             }))
         };
         let mut items: [Option<ReplayItem>; 2] = [None, None];
-        match topic {
-            "/imu0" if topics.imu => {
+        match (topic, camera_of_topic(topic)) {
+            ("/imu0", _) if topics.imu => {
                 items[0] = match super::decode_imu(&message) {
                     Ok(s) => Some(ReplayItem::Event(SensorEvent::Imu(s))),
                     Err(e) => unreadable(false, e),
                 };
             }
-            "/cam0" | "/cam1" if topic == "/cam0" || topics.stereo => {
-                let index = u8::from(topic == "/cam1");
+            (_, Some(index)) if index == 0 || topics.stereo => {
                 let frame = match decode_image(&message).and_then(|m| decode_frame(m, index)) {
                     Ok(frame) => frame,
                     Err(reason) => {
@@ -260,23 +259,23 @@ pub fn for_each_sensor_event_in(
                         }))
                     }
                     (0, true) => {
-                        items[0] = left.take().map(|l| unpaired("/cam0", l));
-                        left = Some((frame, message.sequence));
+                        items[0] = left.take().map(|(l, seq, t)| unpaired(&t, l, seq));
+                        left = Some((frame, message.sequence, topic.to_owned()));
                     }
                     (_, true) => {
                         items[0] = match left.take() {
-                            Some((l, _)) if l.t_ns == frame.t_ns => {
+                            Some((l, _, _)) if l.t_ns == frame.t_ns => {
                                 Some(ReplayItem::Event(SensorEvent::Frame {
                                     t_ns: l.t_ns,
                                     left: l,
                                     right: Some(frame),
                                 }))
                             }
-                            Some(l) => {
-                                items[1] = Some(unpaired("/cam1", (frame, message.sequence)));
-                                Some(unpaired("/cam0", l))
+                            Some((l, seq, t)) => {
+                                items[1] = Some(unpaired(topic, frame, message.sequence));
+                                Some(unpaired(&t, l, seq))
                             }
-                            None => Some(unpaired("/cam1", (frame, message.sequence))),
+                            None => Some(unpaired(topic, frame, message.sequence)),
                         }
                     }
                     _ => {}
@@ -286,8 +285,8 @@ pub fn for_each_sensor_event_in(
         }
         emit(&mut f, items, &mut count)
     })?;
-    if let Some(l) = left.take() {
-        let _ = emit(&mut f, [Some(unpaired("/cam0", l)), None], &mut count);
+    if let Some((l, seq, t)) = left.take() {
+        let _ = emit(&mut f, [Some(unpaired(&t, l, seq)), None], &mut count);
     }
     Ok(ReplayEnd {
         events: count,
@@ -295,10 +294,35 @@ pub fn for_each_sensor_event_in(
     })
 }
 
-/// An image message of either layout (`foxglove.RawImage` in protobuf, or
-/// in the older JSON).
+/// The topics a camera's images are on: `/camN` in rigslam's own
+/// recordings, `/camN/image_raw` in ROS 2 ones.
+pub const CAMERA_TOPICS: [[&str; 2]; 2] =
+    [["/cam0", "/cam0/image_raw"], ["/cam1", "/cam1/image_raw"]];
+
+/// The camera whose images `topic` carries.
+fn camera_of_topic(topic: &str) -> Option<u8> {
+    CAMERA_TOPICS
+        .iter()
+        .position(|names| names.contains(&topic))
+        .map(|i| i as u8)
+}
+
+/// An image message of any layout rigslam writes (`foxglove.RawImage` in
+/// protobuf, ROS 2's `sensor_msgs/msg/Image`, or the older JSON).
 fn decode_image(m: &MessageView<'_>) -> Result<RawFrame, String> {
     match m.channel.message_encoding.as_str() {
+        super::ros2::messages::MESSAGE_ENCODING => {
+            super::expect_schema(m, super::ros2::messages::IMAGE.name)?;
+            let image = super::ros2::messages::Image::decode(m.data)?;
+            Ok(RawFrame {
+                t_ns: image.header.stamp.ns(),
+                width: image.width,
+                height: image.height,
+                step: image.step,
+                encoding: image.encoding,
+                data: image.data,
+            })
+        }
         "protobuf" => {
             let image: foxglove::messages::RawImage =
                 prost::Message::decode(m.data).map_err(|e| e.to_string())?;

@@ -59,8 +59,14 @@ fn imu_samples_replay_bit_for_bit(compression: Compression) {
 /// uncompressed) per 8 frames.
 fn stereo_recording(path: &Path, compression: Compression, frames: i64, clock: ClockMapping) {
     let mut rng = ChaCha8Rng::seed_from_u64(3);
-    let mut rec = McapRecorder::create_with(path, compression, writer::DEFAULT_ZSTD_LEVEL, clock)
-        .expect("create");
+    let mut rec = McapRecorder::create_with(
+        path,
+        compression,
+        writer::DEFAULT_ZSTD_LEVEL,
+        clock,
+        Format::Foxglove,
+    )
+    .expect("create");
     rec.attach("calibration/cam0.yaml", "application/x-yaml", b"cam0")
         .expect("attach");
     let imu = rec.add_imu_channel("/imu0", &BTreeMap::new()).expect("imu");
@@ -392,6 +398,197 @@ fn recordings_in_the_earlier_json_layout_still_replay() {
     assert_eq!(poses.len(), 2);
     assert_eq!(poses[1].position_world_m, [0.1, 0.2, 0.3]);
     assert_eq!(poses[1].position_odom_m, poses[1].position_world_m);
+}
+
+/// The profile in a file's header record.
+fn profile_of(bytes: &[u8]) -> String {
+    match mcap::read::LinearReader::new(bytes)
+        .expect("an MCAP file")
+        .next()
+    {
+        Some(Ok(mcap::records::Record::Header(h))) => h.profile,
+        other => panic!("no header first: {other:?}"),
+    }
+}
+
+/// A ROS 2 recording: the `ros2` profile, the `rosbag2` record, ROS
+/// types in `ros2msg` and CDR on every channel, and the sensor streams
+/// replay bit for bit (IMU values and stamps, pixels), including the
+/// stereo half without its partner, named by its ROS topic.
+#[test]
+fn ros2_recordings_replay_bit_for_bit() {
+    use ros2::messages::{Image, Imu};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("ros2.mcap");
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let mut rec = McapRecorder::create_with(
+        &path,
+        Compression::Zstd,
+        writer::DEFAULT_ZSTD_LEVEL,
+        CLOCK,
+        Format::Ros2,
+    )
+    .expect("create");
+    let meta = ros2::channel_metadata(false);
+    let imu = rec.add_channel::<Imu>(ros2::IMU_TOPIC, &meta).expect("imu");
+    let cams = [0, 1].map(|i| {
+        rec.add_channel::<Image>(&ros2::image_topic(i), &meta)
+            .expect("camera")
+    });
+    let mut samples = Vec::new();
+    let mut images = Vec::new();
+    for k in 0..12i64 {
+        let t = 1_403_636_579_763_555_584 + k * 50_000_000;
+        for i in 0..10 {
+            let s = ImuSample {
+                t_ns: t + i * 5_000_000 + 7,
+                gyro_rad_s: [
+                    rng.gen::<f64>() - 0.5,
+                    rng.gen_range(-1e-9..1e-9),
+                    1.0 / 3.0,
+                ],
+                accel_m_s2: [rng.gen_range(-50.0..50.0), -0.0, 9.81],
+            };
+            rec.write(imu, &ros2::convert::imu(&s, Some([1e-4, 1e-2])), s.t_ns)
+                .expect("imu");
+            samples.push(s);
+        }
+        let pixels: Vec<u8> = (0..64 * 48).map(|_| rng.gen()).collect();
+        let image = rigslam_drivers::Image::mono8(64, 48, pixels).expect("image");
+        for (i, cam) in cams.iter().enumerate() {
+            // Frame 4 lost its right image.
+            if k == 4 && i == 1 {
+                continue;
+            }
+            let name = format!("cam{i}");
+            rec.write(*cam, &ros2::convert::image(t, &image, &name), t)
+                .expect("image");
+        }
+        images.push((t, image));
+    }
+    rec.finish().expect("finish");
+    let bytes = std::fs::read(&path).expect("bytes");
+
+    assert_eq!(profile_of(&bytes), "ros2");
+    let summary = mcap::Summary::read(&bytes)
+        .expect("summary")
+        .expect("closed");
+    let bag = summary
+        .metadata_indexes
+        .iter()
+        .find(|i| i.name == ros2::BAG_METADATA_NAME)
+        .expect("the rosbag2 record");
+    let bag = mcap::read::metadata(&bytes, bag).expect("metadata");
+    assert_eq!(bag.metadata, ros2::bag_metadata());
+    let mut channels = Vec::new();
+    reader::walk(&bytes, &path, |item| {
+        if let reader::Item::Channel(c) = item {
+            channels.push(c.clone());
+        }
+        std::ops::ControlFlow::Continue(())
+    })
+    .expect("walk");
+    assert_eq!(channels.len(), 3);
+    for c in &channels {
+        assert_eq!(
+            (c.message_encoding.as_str(), c.schema_encoding.as_str()),
+            ("cdr", "ros2msg")
+        );
+        assert_eq!(c.metadata, meta, "{}", c.topic);
+    }
+    assert_eq!(channels[0].schema_name, "sensor_msgs/msg/Imu");
+    assert_eq!(channels[1].schema_name, "sensor_msgs/msg/Image");
+
+    let mut replayed = Vec::new();
+    let mut frames = Vec::new();
+    let mut skipped = Vec::new();
+    let end = for_each_sensor_event_in(
+        &bytes,
+        &path,
+        SensorTopics {
+            stereo: true,
+            imu: true,
+        },
+        |item| {
+            match item {
+                ReplayItem::Event(crate::dataset::SensorEvent::Imu(s)) => replayed.push(s),
+                ReplayItem::Event(crate::dataset::SensorEvent::Frame { t_ns, left, right }) => {
+                    frames.push((t_ns, left, right.expect("stereo")))
+                }
+                ReplayItem::Skipped(s) => skipped.push(s.to_string()),
+            }
+            std::ops::ControlFlow::Continue(())
+        },
+    )
+    .expect("replay");
+    assert!(end.file.is_whole(), "{end:?}");
+    assert_eq!(replayed.len(), samples.len());
+    for (a, b) in replayed.iter().zip(&samples) {
+        assert_eq!(a.t_ns, b.t_ns);
+        assert_eq!(
+            a.gyro_rad_s.map(f64::to_bits),
+            b.gyro_rad_s.map(f64::to_bits)
+        );
+        assert_eq!(
+            a.accel_m_s2.map(f64::to_bits),
+            b.accel_m_s2.map(f64::to_bits)
+        );
+    }
+    assert_eq!(
+        read_imu_channel_in(&bytes, &path, "/imu0").expect("imu channel"),
+        samples
+    );
+    assert_eq!(frames.len(), images.len() - 1);
+    let paired = images.iter().enumerate().filter(|(k, _)| *k != 4);
+    for ((t, left, right), (_, (t_image, image))) in frames.iter().zip(paired) {
+        assert_eq!(t, t_image);
+        assert_eq!((left.camera_index, right.camera_index), (0, 1));
+        assert_eq!(left.image.data(), image.data(), "left pixels at {t}");
+        assert_eq!(right.image.data(), image.data(), "right pixels at {t}");
+        assert_eq!(left.image.width(), 64);
+    }
+    assert_eq!(skipped.len(), 1, "{skipped:?}");
+    assert!(
+        skipped[0].contains("/cam0/image_raw") && skipped[0].contains("message 5"),
+        "{skipped:?}"
+    );
+
+    // A repair of the file cut short keeps the profile and the records.
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).expect("write");
+    let repaired = dir.path().join("repaired.mcap");
+    repair::repair(&cut, &repaired).expect("repair");
+    let repaired = std::fs::read(&repaired).expect("repaired");
+    assert_eq!(profile_of(&repaired), "ros2");
+    let summary = mcap::Summary::read(&repaired)
+        .expect("summary")
+        .expect("closed");
+    assert!(summary
+        .metadata_indexes
+        .iter()
+        .any(|i| i.name == ros2::BAG_METADATA_NAME));
+    // The profile of a foxglove file stays empty.
+    let plain = dir.path().join("plain.mcap");
+    stereo_recording(&plain, Compression::None, 1, CLOCK);
+    let again = dir.path().join("plain.repaired.mcap");
+    repair::repair(&plain, &again).expect("repair");
+    assert_eq!(profile_of(&std::fs::read(&again).expect("read")), "");
+
+    // A ROS message of another type on /imu0 is refused, naming both.
+    let other = dir.path().join("other.mcap");
+    let mut rec = McapRecorder::create_with(&other, Compression::None, 0, CLOCK, Format::Ros2)
+        .expect("create");
+    let tf = rec
+        .add_channel::<ros2::messages::TfMessage>("/imu0", &meta)
+        .expect("channel");
+    rec.write(tf, &ros2::messages::TfMessage::default(), 0)
+        .expect("write");
+    rec.finish().expect("finish");
+    let e = read_imu_channel(&other, "/imu0").unwrap_err().to_string();
+    assert!(
+        e.contains("tf2_msgs/msg/TFMessage") && e.contains("sensor_msgs/msg/Imu"),
+        "{e}"
+    );
 }
 
 #[test]

@@ -44,6 +44,44 @@ impl Compression {
     }
 }
 
+/// Which messages a recording holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Format {
+    /// Protobuf: Foxglove's schemas and rigslam's own, every stream the
+    /// daemon has (the MCAP profile is empty).
+    #[default]
+    Foxglove,
+    /// ROS 2's messages in CDR, with the `ros2` profile, for `ros2 bag
+    /// play` and the ROS tools ([`super::ros2`]).
+    Ros2,
+}
+
+impl std::str::FromStr for Format {
+    type Err = String;
+
+    fn from_str(name: &str) -> Result<Self, String> {
+        match name {
+            "foxglove" => Ok(Format::Foxglove),
+            "ros2" => Ok(Format::Ros2),
+            other => Err(format!(
+                "{other:?} is not a recording format: \"foxglove\" (protobuf, every stream) \
+                 or \"ros2\" (ROS 2 messages for ros2 bag play)"
+            )),
+        }
+    }
+}
+
+impl Format {
+    /// The MCAP profile of the file.
+    pub fn profile(self) -> &'static str {
+        match self {
+            Format::Foxglove => "",
+            Format::Ros2 => "ros2",
+        }
+    }
+}
+
 /// zstd's level unless set: its fastest. On EuRoC's images it stores
 /// 1.26x smaller than raw at 0.6 ms per image; zstd's own default (3)
 /// gets 1.32x for three times the CPU (bench/README.md).
@@ -158,17 +196,27 @@ impl McapRecorder {
         path: impl AsRef<Path>,
         compression: Compression,
     ) -> Result<McapRecorder, RecordingError> {
-        Self::create_with(path, compression, DEFAULT_ZSTD_LEVEL, ClockMapping::now())
+        Self::create_with(
+            path,
+            compression,
+            DEFAULT_ZSTD_LEVEL,
+            ClockMapping::now(),
+            Format::Foxglove,
+        )
     }
 
     /// [`Self::create`] with a compression level (zstd's 1 to 19; lz4's
-    /// acceleration otherwise, 0 its default) and a given clock mapping
-    /// (the host's now, a test's, or one carried over from another file).
+    /// acceleration otherwise, 0 its default), a given clock mapping
+    /// (the host's now, a test's, or one carried over from another file)
+    /// and a format: its profile goes in the file's header, and a ROS 2
+    /// file gets the `rosbag2` metadata record [`super::ros2`] describes.
+    /// The channels are the caller's to add.
     pub fn create_with(
         path: impl AsRef<Path>,
         compression: Compression,
         level: u32,
         clock: ClockMapping,
+        format: Format,
     ) -> Result<McapRecorder, RecordingError> {
         let path = path.as_ref().to_path_buf();
         let file = File::create(&path).map_err(|source| RecordingError::Create {
@@ -190,7 +238,7 @@ impl McapRecorder {
             .compression_level(level)
             // The recorder has its own thread; the pipeline has the others.
             .compression_threads(0)
-            .profile("")
+            .profile(format.profile())
             .library(concat!("rigslam ", env!("CARGO_PKG_VERSION")))
             .create(counting)
             .map_err(mcap_err)?;
@@ -200,6 +248,14 @@ impl McapRecorder {
                 metadata: clock.metadata(),
             })
             .map_err(mcap_err)?;
+        if format == Format::Ros2 {
+            writer
+                .write_metadata(&mcap::records::Metadata {
+                    name: super::ros2::BAG_METADATA_NAME.to_owned(),
+                    metadata: super::ros2::bag_metadata(),
+                })
+                .map_err(mcap_err)?;
+        }
         Ok(McapRecorder {
             path,
             writer,
@@ -251,7 +307,10 @@ impl McapRecorder {
         self.buf.clear();
         message
             .encode(&mut self.buf)
-            .expect("encoding into a growing Vec cannot run out of room");
+            .map_err(|e| RecordingError::Encode {
+                path: self.path.clone(),
+                reason: e.to_string(),
+            })?;
         let sequence = self.sequences.entry(channel.id).or_insert(0);
         *sequence += 1;
         let time = self.clock.unix_of(receipt_t_ns);
@@ -331,7 +390,7 @@ impl McapRecorder {
             height: image.height(),
             encoding: "mono8".to_owned(),
             step: image.width(),
-            data: grey_bytes(image).into(),
+            data: super::grey_bytes(image).into(),
         };
         self.write(channel, &message, receipt_t_ns)
     }
@@ -377,25 +436,4 @@ impl McapRecorder {
         self.writer.finish().map_err(self.mcap_err())?;
         Ok(self.path)
     }
-}
-
-/// The image as 8-bit grey rows without padding.
-pub fn grey_bytes(image: &rigslam_drivers::Image) -> Vec<u8> {
-    let (w, h) = (image.width(), image.height());
-    if image.format() == rigslam_drivers::PixelFormat::Mono8 {
-        let stride = image.stride_bytes();
-        let data = image.data();
-        let mut grey = Vec::with_capacity(w as usize * h as usize);
-        for row in 0..h as usize {
-            grey.extend_from_slice(&data[row * stride..row * stride + w as usize]);
-        }
-        return grey;
-    }
-    let mut grey = Vec::with_capacity(w as usize * h as usize);
-    for y in 0..h {
-        for x in 0..w {
-            grey.push(image.grey8_at(x, y).unwrap_or(0));
-        }
-    }
-    grey
 }
