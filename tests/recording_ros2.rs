@@ -260,8 +260,8 @@ fn check_what_python_decoded(
         ("/rigslam/odom", "nav_msgs/msg/Odometry", false),
         ("/tf", "tf2_msgs/msg/TFMessage", false),
         ("/tf_static", "tf2_msgs/msg/TFMessage", true),
-        ("/cam0/camera_info", "sensor_msgs/msg/CameraInfo", true),
-        ("/cam1/camera_info", "sensor_msgs/msg/CameraInfo", true),
+        ("/cam0/camera_info", "sensor_msgs/msg/CameraInfo", false),
+        ("/cam1/camera_info", "sensor_msgs/msg/CameraInfo", false),
     ];
     let channels = py["channels"].as_object().expect("channels");
     assert_eq!(channels.len(), expected_channels.len(), "{channels:?}");
@@ -459,12 +459,19 @@ fn check_what_python_decoded(
         assert_eq!(f64s(&Value::Array(v[7..11].to_vec())), [q.x, q.y, q.z, q.w]);
     }
 
-    // Camera infos once each: the rig's intrinsics.
+    // A camera info with every image, under its stamp (image_proc pairs
+    // them by stamp): the rig's intrinsics.
     for (i, camera) in rig.cameras.iter().enumerate() {
         let values = py["values"][format!("/cam{i}/camera_info")]
             .as_array()
             .expect("camera info");
-        assert_eq!(values.len(), 1);
+        let images = py["values"][format!("/cam{i}/image_raw")]
+            .as_array()
+            .expect("images");
+        assert_eq!(values.len(), images.len(), "cam{i}");
+        for (info, image) in values.iter().zip(images) {
+            assert_eq!((&info[0], &info[1]), (&image[0], &image[1]), "cam{i}");
+        }
         let v = values[0].as_array().expect("fields");
         let [fx, fy, cx, cy] = camera.model.pinhole();
         assert_eq!(v[2], format!("cam{i}"));

@@ -213,6 +213,9 @@ struct FoxgloveChannels {
 struct Ros2Channels {
     imu: ChannelId,
     cams: [ChannelId; 2],
+    /// Each camera's `CameraInfo` channel and message, written with every
+    /// image under its stamp (what `image_proc` and other nodes pair).
+    infos: Vec<(ChannelId, ros2::messages::CameraInfo)>,
     odom: ChannelId,
     tf: ChannelId,
     /// Per-sample variances of the IMU's rate and specific force.
@@ -303,9 +306,9 @@ fn foxglove_channels(
     })
 }
 
-/// Registers the ROS 2 channels and writes, once per file, the cameras'
-/// `CameraInfo` and the body's static transforms (`/tf_static`), both
-/// offered transient-local.
+/// Registers the ROS 2 channels and writes, once per file, the body's
+/// static transforms (`/tf_static`, offered transient-local); the cameras'
+/// `CameraInfo` goes with every image.
 fn ros2_channels(
     recorder: &mut McapRecorder,
     rig: &RigModel,
@@ -322,18 +325,19 @@ fn ros2_channels(
     let tf = recorder.add_channel::<TfMessage>(ros2::TF_TOPIC, &stream)?;
     let tf_static = recorder.add_channel::<TfMessage>(ros2::TF_STATIC_TOPIC, &latched)?;
     let now = host_monotonic_ns();
+    let mut infos = Vec::new();
     for (i, camera) in rig.cameras.iter().enumerate().take(2) {
-        let channel = recorder.add_channel::<CameraInfo>(&ros2::camera_info_topic(i), &latched)?;
-        recorder.write(
+        let channel = recorder.add_channel::<CameraInfo>(&ros2::camera_info_topic(i), &stream)?;
+        infos.push((
             channel,
-            &ros2::convert::camera_info(camera, &format!("cam{i}")),
-            now,
-        )?;
+            ros2::convert::camera_info(camera, &format!("cam{i}")),
+        ));
     }
     recorder.write(tf_static, &ros2::convert::static_transforms(rig), now)?;
     Ok(Ros2Channels {
         imu,
         cams,
+        infos,
         odom,
         tf,
         imu_variances: rig.imu.as_ref().map(ros2::convert::imu_variances),
@@ -547,11 +551,18 @@ impl OpenFile {
                 Channels::Foxglove(c) => {
                     r.write_image(c.cams[i], f.t_ns, &side.image, name, receipt)?
                 }
-                Channels::Ros2(c) => r.write(
-                    c.cams[i],
-                    &ros2::convert::image(f.t_ns, &side.image, name),
-                    receipt,
-                )?,
+                Channels::Ros2(c) => {
+                    r.write(
+                        c.cams[i],
+                        &ros2::convert::image(f.t_ns, &side.image, name),
+                        receipt,
+                    )?;
+                    if let Some((channel, info)) = c.infos.get(i) {
+                        let mut info = info.clone();
+                        info.header = ros2::messages::Header::new(f.t_ns, name);
+                        r.write(*channel, &info, receipt)?;
+                    }
+                }
             }
         }
         Ok(())

@@ -7,14 +7,15 @@
 //! `/rigslam/odom` (`nav_msgs/msg/Odometry`), `/tf` (`map -> odom ->
 //! body` with each pose), `/tf_static` (`body -> cam0, cam1, imu`, once
 //! per file) and `/cam0/camera_info`, `/cam1/camera_info`
-//! (`sensor_msgs/msg/CameraInfo`, once per file). [`convert`] says what
+//! (`sensor_msgs/msg/CameraInfo`, with every image under its stamp, as
+//! camera drivers publish it). [`convert`] says what
 //! each field holds; [`cdr`] writes the bytes; [`messages`] has the
 //! types and their definitions.
 //!
 //! Each channel says how its publisher offered it
 //! (`offered_qos_profiles`, what `ros2 bag play` publishes with):
-//! reliable, volatile, except the messages written once per file
-//! (`/tf_static`, camera infos), which are transient-local so that a node
+//! reliable, volatile, except `/tf_static`, written once per file, which
+//! is transient-local so that a node
 //! started later still gets them (tf2 listens to `/tf_static` that way and
 //! hears no volatile publisher). The profiles are in rosbag2's older
 //! numeric YAML form, the one Humble's rosbag2 reads; later ones read it
