@@ -18,25 +18,12 @@ use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion, Vector3};
 use rigslam::publish::{IpcConfig, PoseMessage, PosePublisher};
 use rigslam::relative::TrackingState;
 
+#[path = "common/python.rs"]
+mod python_env;
+
 /// A Python that imports iceoryx2, or `None` (skip) outside CI.
 fn python() -> Option<PathBuf> {
-    let candidate = std::env::var_os("RIGSLAM_PYTHON").map(PathBuf::from);
-    let usable = candidate.as_ref().is_some_and(|p| {
-        Command::new(p)
-            .args(["-c", "import iceoryx2"])
-            .status()
-            .is_ok_and(|s| s.success())
-    });
-    if usable {
-        return candidate;
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "CI is set but RIGSLAM_PYTHON ({candidate:?}) is not a Python with iceoryx2 \
-         (scripts/test makes one in target/py)"
-    );
-    eprintln!("skipping: set RIGSLAM_PYTHON to a Python with `pip install iceoryx2==0.10.0`");
-    None
+    python_env::python_with("iceoryx2", "iceoryx2==0.10.0")
 }
 
 /// Pose `i`: every field depends on `i`, so a shifted or garbled field is seen.

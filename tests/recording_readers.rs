@@ -32,42 +32,20 @@ use rigslam::recording::{
 use rigslam::shared_data;
 use serde_json::Value;
 
+#[path = "common/python.rs"]
+mod python_env;
+
 /// A Python that imports the MCAP readers, or `None` (skip) outside CI.
 fn python() -> Option<PathBuf> {
-    let candidate = std::env::var_os("RIGSLAM_PYTHON").map(PathBuf::from);
-    let usable = candidate.as_ref().is_some_and(|p| {
-        Command::new(p)
-            .args(["-c", "import mcap, mcap_protobuf, zstandard, lz4"])
-            .status()
-            .is_ok_and(|s| s.success())
-    });
-    if usable {
-        return candidate;
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "CI is set but RIGSLAM_PYTHON ({candidate:?}) is not a Python with mcap, \
-         mcap-protobuf-support, zstandard and lz4 (scripts/test makes one in target/py)"
-    );
-    eprintln!("skipping: set RIGSLAM_PYTHON to a Python with `pip install mcap mcap-protobuf-support zstandard lz4`");
-    None
+    python_env::python_with(
+        "mcap, mcap_protobuf, zstandard, lz4",
+        "mcap mcap-protobuf-support zstandard lz4",
+    )
 }
 
 /// What `check_mcap.py` found in `file`.
 fn python_reads(python: &Path, file: &Path) -> Value {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/readers/check_mcap.py");
-    let out = Command::new(python)
-        .arg(script)
-        .arg(file)
-        .output()
-        .expect("run python");
-    assert!(
-        out.status.success(),
-        "check_mcap.py failed on {}: {}",
-        file.display(),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("JSON from check_mcap.py")
+    python_env::script_json(python, "check_mcap.py", file)
 }
 
 fn f64s(v: &Value) -> Vec<f64> {

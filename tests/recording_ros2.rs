@@ -17,7 +17,6 @@
 
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 use std::time::{Duration, Instant};
 
 use nalgebra::{Matrix3, Matrix6, Quaternion, UnitQuaternion, Vector3};
@@ -35,46 +34,21 @@ use serde_json::Value;
 mod collect;
 use collect::Collect;
 
+#[path = "common/python.rs"]
+mod python_env;
+
 /// A Python that imports the MCAP reader and its ROS 2 decoder, or
 /// `None` (skip) outside CI.
 fn python() -> Option<PathBuf> {
-    let candidate = std::env::var_os("RIGSLAM_PYTHON").map(PathBuf::from);
-    let usable = candidate.as_ref().is_some_and(|p| {
-        Command::new(p)
-            .args(["-c", "import mcap, mcap_ros2, zstandard, lz4"])
-            .status()
-            .is_ok_and(|s| s.success())
-    });
-    if usable {
-        return candidate;
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "CI is set but RIGSLAM_PYTHON ({candidate:?}) is not a Python with mcap, \
-         mcap-ros2-support, zstandard and lz4 (scripts/test makes one in target/py)"
-    );
-    eprintln!(
-        "skipping the Python reader: set RIGSLAM_PYTHON to a Python with \
-         `pip install mcap mcap-ros2-support zstandard lz4`"
-    );
-    None
+    python_env::python_with(
+        "mcap, mcap_ros2, zstandard, lz4",
+        "mcap mcap-ros2-support zstandard lz4",
+    )
 }
 
 /// What `check_ros2.py` found in `file`.
 fn python_reads(python: &Path, file: &Path) -> Value {
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/readers/check_ros2.py");
-    let out = Command::new(python)
-        .arg(script)
-        .arg(file)
-        .output()
-        .expect("run python");
-    assert!(
-        out.status.success(),
-        "check_ros2.py failed on {}: {}",
-        file.display(),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("JSON from check_ros2.py")
+    python_env::script_json(python, "check_ros2.py", file)
 }
 
 fn f64s(v: &Value) -> Vec<f64> {
