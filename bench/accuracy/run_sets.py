@@ -1,0 +1,118 @@
+#!/usr/bin/env python3
+"""Runs the accuracy sets that `render_sets.sh` wrote and prints one table.
+
+Every sequence of the development set (seeds 0-5 from rest, seed 0 in
+flight) and of the held-apart evaluation set (V1_01 room A and V1_02
+room B, from rest and in flight) in each mode asked for, with the same
+settings (`--config`, default: the defaults). Columns: ATE RMSE (se3,
+m), scale error (%), NEES per dof of the published covariance, and
+whether the run lost track or re-initialised. The means per set and mode
+are at the end; with `stereo` among the modes, each inertial run is also
+compared with the same cameras without the IMU.
+
+usage: bench/accuracy/run_sets.py SETS_DIR [--modes stereo-inertial mono-inertial stereo]
+       [--config C.toml] [--sets dev eval] [--jobs 2] [--out rows.json]
+"""
+import argparse, json, os, subprocess, sys, tempfile
+from concurrent.futures import ThreadPoolExecutor
+
+# name, folder, start (s), frame count (None: to the end)
+DEV = [(f"dev s{s}", f"dev_v102_s{s}", 0, None) for s in range(6)] + [
+    ("dev s0 in flight", "dev_v102_s0", 25, 600)]
+EVAL = [
+    ("V1_01 A rest", "eval_v101_a", 0, None),
+    ("V1_01 A flight", "eval_v101_a", 30, None),
+    ("V1_02 B rest", "eval_v102_b", 0, None),
+    ("V1_02 B flight", "eval_v102_b", 25, None),
+]
+
+
+def run(binary, root, seq, mode, config):
+    name, folder, start, frames = seq
+    with tempfile.TemporaryDirectory() as d:
+        report = os.path.join(d, "report.json")
+        cmd = [binary, "run", "--dataset", os.path.join(root, folder), "--mode", mode,
+               "--report", report, "--quiet"]
+        if config:
+            cmd += ["--config", config]
+        if start:
+            cmd += ["--start-s", str(start)]
+        if frames:
+            cmd += ["--max-frames", str(frames)]
+        p = subprocess.run(cmd, capture_output=True, text=True)
+        if p.returncode != 0:
+            return {"sequence": name, "mode": mode, "error": p.stderr.strip()[-400:]}
+        with open(report) as f:
+            r = json.load(f)
+    e = r.get("eval") or {}
+    nees = r.get("nees") or {}
+    counters = r.get("counters") or {}
+    return {
+        "sequence": name, "mode": mode,
+        "ate_m": e.get("ate_rmse_m"),
+        "scale_error_pct": None if e.get("scale_error") is None else 100 * abs(e["scale_error"]),
+        "nees": nees.get("mean_per_dof"),
+        "nees_position": nees.get("position_per_dof"),
+        "nees_rotation": nees.get("rotation_per_dof"),
+        "lost": r.get("lost_count"),
+        "resets": counters.get("resets"),
+        "ms_per_frame": r.get("mean_ms_per_frame"),
+        "noise_scale_end": r.get("imu_noise_scale"),
+    }
+
+
+def fmt(v, spec):
+    return "-" if v is None else format(v, spec)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("root", help="the folder render_sets.sh wrote")
+    ap.add_argument("--modes", nargs="+", default=["stereo-inertial", "mono-inertial", "stereo"])
+    ap.add_argument("--sets", nargs="+", default=["dev", "eval"], choices=["dev", "eval"])
+    ap.add_argument("--config")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--out")
+    ap.add_argument("--bin", default=os.environ.get("RIGSLAM", "target/release/rigslam"))
+    a = ap.parse_args()
+    seqs = [(s, seq) for s in a.sets for seq in (DEV if s == "dev" else EVAL)]
+    for _, (_, folder, _, _) in seqs:
+        if not os.path.isdir(os.path.join(a.root, folder)):
+            sys.exit(f"{os.path.join(a.root, folder)} is missing: render it with bench/accuracy/render_sets.sh")
+    jobs = [(s, seq, mode) for s, seq in seqs for mode in a.modes]
+    with ThreadPoolExecutor(max_workers=a.jobs) as pool:
+        rows = list(pool.map(lambda j: dict(run(a.bin, a.root, j[1], j[2], a.config), set=j[0]), jobs))
+    if a.out:
+        with open(a.out, "w") as f:
+            json.dump(rows, f, indent=1)
+    by = {(r["sequence"], r["mode"]): r for r in rows}
+    print("| set | sequence | mode | ATE m | scale err % | NEES/dof | lost | vs stereo |")
+    print("|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        if "error" in r:
+            print(f"| {r['set']} | {r['sequence']} | {r['mode']} | failed: {r['error'][-80:]} |")
+            continue
+        vision = by.get((r["sequence"], "stereo"))
+        versus = "-"
+        if r["mode"] != "stereo" and vision and vision.get("ate_m") and r.get("ate_m"):
+            versus = f"{r['ate_m'] / vision['ate_m']:.2f}x"
+        print(f"| {r['set']} | {r['sequence']} | {r['mode']} | {fmt(r['ate_m'], '.4f')} | "
+              f"{fmt(r['scale_error_pct'], '.2f')} | {fmt(r['nees'], '.2f')} | {r['lost']} | {versus} |")
+    print()
+    print("| set | mode | mean ATE m (from rest) | mean ATE m (all) | max scale err % | mean NEES/dof |")
+    print("|---|---|---|---|---|---|")
+    for s in a.sets:
+        for mode in a.modes:
+            rs = [r for r in rows if r["set"] == s and r["mode"] == mode and r.get("ate_m") is not None]
+            if not rs:
+                continue
+            rest = [r["ate_m"] for r in rs if "flight" not in r["sequence"]]
+            scale = [r["scale_error_pct"] for r in rs if r["scale_error_pct"] is not None]
+            nees = [r["nees"] for r in rs if r["nees"] is not None]
+            mean = lambda v: sum(v) / len(v) if v else None
+            print(f"| {s} | {mode} | {fmt(mean(rest), '.4f')} | {fmt(mean([r['ate_m'] for r in rs]), '.4f')} | "
+                  f"{fmt(max(scale) if scale else None, '.2f')} | {fmt(mean(nees), '.2f')} |")
+
+
+if __name__ == "__main__":
+    main()
