@@ -206,8 +206,20 @@ pub struct NoiseAdaptation {
 }
 
 /// A redundancy below this share of the rows' count says the link is not
-/// measured by anything else: its residual tells nothing.
-const MIN_REDUNDANCY_SHARE: f64 = 0.05;
+/// measured by anything else: its residual tells nothing (the first link
+/// of a window, whose states nothing else reaches yet, has 1e-8).
+///
+/// Low redundancy is not the same as no evidence. An IMU weighed far
+/// above its real noise leaves little of its noise in its own residual,
+/// because the states bend towards it: declared at half the datasheet on
+/// the real V1_02 log (about 32 times too small), mono-inertial links
+/// have a translation redundancy of 0.03-0.13, and their squared
+/// residuals still say the variance is 11 times what was weighed. The
+/// sums weigh each link by its redundancy, so such a link counts for
+/// what it measures. A floor of 5 % of the rows (the first version)
+/// ignored all of them and held the scale at the value it started from
+/// for the whole run.
+const MIN_REDUNDANCY_SHARE: f64 = 1e-4;
 
 impl NoiseAdaptation {
     /// An estimator starting from `config.initial`, weighted as `prior_links` links' worth.
@@ -298,9 +310,13 @@ impl NoiseAdaptation {
         let keep = (-e.dt_s / self.config.memory_s).exp();
         let (lo, hi) = (self.config.min_scale, self.config.max_scale);
         let update = |sums: &mut (f64, f64), chi2: f64, redundancy: f64, dof: f64, s: f64| {
-            if redundancy < MIN_REDUNDANCY_SHARE * dof {
+            if !(redundancy >= MIN_REDUNDANCY_SHARE * dof) {
                 return s;
             }
+            // One link cannot ask for much more than the upper bound (twice
+            // it): a residual the linearisation got wrong stays one link's
+            // worth.
+            let chi2 = chi2.min(redundancy * (2.0 * hi / s).powi(2));
             sums.0 = sums.0 * keep + chi2 * s * s;
             sums.1 = sums.1 * keep + redundancy;
             (sums.0 / sums.1).sqrt().clamp(lo, hi)
@@ -495,6 +511,63 @@ mod tests {
         );
     }
 
+    /// An IMU declared far quieter than it is: the states bend towards it,
+    /// so its links keep only `(current / truth)^2` of their redundancy
+    /// (0.007 of the translation rows at the start here, as a mono-inertial
+    /// window weighed at half the datasheet shows), and what they keep
+    /// still says how much too small the weight is.
+    #[test]
+    fn climbs_out_of_an_overweighted_start() {
+        let truth = NoiseScale {
+            gyro: 4.0,
+            accel: 12.0,
+            ..NoiseScale::DECLARED
+        };
+        let start = NoiseScale {
+            gyro: 0.5,
+            accel: 0.5,
+            ..NoiseScale::DECLARED
+        };
+        let mut a = NoiseAdaptation::new(NoiseAdaptationConfig {
+            initial: start,
+            ..NoiseAdaptationConfig::default()
+        });
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let (r_rot, r_tr) = (2.4, 4.2);
+        let mut last = start;
+        for _ in 0..600 {
+            let c = a.scale();
+            let kept_g = (c.gyro / truth.gyro).powi(2).min(1.0);
+            let kept_a = (c.accel / truth.accel).powi(2).min(1.0);
+            let chi_r: f64 = ChiSquared::new(r_rot).unwrap().sample(&mut rng);
+            let chi_t: f64 = ChiSquared::new(r_tr).unwrap().sample(&mut rng);
+            let e = LinkEvidence {
+                chi2_rotation: chi_r * kept_g * (truth.gyro / c.gyro).powi(2),
+                redundancy_rotation: r_rot * kept_g,
+                chi2_translation: chi_t * kept_a * (truth.accel / c.accel).powi(2),
+                redundancy_translation: r_tr * kept_a,
+                chi2_gyro_walk: 0.0,
+                redundancy_gyro_walk: 0.0,
+                chi2_accel_walk: 0.0,
+                redundancy_accel_walk: 0.0,
+                dt_s: 0.25,
+            };
+            last = a.add(&e);
+        }
+        assert!(
+            (last.accel / truth.accel).ln().abs() < 0.25,
+            "accel scale {} for a true {}",
+            last.accel,
+            truth.accel
+        );
+        assert!(
+            (last.gyro / truth.gyro).ln().abs() < 0.25,
+            "gyro scale {} for a true {}",
+            last.gyro,
+            truth.gyro
+        );
+    }
+
     #[test]
     fn clamps_at_the_bounds_and_says_so() {
         let mut a = NoiseAdaptation::new(NoiseAdaptationConfig::default());
@@ -531,13 +604,13 @@ mod tests {
         assert_eq!(a.add(&broken), NoiseScale::DECLARED);
         let unmeasured = LinkEvidence {
             chi2_rotation: 1e6,
-            redundancy_rotation: 0.01,
+            redundancy_rotation: 1e-8,
             chi2_translation: 1e6,
-            redundancy_translation: 0.01,
+            redundancy_translation: 1e-8,
             chi2_gyro_walk: 1e6,
-            redundancy_gyro_walk: 0.01,
+            redundancy_gyro_walk: 1e-8,
             chi2_accel_walk: 1e6,
-            redundancy_accel_walk: 0.01,
+            redundancy_accel_walk: 1e-8,
             dt_s: 0.2,
         };
         assert_eq!(a.add(&unmeasured), NoiseScale::DECLARED);
