@@ -10,7 +10,7 @@ rows as JSON.
 
 usage: bench/accuracy/noise_sensitivity.py --out rows.json DATASET...
        [--modes stereo-inertial mono-inertial] [--multipliers 0.5 1 2 5 10 20]
-       [--start-s S --max-frames N]
+       [--start-s S --max-frames N] [--adaptation both|on|off] [--bin B] [--config C.toml]
 """
 import argparse, json, os, subprocess, sys, tempfile
 
@@ -51,12 +51,20 @@ def main():
     ap.add_argument("--start-s", type=float, default=0.0)
     ap.add_argument("--max-frames", type=int)
     ap.add_argument("--bin", default=os.environ.get("RIGSLAM", "target/release/rigslam"))
+    ap.add_argument("--adaptation", choices=["both", "on", "off"], default="both",
+                    help="the runs to make: weighed as declared (off), adapted (on), or both")
+    ap.add_argument("--config", help="more [relative] settings (TOML lines after the table header)")
     a = ap.parse_args()
+    adapts = {"both": (False, True), "on": (True,), "off": (False,)}[a.adaptation]
+    extra = ""
+    if a.config:
+        with open(a.config) as f:
+            extra = "".join(l for l in f if l.strip() != "[relative]")
     rows = []
     for mode in a.modes:
-        for adapt in (False, True):
+        for adapt in adapts:
             for m in a.multipliers:
-                config = ("[relative]\n"
+                config = ("[relative]\n" + extra +
                           f"imu_noise_adaptation = {'true' if adapt else 'false'}\n"
                           f"imu_noise_scale_gyro = {m}\nimu_noise_scale_accel = {m}\n")
                 for ds in a.datasets:
@@ -70,7 +78,7 @@ def main():
     # Table: mean ATE over the datasets per (mode, adaptation, multiplier).
     print(f"\n{'mode':16s} {'adaptation':10s} " + " ".join(f"{m:>7g}x" for m in a.multipliers))
     for mode in a.modes:
-        for adapt in (False, True):
+        for adapt in adapts:
             cells = []
             for m in a.multipliers:
                 v = [r["ate_m"] for r in rows if r["mode"] == mode and r["adaptation"] == adapt
