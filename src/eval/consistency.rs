@@ -113,11 +113,28 @@ pub fn pose_nees(poses: &[CovariancePose], ground_truth: &Trajectory) -> Option<
     })
 }
 
+/// How far outside the ground truth's span an instant may be and still
+/// take its end pose, ns (10 ms: a fifth of a 20 Hz frame, twice
+/// EuRoC's 200 Hz spacing).
+pub const END_TOLERANCE_NS: i64 = 10_000_000;
+
 /// The ground-truth pose at `t_ns`, linear in position and spherical in
 /// rotation between the two poses around it; None outside.
+///
+/// Within [`END_TOLERANCE_NS`] outside the first or last sample, the end
+/// pose itself: a sequence's first frame may precede its ground truth's
+/// first sample by a few milliseconds (EuRoC V1_02: 5 ms), and a
+/// covariance whose origin is that frame would otherwise score nothing.
 #[allow(non_snake_case)]
 pub fn interpolate(trajectory: &Trajectory, t_ns: i64) -> Option<Isometry3<f64>> {
     let poses = &trajectory.poses;
+    let (first, last) = (poses.first()?, poses.last()?);
+    if t_ns < first.t_ns {
+        return (first.t_ns - t_ns <= END_TOLERANCE_NS).then_some(first.T_world_body);
+    }
+    if t_ns > last.t_ns {
+        return (t_ns - last.t_ns <= END_TOLERANCE_NS).then_some(last.T_world_body);
+    }
     let after = poses.partition_point(|p| p.t_ns < t_ns);
     let b = poses.get(after)?;
     if b.t_ns == t_ns {
@@ -177,7 +194,14 @@ mod tests {
         let mid = interpolate(&line, 5).unwrap();
         assert!((mid.translation.vector - Vector3::new(0.5, 1.0, 1.5)).norm() < 1e-12);
         assert!((mid.rotation.angle() - 0.5).abs() < 1e-12);
-        assert!(interpolate(&line, 11).is_none() && interpolate(&line, -1).is_none());
+        // Just outside the span: the end pose; further: nothing.
+        let end = interpolate(&line, 10 + END_TOLERANCE_NS).unwrap();
+        assert!((end.translation.vector - Vector3::new(1.0, 2.0, 3.0)).norm() < 1e-12);
+        let start = interpolate(&line, -END_TOLERANCE_NS).unwrap();
+        assert!(start.translation.vector.norm() < 1e-12);
+        assert!(interpolate(&line, 11 + END_TOLERANCE_NS).is_none());
+        assert!(interpolate(&line, -1 - END_TOLERANCE_NS).is_none());
+        assert!(interpolate(&Trajectory::new(Vec::new()), 0).is_none());
     }
 
     /// Poses drawn from their covariance around the truth score a NEES
