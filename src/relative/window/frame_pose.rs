@@ -163,7 +163,11 @@ impl Window {
         let k = self.config.huber_px / self.config.pixel_sigma;
         let estimated = Weights {
             inv_sigma,
-            vision_weight: 1.0 / (scale.pixel * scale.pixel),
+            vision_weight: if self.use_imu {
+                1.0 / (scale.pixel * scale.pixel)
+            } else {
+                1.0
+            },
             imu_sqrt_info: imu
                 .map(|(pre, _)| whitening(&pre.scaled_covariance(scale.gyro, scale.accel))),
         };
@@ -355,7 +359,8 @@ impl Window {
             let mut h = Matrix9x9::zeros();
             let mut b = Vector9::zeros();
             evaluate(&state, rows, Some((&mut h, &mut b)), &estimated);
-            out.pose_marginal = pose_marginal(&h, dim);
+            out.pose_marginal =
+                pose_marginal(&h, dim).map(|m| m * self.vision_only_covariance_factor());
         }
         out.state = state;
         out.ms = start.elapsed().as_secs_f64() * 1e3;

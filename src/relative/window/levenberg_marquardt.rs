@@ -317,7 +317,13 @@ impl Window {
         // Whitened with the pixel sigma the features show
         // ([`super::noise_adaptation`]); `sq_error` stays in declared
         // units so that the outlier gates keep their size in pixels.
-        let pixel_scale = self.noise.scale().pixel;
+        // Without the IMU only the published covariance takes it
+        // ([`Window::vision_only_covariance_factor`]).
+        let pixel_scale = if self.use_imu {
+            self.noise.scale().pixel
+        } else {
+            1.0
+        };
         let walk_scale = self.noise.scale();
         let sigma = self.config.pixel_sigma * pixel_scale;
         let inv_sigma = 1.0 / sigma;

@@ -679,7 +679,8 @@ impl Window {
     fn update_pose_covariances(&mut self, n_fixed: usize) {
         // A marginal given the held keyframes is too confident (they are
         // not exact): the same scale as for the boundary prior.
-        let scale = self.config.boundary_pose_covariance_scale;
+        let scale =
+            self.config.boundary_pose_covariance_scale * self.vision_only_covariance_factor();
         let kfs = &mut self.keyframes;
         for i in 1..n_fixed.min(kfs.len()) {
             if kfs[i].pose_covariance.is_none() {
@@ -959,11 +960,29 @@ impl Window {
     /// solve's reprojection errors and its oldest inertial link, and
     /// re-weights every link with the answer.
     pub(super) fn measure_noise(&mut self) {
-        if !self.use_imu || !self.noise.config().enabled {
+        if !self.noise.config().enabled {
             return;
         }
         self.measure_image_noise();
-        self.measure_inertial_noise();
+        if self.use_imu {
+            self.measure_inertial_noise();
+        }
+    }
+
+    /// What a marginal of the last solve is multiplied by to be in the
+    /// pixel noise the features show. With the IMU the solve is already
+    /// whitened with it (1); without, the solve keeps the declared pixel
+    /// sigma (with only images and the gauge in the cost, a common scale
+    /// on every term moves no estimate, and leaving it out keeps the
+    /// vision-only trajectories exactly as they were) and only the
+    /// published covariance takes the estimate: `(pixel scale)^2`.
+    pub(super) fn vision_only_covariance_factor(&self) -> f64 {
+        if self.use_imu {
+            1.0
+        } else {
+            let s = self.noise.scale().pixel;
+            s * s
+        }
     }
 
     /// The reprojection errors of the last solve's inliers against their
@@ -1000,6 +1019,13 @@ impl Window {
             _ => return,
         };
         self.last_measured_images = Some(newest.seq);
+        // `add_images` takes errors whitened with the current estimate;
+        // without the IMU the solve whitened them with the declared sigma.
+        let chi2 = if self.use_imu {
+            chi2
+        } else {
+            chi2 / self.noise.scale().pixel.powi(2)
+        };
         self.noise.add_images(chi2, redundancy, dt_s);
     }
 

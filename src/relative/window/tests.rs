@@ -1152,3 +1152,38 @@ fn marginalised_boundary_prior_keeps_the_bias_information() {
         "gyro bias: re-used {reused:?}, 10 s {default_memory:?}, kept {kept:?}"
     );
 }
+
+/// Without the IMU the window still measures the pixel noise the
+/// features show, and the published covariance takes it, while the
+/// estimate stays exactly what it was with the declared sigma.
+#[test]
+fn vision_only_covariance_takes_the_measured_pixel_noise() {
+    let run = |adapt: bool| {
+        let mut r = rng(21);
+        let scene = Scene::new(&mut r, 2000, 6.0);
+        let mut cfg = config(false);
+        cfg.noise_adaptation.enabled = adapt;
+        // Features three times sharper than the declared 1 px.
+        let mut w = filled_window(&scene, cfg, 10, 3, true, 0.3, 0.0, &mut r);
+        w.optimize();
+        // The second solve's covariances use the first solve's measure.
+        w.optimize();
+        let states: Vec<_> = w.keyframes().cloned().collect();
+        let (_, covariance) = w.newest_pose_covariance().expect("a covariance");
+        (states, covariance, w.noise_adaptation().scale().pixel)
+    };
+    let (declared_states, declared, declared_scale) = run(false);
+    let (states, measured, scale) = run(true);
+    assert_eq!(declared_scale, 1.0);
+    assert!(
+        (0.24..0.4).contains(&scale),
+        "pixel scale {scale} for 0.3 px features"
+    );
+    assert_eq!(states, declared_states, "the estimate must not move");
+    let ratio = measured.trace() / declared.trace();
+    assert!(
+        (ratio / (scale * scale) - 1.0).abs() < 1e-9,
+        "covariance ratio {ratio}, pixel scale^2 {}",
+        scale * scale
+    );
+}
