@@ -51,6 +51,9 @@
 //! the window (and in the boundary prior that carries them forward) and
 //! the pixel sigma of its reprojection terms; the outlier gates stay in
 //! declared pixels, the bias random walks keep their declared values.
+//! Without the IMU the pixel sigma is measured too, but only the
+//! published pose covariance takes it (the solve keeps the declared
+//! sigma; see `Window::vision_only_covariance_factor`).
 
 use nalgebra::Vector6;
 
