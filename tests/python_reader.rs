@@ -7,11 +7,9 @@
 //! version): `RIGSLAM_PYTHON`, which `scripts/test` points at the venv it
 //! makes in `target/py`. Without one the test skips, except with `CI` set.
 
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion, Vector3};
@@ -73,16 +71,7 @@ fn the_python_reader_receives_every_field() {
     let stdout = reader.stdout.take().expect("piped");
 
     // Publish until the reader has its five poses (it may join late).
-    let done = Arc::new(AtomicBool::new(false));
-    let stop = Arc::clone(&done);
-    let lines = std::thread::spawn(move || {
-        let lines: Vec<String> = BufReader::new(stdout)
-            .lines()
-            .map_while(Result::ok)
-            .collect();
-        stop.store(true, Ordering::SeqCst);
-        lines
-    });
+    let (done, lines) = python_env::read_lines(stdout);
     let mut sent = Vec::new();
     for i in 0..3000u64 {
         if done.load(Ordering::SeqCst) {

@@ -9,11 +9,9 @@
 //! the test skips, except with `CI` set. The ROS side of the bridge
 //! (rclpy) is not run here.
 
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion, Vector3};
@@ -124,16 +122,7 @@ fn the_bridge_publishes_what_a_ros2_recording_holds() {
         .spawn()
         .expect("start the bridge");
     let stdout = bridge.stdout.take().expect("piped");
-    let done = Arc::new(AtomicBool::new(false));
-    let stop = Arc::clone(&done);
-    let lines = std::thread::spawn(move || {
-        let lines: Vec<String> = BufReader::new(stdout)
-            .lines()
-            .map_while(Result::ok)
-            .collect();
-        stop.store(true, Ordering::SeqCst);
-        lines
-    });
+    let (done, lines) = python_env::read_lines(stdout);
     // Every third pose is lost: the bridge leaves those out.
     let mut sent = Vec::new();
     for i in 0..3000u64 {

@@ -9,11 +9,8 @@
 //! A second daemon asked for the same port says so and runs on without
 //! the view.
 
-use std::io::{BufRead, BufReader};
 use std::net::TcpStream;
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use prost::Message as _;
@@ -23,83 +20,22 @@ use serde_json::{json, Value};
 use tungstenite::client::IntoClientRequest;
 use tungstenite::{Message, WebSocket};
 
-/// A daemon whose stderr is collected.
-struct Daemon {
-    child: Child,
-    log: Arc<Mutex<String>>,
-}
+#[path = "common/daemon.rs"]
+mod daemon;
+use daemon::{rigslamd, Daemon};
 
-impl Daemon {
-    fn start(dataset: &Path, root: &Path, prefix: &str, viewer: &str, report: &Path) -> Daemon {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_rigslamd"))
-            .arg("--replay")
-            .arg(dataset)
-            .args(["--service-prefix", prefix, "--viewer", viewer])
-            .arg("--root-path")
-            .arg(root)
-            .arg("--report")
-            .arg(report)
-            .env("RUST_LOG", "info")
-            .env_remove("NOTIFY_SOCKET")
-            .stderr(Stdio::piped())
-            .stdout(Stdio::null())
-            .spawn()
-            .expect("start rigslamd");
-        let log = Arc::new(Mutex::new(String::new()));
-        let stderr = child.stderr.take().expect("stderr");
-        let sink = log.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                let mut log = sink.lock().expect("log");
-                log.push_str(&line);
-                log.push('\n');
-            }
-        });
-        Daemon { child, log }
-    }
-
-    fn log(&self) -> String {
-        self.log.lock().expect("log").clone()
-    }
-
-    /// Waits for a log line containing `text`; returns it.
-    fn line(&self, text: &str, within: Duration) -> String {
-        let deadline = Instant::now() + within;
-        loop {
-            if let Some(line) = self.log().lines().find(|l| l.contains(text)) {
-                return line.to_owned();
-            }
-            assert!(
-                Instant::now() < deadline,
-                "no {text:?} in the log:\n{}",
-                self.log()
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
-
-    fn wait_exit(&mut self, within: Duration) -> std::process::ExitStatus {
-        let deadline = Instant::now() + within;
-        loop {
-            if let Some(status) = self.child.try_wait().expect("try_wait") {
-                std::thread::sleep(Duration::from_millis(50));
-                return status;
-            }
-            assert!(
-                Instant::now() < deadline,
-                "rigslamd did not exit:\n{}",
-                self.log()
-            );
-            std::thread::sleep(Duration::from_millis(20));
-        }
-    }
-}
-
-impl Drop for Daemon {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
+/// `rigslamd` replaying `dataset` with the viewer on `viewer`.
+fn start_daemon(dataset: &Path, root: &Path, prefix: &str, viewer: &str, report: &Path) -> Daemon {
+    let mut command = rigslamd();
+    command
+        .arg("--replay")
+        .arg(dataset)
+        .args(["--service-prefix", prefix, "--viewer", viewer])
+        .arg("--root-path")
+        .arg(root)
+        .arg("--report")
+        .arg(report);
+    Daemon::start(command)
 }
 
 /// A Foxglove WebSocket client: connected, with the channels advertised.
@@ -193,7 +129,7 @@ fn an_operator_sees_poses_transforms_and_images_live() {
     let dir = tempfile::tempdir().expect("tempdir");
     let prefix = format!("viewer_live_{}", std::process::id());
     let report = dir.path().join("report.json");
-    let mut daemon = Daemon::start(
+    let mut daemon = start_daemon(
         &dataset,
         &dir.path().join("iox"),
         &prefix,
@@ -335,7 +271,7 @@ fn a_port_in_use_is_said_and_the_daemon_runs_without_the_view() {
     let port = taken.local_addr().expect("addr").port();
     let dir = tempfile::tempdir().expect("tempdir");
     let report = dir.path().join("report.json");
-    let mut daemon = Daemon::start(
+    let mut daemon = start_daemon(
         &dataset,
         &dir.path().join("iox"),
         &format!("viewer_busy_{}", std::process::id()),

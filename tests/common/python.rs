@@ -47,3 +47,27 @@ pub fn script_json(python: &Path, script: &str, file: &Path) -> serde_json::Valu
     );
     serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("JSON from {script}: {e}"))
 }
+
+/// Reads a child's stdout to its end on a thread; the flag turns true
+/// when it ended (the child wrote all it was asked for, or died).
+pub fn read_lines(
+    stdout: std::process::ChildStdout,
+) -> (
+    std::sync::Arc<std::sync::atomic::AtomicBool>,
+    std::thread::JoinHandle<Vec<String>>,
+) {
+    use std::io::BufRead;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::Arc;
+    let done = Arc::new(AtomicBool::new(false));
+    let stop = Arc::clone(&done);
+    let lines = std::thread::spawn(move || {
+        let lines: Vec<String> = std::io::BufReader::new(stdout)
+            .lines()
+            .map_while(Result::ok)
+            .collect();
+        stop.store(true, Ordering::SeqCst);
+        lines
+    });
+    (done, lines)
+}
