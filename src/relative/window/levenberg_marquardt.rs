@@ -16,7 +16,7 @@ use super::inertial::{
     bias_walk_factor, inertial_factor, tangent_basis, update_direction, GRAVITY_COL,
 };
 use super::marginalise::{marginalise_boundary, LinkEnd};
-use super::prior::{sqrt_information2, GravityPrior, OldestFreePrior};
+use super::prior::{GravityPrior, OldestFreePrior};
 use super::reprojection::{reproject, reprojection_error, GATE_SQ};
 use super::schur::{self, Chunk, LandmarkBlock, ObservationRow};
 use super::state::{apply_update, BG, FULL_DIM, POSE_DIM, VEL};
@@ -689,12 +689,14 @@ impl Window {
             }
             if let Some(og) = p.gravity_offset {
                 let c2: Matrix2<f64> = cov.fixed_view::<2, 2>(og, og).into_owned();
-                if let Some(sqrt_info) = sqrt_information2(&c2, self.config.gravity_prior_weight) {
-                    self.gravity_prior = GravityPrior {
-                        mean_dir: self.gravity_dir,
-                        basis: p.gravity_basis,
-                        sqrt_info,
-                    };
+                let prior = GravityPrior::from_marginal(
+                    self.gravity_dir,
+                    p.gravity_basis,
+                    &c2,
+                    self.config.gravity_prior_weight,
+                );
+                if let Some(prior) = prior {
+                    self.gravity_prior = prior;
                 }
             }
         }

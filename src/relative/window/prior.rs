@@ -11,9 +11,8 @@
 //! oldest free; see the window's module doc.) The marginal
 //! counts measurements that are still in the window: with weight `w` the
 //! prior's information converges to `w / (1 - w)` times the window's own
-//! (a geometric series). For the boundary velocity and biases `w = 1/2`
-//! (counted at most twice); for gravity, a constant of the whole run whose
-//! information truly accumulates, `w = 0.9`.
+//! (a geometric series). For the boundary velocity and biases and for
+//! gravity `w = 1/2` (counted at most twice).
 
 use nalgebra::{Matrix2, Matrix3x2, RowVector3, SMatrix, SVector, Vector2, Vector3};
 
@@ -23,14 +22,6 @@ use crate::relative::types::KeyframeState;
 pub(crate) type Matrix9 = SMatrix<f64, 9, 9>;
 pub(crate) type Vector9 = SVector<f64, 9>;
 use crate::imu::so3::hat;
-
-/// Upper factor `U` with `U^T U = weight * cov^-1`.
-pub(crate) fn sqrt_information2(cov: &Matrix2<f64>, weight: f64) -> Option<Matrix2<f64>> {
-    let sym = (cov + cov.transpose()) * 0.5;
-    let info = sym.cholesky()?.inverse() * weight;
-    let u = info.cholesky()?.l().transpose();
-    u.iter().all(|v| v.is_finite()).then_some(u)
-}
 
 /// The eq. 34 prior at the boundary of the free part: on the velocity
 /// (the paper's) and, here, the biases of the newest fixed keyframe,
@@ -113,6 +104,50 @@ pub(crate) struct GravityPrior {
 }
 
 impl GravityPrior {
+    /// A prior centred on `d` with the information `weight * cov^-1`,
+    /// where `cov` is the marginal covariance of the direction step in
+    /// `basis` (the tangent basis of `d`).
+    pub fn from_marginal(
+        d: Vector3<f64>,
+        basis: Matrix3x2<f64>,
+        cov: &Matrix2<f64>,
+        weight: f64,
+    ) -> Option<Self> {
+        let sym = (cov + cov.transpose()) * 0.5;
+        Self::from_information(d, basis, &(sym.cholesky()?.inverse() * weight))
+    }
+
+    /// A prior centred on `d` with the information `info` on the direction
+    /// step in `basis`. The factor measures `B^T (d' - d)`, which is the
+    /// step turned by 90 degrees in the tangent plane (`B^T (-[d]x B)`),
+    /// so the information is turned with it; otherwise a well-determined
+    /// tilt axis would be held as loosely as the poorly determined one
+    /// should be, and the other the other way.
+    pub fn from_information(
+        d: Vector3<f64>,
+        basis: Matrix3x2<f64>,
+        info: &Matrix2<f64>,
+    ) -> Option<Self> {
+        let sym = (info + info.transpose()) * 0.5;
+        let step_sqrt_info = sym.cholesky()?.l().transpose();
+        if !step_sqrt_info.iter().all(|v| v.is_finite()) {
+            return None;
+        }
+        let turn: Matrix2<f64> = basis.transpose() * (-hat(&d) * basis);
+        Some(Self {
+            mean_dir: d,
+            basis,
+            sqrt_info: step_sqrt_info * turn.transpose(),
+        })
+    }
+
+    #[cfg(test)]
+    /// The prior's information on the direction step in `basis` at `d`.
+    pub fn information(&self, d: &Vector3<f64>, basis: &Matrix3x2<f64>) -> Matrix2<f64> {
+        let (_, j) = self.factor(d, basis);
+        j.transpose() * j
+    }
+
     pub fn isotropic(mean_dir: Vector3<f64>, sigma_rad: f64) -> Self {
         Self {
             mean_dir,
@@ -150,5 +185,32 @@ impl ScaleAnchor {
         let d = p1 - p0;
         let n = d.norm().max(1e-300);
         ((n - self.distance) / sigma, (d / n).transpose() / sigma)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::relative::window::inertial::update_direction;
+
+    #[test]
+    fn the_gravity_prior_holds_each_tilt_axis_as_its_marginal_says() {
+        let d = Vector3::new(0.1, -0.2, -1.0).normalize();
+        let basis = tangent_basis(&d);
+        // Well determined about the first basis axis, poorly about the second.
+        let cov = Matrix2::new(1e-6, 0.0, 0.0, 1e-2);
+        let prior = GravityPrior::from_marginal(d, basis, &cov, 1.0).expect("positive definite");
+        let info = cov.try_inverse().expect("invertible");
+        for delta in [Vector2::new(1e-4, 0.0), Vector2::new(0.0, 1e-2), Vector2::new(3e-4, -5e-3)] {
+            let moved = update_direction(&d, &basis, &delta);
+            let (r, _) = prior.factor(&moved, &tangent_basis(&moved));
+            let expected = (delta.transpose() * info * delta)[0];
+            assert!(
+                (r.norm_squared() - expected).abs() < 1e-3 * expected,
+                "step {delta:?}: cost {} against {expected}",
+                r.norm_squared()
+            );
+        }
+        assert!((prior.information(&d, &basis) - info).norm() < 1e-6 * info.norm());
     }
 }
