@@ -516,9 +516,14 @@ mod tests {
         // The fake camera has a clock: stamps come from it through the fit.
         assert_eq!(source.info().timestamp_source, TimestampSource::CameraClock);
         assert!(source.clock_estimate().is_some());
+        // Stamped by the camera's clock, frames can not come closer than
+        // its 50 Hz, however they reach the host (in bursts on a loaded
+        // machine). Only this bound is checked: on a shared machine the
+        // fake camera itself may run slower (28 Hz seen under load), and
+        // speed is not what this test is about.
         let span_s = (frames[19].t_ns - frames[0].t_ns) as f64 * 1e-9;
         let rate = 19.0 / span_s;
-        assert!((rate - 50.0).abs() < 10.0, "measured {rate:.1} Hz at 50 Hz");
+        assert!(rate < 55.0, "measured {rate:.1} Hz from a 50 Hz camera");
         assert_eq!(source.stats().frames, 20);
         assert_eq!(source.stats().drops, 0, "nothing lost on loopback");
         drop(source);
