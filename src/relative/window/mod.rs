@@ -138,9 +138,8 @@ pub struct WindowConfig {
     /// windows' worth. Gravity is a constant of the run, but an early
     /// tilt locked in by that sum stays in every later pose. Development
     /// set, seeds 0-5 from rest (stereo-inertial / mono-inertial mean
-    /// ATE, measured with a calibration prior that was then not kept):
-    /// 0.3: 0.0194 / 0.0459 m, 0.5: 0.0200 / 0.0408, 0.7: 0.0210 /
-    /// 0.0440, 0.9: 0.0221 / 0.0501 (bench/accuracy/README.md).
+    /// ATE): 0.3: 0.0222 / 0.0459 m, 0.5: 0.0211 / 0.0408, 0.7: 0.0209 /
+    /// 0.0440 (bench/accuracy/README.md).
     pub gravity_prior_weight: f64,
     /// Inliers for [`Window::track_frame`] to call a pose good \[12\].
     pub min_track_inliers: usize,
