@@ -201,7 +201,11 @@ mod tests {
         let cov = Matrix2::new(1e-6, 0.0, 0.0, 1e-2);
         let prior = GravityPrior::from_marginal(d, basis, &cov, 1.0).expect("positive definite");
         let info = cov.try_inverse().expect("invertible");
-        for delta in [Vector2::new(1e-4, 0.0), Vector2::new(0.0, 1e-2), Vector2::new(3e-4, -5e-3)] {
+        for delta in [
+            Vector2::new(1e-4, 0.0),
+            Vector2::new(0.0, 1e-2),
+            Vector2::new(3e-4, -5e-3),
+        ] {
             let moved = update_direction(&d, &basis, &delta);
             let (r, _) = prior.factor(&moved, &tangent_basis(&moved));
             let expected = (delta.transpose() * info * delta)[0];
