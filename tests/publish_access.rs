@@ -13,7 +13,6 @@
 //! when a test fails.
 
 use std::ffi::CString;
-use std::io::{BufRead, BufReader, Read};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
@@ -22,6 +21,10 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use rigslam::shared_data;
+
+#[path = "common/daemon.rs"]
+mod daemon;
+use daemon::collect;
 
 // ---------------------------------------------------------------- accounts
 
@@ -179,19 +182,6 @@ struct Watched {
     child: Child,
     stdout: Arc<Mutex<String>>,
     stderr: Arc<Mutex<String>>,
-}
-
-fn collect(stream: impl Read + Send + 'static) -> Arc<Mutex<String>> {
-    let text = Arc::new(Mutex::new(String::new()));
-    let sink = text.clone();
-    std::thread::spawn(move || {
-        for line in BufReader::new(stream).lines().map_while(Result::ok) {
-            let mut t = sink.lock().expect("lock");
-            t.push_str(&line);
-            t.push('\n');
-        }
-    });
-    text
 }
 
 impl Watched {

@@ -3,7 +3,7 @@
 
 #![allow(dead_code)]
 
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Read};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -13,6 +13,20 @@ pub fn rigslamd() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_rigslamd"));
     c.env("RUST_LOG", "info").env_remove("NOTIFY_SOCKET");
     c
+}
+
+/// Collects a child's output stream line by line on a thread, as it comes.
+pub fn collect(stream: impl Read + Send + 'static) -> Arc<Mutex<String>> {
+    let text = Arc::new(Mutex::new(String::new()));
+    let sink = text.clone();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stream).lines().map_while(Result::ok) {
+            let mut t = sink.lock().expect("lock");
+            t.push_str(&line);
+            t.push('\n');
+        }
+    });
+    text
 }
 
 /// A running daemon whose stderr is collected; killed when dropped.
@@ -29,16 +43,7 @@ impl Daemon {
             .stdout(Stdio::null())
             .spawn()
             .expect("start rigslamd");
-        let log = Arc::new(Mutex::new(String::new()));
-        let stderr = child.stderr.take().expect("piped stderr");
-        let sink = log.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                let mut l = sink.lock().expect("log lock");
-                l.push_str(&line);
-                l.push('\n');
-            }
-        });
+        let log = collect(child.stderr.take().expect("piped stderr"));
         Daemon { child, log }
     }
 

@@ -141,8 +141,8 @@ impl GravityPrior {
         })
     }
 
-    #[cfg(test)]
     /// The prior's information on the direction step in `basis` at `d`.
+    #[cfg(test)]
     pub fn information(&self, d: &Vector3<f64>, basis: &Matrix3x2<f64>) -> Matrix2<f64> {
         let (_, j) = self.factor(d, basis);
         j.transpose() * j
