@@ -52,6 +52,10 @@ pub enum LandmarkCovariance {
     },
 }
 
+/// Frame nodes a landmark is joined to before it counts as mapped. At the
+/// default of a node every 5 frames at 20 Hz, a landmark in view for 5 s.
+pub const DEFAULT_FRAME_NODE_SATURATION: usize = 20;
+
 /// Configuration of the absolute stage.
 #[derive(Clone, Debug)]
 pub struct AbsoluteConfig {
@@ -90,6 +94,13 @@ pub struct AbsoluteConfig {
     /// between them ([`EdgePolicy::FrameNodes`] only): a frame whose
     /// landmarks are all new stays connected to the map.
     pub odometry_edges: bool,
+    /// A landmark joined to this many frame nodes counts as mapped, and a
+    /// frame whose landmarks are mostly mapped adds no node
+    /// ([`EdgePolicy::FrameNodes`] only; 0: every frame adds one). A robot
+    /// that keeps revisiting the same room then stops growing its map:
+    /// its frames are still corrected against the map, they only stop
+    /// adding measurements of what it already knows well.
+    pub frame_node_saturation: usize,
 }
 
 impl Default for AbsoluteConfig {
@@ -110,6 +121,7 @@ impl Default for AbsoluteConfig {
             recognition: Some(RecognitionConfig::default()),
             robust: Some(RobustWeights::default()),
             odometry_edges: true,
+            frame_node_saturation: DEFAULT_FRAME_NODE_SATURATION,
         }
     }
 }

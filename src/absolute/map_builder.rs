@@ -61,6 +61,13 @@ pub(super) struct MapBuilder {
     odometry_sigma_per_sqrt_m: Option<f64>,
     /// Frame nodes added.
     frame_nodes: usize,
+    /// Frames whose turn it was to become a node, left out because their
+    /// landmarks were mapped already.
+    frames_saturated: usize,
+    /// Per map id: the frame nodes it is joined to (saturating).
+    nodes_per_landmark: Vec<u16>,
+    /// See [`AbsoluteConfig::frame_node_saturation`] (0: off).
+    saturation: usize,
 }
 
 impl MapBuilder {
@@ -83,7 +90,34 @@ impl MapBuilder {
             odometry_sigma_per_sqrt_m: (frame_nodes && config.odometry_edges)
                 .then_some(config.translation_sigma_per_sqrt_m),
             frame_nodes: 0,
+            frames_saturated: 0,
+            nodes_per_landmark: Vec::new(),
+            saturation: config.frame_node_saturation,
         }
+    }
+
+    /// Frames left out of the map because their landmarks were mapped
+    /// already ([`AbsoluteConfig::frame_node_saturation`]).
+    pub(super) fn frames_saturated(&self) -> usize {
+        self.frames_saturated
+    }
+
+    /// Whether most of a frame's landmarks (more than
+    /// [`MAPPED_SHARE_TO_SKIP`]) are joined to `saturation` frame nodes
+    /// already.
+    fn mostly_mapped(&self, observations: &[LandmarkObservation]) -> bool {
+        if self.saturation == 0 {
+            return false;
+        }
+        let mapped = observations
+            .iter()
+            .filter(|o| {
+                self.nodes_per_landmark
+                    .get(o.id as usize)
+                    .is_some_and(|&n| n as usize >= self.saturation)
+            })
+            .count();
+        mapped as f64 > MAPPED_SHARE_TO_SKIP * observations.len() as f64
     }
 
     /// Frame nodes in the map.
@@ -296,12 +330,25 @@ impl MapBuilder {
             // correct later frames once another frame maps them.
             return;
         }
+        if !anchor_node && self.mostly_mapped(observations) {
+            // The odometry since the last node goes on accumulating: the
+            // next node's edge spans both.
+            self.frames_saturated += 1;
+            return;
+        }
         let node = if anchor_node {
             0
         } else {
             self.registry.add_frame_node()
         };
         self.frame_nodes += 1;
+        for o in observations {
+            let k = o.id as usize;
+            if self.nodes_per_landmark.len() <= k {
+                self.nodes_per_landmark.resize(k + 1, 0);
+            }
+            self.nodes_per_landmark[k] = self.nodes_per_landmark[k].saturating_add(1);
+        }
         self.edges.add_frame_node(rotation, node, observations);
         if let (Some(odometry), Some(sigma)) = (self.odometry, self.odometry_sigma_per_sqrt_m) {
             // The relative stage's own motion between the two nodes, a
@@ -339,6 +386,13 @@ fn positive_part(block: &Matrix3<f64>) -> Option<Matrix3<f64>> {
     let info = q * Matrix3::from_diagonal(&clamped) * q.transpose();
     Some(0.5 * (info + info.transpose()))
 }
+
+/// A frame adds no node when more than this share of its landmarks are
+/// mapped ([`AbsoluteConfig::frame_node_saturation`]): a frame that sees
+/// half new or little-seen landmarks still extends the map. Each node it
+/// adds counts for at least half its landmarks, so a room of `L`
+/// landmarks seen `m` at a time gets at most `2 L saturation / m` nodes.
+const MAPPED_SHARE_TO_SKIP: f64 = 0.5;
 
 /// Smallest eigenvalue kept in an edge's information, relative to its
 /// largest: keeps fused edges positive definite (see [`positive_part`]).

@@ -14,10 +14,16 @@ use super::landmark_registry::LandmarkRegistry;
 use super::recognition::{
     consistent_recognitions, recognise_tracks, FramePlacement, LandmarkIndex, RecognitionConfig,
 };
+use crate::features::matching::hamming;
 use crate::relative::types::{LandmarkId, RelativeOutput};
 
 /// Grid cell of the recognition index, m.
 const INDEX_CELL_M: f64 = 1.0;
+
+/// How near a map landmark with a similar descriptor must be to a new
+/// track for the track to wait (`new_landmark_after_frames`) before it
+/// becomes a new landmark, m.
+const LOOKALIKE_RADIUS_M: f64 = 0.5;
 
 /// What one frame's recognition did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -37,6 +43,10 @@ pub(super) struct Recogniser {
     /// Tracks recognised as a map landmark in fewer than `confirm_frames`
     /// consecutive frames: the landmark's map id and the count.
     pending: HashMap<LandmarkId, (u32, u32)>,
+    /// Tracks with no map id, and for how many frames they have been seen
+    /// so (until `new_landmark_after_frames`): held out of the map while
+    /// recognition may still find them.
+    unmapped_age: HashMap<LandmarkId, u32>,
     /// Solved map landmarks by world position.
     index: LandmarkIndex,
     /// Scratch for the index's answers.
@@ -49,6 +59,7 @@ impl Recogniser {
         Self {
             config,
             pending: HashMap::new(),
+            unmapped_age: HashMap::new(),
             index: LandmarkIndex::default(),
             candidates: Vec::new(),
         }
@@ -62,7 +73,7 @@ impl Recogniser {
 
     /// True while `track` waits for its recognition to be confirmed.
     pub(super) fn is_pending(&self, track: LandmarkId) -> bool {
-        self.pending.contains_key(&track)
+        self.pending.contains_key(&track) || self.unmapped_age.contains_key(&track)
     }
 
     /// Recognises the frame's tracks that have no map id, with the robot
@@ -129,6 +140,37 @@ impl Recogniser {
             .filter(|&&track| !pending.contains_key(&track) && !registry.contains(track))
             .count();
         self.pending = pending;
+        // Tracks still without a map id that look like a map landmark
+        // near where they are wait before they become new landmarks;
+        // those gone from view are forgotten.
+        let mut ages = HashMap::with_capacity(self.unmapped_age.len());
+        for l in &output.landmarks {
+            if registry.contains(l.id) {
+                continue;
+            }
+            let age = self.unmapped_age.get(&l.id).copied().unwrap_or(0) + 1;
+            if age >= config.new_landmark_after_frames {
+                continue;
+            }
+            let Some(descriptor) = l.descriptor.as_ref() else {
+                continue;
+            };
+            let world_m = placement.position_m + placement.rotation * l.position_body_m;
+            self.candidates.clear();
+            self.index
+                .within(&world_m, LOOKALIKE_RADIUS_M, &mut self.candidates);
+            let descriptors = registry.descriptors();
+            let lookalike = self.candidates.iter().any(|&id| {
+                descriptors
+                    .get(id as usize)
+                    .and_then(|d| d.as_ref())
+                    .is_some_and(|d| hamming(d, descriptor) <= config.max_hamming)
+            });
+            if lookalike || self.unmapped_age.contains_key(&l.id) {
+                ages.insert(l.id, age);
+            }
+        }
+        self.unmapped_age = ages;
         counts
     }
 }

@@ -58,6 +58,12 @@ pub struct RecognitionConfig {
     /// A track still not confirmed after this many frames becomes a new
     /// landmark.
     pub max_pending_frames: u32,
+    /// Once a map exists, a track that is not recognised waits this many
+    /// frames before it becomes a new landmark (0 or 1: at once): a
+    /// landmark seen again is often out of the gates at its track's birth
+    /// (its depth not yet known, or the recognition not yet confirmed),
+    /// and a new id given then is a duplicate for good.
+    pub new_landmark_after_frames: u32,
     /// A recognition must put the robot where the frame's landmarks
     /// already in the map put it (their per-axis median), within this
     /// distance plus three of the track's standard deviations, m.
@@ -77,6 +83,7 @@ impl Default for RecognitionConfig {
             confirm_frames: 5,
             confirm_max_sigma_m: 0.1,
             max_pending_frames: 40,
+            new_landmark_after_frames: 10,
             consensus_gate_m: 0.1,
         }
     }

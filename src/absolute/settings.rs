@@ -67,6 +67,10 @@ pub struct AbsoluteSettings {
     /// three of the track's standard deviations) of where the frame's
     /// landmarks already in the map put it.
     pub recognition_consensus_gate_m: f64,
+    /// A new track that looks like a map landmark near where it is waits
+    /// this many frames for its recognition before it becomes a new
+    /// landmark (1: at once; each duplicate made then stays in the map).
+    pub recognition_new_landmark_after_frames: u32,
     /// Down-weight map edges that disagree with the solved map by more
     /// than a chi-square of 16.3 (3 dof, 0.1%) and solve again (Huber, two
     /// rounds): a wrong recognition then bends the map less.
@@ -75,6 +79,11 @@ pub struct AbsoluteSettings {
     /// (frame policies only), so a frame that sees only new landmarks
     /// stays connected to the map.
     pub odometry_edges: bool,
+    /// A landmark joined to this many frame nodes counts as mapped; a
+    /// frame whose landmarks are mostly mapped adds no node, so a robot
+    /// that keeps revisiting the same room stops growing its map (0:
+    /// every frame adds one, the map grows for as long as the robot runs).
+    pub frame_node_saturation: usize,
 }
 
 impl Default for AbsoluteSettings {
@@ -102,6 +111,7 @@ impl Default for AbsoluteSettings {
             recognition_max_sigma_m: recognition.max_landmark_sigma_m,
             recognition_confirm_frames: recognition.confirm_frames,
             recognition_consensus_gate_m: recognition.consensus_gate_m,
+            recognition_new_landmark_after_frames: recognition.new_landmark_after_frames,
             recognition_confirm_max_sigma_m: if recognition.confirm_max_sigma_m.is_finite() {
                 recognition.confirm_max_sigma_m
             } else {
@@ -109,6 +119,7 @@ impl Default for AbsoluteSettings {
             },
             robust_map: config.robust.is_some(),
             odometry_edges: config.odometry_edges,
+            frame_node_saturation: config.frame_node_saturation,
         }
     }
 }
@@ -263,6 +274,7 @@ impl AbsoluteSettings {
             recognition: self.recognition.then(|| self.recognition_config()),
             robust: self.robust_map.then(RobustWeights::default),
             odometry_edges: self.odometry_edges,
+            frame_node_saturation: self.frame_node_saturation,
             ..AbsoluteConfig::default()
         })
     }
@@ -276,6 +288,7 @@ impl AbsoluteSettings {
             max_landmark_sigma_m: self.recognition_max_sigma_m,
             confirm_frames: self.recognition_confirm_frames,
             consensus_gate_m: self.recognition_consensus_gate_m,
+            new_landmark_after_frames: self.recognition_new_landmark_after_frames,
             confirm_max_sigma_m: if self.recognition_confirm_max_sigma_m > 0.0 {
                 self.recognition_confirm_max_sigma_m
             } else {
@@ -315,6 +328,7 @@ mod tests {
         assert_eq!(config.solve_mode, stage.solve_mode);
         assert_eq!(config.robust, stage.robust);
         assert_eq!(config.odometry_edges, stage.odometry_edges);
+        assert_eq!(config.frame_node_saturation, stage.frame_node_saturation);
         // Except one on purpose: real frames' covariances are inflated.
         assert_eq!(stage.landmark_covariance_scale, 1.0);
         assert_eq!(config.landmark_covariance_scale, REAL_DATA_COVARIANCE_SCALE);

@@ -7,9 +7,9 @@
 //!
 //! The map grows by one 3-vector unknown per frame node as well as per
 //! landmark: in a bounded room with recognition the landmarks stop
-//! growing but the frame nodes do not (4 per second at 20 Hz), so a run
-//! of hours needs old frame nodes folded into their landmarks' edges,
-//! which is not done yet.
+//! growing, and a frame whose landmarks are mostly joined to
+//! `frame_node_saturation` nodes already adds no node of its own (it is
+//! still corrected against the map), so the frame nodes stop growing too.
 //!
 //! Per frame ([`AbsoluteStage::push`]):
 //! 1. install a map solve that has finished, if any;
@@ -166,6 +166,10 @@ pub struct AbsoluteStats {
     pub uncached_landmarks: usize,
     /// Frame nodes in the map ([`crate::edge_map::policy::EdgePolicy::FrameNodes`]).
     pub frame_nodes: usize,
+    /// Frames whose turn it was to become a frame node, left out because
+    /// their landmarks were mapped already
+    /// ([`AbsoluteConfig::frame_node_saturation`]).
+    pub frames_saturated: usize,
     /// Mean normalised innovation squared per degree of freedom of the
     /// corrections: about 1 when the covariances the filter is given are
     /// right, far above when they are overconfident.
@@ -363,6 +367,7 @@ impl AbsoluteStage {
             });
             self.note_in_view(output);
             self.stats.frame_nodes = self.builder.frame_nodes();
+            self.stats.frames_saturated = self.builder.frames_saturated();
         }
         self.frames_since_solve += 1;
         if self.frames_since_solve >= self.config.solve_every_frames

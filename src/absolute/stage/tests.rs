@@ -806,6 +806,22 @@ fn a_recognition_is_joined_only_once_confirmed() {
     let returned = stage.landmark_world_m(100).expect("recognised");
     assert!((returned - third).norm() < 1e-9);
     assert_eq!(stage.stats().unconfirmed_recognitions, 1);
+    // The lookalike waits, as a track near a similar landmark does, and
+    // then becomes a landmark of its own.
+    let wait = i64::from(RecognitionConfig::default().new_landmark_after_frames);
+    for t in 3 + i64::from(confirm)..3 + wait {
+        assert!(
+            stage.landmark_world_m(200).is_none(),
+            "frame {t}: not waiting"
+        );
+        stage.push(&Room::frame(
+            t,
+            vec![
+                Room::landmark(100, Room::at(3), 3, 0.01),
+                Room::landmark(200, Room::at(4) + Vector3::y(), 4, 0.01),
+            ],
+        ));
+    }
     let other = stage.landmark_world_m(200).expect("a landmark of its own");
     assert!((other - fourth).norm() > 0.5, "{other} vs {fourth}");
 }
