@@ -148,8 +148,14 @@ impl Recogniser {
             if registry.contains(l.id) {
                 continue;
             }
-            let age = self.unmapped_age.get(&l.id).copied().unwrap_or(0) + 1;
+            let waited = self.unmapped_age.get(&l.id).copied();
+            let age = waited.unwrap_or(0) + 1;
             if age >= config.new_landmark_after_frames {
+                continue;
+            }
+            if waited.is_some() {
+                // Already waiting: no need to look for a lookalike again.
+                ages.insert(l.id, age);
                 continue;
             }
             let Some(descriptor) = l.descriptor.as_ref() else {
@@ -166,7 +172,7 @@ impl Recogniser {
                     .and_then(|d| d.as_ref())
                     .is_some_and(|d| hamming(d, descriptor) <= config.max_hamming)
             });
-            if lookalike || self.unmapped_age.contains_key(&l.id) {
+            if lookalike {
                 ages.insert(l.id, age);
             }
         }

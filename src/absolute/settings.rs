@@ -69,7 +69,7 @@ pub struct AbsoluteSettings {
     pub recognition_consensus_gate_m: f64,
     /// A new track that looks like a map landmark near where it is waits
     /// this many frames for its recognition before it becomes a new
-    /// landmark (1: at once; each duplicate made then stays in the map).
+    /// landmark (0 or 1: at once; each duplicate made then stays in the map).
     pub recognition_new_landmark_after_frames: u32,
     /// Down-weight map edges that disagree with the solved map by more
     /// than a chi-square of 16.3 (3 dof, 0.1%) and solve again (Huber, two
