@@ -56,6 +56,11 @@ pub enum LandmarkCovariance {
 /// default of a node every 5 frames at 20 Hz, a landmark in view for 5 s.
 pub const DEFAULT_FRAME_NODE_SATURATION: usize = 20;
 
+/// How fast the orientation offset may wander, rad per sqrt(s): chosen on
+/// the development renderings (0.5e-4 to 2e-4 give two-stage means within
+/// 3 % of each other; docs/results/), confirmed on the held-apart ones.
+pub const DEFAULT_ORIENTATION_SIGMA_RAD_PER_SQRT_S: f64 = 1e-4;
+
 /// Configuration of the absolute stage.
 #[derive(Clone, Debug)]
 pub struct AbsoluteConfig {
@@ -101,6 +106,11 @@ pub struct AbsoluteConfig {
     /// its frames are still corrected against the map, they only stop
     /// adding measurements of what it already knows well.
     pub frame_node_saturation: usize,
+    /// Correct the orientation too: the relative stage's orientation,
+    /// turned by an offset the map's landmarks estimate, which wanders by
+    /// this much, rad per sqrt(s) (0: the paper's filter, the orientation
+    /// as the relative stage gives it).
+    pub orientation_sigma_rad_per_sqrt_s: f64,
 }
 
 impl Default for AbsoluteConfig {
@@ -122,6 +132,7 @@ impl Default for AbsoluteConfig {
             robust: Some(RobustWeights::default()),
             odometry_edges: true,
             frame_node_saturation: DEFAULT_FRAME_NODE_SATURATION,
+            orientation_sigma_rad_per_sqrt_s: DEFAULT_ORIENTATION_SIGMA_RAD_PER_SQRT_S,
         }
     }
 }

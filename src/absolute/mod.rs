@@ -9,8 +9,10 @@
 //! linear maths) and keeps which track is which unknown
 //! (`landmark_registry`); the map is solved every few frames off the
 //! frame-rate path ([`map_worker`], scheduled by mode in
-//! [`solve_schedule`]); and the robot position is corrected with the
-//! Kalman filter of eq. 60-71 ([`position_filter`], checked by [`nees`]).
+//! [`solve_schedule`]); the relative stage's orientation is corrected by
+//! an offset the map's landmarks measure ([`orientation_filter`]); and the
+//! robot position is corrected with the Kalman filter of eq. 60-71
+//! ([`position_filter`], checked by [`nees`]).
 //! What the stage is built with is [`config`], read from the settings
 //! file's table by [`settings`]. A map outlives the run through
 //! [`map_file`]; [`localise`] places a robot in a saved map.
@@ -25,6 +27,7 @@ mod map_builder;
 pub mod map_file;
 pub mod map_worker;
 pub mod nees;
+pub mod orientation_filter;
 pub mod position_filter;
 mod recogniser;
 pub mod recognition;

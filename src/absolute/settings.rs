@@ -84,6 +84,11 @@ pub struct AbsoluteSettings {
     /// that keeps revisiting the same room stops growing its map (0:
     /// every frame adds one, the map grows for as long as the robot runs).
     pub frame_node_saturation: usize,
+    /// Correct the orientation as well as the position: the map's
+    /// landmarks estimate an offset of the relative stage's orientation
+    /// that wanders by this much, rad per sqrt(s) (0: the paper's filter,
+    /// which takes the relative stage's orientation as exact).
+    pub orientation_sigma_rad_per_sqrt_s: f64,
 }
 
 impl Default for AbsoluteSettings {
@@ -120,6 +125,7 @@ impl Default for AbsoluteSettings {
             robust_map: config.robust.is_some(),
             odometry_edges: config.odometry_edges,
             frame_node_saturation: config.frame_node_saturation,
+            orientation_sigma_rad_per_sqrt_s: config.orientation_sigma_rad_per_sqrt_s,
         }
     }
 }
@@ -263,6 +269,14 @@ impl AbsoluteSettings {
                 "a positive number",
             ));
         }
+        let orientation = self.orientation_sigma_rad_per_sqrt_s;
+        if !(orientation.is_finite() && (0.0..=0.1).contains(&orientation)) {
+            return Err(bad(
+                "absolute.orientation_sigma_rad_per_sqrt_s",
+                orientation.to_string(),
+                "0 (off) to 0.1 rad per sqrt(s)",
+            ));
+        }
         Ok(AbsoluteConfig {
             policy,
             solve_every_frames: self.solve_every_frames,
@@ -275,6 +289,7 @@ impl AbsoluteSettings {
             robust: self.robust_map.then(RobustWeights::default),
             odometry_edges: self.odometry_edges,
             frame_node_saturation: self.frame_node_saturation,
+            orientation_sigma_rad_per_sqrt_s: orientation,
             ..AbsoluteConfig::default()
         })
     }
@@ -329,6 +344,10 @@ mod tests {
         assert_eq!(config.robust, stage.robust);
         assert_eq!(config.odometry_edges, stage.odometry_edges);
         assert_eq!(config.frame_node_saturation, stage.frame_node_saturation);
+        assert_eq!(
+            config.orientation_sigma_rad_per_sqrt_s,
+            stage.orientation_sigma_rad_per_sqrt_s
+        );
         // Except one on purpose: real frames' covariances are inflated.
         assert_eq!(stage.landmark_covariance_scale, 1.0);
         assert_eq!(config.landmark_covariance_scale, REAL_DATA_COVARIANCE_SCALE);
@@ -336,7 +355,21 @@ mod tests {
 
     #[test]
     fn each_bad_value_names_its_key() {
-        let cases: [(&str, AbsoluteSettings); 10] = [
+        let cases: [(&str, AbsoluteSettings); 12] = [
+            (
+                "absolute.orientation_sigma_rad_per_sqrt_s",
+                AbsoluteSettings {
+                    orientation_sigma_rad_per_sqrt_s: -1e-4,
+                    ..Default::default()
+                },
+            ),
+            (
+                "absolute.orientation_sigma_rad_per_sqrt_s",
+                AbsoluteSettings {
+                    orientation_sigma_rad_per_sqrt_s: f64::INFINITY,
+                    ..Default::default()
+                },
+            ),
             (
                 "absolute.recognition_confirm_frames",
                 AbsoluteSettings {

@@ -1,8 +1,8 @@
 //! Simulated relative-stage outputs for the absolute stage: a robot drives
 //! laps of an oval path inside a room whose walls carry landmarks, and each
 //! frame hands over what the relative stage would: its
-//! dead-reckoned pose (orientation exact, position integrated from noisy
-//! increments), the noisy increment itself, and the visible landmarks in
+//! dead-reckoned pose (orientation exact unless it is made to drift,
+//! position integrated from noisy increments), the noisy increment itself, and the visible landmarks in
 //! the body frame with stereo-like covariances, their noise drawn from
 //! those covariances. Ground truth comes along, so the absolute stage's
 //! consistency (NEES) can be checked.
@@ -55,6 +55,12 @@ pub struct RoomRunOptions {
     /// to every increment in proportion to its length, so (unlike a scale
     /// error on a closed path) it accumulates lap after lap.
     pub drift_per_m: Vector3<f64>,
+    /// Systematic orientation drift, rad per m travelled (a rotation
+    /// vector, world frame): the relative stage's world frame turns away
+    /// from the true one by `Exp(rate · distance)`, and its orientation
+    /// and increments with it, as a gyroscope's uncorrected bias turns a
+    /// visual-inertial odometry's heading.
+    pub rotation_drift_rad_per_m: Vector3<f64>,
     /// The room (landmarks and their appearance) comes from `seed`; the
     /// noise of the drive from this seed when given, so that two drives
     /// through the same room differ (a map made in one, localised in by
@@ -82,6 +88,7 @@ impl Default for RoomRunOptions {
             fresh_track_ids: false,
             descriptor_bit_flips: None,
             drift_per_m: Vector3::zeros(),
+            rotation_drift_rad_per_m: Vector3::zeros(),
             noise_seed: None,
             seed: 0,
         }
@@ -95,6 +102,8 @@ pub struct RoomRun {
     pub outputs: Vec<RelativeOutput>,
     /// True body position per frame, world frame, m.
     pub truth_position_m: Vec<Vector3<f64>>,
+    /// True body orientation per frame, world frame.
+    pub truth_orientation: Vec<UnitQuaternion<f64>>,
     /// True landmark positions by index, world frame, m.
     pub landmarks_m: Vec<Vector3<f64>>,
     /// The landmark index each track id belongs to.
@@ -172,6 +181,8 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
     let position_at = |t: f64| centre + Vector3::new(a * t.cos(), b * t.sin(), 0.0);
     let mut outputs = Vec::new();
     let mut truth_position_m = Vec::new();
+    let mut truth_orientation = Vec::new();
+    let mut travelled_m = 0.0;
     let mut previous_truth: Option<Vector3<f64>> = None;
     let mut relative_position = position_at(0.0);
     let mut t_ns = 0i64;
@@ -186,9 +197,15 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
             Some(prev) => {
                 let true_delta: Vector3<f64> = p - prev;
                 let sigma = options.sigma_translation_per_sqrt_m * true_delta.norm().sqrt();
+                travelled_m += true_delta.norm();
                 true_delta + options.drift_per_m * true_delta.norm() + normal3(&mut rng) * sigma
             }
         };
+        // The relative stage's world frame, turned by its drift so far.
+        let turned = (options.rotation_drift_rad_per_m != Vector3::zeros()).then(|| {
+            UnitQuaternion::from_scaled_axis(options.rotation_drift_rad_per_m * travelled_m)
+        });
+        let delta = turned.map_or(delta, |d| d * delta);
         relative_position += delta;
         let mut candidates: Vec<(f64, usize)> = landmarks_m
             .iter()
@@ -257,7 +274,9 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
             state: TrackingState::Tracking,
             T_world_body: Isometry3::from_parts(
                 Translation3::from(relative_position),
-                UnitQuaternion::from_rotation_matrix(&rotation),
+                turned.map_or(UnitQuaternion::from_rotation_matrix(&rotation), |d| {
+                    d * UnitQuaternion::from_rotation_matrix(&rotation)
+                }),
             ),
             velocity_world_m_s: Vector3::zeros(),
             biases: ImuBiases::default(),
@@ -266,6 +285,7 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
             pose_covariance: None,
         });
         truth_position_m.push(p);
+        truth_orientation.push(UnitQuaternion::from_rotation_matrix(&rotation));
         previous_truth = Some(p);
         t_ns += 50_000_000;
         let speed = tangent.norm().max(1e-9);
@@ -274,6 +294,7 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
     RoomRun {
         outputs,
         truth_position_m,
+        truth_orientation,
         landmarks_m,
         track_landmark,
     }

@@ -13,18 +13,22 @@
 //!
 //! Per frame ([`AbsoluteStage::push`]):
 //! 1. install a map solve that has finished, if any;
-//! 2. predict the position with the relative stage's increment (eq. 60-62);
-//! 3. correct it with the visible landmarks of the last solved map
-//!    (eq. 63-71), their joint covariance from the map's factor (exact) or
-//!    the paper's sub-matrix rule;
+//! 2. predict the position with the relative stage's increment (eq. 60-62),
+//!    turned into the map's frame by the orientation offset;
+//! 3. correct the orientation offset ([`super::orientation_filter`]), then
+//!    the position (eq. 63-71), with the visible landmarks of the last
+//!    solved map and their joint covariance from the map's factor (exact)
+//!    or the paper's sub-matrix rule;
 //! 4. fuse the frame's edges (eq. 41-43) *after* the correction, so that a
 //!    frame's landmark noise is never in the map it is corrected against;
 //! 5. every `solve_every_frames` frames, hand a snapshot of the edges to
 //!    the map solve ([`SolveMode`]).
 //!
-//! The returned pose takes its orientation from the relative stage and its
-//! position from the filter. Positions are in the relative stage's world
-//! frame: the map is anchored at the first frame node, where the relative
+//! The returned pose takes its orientation from the relative stage turned
+//! by the offset filter's estimate (the paper's filter leaves it as the
+//! relative stage gives it, which `orientation_sigma_rad_per_sqrt_s = 0`
+//! restores) and its position from the position filter. The map's frame is
+//! the relative stage's world frame at the anchor: the map is anchored at the first frame node, where the relative
 //! stage put the robot in that frame ([`EdgePolicy::FrameNodes`]), or, with
 //! landmark pairs, where it put the reference landmark (the first landmark
 //! of the first frame with two or more). A robot position is exact in the
@@ -54,7 +58,7 @@
 
 use std::time::Instant;
 
-use nalgebra::{DMatrix, Isometry3, Matrix3, Translation3, Vector3};
+use nalgebra::{DMatrix, Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
 
 pub use super::config::{AbsoluteConfig, EdgeWeighting, LandmarkCovariance};
 pub use super::map_builder::MapReference;
@@ -62,6 +66,7 @@ pub use super::solve_schedule::SolveMode;
 
 use super::map_builder::MapBuilder;
 use super::map_worker::{MapSolveRequest, MapSolveWorker, SolvedMap};
+use super::orientation_filter::{DirectionFix, OrientationFilter, OrientationUpdate};
 use super::position_filter::{LandmarkFix, PositionFilter};
 use super::recogniser::Recogniser;
 use super::recognition::FramePlacement;
@@ -77,7 +82,8 @@ use crate::relative::types::{BodyLandmark, LandmarkId, RelativeOutput, TrackingS
 pub struct CorrectedPose {
     /// Frame stamp, ns.
     pub t_ns: i64,
-    /// Position from the filter, orientation from the relative stage.
+    /// Position from the position filter, orientation from the relative
+    /// stage turned by the orientation offset.
     pub T_world_body: Isometry3<f64>,
     /// The filter's position covariance (None before it starts).
     pub position_covariance_m2: Option<Matrix3<f64>>,
@@ -170,6 +176,14 @@ pub struct AbsoluteStats {
     /// their landmarks were mapped already
     /// ([`AbsoluteConfig::frame_node_saturation`]).
     pub frames_saturated: usize,
+    /// Frames whose orientation offset the landmarks corrected.
+    pub orientation_corrections: usize,
+    /// Orientation corrections refused as too large for one frame
+    /// ([`super::orientation_filter::MAX_ORIENTATION_STEP_RAD`]).
+    pub orientation_refused: usize,
+    /// The orientation offset at the last frame, degrees: how far the map
+    /// has turned the relative stage's orientation.
+    pub orientation_offset_deg: f64,
     /// Mean normalised innovation squared per degree of freedom of the
     /// corrections: about 1 when the covariances the filter is given are
     /// right, far above when they are overconfident.
@@ -217,6 +231,8 @@ pub struct AbsoluteStage {
     /// None when recognition is off.
     recogniser: Option<Recogniser>,
     filter: Option<PositionFilter>,
+    /// None when the orientation is taken as the relative stage gives it.
+    orientation: Option<OrientationFilter>,
     map: Option<SolvedMap>,
     /// Where the map is solved, with what is in flight.
     solver: MapSolver,
@@ -240,6 +256,8 @@ impl AbsoluteStage {
         Self {
             builder: MapBuilder::new(&config, solver.needs_edge_changes()),
             recogniser: config.recognition.map(Recogniser::new),
+            orientation: (config.orientation_sigma_rad_per_sqrt_s > 0.0)
+                .then(|| OrientationFilter::new(config.orientation_sigma_rad_per_sqrt_s)),
             config,
             filter: None,
             map: None,
@@ -341,20 +359,26 @@ impl AbsoluteStage {
             scaled = copy;
             output = &scaled;
         }
-        let rotation = *output.T_world_body.rotation.to_rotation_matrix().matrix();
+        let offset = self.orientation_offset();
+        let mut rotation = *(offset * output.T_world_body.rotation)
+            .to_rotation_matrix()
+            .matrix();
+        let delta_world_m = offset * output.delta_translation_world_m;
         let tracking = output.state == TrackingState::Tracking;
-        self.builder
-            .note_motion(tracking, &output.delta_translation_world_m);
+        self.builder.note_motion(tracking, &delta_world_m);
         let mut report = None;
         match self.filter.as_mut() {
             Some(filter) => {
                 let q = Matrix3::identity()
                     * self.config.translation_sigma_per_sqrt_m.powi(2)
-                    * output.delta_translation_world_m.norm();
-                filter.predict(&output.delta_translation_world_m, &q);
+                    * delta_world_m.norm();
+                filter.predict(&delta_world_m, &q);
+                if let Some(orientation) = self.orientation.as_mut() {
+                    orientation.predict(output.t_ns);
+                }
                 if tracking {
                     self.recognise_new(output, &rotation);
-                    report = self.correct(output, &rotation);
+                    report = self.correct(output, &mut rotation);
                 }
             }
             None if tracking && output.landmarks.len() >= 2 => self.anchor(output, &rotation),
@@ -380,22 +404,29 @@ impl AbsoluteStage {
             Some(f) => (f.position_world_m(), Some(f.covariance_m2())),
             None => (output.T_world_body.translation.vector, None),
         };
+        let orientation = self.orientation_offset() * output.T_world_body.rotation;
+        self.stats.orientation_offset_deg = self.orientation_offset().angle().to_degrees();
         let elapsed = start.elapsed().as_secs_f64() * 1e3;
         self.stats.frames += 1;
         self.stats.frame_total_ms += elapsed;
         self.stats.frame_max_ms = self.stats.frame_max_ms.max(elapsed);
         CorrectedPose {
             t_ns: output.t_ns,
-            T_world_body: Isometry3::from_parts(
-                Translation3::from(translation),
-                output.T_world_body.rotation,
-            ),
+            T_world_body: Isometry3::from_parts(Translation3::from(translation), orientation),
             position_covariance_m2: covariance,
             landmarks_used: report
                 .map_or(0, |r: super::position_filter::CorrectionReport| r.landmarks),
             map_version: self.map.as_ref().map_or(0, |m| m.version),
             nis: report.map_or(0.0, |r| r.nis),
         }
+    }
+
+    /// `R_o`: turns the relative stage's world frame into the map's
+    /// (identity when the orientation is not corrected).
+    pub fn orientation_offset(&self) -> UnitQuaternion<f64> {
+        self.orientation
+            .as_ref()
+            .map_or(UnitQuaternion::identity(), OrientationFilter::offset)
     }
 
     /// Step 1 of a frame: picks up a finished background solve, or, in
@@ -560,11 +591,13 @@ impl AbsoluteStage {
         self.stats.unconfirmed_recognitions += counts.unconfirmed;
     }
 
-    /// The correction (eq. 63-71) with the visible landmarks of the map.
+    /// The correction with the visible landmarks of the map: the
+    /// orientation offset first (`rotation`, the frame's world-from-body
+    /// rotation, is turned with it), then the position (eq. 63-71).
     fn correct(
         &mut self,
         output: &RelativeOutput,
-        rotation: &Matrix3<f64>,
+        rotation: &mut Matrix3<f64>,
     ) -> Option<super::position_filter::CorrectionReport> {
         let map = self.map.as_ref()?;
         let anchor = self.builder.anchor_world_m()?;
@@ -600,7 +633,7 @@ impl AbsoluteStage {
         if visible.is_empty() {
             return None;
         }
-        let fixes: Vec<LandmarkFix> = visible
+        let mut fixes: Vec<LandmarkFix> = visible
             .iter()
             .map(|&(_, id, k)| {
                 let l = &output.landmarks[k];
@@ -608,8 +641,8 @@ impl AbsoluteStage {
                     landmark: id,
                     landmark_world_m: anchor
                         + map.positions_m[id as usize].expect("filtered to solved landmarks"),
-                    offset_world_m: rotation * l.position_body_m,
-                    offset_covariance_m2: rotation * l.covariance_body_m2 * rotation.transpose(),
+                    offset_world_m: *rotation * l.position_body_m,
+                    offset_covariance_m2: *rotation * l.covariance_body_m2 * rotation.transpose(),
                 }
             })
             .collect();
@@ -627,6 +660,24 @@ impl AbsoluteStage {
                 (submatrix_blocks(map, &ids, hops), None)
             }
         };
+        if let Some(orientation) = self.orientation.as_mut() {
+            match correct_orientation(orientation, &fixes, &covariance, filter) {
+                OrientationUpdate::Applied(step) => {
+                    let turn = *UnitQuaternion::from_scaled_axis(step)
+                        .to_rotation_matrix()
+                        .matrix();
+                    for fix in &mut fixes {
+                        fix.offset_world_m = turn * fix.offset_world_m;
+                        fix.offset_covariance_m2 =
+                            turn * fix.offset_covariance_m2 * turn.transpose();
+                    }
+                    *rotation = turn * *rotation;
+                    self.stats.orientation_corrections += 1;
+                }
+                OrientationUpdate::TooLarge(_) => self.stats.orientation_refused += 1,
+                OrientationUpdate::TooFewLandmarks | OrientationUpdate::Singular => {}
+            }
+        }
         match filter.correct(&fixes, &covariance, cross.as_ref()) {
             Ok(report) => {
                 self.stats.corrections += 1;
@@ -641,6 +692,31 @@ impl AbsoluteStage {
             }
         }
     }
+}
+
+/// The orientation offset's correction with the position correction's
+/// landmarks: their residual covariance is each offset's covariance plus
+/// the map's joint covariance of the landmarks.
+fn correct_orientation(
+    orientation: &mut OrientationFilter,
+    fixes: &[LandmarkFix],
+    map_covariance_m2: &DMatrix<f64>,
+    filter: &PositionFilter,
+) -> OrientationUpdate {
+    let x = filter.position_world_m();
+    let directions: Vec<DirectionFix> = fixes
+        .iter()
+        .map(|f| DirectionFix {
+            landmark_from_robot_m: f.landmark_world_m - x,
+            offset_world_m: f.offset_world_m,
+        })
+        .collect();
+    let mut noise = map_covariance_m2.clone();
+    for (k, fix) in fixes.iter().enumerate() {
+        let mut block = noise.fixed_view_mut::<3, 3>(3 * k, 3 * k);
+        block += fix.offset_covariance_m2;
+    }
+    orientation.correct(&directions, &noise)
 }
 
 /// The solve computes covariance blocks for this many times the landmarks
