@@ -195,11 +195,11 @@ impl AbsoluteSettings {
                 "1 to 500",
             ));
         }
-        let sigma = self.translation_sigma_per_sqrt_m;
-        if !(sigma.is_finite() && sigma > 0.0) {
+        let translation_sigma = self.translation_sigma_per_sqrt_m;
+        if !(translation_sigma.is_finite() && translation_sigma > 0.0) {
             return Err(bad(
                 "absolute.translation_sigma_per_sqrt_m",
-                sigma.to_string(),
+                translation_sigma.to_string(),
                 "a positive number",
             ));
         }
@@ -282,7 +282,7 @@ impl AbsoluteSettings {
             solve_every_frames: self.solve_every_frames,
             covariance,
             max_correction_landmarks: self.max_correction_landmarks,
-            translation_sigma_per_sqrt_m: sigma,
+            translation_sigma_per_sqrt_m: translation_sigma,
             landmark_covariance_scale: scale,
             solve_mode,
             recognition: self.recognition.then(|| self.recognition_config()),
@@ -345,12 +345,61 @@ mod tests {
         assert_eq!(config.odometry_edges, stage.odometry_edges);
         assert_eq!(config.frame_node_saturation, stage.frame_node_saturation);
         assert_eq!(
+            config.translation_sigma_per_sqrt_m,
+            stage.translation_sigma_per_sqrt_m
+        );
+        assert_eq!(
+            config.max_correction_landmarks,
+            stage.max_correction_landmarks
+        );
+        assert_eq!(
             config.orientation_sigma_rad_per_sqrt_s,
             stage.orientation_sigma_rad_per_sqrt_s
         );
         // Except one on purpose: real frames' covariances are inflated.
         assert_eq!(stage.landmark_covariance_scale, 1.0);
         assert_eq!(config.landmark_covariance_scale, REAL_DATA_COVARIANCE_SCALE);
+    }
+
+    #[test]
+    fn each_value_reaches_the_stage() {
+        // Values unlike every default and unlike one another, so that a
+        // setting read into the wrong field shows.
+        let settings = AbsoluteSettings {
+            translation_sigma_per_sqrt_m: 0.07,
+            recognition_max_sigma_m: 0.3,
+            recognition_consensus_gate_m: 0.45,
+            recognition_confirm_max_sigma_m: 0.11,
+            recognition_gate_chi2: 9.5,
+            landmark_covariance_scale: 3.5,
+            orientation_sigma_rad_per_sqrt_s: 3e-4,
+            max_correction_landmarks: 17,
+            solve_every_frames: 7,
+            frame_node_saturation: 13,
+            recognition_max_hamming: 41,
+            recognition_confirm_frames: 4,
+            recognition_new_landmark_after_frames: 6,
+            ..Default::default()
+        };
+        let config = settings.to_config().expect("valid");
+        assert_eq!(config.translation_sigma_per_sqrt_m, 0.07);
+        assert_eq!(config.landmark_covariance_scale, 3.5);
+        assert_eq!(config.orientation_sigma_rad_per_sqrt_s, 3e-4);
+        assert_eq!(config.max_correction_landmarks, 17);
+        assert_eq!(config.solve_every_frames, 7);
+        assert_eq!(config.frame_node_saturation, 13);
+        let recognition = config.recognition.expect("on");
+        assert_eq!(recognition.max_landmark_sigma_m, 0.3);
+        assert_eq!(recognition.consensus_gate_m, 0.45);
+        assert_eq!(recognition.confirm_max_sigma_m, 0.11);
+        assert_eq!(recognition.gate_chi2, 9.5);
+        assert_eq!(recognition.max_hamming, 41);
+        assert_eq!(recognition.confirm_frames, 4);
+        assert_eq!(recognition.new_landmark_after_frames, 6);
+        let localise = settings.to_localise_config().expect("valid");
+        assert_eq!(localise.translation_sigma_per_sqrt_m, 0.07);
+        assert_eq!(localise.landmark_covariance_scale, 3.5);
+        assert_eq!(localise.max_correction_landmarks, 17);
     }
 
     #[test]
