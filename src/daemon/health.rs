@@ -75,6 +75,9 @@ pub struct Health {
     pub map_landmarks: AtomicU64,
     /// Saves of the map so far.
     pub map_saves: AtomicU64,
+    /// How far the absolute stage has turned the relative stage's
+    /// orientation to fit its map, degrees as f64 bits (0 until it has).
+    orientation_offset_deg_bits: AtomicU64,
     /// The estimator's noise scales (gyro, accel, pixel) as f64 bits,
     /// valid when `noise_known`; `noise_at_bound` when one hit a bound.
     noise_scale_bits: [AtomicU64; 3],
@@ -286,9 +289,10 @@ impl Health {
     /// The map's state in words (the status line), None without a map.
     pub fn map_words(&self) -> Option<String> {
         let landmarks = self.map_landmarks.load(Ordering::Relaxed);
+        let turned = f64::from_bits(self.orientation_offset_deg_bits.load(Ordering::Relaxed));
         match self.map_mode.load(Ordering::Relaxed) {
             MAP_BUILDING => Some(format!(
-                "map: building, {} saves ({landmarks} landmarks at the last)",
+                "map: building, {} saves ({landmarks} landmarks at the last), orientation turned {turned:.2} deg to fit it",
                 self.map_saves.load(Ordering::Relaxed)
             )),
             MAP_LOCALISING => Some(format!(
@@ -296,6 +300,12 @@ impl Health {
             )),
             _ => None,
         }
+    }
+
+    /// The absolute stage's orientation offset after a frame, degrees.
+    pub fn record_orientation_offset_deg(&self, degrees: f64) {
+        self.orientation_offset_deg_bits
+            .store(degrees.to_bits(), Ordering::Relaxed);
     }
 
     /// All counters zero, the SLAM stage's heartbeat set to now (host `CLOCK_MONOTONIC`), so it
@@ -627,6 +637,20 @@ mod tests {
         assert!((m.pose_rate_hz - 20.0).abs() < 1e-9, "{m:?}");
         // The IMU stopped: 0 Hz is then the truth.
         assert_eq!(m.imu_rate_hz, 0.0, "{m:?}");
+    }
+
+    #[test]
+    fn the_map_words_say_how_far_the_orientation_was_turned() {
+        let health = Health::new();
+        assert_eq!(health.map_words(), None);
+        health.map_mode.store(MAP_BUILDING, Ordering::Relaxed);
+        health.map_landmarks.store(812, Ordering::Relaxed);
+        health.map_saves.store(3, Ordering::Relaxed);
+        health.record_orientation_offset_deg(0.4271);
+        assert_eq!(
+            health.map_words().as_deref(),
+            Some("map: building, 3 saves (812 landmarks at the last), orientation turned 0.43 deg to fit it")
+        );
     }
 
     #[test]

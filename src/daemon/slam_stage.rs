@@ -446,6 +446,9 @@ impl Stage {
         let relative = self.pipeline.relative();
         health.record_noise_scale(relative.imu_noise_scale(), relative.noise_at_bound());
         health.record_camera_imu(relative.camera_imu());
+        if let Some(absolute) = self.pipeline.absolute() {
+            health.record_orientation_offset_deg(absolute.stats().orientation_offset_deg);
+        }
         let output = &frame_out.relative;
         self.fast.on_frame_in_map(output, map_pose(&frame_out));
         health
