@@ -632,10 +632,11 @@ fn the_orientation_filter_takes_out_a_drifting_heading() {
     // 58 m, about what the development renderings' offsets reach. Taking
     // its orientation as exact bends the map and misplaces the robot; the
     // offset filter (at the settings' default) must take much of it out,
-    // and leave the run without drift about as good as it was. Measured:
-    // orientation 0.349 -> 0.201 deg RMS, 0.604 -> 0.260 deg at the end,
-    // position 0.0280 -> 0.0233 m; without drift position 0.0101 ->
-    // 0.0104 m and 0.037 deg RMS.
+    // and leave the run without drift about as good as it was. Measured
+    // at the default of 5e-5 rad/sqrt(s): orientation 0.349 -> 0.235 deg
+    // RMS, 0.604 -> 0.324 deg at the end, position 0.0280 -> 0.0241 m;
+    // without drift position 0.0101 -> 0.0101 m and 0.019 deg RMS (at
+    // 1e-4: 0.201 deg, 0.260 deg, 0.0233 m; 0.0104 m, 0.037 deg).
     let drifting = RoomRunOptions {
         rotation_drift_rad_per_m: Vector3::new(0.003, 0.0, 0.01).map(f64::to_radians),
         step_m: 0.05,
