@@ -337,7 +337,7 @@ mod tests {
                 filter.correct(&fixes, &noise),
                 OrientationUpdate::Applied(_)
             ));
-            // The truth is the prior's mean, turned: error of the estimate.
+            // The estimate's error against the true turn.
             let error = (filter.offset() * turn.inverse()).scaled_axis();
             nees += error.dot(&(filter.covariance_rad2().try_inverse().unwrap() * error));
         }

@@ -2,10 +2,10 @@
 //! laps of an oval path inside a room whose walls carry landmarks, and each
 //! frame hands over what the relative stage would: its
 //! dead-reckoned pose (orientation exact unless it is made to drift,
-//! position integrated from noisy increments), the noisy increment itself, and the visible landmarks in
-//! the body frame with stereo-like covariances, their noise drawn from
-//! those covariances. Ground truth comes along, so the absolute stage's
-//! consistency (NEES) can be checked.
+//! position integrated from noisy increments), the noisy increment
+//! itself, and the visible landmarks in the body frame with stereo-like
+//! covariances, their noise drawn from those covariances. Ground truth
+//! comes along, so the absolute stage's consistency (NEES) can be checked.
 
 use std::collections::HashMap;
 

@@ -28,8 +28,9 @@
 //! by the offset filter's estimate (the paper's filter leaves it as the
 //! relative stage gives it, which `orientation_sigma_rad_per_sqrt_s = 0`
 //! restores) and its position from the position filter. The map's frame is
-//! the relative stage's world frame at the anchor: the map is anchored at the first frame node, where the relative
-//! stage put the robot in that frame ([`EdgePolicy::FrameNodes`]), or, with
+//! the relative stage's world frame at the anchor: the map is anchored at
+//! the first frame node, where the relative stage put the robot in that
+//! frame ([`EdgePolicy::FrameNodes`]), or, with
 //! landmark pairs, where it put the reference landmark (the first landmark
 //! of the first frame with two or more). A robot position is exact in the
 //! relative stage's frame; a landmark's is not (a monocular landmark's
@@ -404,8 +405,9 @@ impl AbsoluteStage {
             Some(f) => (f.position_world_m(), Some(f.covariance_m2())),
             None => (output.T_world_body.translation.vector, None),
         };
-        let orientation = self.orientation_offset() * output.T_world_body.rotation;
-        self.stats.orientation_offset_deg = self.orientation_offset().angle().to_degrees();
+        let offset = self.orientation_offset();
+        let orientation = offset * output.T_world_body.rotation;
+        self.stats.orientation_offset_deg = offset.angle().to_degrees();
         let elapsed = start.elapsed().as_secs_f64() * 1e3;
         self.stats.frames += 1;
         self.stats.frame_total_ms += elapsed;
