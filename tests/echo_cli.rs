@@ -142,3 +142,81 @@ fn echo_names_the_service_when_nothing_comes() {
     );
     assert!(output.stdout.is_empty());
 }
+
+/// `--tum` writes the map-frame poses and `--tum-odom` the odometry-frame
+/// ones: a publisher whose map->odom transform is a known shift and turn
+/// gives two trajectories that differ by exactly that transform.
+#[test]
+#[allow(non_snake_case)]
+fn echo_writes_the_map_and_odometry_frames_side_by_side() {
+    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+    const COUNT: u64 = 30;
+    let root = tempfile::tempdir().expect("temp dir for the iceoryx2 root");
+    let config = IpcConfig {
+        service_prefix: format!("rigslam_echo_odom_{}", std::process::id()),
+        root_path: Some(root.path().to_path_buf()),
+        group: None,
+    };
+    let T_world_odom = Isometry3::from_parts(
+        Translation3::new(0.4, -0.2, 0.05),
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.3),
+    );
+    let stop = Arc::new(AtomicBool::new(false));
+    let publisher = {
+        let config = config.clone();
+        let stop = Arc::clone(&stop);
+        thread::spawn(move || {
+            let mut publisher = PosePublisher::open(&config).expect("publisher");
+            let mut k = 0i64;
+            while !stop.load(Ordering::Relaxed) {
+                // A body moving along a line, seen in the odometry frame.
+                let T_odom_body = Isometry3::translation(0.01 * k as f64, 0.002 * k as f64, 1.0);
+                let msg = PoseMessage::new(
+                    1_000_000_000 + k * 50_000_000,
+                    TrackingState::Tracking,
+                    &(T_world_odom * T_odom_body),
+                )
+                .with_odometry(&T_odom_body, &T_world_odom);
+                publisher.publish(&msg).expect("publish");
+                k += 1;
+                thread::sleep(Duration::from_millis(1));
+            }
+        })
+    };
+    let dir = tempfile::tempdir().expect("temp dir");
+    let (map_tum, odom_tum) = (dir.path().join("map.tum"), dir.path().join("odom.tum"));
+    let output = Command::new(env!("CARGO_BIN_EXE_rigslam"))
+        .args(["echo", "--service"])
+        .arg(format!("{}/pose", config.service_prefix))
+        .args(["--count", &COUNT.to_string(), "--timeout-s", "30", "--json"])
+        .arg("--root-path")
+        .arg(root.path())
+        .arg("--tum")
+        .arg(&map_tum)
+        .arg("--tum-odom")
+        .arg(&odom_tum)
+        .output()
+        .expect("run rigslam echo");
+    stop.store(true, Ordering::Relaxed);
+    publisher.join().expect("publisher thread");
+    assert!(
+        output.status.success(),
+        "rigslam echo failed: {}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let map = rigslam::dataset::read_tum(&map_tum).expect("the map-frame file");
+    let odom = rigslam::dataset::read_tum(&odom_tum).expect("the odometry-frame file");
+    assert_eq!(map.len(), COUNT as usize);
+    assert_eq!(odom.len(), COUNT as usize);
+    for (m, o) in map.poses.iter().zip(&odom.poses) {
+        assert_eq!(m.t_ns, o.t_ns);
+        let T_world_body = T_world_odom * o.T_world_body;
+        let off = (T_world_body.translation.vector - m.position()).norm();
+        assert!(
+            off < 1e-6,
+            "map pose {m:?} vs odom pose through the transform {o:?}"
+        );
+        // And the two frames really differ.
+        assert!((m.position() - o.position()).norm() > 0.1);
+    }
+}

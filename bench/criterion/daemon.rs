@@ -11,9 +11,17 @@
 //! - resident memory sampled every few seconds; with `--minutes M` the
 //!   sequence is looped for M minutes (the soak: memory must stay flat).
 //!
-//! `cargo bench -p rigslam --bench daemon -- [--dataset DIR] [--minutes M]`
+//! `cargo bench -p rigslam --bench daemon -- [--dataset DIR] [--minutes M]
+//! [--mode MODE] [--absolute] [--map] [--cpu N] [--tum-dir DIR]`
 //! (default: `../shared/data/euroc/V1_01_micro` played once at recorded
-//! pace). Prints one JSON object. Not a criterion bench: the quantities
+//! pace, the relative stage alone). `--absolute` runs both stages
+//! (`[slam.absolute] enabled = true`); `--map` gives the daemon a map file
+//! saved every 60 s of sensor time, and the map's size at each save
+//! (landmarks, unknowns of the last solve, from the daemon's log) is
+//! reported over time; `--cpu N` pins the daemon and its threads to core N
+//! (a small robot computer); `--tum-dir` keeps the subscriber's map-frame
+//! and odometry-frame trajectories (`pose.tum`, `pose_odom.tum`) for
+//! `rigslam eval`. Prints one JSON object. Not a criterion bench: the quantities
 //! are distributions of a paced, multi-process run. Never run by CI; the
 //! 30-minute soak is `-- --minutes 30`.
 
@@ -26,6 +34,10 @@ struct Args {
     dataset: PathBuf,
     minutes: Option<f64>,
     mode: Option<String>,
+    absolute: bool,
+    map: bool,
+    cpu: Option<usize>,
+    tum_dir: Option<PathBuf>,
 }
 
 fn args() -> Args {
@@ -36,6 +48,10 @@ fn args() -> Args {
         )),
         minutes: None,
         mode: None,
+        absolute: false,
+        map: false,
+        cpu: None,
+        tum_dir: None,
     };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
@@ -49,6 +65,16 @@ fn args() -> Args {
                 )
             }
             "--mode" => a.mode = Some(it.next().expect("--mode MODE")),
+            "--absolute" => a.absolute = true,
+            "--map" => a.map = true,
+            "--cpu" => {
+                a.cpu = Some(
+                    it.next()
+                        .and_then(|c| c.parse().ok())
+                        .expect("--cpu N (a core number)"),
+                )
+            }
+            "--tum-dir" => a.tum_dir = Some(it.next().expect("--tum-dir DIR").into()),
             // cargo bench passes --bench.
             _ => {}
         }
@@ -78,14 +104,68 @@ fn sequence_s(dataset: &Path) -> f64 {
     (stamps.last().expect("events") - stamps[0]) as f64 * 1e-9
 }
 
-fn echo(service: &str, root: &Path) -> Child {
+/// A `rigslam echo --json` child on `service`, with `extra` arguments.
+fn echo(service: &str, root: &Path, extra: &[std::ffi::OsString]) -> Child {
     Command::new(env!("CARGO_BIN_EXE_rigslam"))
         .args(["echo", "--service", service, "--json", "--timeout-s", "5"])
         .arg("--root-path")
         .arg(root)
+        .args(extra)
         .stdout(Stdio::piped())
         .spawn()
         .expect("start rigslam echo")
+}
+
+/// The map's size at each save, from the daemon's log lines
+/// `map saved: L landmarks to PATH (U unknowns in the last solve)`:
+/// (seconds since the first line, landmarks, unknowns).
+fn map_saves(log: &str) -> Vec<serde_json::Value> {
+    let stamp = |line: &str| -> Option<f64> {
+        // RFC 3339 UTC stamp at the start of the line: seconds of the day.
+        let t = line.split_whitespace().next()?;
+        let time = t.split('T').nth(1)?.trim_end_matches('Z');
+        let mut parts = time.split(':');
+        let h: f64 = parts.next()?.parse().ok()?;
+        let m: f64 = parts.next()?.parse().ok()?;
+        let s: f64 = parts.next()?.parse().ok()?;
+        Some(h * 3600.0 + m * 60.0 + s)
+    };
+    let first = log.lines().find_map(stamp);
+    log.lines()
+        .filter_map(|line| {
+            let rest = line.split("map saved: ").nth(1)?;
+            let landmarks: u64 = rest.split_whitespace().next()?.parse().ok()?;
+            let unknowns: u64 = rest
+                .rsplit('(')
+                .next()?
+                .split_whitespace()
+                .next()?
+                .parse()
+                .ok()?;
+            let mut t = stamp(line)? - first?;
+            if t < 0.0 {
+                t += 86_400.0;
+            }
+            Some(serde_json::json!({"t_s": t, "landmarks": landmarks, "unknowns": unknowns}))
+        })
+        .collect()
+}
+
+/// Restricts the process about to run to core `cpu` (its threads inherit it).
+fn pin_to(command: &mut Command, cpu: usize) {
+    use std::os::unix::process::CommandExt;
+    // SAFETY: sched_setaffinity on the child itself between fork and
+    // exec; the set is a plain value built before the fork.
+    unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        libc::CPU_SET(cpu, &mut set);
+        command.pre_exec(move || {
+            if libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &set) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
 }
 
 /// utime + stime of a process, s.
@@ -129,12 +209,26 @@ fn main() {
         .as_ref()
         .map(|m| format!("[slam]\nmode = {m:?}\n"))
         .unwrap_or_default();
+    let absolute = if a.absolute {
+        "[slam.absolute]\nenabled = true\n"
+    } else {
+        ""
+    };
+    let map_path = dir.path().join("map.txt");
+    let map = if a.map {
+        format!(
+            "[map]\npath = {:?}\nsave_every_s = 60.0\n",
+            map_path.display().to_string()
+        )
+    } else {
+        String::new()
+    };
     std::fs::write(
         &config,
         format!(
             "[camera]\nsource = \"replay\"\n[imu]\nsource = \"replay\"\n\
-             [replay]\ndataset = {:?}\nloops = {loops}\n{mode}\
-             [publish]\nservice_prefix = {prefix:?}\nroot_path = {:?}\n",
+             [replay]\ndataset = {:?}\nloops = {loops}\n{mode}{absolute}\
+             [publish]\nservice_prefix = {prefix:?}\nroot_path = {:?}\n{map}",
             dataset.display().to_string(),
             root.display().to_string()
         ),
@@ -144,18 +238,36 @@ fn main() {
     let report_path = dir.path().join("report.json");
 
     // Subscribers first, so that they see the first sample.
-    let pose = echo(&format!("{prefix}/pose"), &root);
-    let fast = echo(&format!("{prefix}/pose_fast"), &root);
+    let tum_args: Vec<std::ffi::OsString> = match &a.tum_dir {
+        Some(d) => {
+            std::fs::create_dir_all(d).expect("--tum-dir");
+            vec![
+                "--tum".into(),
+                d.join("pose.tum").into(),
+                "--tum-odom".into(),
+                d.join("pose_odom.tum").into(),
+            ]
+        }
+        None => Vec::new(),
+    };
+    let pose = echo(&format!("{prefix}/pose"), &root, &tum_args);
+    let fast = echo(&format!("{prefix}/pose_fast"), &root, &[]);
     std::thread::sleep(Duration::from_millis(500));
-    let mut daemon = Command::new(env!("CARGO_BIN_EXE_rigslamd"))
+    let log_path = dir.path().join("rigslamd.log");
+    let log = std::fs::File::create(&log_path).expect("daemon log");
+    let mut command = Command::new(env!("CARGO_BIN_EXE_rigslamd"));
+    command
         .arg("--config")
         .arg(&config)
         .arg("--report")
         .arg(&report_path)
-        .env("RUST_LOG", "warn")
+        .env("RUST_LOG", if a.map { "info" } else { "warn" })
         .stdout(Stdio::null())
-        .spawn()
-        .expect("start rigslamd");
+        .stderr(log);
+    if let Some(cpu) = a.cpu {
+        pin_to(&mut command, cpu);
+    }
+    let mut daemon = command.spawn().expect("start rigslamd");
     let pid = daemon.id();
     let started = Instant::now();
     let sample_every = if loops > 1 {
@@ -168,7 +280,14 @@ fn main() {
     let mut next = started;
     loop {
         if let Some(status) = daemon.try_wait().expect("poll rigslamd") {
-            assert!(status.success(), "rigslamd failed: {status:?}");
+            if !status.success() {
+                let log = std::fs::read_to_string(&log_path).unwrap_or_default();
+                let tail: Vec<&str> = log.lines().rev().take(20).collect();
+                panic!(
+                    "rigslamd failed: {status:?}; its last log lines:\n{}",
+                    tail.into_iter().rev().collect::<Vec<_>>().join("\n")
+                );
+            }
             break;
         }
         if Instant::now() >= next {
@@ -206,8 +325,11 @@ fn main() {
         .iter()
         .find(|m| m["t_s"].as_f64().unwrap_or(0.0) >= 60.0)
         .and_then(|m| m["rss_mib"].as_f64());
+    let saves = map_saves(&std::fs::read_to_string(&log_path).unwrap_or_default());
     let out = serde_json::json!({
         "dataset": dataset,
+        "absolute": a.absolute,
+        "cpu": a.cpu,
         "sequence_s": span_s,
         "loops": loops,
         "wall_s": wall_s,
@@ -238,6 +360,8 @@ fn main() {
         "rss_last_mib": rss.last(),
         "rss_max_mib": rss.iter().cloned().fold(f64::NAN, f64::max),
         "memory": if loops > 1 { serde_json::Value::Array(memory) } else { serde_json::Value::Null },
+        "map": daemon_report["map"],
+        "map_saves": saves,
     });
     if loops > 1 {
         eprintln!();

@@ -75,6 +75,9 @@ pub struct Health {
     pub map_landmarks: AtomicU64,
     /// Saves of the map so far.
     pub map_saves: AtomicU64,
+    /// Unknowns of the absolute stage's last map solve (3 per landmark
+    /// or frame node): what its solves cost grows with this.
+    pub map_unknowns: AtomicU64,
     /// How far the absolute stage has turned the relative stage's
     /// orientation to fit its map, degrees as f64 bits (0 until it has).
     orientation_offset_deg_bits: AtomicU64,
@@ -292,8 +295,9 @@ impl Health {
         let turned = f64::from_bits(self.orientation_offset_deg_bits.load(Ordering::Relaxed));
         match self.map_mode.load(Ordering::Relaxed) {
             MAP_BUILDING => Some(format!(
-                "map: building, {} saves ({landmarks} landmarks at the last), orientation turned {turned:.2} deg to fit it",
-                self.map_saves.load(Ordering::Relaxed)
+                "map: building, {} saves ({landmarks} landmarks at the last), {} unknowns in the last solve, orientation turned {turned:.2} deg to fit it",
+                self.map_saves.load(Ordering::Relaxed),
+                self.map_unknowns.load(Ordering::Relaxed)
             )),
             MAP_LOCALISING => Some(format!(
                 "map: localising in the saved map ({landmarks} landmarks)"
@@ -646,10 +650,11 @@ mod tests {
         health.map_mode.store(MAP_BUILDING, Ordering::Relaxed);
         health.map_landmarks.store(812, Ordering::Relaxed);
         health.map_saves.store(3, Ordering::Relaxed);
+        health.map_unknowns.store(3120, Ordering::Relaxed);
         health.record_orientation_offset_deg(0.4271);
         assert_eq!(
             health.map_words().as_deref(),
-            Some("map: building, 3 saves (812 landmarks at the last), orientation turned 0.43 deg to fit it")
+            Some("map: building, 3 saves (812 landmarks at the last), 3120 unknowns in the last solve, orientation turned 0.43 deg to fit it")
         );
     }
 

@@ -158,9 +158,10 @@ fn save(path: &Path, map: &SavedMap, health: &Health) {
                 .map_landmarks
                 .store(map.landmarks.len() as u64, Ordering::Relaxed);
             tracing::info!(
-                "map saved: {} landmarks to {}",
+                "map saved: {} landmarks to {} ({} unknowns in the last solve)",
                 map.landmarks.len(),
-                path.display()
+                path.display(),
+                health.map_unknowns.load(Ordering::Relaxed)
             );
         }
         Err(e) => tracing::error!("map not saved (the previous one is kept): {e}"),

@@ -447,7 +447,11 @@ impl Stage {
         health.record_noise_scale(relative.imu_noise_scale(), relative.noise_at_bound());
         health.record_camera_imu(relative.camera_imu());
         if let Some(absolute) = self.pipeline.absolute() {
-            health.record_orientation_offset_deg(absolute.stats().orientation_offset_deg);
+            let stats = absolute.stats();
+            health.record_orientation_offset_deg(stats.orientation_offset_deg);
+            health
+                .map_unknowns
+                .store(stats.last_unknowns as u64, Ordering::Relaxed);
         }
         let output = &frame_out.relative;
         self.fast.on_frame_in_map(output, map_pose(&frame_out));

@@ -51,6 +51,12 @@ pub struct EchoArgs {
     /// `rigslam eval`.
     #[arg(long)]
     tum: Option<PathBuf>,
+    /// Pose streams: also write the odometry-frame pose of every tracking
+    /// sample (the relative stage's, which a map correction never moves)
+    /// to this file as a TUM trajectory. With `--tum`, the two frames side
+    /// by side: `rigslam eval` scores each.
+    #[arg(long)]
+    tum_odom: Option<PathBuf>,
     /// Also write the `--json` object to this file (the per-sample lines
     /// still go to stdout).
     #[arg(long)]
@@ -112,10 +118,11 @@ pub fn run(args: EchoArgs) -> anyhow::Result<()> {
         root_path: args.root_path.clone(),
         group: None,
     };
-    if args.tum.is_some() && service.ends_with("status") {
-        anyhow::bail!("--tum needs a pose stream, not {service}");
+    if (args.tum.is_some() || args.tum_odom.is_some()) && service.ends_with("status") {
+        anyhow::bail!("--tum and --tum-odom need a pose stream, not {service}");
     }
     let mut tracked = Vec::new();
+    let mut tracked_odom = Vec::new();
     let (measured, missed) = if service.ends_with("status") {
         echo::<StatusMessage>(&args, &config, &service, &mut |m, latency_us, print| {
             if print {
@@ -127,14 +134,23 @@ pub fn run(args: EchoArgs) -> anyhow::Result<()> {
             if print {
                 print_pose(m, latency_us);
             }
-            if args.tum.is_some() && m.state() == Some(TrackingState::Tracking) {
-                tracked.push(stamped_pose(m));
+            if m.state() == Some(TrackingState::Tracking) {
+                if args.tum.is_some() {
+                    tracked.push(stamped_pose(m));
+                }
+                if args.tum_odom.is_some() {
+                    tracked_odom.push(stamped_odom_pose(m));
+                }
             }
         })?
     };
     if let Some(path) = &args.tum {
         write_tum(path, &Trajectory::new(tracked))
             .with_context(|| format!("writing --tum {}", path.display()))?;
+    }
+    if let Some(path) = &args.tum_odom {
+        write_tum(path, &Trajectory::new(tracked_odom))
+            .with_context(|| format!("writing --tum-odom {}", path.display()))?;
     }
     let received = measured.receive_t_ns.len() as u64;
     if received == 0 {
@@ -236,6 +252,17 @@ fn echo<T: Message>(
 fn stamped_pose(m: &PoseMessage) -> StampedPose {
     let [px, py, pz] = m.position_world_m;
     let [qx, qy, qz, qw] = m.orientation_world_body_xyzw;
+    StampedPose::new(
+        m.t_ns,
+        Vector3::new(px, py, pz),
+        UnitQuaternion::from_quaternion(Quaternion::new(qw, qx, qy, qz)),
+    )
+}
+
+/// The odometry-frame pose of `m` (the relative stage's).
+fn stamped_odom_pose(m: &PoseMessage) -> StampedPose {
+    let [px, py, pz] = m.position_odom_m;
+    let [qx, qy, qz, qw] = m.orientation_odom_body_xyzw;
     StampedPose::new(
         m.t_ns,
         Vector3::new(px, py, pz),
