@@ -47,5 +47,6 @@ pub mod simulate;
 pub mod slam_config;
 pub mod slam_pipeline;
 pub mod text_file;
+pub mod thread_priority;
 pub mod trajectory;
 pub mod two_view;

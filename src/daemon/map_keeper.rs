@@ -21,6 +21,10 @@ use crate::slam_pipeline::{SecondStage, SlamPipeline};
 use super::config::MapConfig;
 use super::health::{Health, MAP_BUILDING, MAP_LOCALISING};
 
+/// How much nicer the periodic map save thread is than the frame path
+/// (see [`crate::absolute::solve_schedule::MAP_SOLVE_NICE`]).
+const MAP_SAVE_NICE: i32 = 10;
+
 /// The map file and its saves.
 pub struct MapKeeper {
     path: PathBuf,
@@ -94,7 +98,10 @@ impl MapKeeper {
         let (path, health) = (self.path.clone(), Arc::clone(&self.health));
         let spawned = std::thread::Builder::new()
             .name("map-save".into())
-            .spawn(move || save(&path, &map, &health));
+            .spawn(move || {
+                crate::thread_priority::lower_this_threads_priority(MAP_SAVE_NICE);
+                save(&path, &map, &health)
+            });
         match spawned {
             Ok(handle) => self.writer = Some(handle),
             Err(e) => tracing::warn!("map not saved: cannot start its thread: {e}"),
