@@ -12,10 +12,10 @@
 //!   sequence is looped for M minutes (the soak: memory must stay flat).
 //!
 //! `cargo bench -p rigslam --bench daemon -- [--dataset DIR] [--minutes M]
-//! [--mode MODE] [--absolute] [--map] [--cpu N] [--tum-dir DIR]`
+//! [--mode MODE] [--relative-only] [--map] [--cpu N] [--tum-dir DIR]`
 //! (default: `../shared/data/euroc/V1_01_micro` played once at recorded
-//! pace, the relative stage alone). `--absolute` runs both stages
-//! (`[slam.absolute] enabled = true`); `--map` gives the daemon a map file
+//! pace, both stages as the daemon runs them by default).
+//! `--relative-only` sets `[slam.absolute] enabled = false`; `--map` gives the daemon a map file
 //! saved every 60 s of sensor time, and the map's size at each save
 //! (landmarks, unknowns of the last solve, from the daemon's log) is
 //! reported over time; `--cpu N` pins the daemon and its threads to core N
@@ -34,7 +34,7 @@ struct Args {
     dataset: PathBuf,
     minutes: Option<f64>,
     mode: Option<String>,
-    absolute: bool,
+    relative_only: bool,
     map: bool,
     cpu: Option<usize>,
     tum_dir: Option<PathBuf>,
@@ -48,7 +48,7 @@ fn args() -> Args {
         )),
         minutes: None,
         mode: None,
-        absolute: false,
+        relative_only: false,
         map: false,
         cpu: None,
         tum_dir: None,
@@ -65,7 +65,7 @@ fn args() -> Args {
                 )
             }
             "--mode" => a.mode = Some(it.next().expect("--mode MODE")),
-            "--absolute" => a.absolute = true,
+            "--relative-only" => a.relative_only = true,
             "--map" => a.map = true,
             "--cpu" => {
                 a.cpu = Some(
@@ -209,8 +209,8 @@ fn main() {
         .as_ref()
         .map(|m| format!("[slam]\nmode = {m:?}\n"))
         .unwrap_or_default();
-    let absolute = if a.absolute {
-        "[slam.absolute]\nenabled = true\n"
+    let absolute = if a.relative_only {
+        "[slam.absolute]\nenabled = false\n"
     } else {
         ""
     };
@@ -328,7 +328,7 @@ fn main() {
     let saves = map_saves(&std::fs::read_to_string(&log_path).unwrap_or_default());
     let out = serde_json::json!({
         "dataset": dataset,
-        "absolute": a.absolute,
+        "absolute": !a.relative_only,
         "cpu": a.cpu,
         "sequence_s": span_s,
         "loops": loops,

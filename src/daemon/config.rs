@@ -280,9 +280,33 @@ pub struct SlamConfig {
     /// `[slam.relative]`: the keys of `[relative]` in `rigslam run --config`.
     pub relative: RelativeConfig,
     /// `[slam.absolute]`: the keys of `[absolute]` in `rigslam run
-    /// --config`; with `enabled = true` the absolute stage runs after
-    /// the relative one and `rigslam/pose` carries its corrected position.
+    /// --config`. The absolute stage runs after the relative one and
+    /// `rigslam/pose` carries its corrected pose unless `enabled = false`:
+    /// on by default here, where a robot runs for hours and revisits its
+    /// places (`rigslam run` runs it with `--absolute`).
+    #[serde(deserialize_with = "absolute_on_unless_disabled")]
     pub absolute: AbsoluteSettings,
+}
+
+/// `[slam.absolute]` with `enabled = true` when the table does not say.
+fn absolute_on_unless_disabled<'de, D>(d: D) -> Result<AbsoluteSettings, D::Error>
+where
+    D: serde::Deserializer<'de>,
+{
+    use serde::Deserialize;
+    let mut table = toml::Table::deserialize(d)?;
+    table.entry("enabled").or_insert(toml::Value::Boolean(true));
+    toml::Value::Table(table)
+        .try_into()
+        .map_err(serde::de::Error::custom)
+}
+
+/// The daemon's absolute stage settings when `[slam.absolute]` is absent.
+fn absolute_on() -> AbsoluteSettings {
+    AbsoluteSettings {
+        enabled: true,
+        ..AbsoluteSettings::default()
+    }
 }
 
 impl SlamConfig {
@@ -301,7 +325,7 @@ impl Default for SlamConfig {
             mode: SensorMode::StereoInertial,
             estimator: EstimatorKind::Window,
             relative: RelativeConfig::default(),
-            absolute: AbsoluteSettings::default(),
+            absolute: absolute_on(),
         }
     }
 }
@@ -1064,5 +1088,31 @@ mod tests {
                 && e.contains("ros2"),
             "{e}"
         );
+    }
+
+    /// Both stages run unless `[slam.absolute] enabled = false`, also when
+    /// the table sets other keys; its keys are still checked.
+    #[test]
+    fn the_absolute_stage_is_on_unless_disabled() {
+        let config = DaemonConfig::parse(LIVE).expect("valid");
+        assert!(config.slam.absolute.enabled);
+        let config =
+            DaemonConfig::parse(&format!("{LIVE}[slam]\nmode = \"stereo\"\n")).expect("valid");
+        assert!(config.slam.absolute.enabled);
+        let config = DaemonConfig::parse(&format!(
+            "{LIVE}[slam.absolute]\norientation_sigma_rad_per_sqrt_s = 0.0001\n"
+        ))
+        .expect("valid");
+        assert!(config.slam.absolute.enabled);
+        assert_eq!(
+            config.slam.absolute.orientation_sigma_rad_per_sqrt_s,
+            0.0001
+        );
+        let config = DaemonConfig::parse(&format!("{LIVE}[slam.absolute]\nenabled = false\n"))
+            .expect("valid");
+        assert!(!config.slam.absolute.enabled);
+        let e = DaemonConfig::parse(&format!("{LIVE}[slam.absolute]\nenable = false\n"))
+            .expect_err("not a key");
+        assert!(e.contains("enable"), "{e}");
     }
 }
