@@ -51,8 +51,19 @@ fn demo_runs_the_whole_chain_and_reports_measured_numbers() {
         (live_ate - offline_ate).abs() < 0.05,
         "live ATE {live_ate} m against {offline_ate} m offline"
     );
+    // The daemon runs both stages: the map-frame poses and the
+    // odometry-frame ones (the relative stage's, which the offline run
+    // also gives) are both scored.
+    let live_odom_ate = live["eval_odom"]["ate_rmse_m"]
+        .as_f64()
+        .expect("live odometry-frame ATE");
+    assert!(
+        (live_odom_ate - offline_ate).abs() < 0.05,
+        "live odometry-frame ATE {live_odom_ate} m against {offline_ate} m offline"
+    );
     assert!(live["frame_to_pose_p50_ms"].as_f64().expect("latency") > 0.0);
     assert!(out.path().join("live_stereo-inertial.tum").is_file());
+    assert!(out.path().join("live_stereo-inertial_odom.tum").is_file());
     assert!(out.path().join("synthetic_stereo-inertial.tum").is_file());
     assert!(out.path().join("synthetic_stereo-inertial.png").is_file());
     assert!(out.path().join("sequence/mav0/cam1/data.csv").is_file());
