@@ -85,6 +85,12 @@ def main():
     p.add_argument("--yaw-swing-rad", type=float, default=0.9, help="how far the cameras turn each way [0.9]")
     p.add_argument("--rate-hz", type=float, default=200.0, help="samples per second [200]")
     p.add_argument("--laps", type=int, default=1, help="laps one after the other in the file [1]")
+    p.add_argument(
+        "--reverse",
+        action="store_true",
+        help="drive the lap the other way round, the cameras swinging the other way: "
+        "another trajectory through the same room (the same extent, so the same rendered room)",
+    )
     args = p.parse_args()
     lap_total = args.lap_s + 2.0 * args.rest_s
     n = int(round(lap_total * args.laps * args.rate_hz))
@@ -94,6 +100,8 @@ def main():
             t = i / args.rate_hz
             in_lap = t - lap_total * min(int(t // lap_total), args.laps - 1)
             u = smootherstep((in_lap - args.rest_s) / args.lap_s)
+            if args.reverse:
+                u = 1.0 - u
             (x, y, z), r = pose(u, args)
             q = quaternion(r)
             f.write(f"{t:.6f} {x:.9f} {y:.9f} {z:.9f} {q[0]:.12f} {q[1]:.12f} {q[2]:.12f} {q[3]:.12f}\n")
