@@ -16,7 +16,7 @@ pub fn lower_this_threads_priority(steps: i32) {
         if now == -1 && *libc::__errno_location() != 0 {
             true
         } else {
-            libc::setpriority(libc::PRIO_PROCESS, tid, (now + steps).min(19)) != 0
+            libc::setpriority(libc::PRIO_PROCESS, tid, (now + steps.max(0)).min(19)) != 0
         }
     };
     if failed {
