@@ -78,6 +78,13 @@ pub struct Health {
     /// Unknowns of the absolute stage's last map solve (3 per landmark
     /// or frame node): what its solves cost grows with this.
     pub map_unknowns: AtomicU64,
+    /// Localising in a saved map: frames so far, frames placed in the
+    /// map, and whether the last frame was.
+    pub map_frames: AtomicU64,
+    /// See [`Self::map_frames`].
+    pub map_frames_placed: AtomicU64,
+    /// See [`Self::map_frames`].
+    pub map_placed_now: AtomicBool,
     /// How far the absolute stage has turned the relative stage's
     /// orientation to fit its map, degrees as f64 bits (0 until it has).
     orientation_offset_deg_bits: AtomicU64,
@@ -299,11 +306,32 @@ impl Health {
                 self.map_saves.load(Ordering::Relaxed),
                 self.map_unknowns.load(Ordering::Relaxed)
             )),
-            MAP_LOCALISING => Some(format!(
-                "map: localising in the saved map ({landmarks} landmarks)"
-            )),
+            MAP_LOCALISING => {
+                let frames = self.map_frames.load(Ordering::Relaxed);
+                let placed = self.map_frames_placed.load(Ordering::Relaxed);
+                let now = if self.map_placed_now.load(Ordering::Relaxed) {
+                    "placed in it"
+                } else if placed == 0 {
+                    "not placed in it yet: poses are in the odometry frame until it is (a robot outside the mapped place never will; move the map file away to build a new one)"
+                } else {
+                    "not placed in it now: poses are in the odometry frame until it is again"
+                };
+                Some(format!(
+                    "map: localising in the saved map ({landmarks} landmarks), {now}; {placed} of {frames} frames placed"
+                ))
+            }
             _ => None,
         }
+    }
+
+    /// After each frame while localising in a saved map: whether the
+    /// frame was placed in it.
+    pub fn record_map_placement(&self, placed: bool) {
+        self.map_frames.fetch_add(1, Ordering::Relaxed);
+        if placed {
+            self.map_frames_placed.fetch_add(1, Ordering::Relaxed);
+        }
+        self.map_placed_now.store(placed, Ordering::Relaxed);
     }
 
     /// The absolute stage's orientation offset after a frame, degrees.
@@ -655,6 +683,37 @@ mod tests {
         assert_eq!(
             health.map_words().as_deref(),
             Some("map: building, 3 saves (812 landmarks at the last), 3120 unknowns in the last solve, orientation turned 0.43 deg to fit it")
+        );
+    }
+
+    /// Localising: the words say whether the robot is placed in the map,
+    /// and what a robot that never is should do.
+    #[test]
+    fn the_map_words_say_whether_the_robot_is_placed_in_the_saved_map() {
+        let health = Health::new();
+        health.map_mode.store(MAP_LOCALISING, Ordering::Relaxed);
+        health.map_landmarks.store(2180, Ordering::Relaxed);
+        for _ in 0..3 {
+            health.record_map_placement(false);
+        }
+        let words = health.map_words().expect("words");
+        assert!(
+            words.contains("not placed in it yet")
+                && words.contains("move the map file away")
+                && words.contains("0 of 3 frames placed"),
+            "{words}"
+        );
+        health.record_map_placement(true);
+        let words = health.map_words().expect("words");
+        assert!(
+            words.contains("2180 landmarks), placed in it; 1 of 4 frames placed"),
+            "{words}"
+        );
+        health.record_map_placement(false);
+        let words = health.map_words().expect("words");
+        assert!(
+            words.contains("not placed in it now") && words.contains("1 of 5 frames placed"),
+            "{words}"
         );
     }
 

@@ -28,7 +28,7 @@ use crate::slam_config::SlamSettings;
 use crate::slam_pipeline::{PipelineError, PipelineFrame, SecondStage, SlamPipeline};
 
 use super::fast_pose::FastPropagator;
-use super::health::{Health, SkipLog};
+use super::health::{Health, SkipLog, MAP_LOCALISING};
 use super::map_keeper::MapKeeper;
 use super::queue::BoundedQueue;
 
@@ -452,6 +452,9 @@ impl Stage {
             health
                 .map_unknowns
                 .store(stats.last_unknowns as u64, Ordering::Relaxed);
+        }
+        if health.map_mode.load(Ordering::Relaxed) == MAP_LOCALISING {
+            health.record_map_placement(frame_out.localised.is_some());
         }
         let output = &frame_out.relative;
         self.fast.on_frame_in_map(output, map_pose(&frame_out));
