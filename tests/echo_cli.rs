@@ -23,27 +23,13 @@ fn echo_json(name: &str, offset_ns: i64) -> (serde_json::Value, u64) {
         group: None,
     };
     let stop = Arc::new(AtomicBool::new(false));
-    let publisher = {
-        let config = config.clone();
-        let stop = Arc::clone(&stop);
-        thread::spawn(move || {
-            let mut publisher = PosePublisher::open(&config).expect("publisher");
-            let mut sent = 0u64;
-            // Publish at about 1 kHz until echo has exited (the pacing only
-            // keeps the CPU free; nothing below depends on it).
-            while !stop.load(Ordering::Relaxed) {
-                let msg = PoseMessage::new(
-                    host_monotonic_ns() + offset_ns,
-                    TrackingState::Tracking,
-                    &Isometry3::identity(),
-                );
-                publisher.publish(&msg).expect("publish");
-                sent += 1;
-                thread::sleep(Duration::from_millis(1));
-            }
-            sent
-        })
-    };
+    let publisher = publish_until_stopped(&config, &stop, move |_| {
+        PoseMessage::new(
+            host_monotonic_ns() + offset_ns,
+            TrackingState::Tracking,
+            &Isometry3::identity(),
+        )
+    });
     let output = Command::new(env!("CARGO_BIN_EXE_rigslam"))
         .args(["echo", "--service"])
         .arg(format!("{}/pose", config.service_prefix))
@@ -65,6 +51,28 @@ fn echo_json(name: &str, offset_ns: i64) -> (serde_json::Value, u64) {
     assert!(sent >= COUNT, "echo received {COUNT} of {sent} sent");
     assert_eq!(report["service"], format!("{}/pose", config.service_prefix));
     (report, sent)
+}
+
+/// A thread that publishes `message(k)`, k = 0, 1, ..., on `config`'s
+/// pose service at about 1 kHz until `stop` is set, and returns how many
+/// it sent (the pacing only keeps the CPU free; nothing depends on it).
+fn publish_until_stopped(
+    config: &IpcConfig,
+    stop: &Arc<AtomicBool>,
+    message: impl Fn(i64) -> PoseMessage + Send + 'static,
+) -> thread::JoinHandle<u64> {
+    let config = config.clone();
+    let stop = Arc::clone(stop);
+    thread::spawn(move || {
+        let mut publisher = PosePublisher::open(&config).expect("publisher");
+        let mut sent = 0u64;
+        while !stop.load(Ordering::Relaxed) {
+            publisher.publish(&message(sent as i64)).expect("publish");
+            sent += 1;
+            thread::sleep(Duration::from_millis(1));
+        }
+        sent
+    })
 }
 
 #[test]
@@ -162,27 +170,16 @@ fn echo_writes_the_map_and_odometry_frames_side_by_side() {
         UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.3),
     );
     let stop = Arc::new(AtomicBool::new(false));
-    let publisher = {
-        let config = config.clone();
-        let stop = Arc::clone(&stop);
-        thread::spawn(move || {
-            let mut publisher = PosePublisher::open(&config).expect("publisher");
-            let mut k = 0i64;
-            while !stop.load(Ordering::Relaxed) {
-                // A body moving along a line, seen in the odometry frame.
-                let T_odom_body = Isometry3::translation(0.01 * k as f64, 0.002 * k as f64, 1.0);
-                let msg = PoseMessage::new(
-                    1_000_000_000 + k * 50_000_000,
-                    TrackingState::Tracking,
-                    &(T_world_odom * T_odom_body),
-                )
-                .with_odometry(&T_odom_body, &T_world_odom);
-                publisher.publish(&msg).expect("publish");
-                k += 1;
-                thread::sleep(Duration::from_millis(1));
-            }
-        })
-    };
+    let publisher = publish_until_stopped(&config, &stop, move |k| {
+        // A body moving along a line, seen in the odometry frame.
+        let T_odom_body = Isometry3::translation(0.01 * k as f64, 0.002 * k as f64, 1.0);
+        PoseMessage::new(
+            1_000_000_000 + k * 50_000_000,
+            TrackingState::Tracking,
+            &(T_world_odom * T_odom_body),
+        )
+        .with_odometry(&T_odom_body, &T_world_odom)
+    });
     let dir = tempfile::tempdir().expect("temp dir");
     let (map_tum, odom_tum) = (dir.path().join("map.tum"), dir.path().join("odom.tum"));
     let output = Command::new(env!("CARGO_BIN_EXE_rigslam"))

@@ -5,7 +5,6 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use anyhow::Context;
-use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use rigslam::daemon::health::rate_words;
 use rigslam::dataset::write_tum;
 use rigslam::publish::{
@@ -136,10 +135,16 @@ pub fn run(args: EchoArgs) -> anyhow::Result<()> {
             }
             if m.state() == Some(TrackingState::Tracking) {
                 if args.tum.is_some() {
-                    tracked.push(stamped_pose(m));
+                    tracked.push(StampedPose {
+                        t_ns: m.t_ns,
+                        T_world_body: m.T_world_body(),
+                    });
                 }
                 if args.tum_odom.is_some() {
-                    tracked_odom.push(stamped_odom_pose(m));
+                    tracked_odom.push(StampedPose {
+                        t_ns: m.t_ns,
+                        T_world_body: m.T_odom_body(),
+                    });
                 }
             }
         })?
@@ -246,28 +251,6 @@ fn echo<T: Message>(
         }
     }
     Ok((measured, subscriber.missed()))
-}
-
-/// `T_world_body` of a message.
-fn stamped_pose(m: &PoseMessage) -> StampedPose {
-    let [px, py, pz] = m.position_world_m;
-    let [qx, qy, qz, qw] = m.orientation_world_body_xyzw;
-    StampedPose::new(
-        m.t_ns,
-        Vector3::new(px, py, pz),
-        UnitQuaternion::from_quaternion(Quaternion::new(qw, qx, qy, qz)),
-    )
-}
-
-/// The odometry-frame pose of `m` (the relative stage's).
-fn stamped_odom_pose(m: &PoseMessage) -> StampedPose {
-    let [px, py, pz] = m.position_odom_m;
-    let [qx, qy, qz, qw] = m.orientation_odom_body_xyzw;
-    StampedPose::new(
-        m.t_ns,
-        Vector3::new(px, py, pz),
-        UnitQuaternion::from_quaternion(Quaternion::new(qw, qx, qy, qz)),
-    )
 }
 
 fn print_pose(m: &PoseMessage, latency_us: f64) {
