@@ -135,10 +135,41 @@ impl SlamPipeline {
     }
 
     /// One frame, after the IMU samples up to it and the first one past
-    /// it.
+    /// it: its pose, as soon as it is known. On a keyframe the relative
+    /// stage answers with the pose as tracked and optimises its window in
+    /// [`Self::finish_frame`]; the second stage then carries its last
+    /// correction to that pose (the map->odom transform of the frame
+    /// before) and takes the frame itself, optimised, in `finish_frame`.
+    /// Call `finish_frame` after using the answer; this does it first if
+    /// the caller did not, so the poses never depend on the caller.
     pub fn push_frame(&mut self, input: &FrameInput<'_>) -> PipelineFrame {
+        self.finish_frame();
         let relative = self.relative.push_frame(input);
-        self.second_stage(relative)
+        if !self.relative.work_pending() {
+            return self.second_stage(relative);
+        }
+        let start = Instant::now();
+        let corrected = self.absolute.as_ref().map(|stage| stage.carry(&relative));
+        let localised = self
+            .localiser
+            .as_ref()
+            .and_then(|localiser| localiser.carry(&relative));
+        PipelineFrame {
+            relative,
+            corrected,
+            localised,
+            second_stage_ms: start.elapsed().as_secs_f64() * 1e3,
+        }
+    }
+
+    /// The work the last frame left (see [`Self::push_frame`]): the
+    /// relative stage's window optimisation and the second stage on the
+    /// optimised frame. Their answer for that frame, which is not the one
+    /// published but what the estimate goes on from (None when nothing
+    /// was left).
+    pub fn finish_frame(&mut self) -> Option<PipelineFrame> {
+        let refined = self.relative.finish_frame()?;
+        Some(self.second_stage(refined))
     }
 
     /// The second stage on a relative-stage output.
@@ -183,9 +214,10 @@ impl SlamPipeline {
         self.localiser.as_ref()
     }
 
-    /// Waits for the absolute stage's map solve in flight, if any (end of
-    /// a run).
+    /// Does the work the last frame left and waits for the absolute
+    /// stage's map solve in flight, if any (end of a run).
     pub fn finish(&mut self) {
+        self.finish_frame();
         if let Some(stage) = self.absolute.as_mut() {
             stage.wait_for_solve();
         }

@@ -200,6 +200,35 @@ impl MapLocaliser {
         self.state.as_ref().map(|s| s.T_map_world)
     }
 
+    /// The pose in the map of a frame the localiser has not taken yet
+    /// (see [`crate::slam_pipeline::SlamPipeline::push_frame`]): its last
+    /// position moved by the frame's relative motion, as `push` would
+    /// before any correction; None when not localised. The localiser
+    /// itself is unchanged.
+    pub fn carry(&self, output: &RelativeOutput) -> Option<LocalisedPose> {
+        let state = self.state.as_ref()?;
+        if output.state != TrackingState::Tracking || !pose_is_finite(output) {
+            return None;
+        }
+        let delta = state.T_map_world.rotation * output.delta_translation_world_m;
+        let delta = if delta.iter().all(|v| v.is_finite()) {
+            delta
+        } else {
+            Vector3::zeros()
+        };
+        let q =
+            Matrix3::identity() * self.config.translation_sigma_per_sqrt_m.powi(2) * delta.norm();
+        Some(LocalisedPose {
+            t_ns: output.t_ns,
+            T_map_body: Isometry3::from_parts(
+                Translation3::from(state.filter.position_world_m() + delta),
+                state.T_map_world.rotation * output.T_world_body.rotation,
+            ),
+            position_covariance_m2: state.filter.covariance_m2() + q,
+            landmarks_used: 0,
+        })
+    }
+
     /// Processes one frame; the pose in the map once localised.
     pub fn push(&mut self, output: &RelativeOutput) -> Option<LocalisedPose> {
         self.stats.frames += 1;

@@ -275,6 +275,41 @@ impl AbsoluteStage {
         self.solver.inline_worker()
     }
 
+    /// The pose of a frame the stage has not taken yet (see
+    /// [`crate::slam_pipeline::SlamPipeline::push_frame`]): the filter's
+    /// position moved by the frame's relative motion and the orientation
+    /// turned by the current offset, as `push` would before any
+    /// correction; the stage itself is unchanged.
+    pub fn carry(&self, output: &RelativeOutput) -> CorrectedPose {
+        let offset = self.orientation_offset();
+        let delta = offset * output.delta_translation_world_m;
+        let delta = if delta.iter().all(|v| v.is_finite()) {
+            delta
+        } else {
+            Vector3::zeros()
+        };
+        let (translation, covariance) = match &self.filter {
+            Some(f) => {
+                let q = Matrix3::identity()
+                    * self.config.translation_sigma_per_sqrt_m.powi(2)
+                    * delta.norm();
+                (f.position_world_m() + delta, Some(f.covariance_m2() + q))
+            }
+            None => (output.T_world_body.translation.vector, None),
+        };
+        CorrectedPose {
+            t_ns: output.t_ns,
+            T_world_body: Isometry3::from_parts(
+                Translation3::from(translation),
+                offset * output.T_world_body.rotation,
+            ),
+            position_covariance_m2: covariance,
+            landmarks_used: 0,
+            map_version: self.map.as_ref().map_or(0, |m| m.version),
+            nis: 0.0,
+        }
+    }
+
     /// Counters and timings so far.
     pub fn stats(&self) -> &AbsoluteStats {
         &self.stats

@@ -462,9 +462,6 @@ impl Stage {
             .tracking_state
             .store(tracking_state_code(output.state), Ordering::Relaxed);
         let message = frame_message(&frame_out);
-        if let Some(keeper) = self.map.as_mut() {
-            keeper.after_frame(frame.t_ns, &self.pipeline);
-        }
         if sink.pose(&message, output) {
             let now_ns = host_monotonic_ns();
             health.pose_published(now_ns);
@@ -472,6 +469,13 @@ impl Stage {
             health.record_latency_us(latency_us);
         } else {
             health.pose_drops.fetch_add(1, Ordering::Relaxed);
+        }
+        // The pose is out: now the work it did not wait for (a keyframe's
+        // window optimisation, the second stage on the optimised frame),
+        // then the map's periodic save.
+        self.pipeline.finish_frame();
+        if let Some(keeper) = self.map.as_mut() {
+            keeper.after_frame(frame.t_ns, &self.pipeline);
         }
     }
 }

@@ -43,6 +43,14 @@ impl RelativeEstimator for ShiftedFrames {
         })
     }
 
+    fn finish_frame(&mut self) -> Option<RelativeOutput> {
+        self.inner.finish_frame()
+    }
+
+    fn work_pending(&self) -> bool {
+        self.inner.work_pending()
+    }
+
     fn last_timings(&self) -> &FrameTimings {
         self.inner.last_timings()
     }

@@ -173,7 +173,23 @@ pub trait RelativeEstimator {
     /// to (and preferably one past) the frame's stamp.
     fn push_frame(&mut self, frame: &FrameInput<'_>) -> RelativeOutput;
 
-    /// Where the time of the last `push_frame` went.
+    /// Work the last frame left for after its answer went out (the
+    /// windowed estimator optimises a keyframe's window after giving the
+    /// keyframe's pose as tracked), and the frame's answer as it then
+    /// stands; None when nothing was left. The next `push_frame` does the
+    /// work first if the caller has not, so the estimates never depend on
+    /// when (or whether) this is called; a caller that publishes poses
+    /// calls it after publishing, to keep the work off the frame's latency.
+    fn finish_frame(&mut self) -> Option<RelativeOutput> {
+        None
+    }
+
+    /// Whether the last frame left work for [`Self::finish_frame`].
+    fn work_pending(&self) -> bool {
+        false
+    }
+
+    /// Where the time of the last `push_frame` (and `finish_frame`) went.
     fn last_timings(&self) -> &FrameTimings;
 
     /// Counters for the run report (dropped samples, lost events, ...).

@@ -151,8 +151,21 @@ pub struct WindowOdometry {
     /// is the same (see [`image_digest`]).
     previous_left_digest: Option<u64>,
     repeated_frame: bool,
+    /// A keyframe whose pose went out before the window optimised it:
+    /// the optimisation waits for [`RelativeEstimator::finish_frame`].
+    deferred: Option<DeferredKeyframe>,
     timings: FrameTimings,
     counters: Counters,
+}
+
+/// What a keyframe's window optimisation needs once its pose is out.
+struct DeferredKeyframe {
+    state: KeyframeState,
+    frame: TrackedFrame,
+    pre: Option<Preintegrated>,
+    tracking: TrackingState,
+    /// The frame's own marginal, for its answer if the window refuses it.
+    frame_marginal: Option<Matrix6<f64>>,
 }
 
 /// A 64-bit digest of an image's bytes, to notice a frame handed over
@@ -225,6 +238,7 @@ impl WindowOdometry {
             resume: None,
             previous_left_digest: None,
             repeated_frame: false,
+            deferred: None,
             timings: FrameTimings::default(),
             counters: Counters::default(),
         })
@@ -286,6 +300,24 @@ impl WindowOdometry {
         tracking: TrackingState,
         frame: Option<&TrackedFrame>,
     ) -> RelativeOutput {
+        let given = self.frame_marginal.take();
+        let out = self.answer(state, tracking, frame, given);
+        if let Some(c) = out.pose_covariance {
+            self.last_covariance = Some((state.T_world_body, c));
+        }
+        self.last_output = Some(out.clone());
+        out
+    }
+
+    /// The answer for `state` (the frame's own marginal `given`), without
+    /// recording it as the last one.
+    fn answer(
+        &self,
+        state: &KeyframeState,
+        tracking: TrackingState,
+        frame: Option<&TrackedFrame>,
+        given: Option<Matrix6<f64>>,
+    ) -> RelativeOutput {
         let previous = self
             .last_output
             .as_ref()
@@ -295,17 +327,11 @@ impl WindowOdometry {
             Some(f) if tracking == TrackingState::Tracking => self.body_landmarks(state, f),
             _ => Vec::new(),
         };
-        let given = self.frame_marginal.take();
         let pose_covariance = match tracking {
             TrackingState::Tracking => self.pose_covariance(state, given),
             _ => None,
         };
-        if let Some(c) = pose_covariance {
-            self.last_covariance = Some((state.T_world_body, c));
-        }
-        let out = RelativeOutput::from_state(state, tracking, previous, landmarks, pose_covariance);
-        self.last_output = Some(out.clone());
-        out
+        RelativeOutput::from_state(state, tracking, previous, landmarks, pose_covariance)
     }
 
     /// The covariance of `state`'s pose: the newest keyframe's, carried
@@ -609,7 +635,38 @@ impl WindowOdometry {
         // A repeated image's observations are the previous frame's: no
         // keyframe from them.
         let keyframe = !carried_over_repeat && (frame.is_keyframe || kf_gap >= MAX_KEYFRAME_GAP_NS);
-        if keyframe && self.add_keyframe(state, &frame, pre) {
+        if keyframe && tracking == TrackingState::Tracking {
+            // The pose goes out as tracked, like any other frame's; the
+            // window's optimisation, which takes most of a keyframe's
+            // time, follows in `finish_frame` (or first thing on the next
+            // frame). The state the next frame starts from, and the
+            // answer the second stage gets, are the optimised ones.
+            // (While initialising, the alignment needs the keyframe now.)
+            let early = self.answer(&state, tracking, Some(&frame), self.frame_marginal);
+            self.deferred = Some(DeferredKeyframe {
+                state,
+                frame,
+                pre,
+                tracking,
+                frame_marginal: self.frame_marginal.take(),
+            });
+            return early;
+        }
+        if keyframe {
+            state = self.optimise_keyframe(state, &frame, pre);
+        }
+        self.settle(state, tracking, &frame)
+    }
+
+    /// Adds the keyframe and optimises the window; the keyframe's
+    /// optimised state (`state` itself if the window refused it).
+    fn optimise_keyframe(
+        &mut self,
+        mut state: KeyframeState,
+        frame: &TrackedFrame,
+        pre: Option<Preintegrated>,
+    ) -> KeyframeState {
+        if self.add_keyframe(state, frame, pre) {
             if let Some(latest) = self.window.latest() {
                 let velocity = state.velocity_world_m_s;
                 state = *latest;
@@ -618,6 +675,31 @@ impl WindowOdometry {
                 }
             }
         }
+        state
+    }
+
+    /// The keyframe optimisation put off by `track`; the keyframe's answer
+    /// with the optimised state (None when none was put off).
+    fn finish_keyframe(&mut self) -> Option<RelativeOutput> {
+        let DeferredKeyframe {
+            state,
+            frame,
+            pre,
+            tracking,
+            frame_marginal,
+        } = self.deferred.take()?;
+        self.frame_marginal = frame_marginal;
+        let state = self.optimise_keyframe(state, &frame, pre);
+        Some(self.settle(state, tracking, &frame))
+    }
+
+    /// A tracked frame's state becomes the last one; its answer.
+    fn settle(
+        &mut self,
+        state: KeyframeState,
+        tracking: TrackingState,
+        frame: &TrackedFrame,
+    ) -> RelativeOutput {
         self.gyro_bias_rad_s = state.biases.gyro_rad_s;
         self.last = Some(state);
         if tracking == TrackingState::Tracking
@@ -625,7 +707,7 @@ impl WindowOdometry {
         {
             self.trust(state);
         }
-        self.output(&state, tracking, Some(&frame))
+        self.output(&state, tracking, Some(frame))
     }
 
     /// Pushes and optimises; false (and counted) when the window refused.
@@ -1101,6 +1183,7 @@ impl RelativeEstimator for WindowOdometry {
 
     fn push_frame(&mut self, frame: &FrameInput<'_>) -> RelativeOutput {
         self.timings.clear();
+        self.finish_keyframe();
         let t_ns = frame.t_ns;
         if let Some(last) = &self.last_output {
             if t_ns <= last.t_ns {
@@ -1135,6 +1218,14 @@ impl RelativeEstimator for WindowOdometry {
             Phase::Aligning => self.align_step(tracked, flow_px),
             Phase::Initializing { .. } | Phase::Resting { .. } => self.initialize(tracked, flow_px),
         }
+    }
+
+    fn finish_frame(&mut self) -> Option<RelativeOutput> {
+        self.finish_keyframe()
+    }
+
+    fn work_pending(&self) -> bool {
+        self.deferred.is_some()
     }
 
     fn last_timings(&self) -> &FrameTimings {

@@ -33,9 +33,14 @@ pub struct RunOutcome {
     /// One pose per frame with a usable estimate from the relative stage
     /// (tracking, or the mono modes' consistently scaled initial poses).
     pub trajectory: Trajectory,
-    /// Wall time per frame: the frame's own call through both stages plus
-    /// the IMU samples delivered since the previous frame, ms.
+    /// Wall time per frame: the frame's own calls through both stages
+    /// (its pose and the work after it) plus the IMU samples delivered
+    /// since the previous frame, ms.
     pub frame_ms: Vec<f64>,
+    /// Wall time from the frame's call to its pose (the IMU samples since
+    /// the previous frame included): the latency a subscriber sees, less
+    /// the sensor's, ms.
+    pub pose_ms: Vec<f64>,
     /// Wall time of each estimator stage per frame (and `imu_push`, the IMU samples before it), ms,
     /// by stage name.
     pub stage_ms: BTreeMap<&'static str, Vec<f64>>,
@@ -96,18 +101,23 @@ pub fn run_stream(
                 };
                 let t = Instant::now();
                 let frame = pipeline.push_frame(&input);
-                let frame_ms = t.elapsed().as_secs_f64() * 1e3 + imu_ms;
-                out.frame_ms.push(frame_ms);
+                let pose_ms = t.elapsed().as_secs_f64() * 1e3 + imu_ms;
+                let t = Instant::now();
+                let finished = pipeline.finish_frame();
+                let after_ms = t.elapsed().as_secs_f64() * 1e3;
+                out.pose_ms.push(pose_ms);
+                out.frame_ms.push(pose_ms + after_ms);
                 out.stage_ms.entry("imu_push").or_default().push(imu_ms);
                 imu_ms = 0.0;
                 for &(name, ms) in &pipeline.relative().last_timings().stages_ms {
                     out.stage_ms.entry(name).or_default().push(ms);
                 }
                 if let Some(name) = second_stage {
+                    let after = finished.as_ref().map_or(0.0, |f| f.second_stage_ms);
                     out.stage_ms
                         .entry(name)
                         .or_default()
-                        .push(frame.second_stage_ms);
+                        .push(frame.second_stage_ms + after);
                 }
                 let output = &frame.relative;
                 out.last_frame_ns = Some(t_ns);

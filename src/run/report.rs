@@ -65,7 +65,8 @@ pub struct RunReport {
     pub sequence_s: f64,
     /// Sequence time over wall time.
     pub realtime_factor: f64,
-    /// Mean wall time per frame, ms (the frame's call plus the IMU samples before it).
+    /// Mean wall time per frame, ms (the frame's calls, its pose and the
+    /// work after it, plus the IMU samples before it).
     pub mean_ms_per_frame: f64,
     /// Median wall time per frame, ms.
     pub p50_ms_per_frame: f64,
@@ -73,6 +74,9 @@ pub struct RunReport {
     pub p99_ms_per_frame: f64,
     /// Largest wall time of a frame, ms.
     pub max_ms_per_frame: f64,
+    /// Wall time from a frame's call to its pose (the IMU samples before
+    /// it included): on a keyframe the window's optimisation comes after.
+    pub pose_latency_ms: Option<TimingStats>,
     /// Timing of each estimator stage, by name.
     pub stages: BTreeMap<String, TimingStats>,
     /// Sequence time of the first frame with a metric (or, in `mono`,

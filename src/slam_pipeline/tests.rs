@@ -162,3 +162,153 @@ fn a_map_built_in_one_drive_places_the_robot_in_another() {
     // the true one up to the map's own error.
     assert!(rms(&placed) < 0.15, "rms {:.3} m: {stats:?}", rms(&placed));
 }
+
+/// Per frame of `dataset` (stereo-inertial) through `p`: the
+/// published relative and corrected poses as bits; `finish` says whether
+/// the caller calls `finish_frame` after each frame (else `push_frame`
+/// does the work first). With `finish`, checks each keyframe on the way:
+/// its pose went out before the window was optimised, and the second
+/// stage took the optimised frame afterwards, not the published one.
+fn published_bits(
+    p: &mut SlamPipeline,
+    dataset: &crate::dataset::Dataset,
+    finish: bool,
+) -> (Vec<Vec<u64>>, usize) {
+    use crate::dataset::{SensorEvent, SensorStream, StreamOptions};
+    let stream = SensorStream::new(
+        dataset,
+        StreamOptions {
+            stereo: true,
+            imu: true,
+            start_ns: None,
+            max_frames: None,
+        },
+    )
+    .expect("stream");
+    let bits = |t: &nalgebra::Isometry3<f64>| -> Vec<u64> {
+        t.translation
+            .vector
+            .iter()
+            .chain(t.rotation.coords.iter())
+            .map(|v| v.to_bits())
+            .collect()
+    };
+    let (mut published, mut moved) = (Vec::new(), 0);
+    for event in stream {
+        match event.expect("event") {
+            SensorEvent::Imu(s) => p.push_imu(&s),
+            SensorEvent::Frame { t_ns, left, right } => {
+                let input = FrameInput {
+                    t_ns,
+                    left: &left.image,
+                    right: right.as_ref().map(|r| &r.image),
+                };
+                let frames_before = p.absolute().map(|s| s.stats().frames);
+                let frame = p.push_frame(&input);
+                let mut row = bits(&frame.relative.T_world_body);
+                if let Some(c) = &frame.corrected {
+                    row.extend(bits(&c.T_world_body));
+                }
+                published.push(row);
+                if !finish {
+                    continue;
+                }
+                let pending = p.relative().work_pending();
+                let optimised_before = p
+                    .relative()
+                    .last_timings()
+                    .stages_ms
+                    .iter()
+                    .any(|(name, _)| *name == "window");
+                let taken = p.absolute().map(|s| s.stats().frames);
+                let refined = p.finish_frame();
+                assert_eq!(pending, refined.is_some(), "frame {t_ns}");
+                let Some(refined) = refined else {
+                    continue;
+                };
+                assert!(
+                    !optimised_before,
+                    "keyframe {t_ns}: window optimised before its pose"
+                );
+                assert!(
+                    p.relative()
+                        .last_timings()
+                        .stages_ms
+                        .iter()
+                        .any(|(name, _)| *name == "window"),
+                    "keyframe {t_ns}: no window optimisation after its pose"
+                );
+                assert!(!p.relative().work_pending());
+                assert_eq!(refined.relative.t_ns, t_ns);
+                // The second stage took this frame only now, optimised.
+                assert_eq!(taken, frames_before, "keyframe {t_ns}");
+                assert_eq!(
+                    p.absolute().map(|s| s.stats().frames),
+                    frames_before.map(|n| n + 1)
+                );
+                if refined.relative.T_world_body != frame.relative.T_world_body {
+                    moved += 1;
+                }
+            }
+        }
+    }
+    (published, moved)
+}
+
+#[test]
+fn a_keyframe_pose_goes_out_before_the_window_optimisation_whoever_calls_it() {
+    // 6 s of the simulator's built-in motion, stereo with its IMU.
+    let dir = tempfile::tempdir().expect("temp dir");
+    let config = crate::simulate::SimConfig {
+        duration_s: Some(6.0),
+        stereo: true,
+        show_progress: false,
+        ..crate::simulate::SimConfig::default()
+    };
+    crate::simulate::simulate(&config, dir.path()).expect("render");
+    let dataset = crate::dataset::open_dataset(dir.path()).expect("dataset");
+    let rig = crate::run::dataset_run::rig_of(&dataset);
+    let mut settings = SlamSettings::default();
+    settings.absolute.enabled = true;
+    let build = || {
+        SlamPipeline::new(
+            EstimatorKind::Window,
+            SensorMode::StereoInertial,
+            &rig,
+            &settings,
+            SecondStage::BuildMap,
+        )
+        .expect("a pipeline")
+    };
+    let (mut a, mut b) = (build(), build());
+    let (finished, moved) = published_bits(&mut a, &dataset, true);
+    let (unfinished, _) = published_bits(&mut b, &dataset, false);
+    a.finish();
+    b.finish();
+    let keyframes = a
+        .relative()
+        .counters()
+        .into_iter()
+        .find(|(name, _)| *name == "keyframes")
+        .map_or(0, |(_, n)| n);
+    assert!(keyframes >= 10, "{keyframes} keyframes");
+    // The optimisation moved the keyframes it was given (the published
+    // pose is the tracked one, not the optimised one).
+    assert!(
+        moved as u64 >= keyframes / 2,
+        "{moved} of {keyframes} moved"
+    );
+    assert_eq!(finished.len(), unfinished.len());
+    for (i, (x, y)) in finished.iter().zip(&unfinished).enumerate() {
+        assert_eq!(
+            x, y,
+            "frame {i}: the poses depend on who finishes the frame"
+        );
+    }
+    let (sa, sb) = (
+        a.absolute().expect("runs").stats(),
+        b.absolute().expect("runs").stats(),
+    );
+    assert_eq!((sa.frames, sa.solves), (sb.frames, sb.solves));
+    assert_eq!(sa.frames, finished.len());
+}
