@@ -12,7 +12,8 @@
 //!   sequence is looped for M minutes (the soak: memory must stay flat).
 //!
 //! `cargo bench -p rigslam --bench daemon -- [--dataset DIR] [--minutes M]
-//! [--mode MODE] [--relative-only] [--map] [--cpu N] [--tum-dir DIR]`
+//! [--mode MODE] [--relative-only] [--map] [--cpu N] [--tum-dir DIR]
+//! [--daemon PATH]`
 //! (default: `../shared/data/euroc/V1_01_micro` played once at recorded
 //! pace, both stages as the daemon runs them by default).
 //! `--relative-only` sets `[slam.absolute] enabled = false`; `--map` gives the daemon a map file
@@ -21,7 +22,8 @@
 //! reported over time; `--cpu N` pins the daemon and its threads to core N
 //! (a small robot computer); `--tum-dir` keeps the subscriber's map-frame
 //! and odometry-frame trajectories (`pose.tum`, `pose_odom.tum`) for
-//! `rigslam eval`. Prints one JSON object. Not a criterion bench: the quantities
+//! `rigslam eval`; `--daemon` runs another build of rigslamd (an older
+//! commit's, to compare two in the same run). Prints one JSON object. Not a criterion bench: the quantities
 //! are distributions of a paced, multi-process run. Never run by CI; the
 //! 30-minute soak is `-- --minutes 30`.
 
@@ -38,6 +40,7 @@ struct Args {
     map: bool,
     cpu: Option<usize>,
     tum_dir: Option<PathBuf>,
+    daemon: Option<PathBuf>,
 }
 
 fn args() -> Args {
@@ -52,6 +55,7 @@ fn args() -> Args {
         map: false,
         cpu: None,
         tum_dir: None,
+        daemon: None,
     };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
@@ -75,6 +79,9 @@ fn args() -> Args {
                 )
             }
             "--tum-dir" => a.tum_dir = Some(it.next().expect("--tum-dir DIR").into()),
+            // Another build of rigslamd (an older commit's) for a
+            // comparison in the same run.
+            "--daemon" => a.daemon = Some(it.next().expect("--daemon PATH").into()),
             // cargo bench passes --bench.
             _ => {}
         }
@@ -255,7 +262,11 @@ fn main() {
     std::thread::sleep(Duration::from_millis(500));
     let log_path = dir.path().join("rigslamd.log");
     let log = std::fs::File::create(&log_path).expect("daemon log");
-    let mut command = Command::new(env!("CARGO_BIN_EXE_rigslamd"));
+    let mut command = Command::new(
+        a.daemon
+            .clone()
+            .unwrap_or_else(|| PathBuf::from(env!("CARGO_BIN_EXE_rigslamd"))),
+    );
     command
         .arg("--config")
         .arg(&config)
