@@ -42,6 +42,7 @@ fn stage_settings() -> StageSettings {
         imu_wait: Duration::from_millis(50),
         imu_stall_ns: 100_000_000,
         max_pending_imu: 4096,
+        live: false,
     }
 }
 

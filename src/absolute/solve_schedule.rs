@@ -100,11 +100,27 @@ impl MapSolver {
             SolveMode::Inline => MapSolver::Inline(worker()),
             SolveMode::Manual => MapSolver::Manual { request: None },
             SolveMode::Background | SolveMode::Pipelined => MapSolver::Thread {
-                thread: SolveThread::spawn(worker()),
+                thread: SolveThread::spawn(worker(), None),
                 in_flight: false,
                 deferred: false,
             },
         }
+    }
+
+    /// The thread of the background and pipelined modes, whose every solve
+    /// first waits for a token on the returned channel (tests: a solve
+    /// that finishes exactly when the test says).
+    #[cfg(test)]
+    pub(super) fn gated(solver: SolverChoice, robust: Option<RobustWeights>) -> (Self, Sender<()>) {
+        let mut worker = MapSolveWorker::new(solver, 1);
+        worker.robust = robust;
+        let (gate_tx, gate_rx) = mpsc::channel();
+        let state = MapSolver::Thread {
+            thread: SolveThread::spawn(worker, Some(gate_rx)),
+            in_flight: false,
+            deferred: false,
+        };
+        (state, gate_tx)
     }
 
     /// Whether the edge map must record its changes for the thread.
@@ -234,7 +250,8 @@ pub const MAP_SOLVE_NICE: i32 = 10;
 impl SolveThread {
     /// Starts `rigslam-map-solve`, which keeps a mirror of the edge map
     /// from the changes it receives and solves it with `worker`.
-    fn spawn(mut worker: MapSolveWorker) -> Self {
+    /// `gate`: each solve first waits for a token on it (tests).
+    fn spawn(mut worker: MapSolveWorker, gate: Option<Receiver<()>>) -> Self {
         let (request_tx, request_rx) = mpsc::channel::<ThreadRequest>();
         let (result_tx, result_rx) = mpsc::channel();
         let handle = std::thread::Builder::new()
@@ -243,6 +260,11 @@ impl SolveThread {
                 crate::thread_priority::lower_this_threads_priority(MAP_SOLVE_NICE);
                 let mut mirror = EdgeMap::new();
                 for request in request_rx {
+                    if let Some(gate) = &gate {
+                        if gate.recv().is_err() {
+                            break;
+                        }
+                    }
                     mirror.apply_changes(&request.changes);
                     let request = MapSolveRequest {
                         version: request.version,

@@ -122,6 +122,10 @@ pub struct AbsoluteStats {
     /// Background mode: requests put off because a solve was still
     /// running.
     pub deferred_solves: usize,
+    /// Pipelined mode on live frames ([`AbsoluteStage::never_wait_for_solves`]):
+    /// solves not done by the frame due to install them, installed on a
+    /// later frame instead of being waited for.
+    pub late_solves: usize,
     /// Pipelined mode: time frames spent waiting for the solve they
     /// install (zero while solves take less than K frames), total and
     /// longest, ms.
@@ -238,6 +242,12 @@ pub struct AbsoluteStage {
     /// Where the map is solved, with what is in flight.
     solver: MapSolver,
     frames_since_solve: usize,
+    /// Pipelined mode: whether the frame due to install a solve waits
+    /// for it (false on live frames).
+    wait_for_due_solves: bool,
+    /// A solve missed the frame due to install it: installed as soon as
+    /// it is done.
+    solve_late: bool,
     next_version: u64,
     /// Map ids in view in the last tracking frame, the most precise
     /// first: the covariance blocks the next solve computes.
@@ -264,10 +274,39 @@ impl AbsoluteStage {
             map: None,
             solver,
             frames_since_solve: 0,
+            wait_for_due_solves: true,
+            solve_late: false,
             next_version: 1,
             in_view: Vec::new(),
             stats: AbsoluteStats::default(),
         }
+    }
+
+    /// Live frames (a camera, a replay at its recorded pace): in
+    /// [`SolveMode::Pipelined`] the frame due to install a solve no longer
+    /// waits for it when it is late; it is installed on the first frame
+    /// after it is done ([`AbsoluteStats::late_solves`]), and the solve
+    /// that frame asked for starts then. A frame never waits for the map
+    /// thread, which runs below the frame path's priority: on one busy
+    /// core, waiting for it would hold the frame for as long as the
+    /// solve's whole run. While solves keep their schedule the maps are
+    /// the ones a repeatable run installs. The other modes are unchanged.
+    pub fn never_wait_for_solves(&mut self) {
+        self.wait_for_due_solves = false;
+    }
+
+    /// A pipelined stage whose every solve waits for a token on the
+    /// returned channel before it starts (tests).
+    #[cfg(test)]
+    pub(crate) fn with_gated_solves(config: AbsoluteConfig) -> (Self, std::sync::mpsc::Sender<()>) {
+        let config = AbsoluteConfig {
+            solve_mode: SolveMode::Pipelined,
+            ..config
+        };
+        let mut stage = Self::new(config);
+        let (solver, gate) = MapSolver::gated(stage.config.solver, stage.config.robust);
+        stage.solver = solver;
+        (stage, gate)
     }
 
     /// The inline worker (Inline mode only), e.g. to measure CG cold starts.
@@ -468,14 +507,29 @@ impl AbsoluteStage {
 
     /// Step 1 of a frame: picks up a finished background solve, or, in
     /// pipelined mode on the frame that requests the next solve, waits
-    /// for the one in flight.
+    /// for the one in flight (on live frames: installs it if it is done,
+    /// else on the first frame after it is).
     fn install_due_solve(&mut self) {
         match self.config.solve_mode {
-            SolveMode::Background => self.poll_background(),
+            SolveMode::Background => {
+                self.poll_background();
+            }
+            SolveMode::Pipelined if self.solve_late => {
+                // Installing it may start the solve deferred meanwhile:
+                // that one keeps the schedule.
+                if self.poll_background() {
+                    self.solve_late = false;
+                }
+            }
             SolveMode::Pipelined
                 if self.frames_since_solve + 1 >= self.config.solve_every_frames =>
             {
-                if self.solver.in_flight() {
+                if self.solver.in_flight() && !self.wait_for_due_solves {
+                    if !self.poll_background() {
+                        self.stats.late_solves += 1;
+                        self.solve_late = true;
+                    }
+                } else if self.solver.in_flight() {
                     let wait = Instant::now();
                     self.wait_for_solve();
                     let waited = wait.elapsed().as_secs_f64() * 1e3;
@@ -535,13 +589,16 @@ impl AbsoluteStage {
         self.install(result);
     }
 
-    fn poll_background(&mut self) {
-        if let Some((result, deferred)) = self.solver.finished(false) {
-            self.install(result);
-            if deferred {
-                self.request_solve();
-            }
+    /// Installs a finished threaded solve, if one is; whether it did.
+    fn poll_background(&mut self) -> bool {
+        let Some((result, deferred)) = self.solver.finished(false) else {
+            return false;
+        };
+        self.install(result);
+        if deferred {
+            self.request_solve();
         }
+        true
     }
 
     fn install(&mut self, result: Result<SolvedMap, EdgeMapError>) {

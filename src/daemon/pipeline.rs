@@ -14,7 +14,7 @@ use crate::relative::{RelativeOutput, RigModel};
 use crate::sensors::ImuSample;
 use crate::slam_pipeline::PipelineError as SlamSetupError;
 
-use super::config::{CameraSource, DaemonConfig, ImuSource};
+use super::config::{CameraSource, DaemonConfig, ImuSource, ReplayPace};
 use super::health::{Health, HealthRules, RateBase};
 use super::queue::{BoundedQueue, WhenFull};
 use super::recorder::{spawn_recorder, RecordSender, RecorderThread};
@@ -256,6 +256,10 @@ impl Pipeline {
             },
             imu_stall_ns: (p.imu_stall_s * 1e9) as i64,
             max_pending_imu: p.imu_queue,
+            live: config
+                .replay
+                .as_ref()
+                .is_none_or(|r| !replay || r.pace != ReplayPace::AsFastAsPossible),
         };
         let inputs = StageInputs {
             frames: frames.clone(),

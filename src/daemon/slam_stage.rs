@@ -77,6 +77,11 @@ pub struct StageSettings {
     /// Most IMU samples held for frames that have not come (camera
     /// stalled); beyond it the oldest go to the estimator unpaired.
     pub max_pending_imu: usize,
+    /// Frames come in real time (a camera, or a replay at its recorded
+    /// pace): a frame never waits for the map solve
+    /// ([`crate::absolute::AbsoluteStage::never_wait_for_solves`]).
+    /// False for a replay as fast as possible, which stays repeatable.
+    pub live: bool,
 }
 
 /// Inputs of the stage, shared with the sources and the supervisor.
@@ -487,13 +492,19 @@ fn build_pipeline(
     rig: &RigModel,
     second: SecondStage,
 ) -> Result<SlamPipeline, PipelineError> {
-    SlamPipeline::new(
+    let mut pipeline = SlamPipeline::new(
         settings.estimator,
         settings.mode,
         rig,
         &settings.slam,
         second,
-    )
+    )?;
+    if settings.live {
+        if let Some(stage) = pipeline.absolute_mut() {
+            stage.never_wait_for_solves();
+        }
+    }
+    Ok(pipeline)
 }
 
 /// The absolute stage's pose of a tracked frame and `T_world_odom`, the

@@ -379,6 +379,83 @@ fn pipelined_solves_install_on_a_fixed_schedule() {
 }
 
 #[test]
+fn on_live_frames_a_late_solve_is_installed_when_done_and_never_waited_for() {
+    // Every solve waits for the test's token: the first is late by
+    // construction. A frame due to install it must not wait (the test
+    // would hang if it did); the solve is installed on the first frame
+    // after it is done, and the solve that was due meanwhile starts then.
+    let run = simulate_room_run(&RoomRunOptions {
+        laps: 0.5,
+        ..RoomRunOptions::default()
+    });
+    let (mut stage, gate) = AbsoluteStage::with_gated_solves(AbsoluteConfig {
+        solver: SolverChoice::Cholesky,
+        ..AbsoluteConfig::default()
+    });
+    stage.never_wait_for_solves();
+    // Should a frame wait after all, a watchdog releases the solves after
+    // 20 s, so that the test fails on `solve_wait_ms` instead of hanging.
+    let (done, watched) = std::sync::mpsc::channel::<()>();
+    let watchdog_gate = gate.clone();
+    let watchdog = std::thread::spawn(move || {
+        if watched
+            .recv_timeout(std::time::Duration::from_secs(20))
+            .is_err()
+        {
+            for _ in 0..10_000 {
+                let _ = watchdog_gate.send(());
+            }
+        }
+    });
+    let k = stage.config.solve_every_frames;
+    let mut frames = run.outputs.iter();
+    // Frames until the first solve is due and found late, then K more.
+    let mut pushed = 0;
+    while stage.stats().late_solves == 0 {
+        stage.push(frames.next().expect("a solve fell due within the run"));
+        pushed += 1;
+    }
+    for _ in 0..k {
+        stage.push(frames.next().expect("frames left"));
+    }
+    assert_eq!(stage.stats().solves, 0, "nothing solved before the token");
+    assert!(
+        stage.stats().deferred_solves >= 1,
+        "the solve due at the late frame waits for the running one"
+    );
+    assert_eq!(stage.stats().solve_wait_ms, 0.0);
+    gate.send(()).expect("solve thread");
+    // The solve finishes soon after its token; frames go on meanwhile.
+    let mut waited_frames = 0;
+    while stage.stats().solves == 0 {
+        std::thread::sleep(std::time::Duration::from_millis(2));
+        stage.push(
+            frames
+                .next()
+                .expect("the late solve installed within the run"),
+        );
+        waited_frames += 1;
+    }
+    assert!(stage.map.is_some());
+    // Installing it started the deferred solve, which waits for its token.
+    assert!(stage.solver.in_flight(), "the deferred solve started");
+    gate.send(()).expect("solve thread");
+    for _ in 0..(4 * k) {
+        std::thread::sleep(std::time::Duration::from_millis(2));
+        if let Some(output) = frames.next() {
+            stage.push(output);
+        }
+    }
+    assert!(stage.stats().solves >= 2, "{:?}", stage.stats().solves);
+    assert_eq!(stage.stats().solve_wait_ms, 0.0, "no frame waited");
+    assert!(pushed >= k - 1 && waited_frames >= 1);
+    // Release any solve still waiting, so the thread can end.
+    let _ = done.send(());
+    watchdog.join().expect("watchdog");
+    drop(gate);
+}
+
+#[test]
 fn landmark_map_beats_placing_landmarks_by_dead_reckoning() {
     // Baseline: each landmark placed once, from its first observation and
     // the relative stage's pose (what a map without the edge solve has).
