@@ -25,8 +25,9 @@ pub struct AbsoluteSettings {
     pub solve_every_frames: usize,
     /// Where the map is solved: `pipelined` (its own thread; the solve
     /// requested at frame n is used from frame n + solve_every_frames on,
-    /// that frame waiting for it if needed: repeatable, and no wait live
-    /// while a solve takes less than that many frames), `background` (its
+    /// that frame waiting for it if needed: repeatable; the daemon on
+    /// live frames does not wait, and installs a late solve on the first
+    /// frame after it is done), `background` (its
     /// own thread, never waited for: frames use the newest solved map,
     /// which depends on timing) or `inline` (on the frame path: the map
     /// requested at frame n is used from frame n + 1).

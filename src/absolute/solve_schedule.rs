@@ -31,6 +31,9 @@ pub enum SolveMode {
     /// waits for it if it is not done. A run is repeatable and a replay
     /// faster than real time sees the maps a live run would; live at
     /// 20 Hz with K = 5 a frame waits only if a solve takes over 250 ms.
+    /// The daemon on live frames never waits
+    /// ([`super::AbsoluteStage::never_wait_for_solves`]): a late solve is
+    /// installed on the first frame after it is done.
     Pipelined,
     /// The caller runs it: [`super::AbsoluteStage::take_solve_request`] hands out
     /// the request, any thread solves it with a [`MapSolveWorker`], and
