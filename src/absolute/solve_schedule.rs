@@ -102,11 +102,17 @@ impl MapSolver {
         match mode {
             SolveMode::Inline => MapSolver::Inline(worker()),
             SolveMode::Manual => MapSolver::Manual { request: None },
-            SolveMode::Background | SolveMode::Pipelined => MapSolver::Thread {
-                thread: SolveThread::spawn(worker(), None),
-                in_flight: false,
-                deferred: false,
-            },
+            SolveMode::Background | SolveMode::Pipelined => Self::thread(worker(), None),
+        }
+    }
+
+    /// The threaded state, its thread solving with `worker` (`gate`: see
+    /// [`SolveThread::spawn`]).
+    fn thread(worker: MapSolveWorker, gate: Option<Receiver<()>>) -> Self {
+        MapSolver::Thread {
+            thread: SolveThread::spawn(worker, gate),
+            in_flight: false,
+            deferred: false,
         }
     }
 
@@ -118,12 +124,7 @@ impl MapSolver {
         let mut worker = MapSolveWorker::new(solver, 1);
         worker.robust = robust;
         let (gate_tx, gate_rx) = mpsc::channel();
-        let state = MapSolver::Thread {
-            thread: SolveThread::spawn(worker, Some(gate_rx)),
-            in_flight: false,
-            deferred: false,
-        };
-        (state, gate_tx)
+        (Self::thread(worker, Some(gate_rx)), gate_tx)
     }
 
     /// Whether the edge map must record its changes for the thread.

@@ -524,12 +524,14 @@ impl AbsoluteStage {
             SolveMode::Pipelined
                 if self.frames_since_solve + 1 >= self.config.solve_every_frames =>
             {
-                if self.solver.in_flight() && !self.wait_for_due_solves {
+                if !self.solver.in_flight() {
+                    // Nothing to install.
+                } else if !self.wait_for_due_solves {
                     if !self.poll_background() {
                         self.stats.late_solves += 1;
                         self.solve_late = true;
                     }
-                } else if self.solver.in_flight() {
+                } else {
                     let wait = Instant::now();
                     self.wait_for_solve();
                     let waited = wait.elapsed().as_secs_f64() * 1e3;

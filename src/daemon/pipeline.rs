@@ -256,10 +256,11 @@ impl Pipeline {
             },
             imu_stall_ns: (p.imu_stall_s * 1e9) as i64,
             max_pending_imu: p.imu_queue,
-            live: config
-                .replay
-                .as_ref()
-                .is_none_or(|r| !replay || r.pace != ReplayPace::AsFastAsPossible),
+            live: !(replay
+                && config
+                    .replay
+                    .as_ref()
+                    .is_some_and(|r| r.pace == ReplayPace::AsFastAsPossible)),
         };
         let inputs = StageInputs {
             frames: frames.clone(),
