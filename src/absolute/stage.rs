@@ -134,6 +134,9 @@ pub struct AbsoluteStats {
     pub solve_wait_max_ms: f64,
     /// Time spent in map solves in all, ms.
     pub solve_total_ms: f64,
+    /// CPU time of the solving thread in map solves, ms: below
+    /// `solve_total_ms` by the time the solve waited for its core.
+    pub solve_cpu_ms: f64,
     /// Parts of `solve_total_ms`: assembly of A, ordering + symbolic
     /// analysis, numeric factorisation, and the covariance blocks of the
     /// landmarks in view.
@@ -144,6 +147,9 @@ pub struct AbsoluteStats {
     pub solve_factor_ms: f64,
     /// Covariance blocks of the landmarks in view, ms.
     pub solve_covariance_ms: f64,
+    /// Robust reweighting (weights and refill of A; not the
+    /// factorisations), ms.
+    pub solve_reweight_ms: f64,
     /// Entries of the last solve's Cholesky factor.
     pub last_factor_nnz: usize,
     /// Unknowns (3 per landmark or frame node) of the last solve.
@@ -204,10 +210,12 @@ impl AbsoluteStats {
     fn count_solve(&mut self, map: &SolvedMap) {
         self.solves += 1;
         self.solve_total_ms += map.report.total_ms;
+        self.solve_cpu_ms += map.report.cpu_ms;
         self.solve_assemble_ms += map.report.assemble_ms;
         self.solve_symbolic_ms += map.report.symbolic_ms;
         self.solve_factor_ms += map.report.factor_ms - map.report.symbolic_ms;
         self.solve_covariance_ms += map.report.covariance_ms;
+        self.solve_reweight_ms += map.report.reweight_ms;
         self.last_factor_nnz = map.report.factor_nnz;
         self.last_unknowns = map.laplacian.dim();
         self.last_downweighted_edges = map.report.downweighted_edges;

@@ -50,14 +50,7 @@ impl BlockLaplacian {
         let n = (problem.landmark_count as usize).saturating_sub(1);
         // Node pattern: count, fill, sort and deduplicate each column.
         let mut count = vec![1u32; n];
-        let pairs: Vec<Option<(u32, u32)>> = problem
-            .edges
-            .iter()
-            .map(|e| {
-                let (a, b) = (problem.unknown_of(e.i)?, problem.unknown_of(e.j)?);
-                Some(((a.min(b)) as u32, (a.max(b)) as u32))
-            })
-            .collect();
+        let pairs = unknown_pairs(problem);
         for &(_, v) in pairs.iter().flatten() {
             count[v as usize] += 1;
         }
@@ -127,6 +120,21 @@ impl BlockLaplacian {
         this
     }
 
+    /// Recomputes `A` and `B` in place for `problem`, whose edges join the
+    /// same landmark pairs as those this was assembled from: only their
+    /// information matrices or measurements changed (robust reweighting).
+    /// The pattern is kept: nothing is counted, sorted or allocated, and
+    /// the result equals a fresh [`Self::assemble`] bit for bit.
+    pub fn refill(&mut self, problem: &MapProblem) {
+        debug_assert_eq!(
+            self.node_count,
+            (problem.landmark_count as usize).saturating_sub(1),
+            "refill with another problem's landmarks"
+        );
+        let pairs = unknown_pairs(problem);
+        self.fill_values(problem, &pairs);
+    }
+
     /// Offset in `values` of entry `(r, c)` of block `(u, v)`, `u < v`.
     fn offset(&self, u: u32, v: u32, r: usize, c: usize) -> usize {
         let blocks = &self.node_row_idx
@@ -138,8 +146,10 @@ impl BlockLaplacian {
     }
 
     fn fill_values(&mut self, problem: &MapProblem, pairs: &[Option<(u32, u32)>]) {
-        self.values = vec![0.0; self.row_idx.len()];
-        self.rhs = vec![0.0; 3 * self.node_count];
+        self.values.clear();
+        self.values.resize(self.row_idx.len(), 0.0);
+        self.rhs.clear();
+        self.rhs.resize(3 * self.node_count, 0.0);
         for (e, pair) in problem.edges.iter().zip(pairs) {
             let s = &e.info;
             let sy = s * e.y_m;
@@ -227,6 +237,19 @@ impl BlockLaplacian {
         }
         a
     }
+}
+
+/// The unknowns each edge joins, smaller first (None where an end is the
+/// reference).
+fn unknown_pairs(problem: &MapProblem) -> Vec<Option<(u32, u32)>> {
+    problem
+        .edges
+        .iter()
+        .map(|e| {
+            let (a, b) = (problem.unknown_of(e.i)?, problem.unknown_of(e.j)?);
+            Some(((a.min(b)) as u32, (a.max(b)) as u32))
+        })
+        .collect()
 }
 
 /// The full block Laplacian of all landmarks, no reference removed, dense:

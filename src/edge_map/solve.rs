@@ -74,10 +74,17 @@ pub struct SolveReport {
     pub factor_ms: f64,
     /// Triangular solves with the factor, or the whole CG run, ms.
     pub solve_ms: f64,
+    /// Robust reweighting: the edges' weights and the refill of `A` and
+    /// `B` for each reweighted solve, ms (map worker only; their
+    /// factorisations count in `factor_ms`).
+    pub reweight_ms: f64,
     /// Covariance blocks asked for with the solve (map worker only).
     pub covariance_ms: f64,
     /// Wall time of the whole solve, ms.
     pub total_ms: f64,
+    /// CPU time of the whole solve, ms (map worker only): below
+    /// `total_ms` when the solving thread shared its core.
+    pub cpu_ms: f64,
     /// Whether the cached symbolic factorisation was reused whole because
     /// the pattern was unchanged (false for CG).
     pub symbolic_reused: bool,

@@ -292,3 +292,28 @@ fn simulated_drive_without_noise_is_recovered_exactly() {
         assert!(err < 1e-8, "{policy}: {err}");
     }
 }
+
+#[test]
+fn refilling_reweighted_edges_equals_a_fresh_assembly() {
+    // Repeated pairs (edges listed twice add up) and the reference in the
+    // middle, as in a running map.
+    let (mut problem, _) = random_problem(40, 80, 0.1, 13, 11);
+    let doubled: Vec<MapEdge> = problem.edges[..10].to_vec();
+    problem.edges.extend(doubled);
+    let mut laplacian = BlockLaplacian::assemble(&problem);
+    let mut rng = ChaCha8Rng::seed_from_u64(12);
+    for edge in &mut problem.edges {
+        edge.info *= rng.gen_range(0.05..1.0);
+        edge.y_m *= 1.1;
+    }
+    laplacian.refill(&problem);
+    let fresh = BlockLaplacian::assemble(&problem);
+    assert!(laplacian.same_pattern(&fresh));
+    assert_eq!(laplacian.values, fresh.values);
+    assert_eq!(laplacian.rhs, fresh.rhs);
+    // And it is the reweighted problem's A, not the first one's.
+    let (full, _) = dense_full_laplacian(&problem);
+    let keep: Vec<usize> = (0..3 * 40).filter(|&k| k / 3 != 13).collect();
+    let reduced = full.select_rows(&keep).select_columns(&keep);
+    assert!((laplacian.to_dense() - reduced).amax() < 1e-12);
+}
