@@ -135,14 +135,15 @@ impl BlockLaplacian {
         self.fill_values(problem, &pairs);
     }
 
-    /// Offset in `values` of entry `(r, c)` of block `(u, v)`, `u < v`.
-    fn offset(&self, u: u32, v: u32, r: usize, c: usize) -> usize {
+    /// Slot of block `(u, v)`, `u < v`, among the blocks of node column
+    /// `v`: entry `(r, c)` of the block is at
+    /// `values[col_ptr[3 v + c] + 3 slot + r]`.
+    fn slot(&self, u: u32, v: u32) -> usize {
         let blocks = &self.node_row_idx
             [self.node_col_ptr[v as usize] as usize..self.node_col_ptr[v as usize + 1] as usize];
-        let slot = blocks
+        blocks
             .binary_search(&u)
-            .expect("block in the assembled pattern");
-        self.col_ptr[3 * v as usize + c] as usize + 3 * slot + r
+            .expect("block in the assembled pattern")
     }
 
     fn fill_values(&mut self, problem: &MapProblem, pairs: &[Option<(u32, u32)>]) {
@@ -171,8 +172,9 @@ impl BlockLaplacian {
                 if u == v {
                     continue;
                 }
+                let slot = self.slot(u, v);
                 for c in 0..3 {
-                    let start = self.offset(u, v, 0, c);
+                    let start = self.col_ptr[3 * v as usize + c] as usize + 3 * slot;
                     for r in 0..3 {
                         self.values[start + r] -= s[(r, c)];
                     }
