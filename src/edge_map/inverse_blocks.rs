@@ -8,10 +8,13 @@
 //! added last and sit late in the ordering, so the solve starts near the
 //! end of the factor. Against full solves (forward and backward over the
 //! whole factor) that is the backward half saved, plus the skipped head.
+//! In a supernodal factor each `z_u` is also zero off the elimination
+//! tree's path from `p(u)` to the root, so each supernode works on the
+//! columns whose path crosses it only, and adds its rows' share of
+//! `z_r^T z_c` as soon as they are solved.
 
 use faer::linalg::matmul::matmul;
 use faer::linalg::triangular_solve::solve_lower_triangular_in_place;
-use faer::prelude::{Reborrow, ReborrowMut};
 use faer::sparse::linalg::cholesky::supernodal;
 use faer::sparse::linalg::cholesky::SymbolicCholeskyRaw;
 use faer::sparse::SparseColMatRef;
@@ -34,82 +37,142 @@ impl CholeskyFactor {
             Some(perm) => perm.arrays().1[u] as usize,
             None => u,
         };
-        let first = unknowns.iter().map(|&u| position(u)).min().unwrap_or(0);
+        let starts: Vec<usize> = unknowns.iter().map(|&u| position(u)).collect();
+        let first = starts.iter().copied().min().unwrap_or(0);
         // Rows before `first` stay zero: keep only the tail.
         let rows = n - first;
         let mut z = Mat::<f64>::zeros(rows, k);
-        for (c, &u) in unknowns.iter().enumerate() {
-            z[(position(u) - first, c)] = 1.0;
+        for (c, &p) in starts.iter().enumerate() {
+            z[(p - first, c)] = 1.0;
         }
-        match symbolic.raw() {
+        let product = match symbolic.raw() {
             SymbolicCholeskyRaw::Supernodal(raw) => {
                 let llt = supernodal::SupernodalLltRef::new(raw, self.values());
-                forward_supernodal(&llt, first, z.as_mut(), self.par());
+                forward_supernodal_products(&llt, first, &starts, z.as_mut(), self.par())
             }
             SymbolicCholeskyRaw::Simplicial(raw) => {
                 let l = SparseColMatRef::<'_, u32, f64>::new(raw.factor(), self.values());
                 forward_simplicial(l, first, z.as_mut());
+                let mut product = Mat::<f64>::zeros(k, k);
+                matmul(
+                    product.as_mut(),
+                    Accum::Replace,
+                    z.transpose(),
+                    z.as_ref(),
+                    1.0,
+                    self.par(),
+                );
+                product
             }
-        }
-        let mut product = Mat::<f64>::zeros(k, k);
-        matmul(
-            product.as_mut(),
-            Accum::Replace,
-            z.transpose(),
-            z.as_ref(),
-            1.0,
-            self.par(),
-        );
+        };
         DMatrix::from_fn(k, k, |r, c| 0.5 * (product[(r, c)] + product[(c, r)]))
     }
 }
 
-/// `L z = b` in place for the rows `first..` of a supernodal factor (`z`
-/// holds those rows; the ones above are zero).
-fn forward_supernodal(
+/// `Z^T Z` for `L Z = E` (`E` the unit columns at the positions
+/// `starts`), for a supernodal factor: `z` holds the rows `first..` of
+/// `E` on entry and is used as scratch.
+///
+/// Column `c` of `Z` is zero outside the supernodes on the elimination
+/// tree's path from the one holding `starts[c]` to the root, so each
+/// supernode solves, updates and multiplies only the columns whose path
+/// passes through it: near the root that is all of them, in the
+/// branches few. Each supernode's rows of `Z` are final once its
+/// triangular solve is done, so their share of `Z^T Z` is added there
+/// and never read again.
+fn forward_supernodal_products(
     llt: &supernodal::SupernodalLltRef<'_, u32, f64>,
     first: usize,
+    starts: &[usize],
     mut z: MatMut<'_, f64>,
     par: Par,
-) {
-    let k = z.ncols();
-    let mut update = Mat::<f64>::zeros(0, k);
-    for s in 0..llt.symbolic().n_supernodes() {
+) -> Mat<f64> {
+    let k = starts.len();
+    let symbolic = llt.symbolic();
+    let count = symbolic.n_supernodes();
+    // Supernode of each row from `first` on.
+    let mut supernode_of = vec![0u32; z.nrows()];
+    for s in 0..count {
+        let node = llt.supernode(s);
+        let (begin, end) = (node.start(), node.start() + node.val().ncols());
+        for row in begin.max(first)..end.max(first) {
+            supernode_of[row - first] = s as u32;
+        }
+    }
+    // The columns active in each supernode: walk each column's path up
+    // the tree (a supernode's parent holds the first row below it).
+    let mut active: Vec<Vec<u32>> = vec![Vec::new(); count];
+    for (c, &p) in starts.iter().enumerate() {
+        let mut s = supernode_of[p - first] as usize;
+        loop {
+            active[s].push(c as u32);
+            match llt.supernode(s).pattern().iter().min() {
+                Some(&row) => s = supernode_of[row as usize - first] as usize,
+                None => break,
+            }
+        }
+    }
+    let mut product = Mat::<f64>::zeros(k, k);
+    let mut top_z = Mat::<f64>::zeros(0, 0);
+    let mut update = Mat::<f64>::zeros(0, 0);
+    let mut block = Mat::<f64>::zeros(0, 0);
+    for (s, columns) in active.iter().enumerate() {
+        if columns.is_empty() {
+            continue;
+        }
         let node = llt.supernode(s);
         let values = node.val();
         let size = values.ncols();
-        if node.start() + size <= first {
-            continue;
-        }
         // A supernode straddling `first` has zero rows above it: they
         // contribute nothing, so solve from `first` within it.
         let skip = first.saturating_sub(node.start());
         let (top, bottom) = values.split_at_row(size);
         let top = top.submatrix(skip, skip, size - skip, size - skip);
         let bottom = bottom.subcols(skip, size - skip);
-        let mut z_top = z
-            .rb_mut()
-            .subrows_mut(node.start() + skip - first, size - skip);
-        solve_lower_triangular_in_place(top, z_top.rb_mut(), par);
+        let m = columns.len();
+        let height = size - skip;
+        let row0 = node.start() + skip - first;
+        top_z.resize_with(height, m, |_, _| 0.0);
+        for (j, &c) in columns.iter().enumerate() {
+            for r in 0..height {
+                top_z[(r, j)] = z[(row0 + r, c as usize)];
+            }
+        }
+        solve_lower_triangular_in_place(top, top_z.as_mut(), par);
+        block.resize_with(m, m, |_, _| 0.0);
+        matmul(
+            block.as_mut(),
+            Accum::Replace,
+            top_z.transpose(),
+            top_z.as_ref(),
+            1.0,
+            par,
+        );
+        for (j, &c) in columns.iter().enumerate() {
+            for (i, &r) in columns.iter().enumerate() {
+                product[(r as usize, c as usize)] += block[(i, j)];
+            }
+        }
         let pattern = node.pattern();
         if pattern.is_empty() {
             continue;
         }
-        update.resize_with(pattern.len(), k, |_, _| 0.0);
+        update.resize_with(pattern.len(), m, |_, _| 0.0);
         matmul(
             update.as_mut(),
             Accum::Replace,
             bottom,
-            z_top.rb(),
+            top_z.as_ref(),
             1.0,
             par,
         );
-        for c in 0..k {
+        for (j, &c) in columns.iter().enumerate() {
             for (idx, &row) in pattern.iter().enumerate() {
-                z[(row as usize - first, c)] -= update[(idx, c)];
+                z[(row as usize - first, c as usize)] -= update[(idx, j)];
             }
         }
     }
+    product
 }
 
 /// `L z = b` in place for the rows `first..` of a simplicial factor.
