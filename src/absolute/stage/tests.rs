@@ -306,7 +306,9 @@ fn background_and_manual_solves_give_the_inline_map() {
         solve_mode: SolveMode::Manual,
         ..base
     });
+    // The caller's worker solves as the stage's own would.
     let mut worker = MapSolveWorker::new(SolverChoice::Cholesky, 1);
+    worker.robust = manual.config().robust;
     let mut last = (None, None, None);
     for output in &run.outputs {
         last.0 = Some(inline_stage.push(output));
@@ -361,7 +363,9 @@ fn pipelined_solves_install_on_a_fixed_schedule() {
         solve_mode: SolveMode::Manual,
         ..base
     });
+    // The caller's worker solves as the stage's own would.
     let mut worker = MapSolveWorker::new(SolverChoice::Cholesky, 1);
+    worker.robust = manual.config().robust;
     let mut pending = None;
     for (i, output) in run.outputs.iter().enumerate() {
         if (i + 1) % k == 0 {
