@@ -138,10 +138,11 @@ pub struct MapSolveWorker {
 /// is the same).
 ///
 /// With `from_previous`, the worker's previous solution gives the first
-/// weights (at its positions), so the first factorisation is already reweighted and
-/// the reweighting carries on from solve to solve: one reweighted solve
-/// per map solve instead of two keeps the development and held-apart
-/// accuracy (bench/README.md) at a third less solve CPU.
+/// weights (at its positions), so the first factorisation is already
+/// reweighted and the reweighting carries on from solve to solve: one
+/// reweighted solve per map solve instead of two keeps the development
+/// and held-apart accuracy at about a fifth less solve CPU
+/// (docs/results/map-solve-cost-2026-11-28.md).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RobustWeights {
     /// Squared Mahalanobis residual (unitless) above which an edge is
@@ -149,7 +150,7 @@ pub struct RobustWeights {
     /// chi-square with 3 dof.
     pub threshold_chi2: f64,
     /// Upper bound on the reweighted solves after the first; they stop
-    /// early once no edge exceeds the threshold. Default 1.
+    /// early once the weights no longer change. Default 1.
     pub iterations: usize,
     /// Weigh the edges at the previous map's positions before the first
     /// solve, when there is a previous map. Default true.
