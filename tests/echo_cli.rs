@@ -217,3 +217,59 @@ fn echo_writes_the_map_and_odometry_frames_side_by_side() {
         assert!((m.position() - o.position()).norm() > 0.1);
     }
 }
+
+/// `rigslam echo | head -n 3`: when the reader of its lines goes away,
+/// echo stops quietly with success (no panic on the closed pipe) and
+/// still writes the `--tum` file of what it received.
+#[test]
+fn echo_stops_quietly_when_its_output_is_closed() {
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    let root = tempfile::tempdir().expect("temp dir for the iceoryx2 root");
+    let config = IpcConfig {
+        service_prefix: format!("rigslam_echo_pipe_{}", std::process::id()),
+        root_path: Some(root.path().to_path_buf()),
+        group: None,
+    };
+    let stop = Arc::new(AtomicBool::new(false));
+    let publisher = publish_until_stopped(&config, &stop, move |k| {
+        PoseMessage::new(
+            1_000_000_000 + k * 50_000_000,
+            TrackingState::Tracking,
+            &Isometry3::translation(0.01 * k as f64, 0.0, 0.0),
+        )
+    });
+    let dir = tempfile::tempdir().expect("temp dir");
+    let tum = dir.path().join("poses.tum");
+    // Until the stream goes quiet: only the closed pipe can end it early.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_rigslam"))
+        .args(["echo", "--service"])
+        .arg(format!("{}/pose", config.service_prefix))
+        .args(["--timeout-s", "30"])
+        .arg("--root-path")
+        .arg(root.path())
+        .arg("--tum")
+        .arg(&tum)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start rigslam echo");
+    let mut lines = BufReader::new(child.stdout.take().expect("piped stdout")).lines();
+    for _ in 0..3 {
+        let line = lines.next().expect("a line").expect("UTF-8 line");
+        assert!(line.starts_with('#'), "{line}");
+    }
+    drop(lines);
+    let output = child.wait_with_output().expect("rigslam echo ends");
+    stop.store(true, Ordering::Relaxed);
+    let sent = publisher.join().expect("publisher thread");
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(output.status.success(), "rigslam echo failed: {stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    let poses = rigslam::dataset::read_tum(&tum).expect("the --tum file");
+    assert!(
+        poses.len() >= 3 && poses.len() as u64 <= sent,
+        "{} poses written, {sent} sent",
+        poses.len()
+    );
+}

@@ -1,6 +1,7 @@
 //! `rigslam echo`: subscribe to a published stream, print each sample, the
 //! measured rate and the latency (`--json` for machines).
 
+use std::io::Write;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -122,16 +123,17 @@ pub fn run(args: EchoArgs) -> anyhow::Result<()> {
     }
     let mut tracked = Vec::new();
     let mut tracked_odom = Vec::new();
-    let (measured, missed) = if service.ends_with("status") {
+    let (measured, missed, stdout_closed) = if service.ends_with("status") {
         echo::<StatusMessage>(&args, &config, &service, &mut |m, latency_us, print| {
             if print {
-                print_status(m, latency_us);
+                print_line(&status_line(m, latency_us))?;
             }
+            Ok(())
         })?
     } else {
         echo::<PoseMessage>(&args, &config, &service, &mut |m, latency_us, print| {
             if print {
-                print_pose(m, latency_us);
+                print_line(&pose_line(m, latency_us))?;
             }
             if m.state() == Some(TrackingState::Tracking) {
                 if args.tum.is_some() {
@@ -147,6 +149,7 @@ pub fn run(args: EchoArgs) -> anyhow::Result<()> {
                     });
                 }
             }
+            Ok(())
         })?
     };
     if let Some(path) = &args.tum {
@@ -156,6 +159,11 @@ pub fn run(args: EchoArgs) -> anyhow::Result<()> {
     if let Some(path) = &args.tum_odom {
         write_tum(path, &Trajectory::new(tracked_odom))
             .with_context(|| format!("writing --tum-odom {}", path.display()))?;
+    }
+    if stdout_closed {
+        // The reader of the lines went away (`rigslam echo | head`): the
+        // files asked for are written, and there is nobody to tell more.
+        return Ok(());
     }
     let received = measured.receive_t_ns.len() as u64;
     if received == 0 {
@@ -186,8 +194,8 @@ pub fn run(args: EchoArgs) -> anyhow::Result<()> {
         std::fs::write(path, serde_json::to_string(&report)? + "\n")
             .with_context(|| format!("writing --report {}", path.display()))?;
     }
-    if args.json {
-        println!("{}", serde_json::to_string(&report)?);
+    let summary = if args.json {
+        serde_json::to_string(&report)?
     } else {
         let latency = match &latency {
             Some(l) if l.samples < received => format!(
@@ -197,7 +205,7 @@ pub fn run(args: EchoArgs) -> anyhow::Result<()> {
             Some(l) => format!("p50 {:.1} us p99 {:.1} us", l.p50_us, l.p99_us),
             None => latency_text(None),
         };
-        println!(
+        format!(
             "{}: {} received, {} missed, {:.1} Hz, latency {latency}, transport p50 {:.1} us p99 {:.1} us",
             report.service,
             report.received,
@@ -205,19 +213,32 @@ pub fn run(args: EchoArgs) -> anyhow::Result<()> {
             report.rate_hz,
             report.transport_latency_p50_us,
             report.transport_latency_p99_us
-        );
+        )
+    };
+    match print_line(&summary) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        other => other.context("writing to standard output"),
     }
-    Ok(())
 }
 
-/// Reads samples until `count` or until the stream is quiet for the
-/// timeout; returns the measurements and the sequence gaps seen.
+/// One line to standard output; an error (a closed pipe: `| head`) is
+/// returned, where `println!` would panic.
+fn print_line(line: &str) -> std::io::Result<()> {
+    let mut out = std::io::stdout().lock();
+    writeln!(out, "{line}")?;
+    out.flush()
+}
+
+/// Reads samples until `count`, until the stream is quiet for the
+/// timeout, or until standard output is closed (`on_sample` returns a
+/// broken pipe); returns the measurements, the sequence gaps seen and
+/// whether standard output was closed.
 fn echo<T: Message>(
     args: &EchoArgs,
     config: &IpcConfig,
     service: &str,
-    on_sample: &mut dyn FnMut(&T, f64, bool),
-) -> anyhow::Result<(Measurements, u64)> {
+    on_sample: &mut dyn FnMut(&T, f64, bool) -> std::io::Result<()>,
+) -> anyhow::Result<(Measurements, u64, bool)> {
     // A large buffer: echo wants every sample, and a gap is reported.
     let mut subscriber = Subscription::<T>::open_service(config, service, MAX_SUBSCRIBER_BUFFER)
         .with_context(|| format!("subscribing to {service}"))?;
@@ -244,16 +265,22 @@ fn echo<T: Message>(
                 .push((now_ns - message.published_t_ns()) as f64 / 1e3);
             let n = measured.receive_t_ns.len() as u64;
             let print = !args.json && (n - 1) % args.every == 0;
-            on_sample(message, latency_us, print);
+            match on_sample(message, latency_us, print) {
+                Ok(()) => {}
+                Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => {
+                    return Ok((measured, subscriber.missed(), true));
+                }
+                Err(e) => return Err(e).context("writing to standard output"),
+            }
             if args.count > 0 && measured.receive_t_ns.len() as u64 >= args.count {
                 break 'outer;
             }
         }
     }
-    Ok((measured, subscriber.missed()))
+    Ok((measured, subscriber.missed(), false))
 }
 
-fn print_pose(m: &PoseMessage, latency_us: f64) {
+fn pose_line(m: &PoseMessage, latency_us: f64) -> String {
     let state = match m.state() {
         Some(s) => format!("{s:?}").to_lowercase(),
         None => format!("state{}", m.tracking_state),
@@ -268,12 +295,12 @@ fn print_pose(m: &PoseMessage, latency_us: f64) {
     } else {
         String::new()
     };
-    println!(
+    format!(
         "#{} t={:.6} s {state} p=[{px:.4} {py:.4} {pz:.4}] m q_xyzw=[{qx:.4} {qy:.4} {qz:.4} {qw:.4}] v=[{vx:.3} {vy:.3} {vz:.3}] m/s{odom} latency={}",
         m.sequence,
         m.t_ns as f64 * 1e-9,
         latency_text(on_host_clock(latency_us)),
-    );
+    )
 }
 
 /// The latency `now - t_ns` when the stamp is on this host's
@@ -323,13 +350,13 @@ fn latency_text(latency_us: Option<f64>) -> String {
     }
 }
 
-fn print_status(m: &StatusMessage, _latency_us: f64) {
+fn status_line(m: &StatusMessage, _latency_us: f64) -> String {
     let queues: Vec<String> = m
         .queues_in_use()
         .iter()
         .map(|q| format!("{} {}/{}", q.name_str(), q.len, q.capacity))
         .collect();
-    println!(
+    format!(
         "#{} camera {} imu {} pose {}, drops camera {} imu {} pose {}, latency p50 {:.0} us p99 {:.0} us, health 0x{:x}, noise scale gyro {:.2} accel {:.2} pixel {:.2}, camera-imu {:.3} deg {:.4} m {:+.5} s from the file, queues [{}]",
         m.sequence,
         rate_words(m.camera_rate_hz, 1),
@@ -348,7 +375,7 @@ fn print_status(m: &StatusMessage, _latency_us: f64) {
         m.camera_imu_translation_m,
         m.camera_imu_time_offset_s,
         queues.join(", ")
-    );
+    )
 }
 
 /// Samples per second between the first and last receipt (0 for fewer
