@@ -829,8 +829,11 @@ fn correct_orientation(
 const IN_VIEW_FACTOR: usize = 2;
 
 /// `Σ_k G_k Σ_L(k, V)` (3 x 3m): the cross-covariance of the position
-/// error with the map errors of `ids`, from a three-column solve with the
-/// factor (`A^-1 G^T`), without the `Σ_L(V, V)` columns.
+/// error with the map errors of `ids`, the rows of `ids` in a
+/// three-column solve with the factor (`A^-1 G^T`), without the
+/// `Σ_L(V, V)` columns. The solve runs over the factor's tail only
+/// ([`crate::edge_map::solve::CholeskyFactor::solve_rows`]): the landmarks
+/// recently used and those in view sit late in the ordering.
 fn cross_covariance(map: &SolvedMap, ids: &[u32], filter: &PositionFilter) -> DMatrix<f64> {
     let factor = map.factor.as_ref().expect("called with a factor");
     let dim = map.laplacian.dim();
@@ -844,13 +847,32 @@ fn cross_covariance(map: &SolvedMap, ids: &[u32], filter: &PositionFilter) -> DM
             }
         }
     }
-    if dim > 0 {
-        factor.solve_in_place(&mut rhs, 3);
-    }
+    // The scalar rows of the landmarks with unknowns (the reference has
+    // none: its columns stay zero).
     let unknowns: Vec<Option<usize>> = ids.iter().map(|&id| map.unknown_of(id)).collect();
-    DMatrix::from_fn(3, 3 * ids.len(), |r, c| {
-        unknowns[c / 3].map_or(0.0, |u| rhs[r * dim + 3 * u + c % 3])
-    })
+    let rows: Vec<usize> = unknowns
+        .iter()
+        .flatten()
+        .flat_map(|&u| (0..3).map(move |r| 3 * u + r))
+        .collect();
+    let solved = if dim > 0 {
+        factor.solve_rows(&rhs, 3, &rows)
+    } else {
+        DMatrix::zeros(rows.len(), 3)
+    };
+    let mut cross = DMatrix::zeros(3, 3 * ids.len());
+    let mut next = 0;
+    for (k, u) in unknowns.iter().enumerate() {
+        if u.is_some() {
+            for r in 0..3 {
+                for c in 0..3 {
+                    cross[(r, 3 * k + c)] = solved[(next + c, r)];
+                }
+            }
+            next += 3;
+        }
+    }
+    cross
 }
 
 /// Variance of the robot's position at the anchoring frame node, m² (it

@@ -14,7 +14,9 @@
 //! `z_r^T z_c` as soon as they are solved.
 
 use faer::linalg::matmul::matmul;
-use faer::linalg::triangular_solve::solve_lower_triangular_in_place;
+use faer::linalg::triangular_solve::{
+    solve_lower_triangular_in_place, solve_upper_triangular_in_place,
+};
 use faer::sparse::linalg::cholesky::supernodal;
 use faer::sparse::linalg::cholesky::SymbolicCholeskyRaw;
 use faer::sparse::SparseColMatRef;
@@ -66,6 +68,180 @@ impl CholeskyFactor {
             }
         };
         DMatrix::from_fn(k, k, |r, c| 0.5 * (product[(r, c)] + product[(c, r)]))
+    }
+}
+
+impl CholeskyFactor {
+    /// Rows `rows` (scalar unknowns) of `A^-1 B`, `B` given column-major
+    /// (`dim` rows, `columns` columns), as a `rows.len() x columns`
+    /// matrix. With `P A P^T = L L^T`, the forward solve `L y = P b` is
+    /// zero above the first position a nonzero row of `B` has, and the
+    /// backward solve `L^T x = y` gives a row from the rows after it
+    /// only: both run over the factor's tail from the first position any
+    /// nonzero of `B` or any asked row has, not over the whole factor.
+    /// The position filter's cross-covariance with the map needs the rows
+    /// of the landmarks in view, for sensitivities to landmarks recently
+    /// used; both were mostly added last and sit late in the ordering.
+    pub fn solve_rows(&self, b: &[f64], columns: usize, rows: &[usize]) -> DMatrix<f64> {
+        let symbolic = self.symbolic();
+        let n = symbolic.nrows();
+        if n == 0 || columns == 0 || rows.is_empty() {
+            return DMatrix::zeros(rows.len(), columns);
+        }
+        assert_eq!(b.len(), n * columns, "B has dim rows per column");
+        let position = |u: usize| match symbolic.perm() {
+            Some(perm) => perm.arrays().1[u] as usize,
+            None => u,
+        };
+        let nonzero = (0..n).filter(|&u| (0..columns).any(|c| b[c * n + u] != 0.0));
+        let first = nonzero
+            .chain(rows.iter().copied())
+            .map(position)
+            .min()
+            .unwrap_or(0);
+        let mut y = Mat::<f64>::zeros(n - first, columns);
+        for u in 0..n {
+            let p = position(u);
+            if p >= first {
+                for c in 0..columns {
+                    y[(p - first, c)] = b[c * n + u];
+                }
+            }
+        }
+        match symbolic.raw() {
+            SymbolicCholeskyRaw::Supernodal(raw) => {
+                let llt = supernodal::SupernodalLltRef::new(raw, self.values());
+                tail_solve_supernodal(&llt, first, y.as_mut(), self.par());
+            }
+            SymbolicCholeskyRaw::Simplicial(raw) => {
+                let l = SparseColMatRef::<'_, u32, f64>::new(raw.factor(), self.values());
+                forward_simplicial(l, first, y.as_mut());
+                backward_simplicial(l, first, y.as_mut());
+            }
+        }
+        DMatrix::from_fn(rows.len(), columns, |r, c| {
+            y[(position(rows[r]) - first, c)]
+        })
+    }
+}
+
+/// `L L^T x = y` in place for the rows `first..` of a supernodal factor,
+/// `y` zero above `first` (so the forward solve starts there) and only
+/// the rows from `first` wanted (so the backward solve stops there).
+fn tail_solve_supernodal(
+    llt: &supernodal::SupernodalLltRef<'_, u32, f64>,
+    first: usize,
+    mut y: MatMut<'_, f64>,
+    par: Par,
+) {
+    let columns = y.ncols();
+    let symbolic = llt.symbolic();
+    let tail: Vec<usize> = (0..symbolic.n_supernodes())
+        .filter(|&s| {
+            let node = llt.supernode(s);
+            node.start() + node.val().ncols() > first
+        })
+        .collect();
+    let mut top_y = Mat::<f64>::zeros(0, 0);
+    let mut below = Mat::<f64>::zeros(0, 0);
+    let mut update = Mat::<f64>::zeros(0, 0);
+    // The part of a supernode from `first` on: its rows above `first`
+    // multiply zeros going forward and are not wanted coming back.
+    let split = |s: usize| {
+        let node = llt.supernode(s);
+        let size = node.val().ncols();
+        let skip = first.saturating_sub(node.start());
+        (node, size, skip, node.start() + skip - first)
+    };
+    for &s in &tail {
+        let (node, size, skip, row0) = split(s);
+        let (top, bottom) = node.val().split_at_row(size);
+        let top = top.submatrix(skip, skip, size - skip, size - skip);
+        let bottom = bottom.subcols(skip, size - skip);
+        let height = size - skip;
+        top_y.resize_with(height, columns, |_, _| 0.0);
+        for c in 0..columns {
+            for r in 0..height {
+                top_y[(r, c)] = y[(row0 + r, c)];
+            }
+        }
+        solve_lower_triangular_in_place(top, top_y.as_mut(), par);
+        for c in 0..columns {
+            for r in 0..height {
+                y[(row0 + r, c)] = top_y[(r, c)];
+            }
+        }
+        let pattern = node.pattern();
+        if pattern.is_empty() {
+            continue;
+        }
+        update.resize_with(pattern.len(), columns, |_, _| 0.0);
+        matmul(
+            update.as_mut(),
+            Accum::Replace,
+            bottom,
+            top_y.as_ref(),
+            1.0,
+            par,
+        );
+        for c in 0..columns {
+            for (idx, &row) in pattern.iter().enumerate() {
+                y[(row as usize - first, c)] -= update[(idx, c)];
+            }
+        }
+    }
+    for &s in tail.iter().rev() {
+        let (node, size, skip, row0) = split(s);
+        let (top, bottom) = node.val().split_at_row(size);
+        let top = top.submatrix(skip, skip, size - skip, size - skip);
+        let bottom = bottom.subcols(skip, size - skip);
+        let height = size - skip;
+        top_y.resize_with(height, columns, |_, _| 0.0);
+        for c in 0..columns {
+            for r in 0..height {
+                top_y[(r, c)] = y[(row0 + r, c)];
+            }
+        }
+        let pattern = node.pattern();
+        if !pattern.is_empty() {
+            below.resize_with(pattern.len(), columns, |_, _| 0.0);
+            for c in 0..columns {
+                for (idx, &row) in pattern.iter().enumerate() {
+                    below[(idx, c)] = y[(row as usize - first, c)];
+                }
+            }
+            matmul(
+                top_y.as_mut(),
+                Accum::Add,
+                bottom.transpose(),
+                below.as_ref(),
+                -1.0,
+                par,
+            );
+        }
+        solve_upper_triangular_in_place(top.transpose(), top_y.as_mut(), par);
+        for c in 0..columns {
+            for r in 0..height {
+                y[(row0 + r, c)] = top_y[(r, c)];
+            }
+        }
+    }
+}
+
+/// `L^T x = y` in place for the rows `first..` of a simplicial factor
+/// (a row needs only the rows after it).
+fn backward_simplicial(l: SparseColMatRef<'_, u32, f64>, first: usize, mut y: MatMut<'_, f64>) {
+    for j in (first..l.ncols()).rev() {
+        let rows = l.row_idx_of_col_raw(j);
+        let values = l.val_of_col(j);
+        let diagonal = values[0];
+        for c in 0..y.ncols() {
+            let mut v = y[(j - first, c)];
+            for (&row, &lv) in rows[1..].iter().zip(&values[1..]) {
+                v -= lv * y[(row as usize - first, c)];
+            }
+            y[(j - first, c)] = v / diagonal;
+        }
     }
 }
 
@@ -213,6 +389,65 @@ mod tests {
         DMatrix::from_fn(unknowns.len(), unknowns.len(), |r, c| {
             rhs[c * dim + unknowns[r]]
         })
+    }
+
+    /// `solve_rows` against full solves: right-hand sides nonzero from
+    /// early, middle and late unknowns, rows asked early and late, on a
+    /// simplicial and a supernodal factor.
+    #[test]
+    fn tail_solves_give_the_rows_of_full_solves() {
+        let mut kinds = Vec::new();
+        for (landmarks, max_visible) in [(40, 10), (2000, 200)] {
+            let city = simulate_city(&CityOptions {
+                landmarks,
+                max_visible,
+                range_m: 40.0,
+                policy: crate::edge_map::EdgePolicy::AllPairs,
+                ..CityOptions::default()
+            });
+            let laplacian = BlockLaplacian::assemble(&city.problem);
+            let mut solver = EdgeMapSolver::new(SolverChoice::Cholesky, 1);
+            let factor = solver
+                .factorize(&laplacian, &mut SolveReport::default())
+                .expect("positive definite");
+            let dim = laplacian.dim();
+            kinds.push(matches!(
+                factor.symbolic().raw(),
+                SymbolicCholeskyRaw::Supernodal(_)
+            ));
+            let cases: [(&[usize], &[usize]); 4] = [
+                (&[dim - 1, dim - 5], &[dim - 2, dim - 3]),
+                (&[dim / 2, dim - 1], &[dim - 1, 3]),
+                (&[0, dim / 3], &[dim / 3 + 1, dim - 1, 1]),
+                (&[dim - 7], &[dim - 7]),
+            ];
+            for (nonzero, rows) in cases {
+                let columns = 3;
+                let mut b = vec![0.0; dim * columns];
+                for (k, &u) in nonzero.iter().enumerate() {
+                    for c in 0..columns {
+                        b[c * dim + u] = 0.3 + k as f64 - 0.7 * c as f64;
+                    }
+                }
+                let mut full = b.clone();
+                factor.solve_in_place(&mut full, columns);
+                let got = factor.solve_rows(&b, columns, rows);
+                for (r, &u) in rows.iter().enumerate() {
+                    for c in 0..columns {
+                        let (g, e) = (got[(r, c)], full[c * dim + u]);
+                        assert!(
+                            (g - e).abs() <= 1e-9 * (1.0 + e.abs()),
+                            "{landmarks} landmarks, B on {nonzero:?}, row {u} column {c}: {g} vs {e}"
+                        );
+                    }
+                }
+            }
+        }
+        assert_eq!(
+            kinds,
+            vec![false, true],
+            "factor kinds tested (true: supernodal)"
+        );
     }
 
     #[test]
