@@ -16,12 +16,7 @@ use rigslam::sensors::yei::device::host_monotonic_ns;
 /// sent.
 fn echo_json(name: &str, offset_ns: i64) -> (serde_json::Value, u64) {
     const COUNT: u64 = 50;
-    let root = tempfile::tempdir().expect("temp dir for the iceoryx2 root");
-    let config = IpcConfig {
-        service_prefix: format!("rigslam_echo_{name}_{}", std::process::id()),
-        root_path: Some(root.path().to_path_buf()),
-        group: None,
-    };
+    let (root, config) = private_ipc(name);
     let stop = Arc::new(AtomicBool::new(false));
     let publisher = publish_until_stopped(&config, &stop, move |_| {
         PoseMessage::new(
@@ -51,6 +46,19 @@ fn echo_json(name: &str, offset_ns: i64) -> (serde_json::Value, u64) {
     assert!(sent >= COUNT, "echo received {COUNT} of {sent} sent");
     assert_eq!(report["service"], format!("{}/pose", config.service_prefix));
     (report, sent)
+}
+
+/// A fresh iceoryx2 root and services under a prefix of this test
+/// process's own (`rigslam_echo_NAME_PID`); the root lives as long as the
+/// returned directory.
+fn private_ipc(name: &str) -> (tempfile::TempDir, IpcConfig) {
+    let root = tempfile::tempdir().expect("temp dir for the iceoryx2 root");
+    let config = IpcConfig {
+        service_prefix: format!("rigslam_echo_{name}_{}", std::process::id()),
+        root_path: Some(root.path().to_path_buf()),
+        group: None,
+    };
+    (root, config)
 }
 
 /// A thread that publishes `message(k)`, k = 0, 1, ..., on `config`'s
@@ -159,12 +167,7 @@ fn echo_names_the_service_when_nothing_comes() {
 fn echo_writes_the_map_and_odometry_frames_side_by_side() {
     use nalgebra::{Translation3, UnitQuaternion, Vector3};
     const COUNT: u64 = 30;
-    let root = tempfile::tempdir().expect("temp dir for the iceoryx2 root");
-    let config = IpcConfig {
-        service_prefix: format!("rigslam_echo_odom_{}", std::process::id()),
-        root_path: Some(root.path().to_path_buf()),
-        group: None,
-    };
+    let (root, config) = private_ipc("odom");
     let T_world_odom = Isometry3::from_parts(
         Translation3::new(0.4, -0.2, 0.05),
         UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.3),
@@ -225,12 +228,7 @@ fn echo_writes_the_map_and_odometry_frames_side_by_side() {
 fn echo_stops_quietly_when_its_output_is_closed() {
     use std::io::{BufRead, BufReader};
     use std::process::Stdio;
-    let root = tempfile::tempdir().expect("temp dir for the iceoryx2 root");
-    let config = IpcConfig {
-        service_prefix: format!("rigslam_echo_pipe_{}", std::process::id()),
-        root_path: Some(root.path().to_path_buf()),
-        group: None,
-    };
+    let (root, config) = private_ipc("pipe");
     let stop = Arc::new(AtomicBool::new(false));
     let publisher = publish_until_stopped(&config, &stop, move |k| {
         PoseMessage::new(

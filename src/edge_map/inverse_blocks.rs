@@ -17,6 +17,7 @@ use faer::linalg::matmul::matmul;
 use faer::linalg::triangular_solve::{
     solve_lower_triangular_in_place, solve_upper_triangular_in_place,
 };
+use faer::reborrow::{Reborrow, ReborrowMut};
 use faer::sparse::linalg::cholesky::supernodal;
 use faer::sparse::linalg::cholesky::SymbolicCholeskyRaw;
 use faer::sparse::SparseColMatRef;
@@ -35,10 +36,7 @@ impl CholeskyFactor {
         if n == 0 || k == 0 {
             return DMatrix::zeros(k, k);
         }
-        let position = |u: usize| match symbolic.perm() {
-            Some(perm) => perm.arrays().1[u] as usize,
-            None => u,
-        };
+        let position = |u: usize| self.position(u);
         let starts: Vec<usize> = unknowns.iter().map(|&u| position(u)).collect();
         let first = starts.iter().copied().min().unwrap_or(0);
         // Rows before `first` stay zero: keep only the tail.
@@ -72,6 +70,14 @@ impl CholeskyFactor {
 }
 
 impl CholeskyFactor {
+    /// Where scalar unknown `u` sits in the factor's elimination order.
+    fn position(&self, u: usize) -> usize {
+        match self.symbolic().perm() {
+            Some(perm) => perm.arrays().1[u] as usize,
+            None => u,
+        }
+    }
+
     /// Rows `rows` (scalar unknowns) of `A^-1 B`, `B` given column-major
     /// (`dim` rows, `columns` columns), as a `rows.len() x columns`
     /// matrix. With `P A P^T = L L^T`, the forward solve `L y = P b` is
@@ -89,10 +95,7 @@ impl CholeskyFactor {
             return DMatrix::zeros(rows.len(), columns);
         }
         assert_eq!(b.len(), n * columns, "B has dim rows per column");
-        let position = |u: usize| match symbolic.perm() {
-            Some(perm) => perm.arrays().1[u] as usize,
-            None => u,
-        };
+        let position = |u: usize| self.position(u);
         let nonzero = (0..n).filter(|&u| (0..columns).any(|c| b[c * n + u] != 0.0));
         let first = nonzero
             .chain(rows.iter().copied())
@@ -135,74 +138,54 @@ fn tail_solve_supernodal(
     par: Par,
 ) {
     let columns = y.ncols();
-    let symbolic = llt.symbolic();
-    let tail: Vec<usize> = (0..symbolic.n_supernodes())
+    let tail: Vec<usize> = (0..llt.symbolic().n_supernodes())
         .filter(|&s| {
             let node = llt.supernode(s);
             node.start() + node.val().ncols() > first
         })
         .collect();
-    let mut top_y = Mat::<f64>::zeros(0, 0);
-    let mut below = Mat::<f64>::zeros(0, 0);
-    let mut update = Mat::<f64>::zeros(0, 0);
-    // The part of a supernode from `first` on: its rows above `first`
-    // multiply zeros going forward and are not wanted coming back.
-    let split = |s: usize| {
+    // A supernode from `first` on: its rows above `first` multiply zeros
+    // going forward and are not wanted coming back. Gives the diagonal
+    // block, the block below it, the first row of `y` it holds, and the
+    // rows of the block below.
+    let part = |s: usize| {
         let node = llt.supernode(s);
         let size = node.val().ncols();
         let skip = first.saturating_sub(node.start());
-        (node, size, skip, node.start() + skip - first)
-    };
-    for &s in &tail {
-        let (node, size, skip, row0) = split(s);
         let (top, bottom) = node.val().split_at_row(size);
-        let top = top.submatrix(skip, skip, size - skip, size - skip);
-        let bottom = bottom.subcols(skip, size - skip);
-        let height = size - skip;
-        top_y.resize_with(height, columns, |_, _| 0.0);
-        for c in 0..columns {
-            for r in 0..height {
-                top_y[(r, c)] = y[(row0 + r, c)];
-            }
-        }
-        solve_lower_triangular_in_place(top, top_y.as_mut(), par);
-        for c in 0..columns {
-            for r in 0..height {
-                y[(row0 + r, c)] = top_y[(r, c)];
-            }
-        }
-        let pattern = node.pattern();
+        (
+            top.submatrix(skip, skip, size - skip, size - skip),
+            bottom.subcols(skip, size - skip),
+            node.start() + skip - first,
+            node.pattern(),
+        )
+    };
+    let mut below = Mat::<f64>::zeros(0, 0);
+    for &s in &tail {
+        let (top, bottom, row0, pattern) = part(s);
+        let height = top.nrows();
+        solve_lower_triangular_in_place(top, y.rb_mut().subrows_mut(row0, height), par);
         if pattern.is_empty() {
             continue;
         }
-        update.resize_with(pattern.len(), columns, |_, _| 0.0);
+        below.resize_with(pattern.len(), columns, |_, _| 0.0);
         matmul(
-            update.as_mut(),
+            below.as_mut(),
             Accum::Replace,
             bottom,
-            top_y.as_ref(),
+            y.rb().subrows(row0, height),
             1.0,
             par,
         );
         for c in 0..columns {
             for (idx, &row) in pattern.iter().enumerate() {
-                y[(row as usize - first, c)] -= update[(idx, c)];
+                y[(row as usize - first, c)] -= below[(idx, c)];
             }
         }
     }
     for &s in tail.iter().rev() {
-        let (node, size, skip, row0) = split(s);
-        let (top, bottom) = node.val().split_at_row(size);
-        let top = top.submatrix(skip, skip, size - skip, size - skip);
-        let bottom = bottom.subcols(skip, size - skip);
-        let height = size - skip;
-        top_y.resize_with(height, columns, |_, _| 0.0);
-        for c in 0..columns {
-            for r in 0..height {
-                top_y[(r, c)] = y[(row0 + r, c)];
-            }
-        }
-        let pattern = node.pattern();
+        let (top, bottom, row0, pattern) = part(s);
+        let height = top.nrows();
         if !pattern.is_empty() {
             below.resize_with(pattern.len(), columns, |_, _| 0.0);
             for c in 0..columns {
@@ -211,7 +194,7 @@ fn tail_solve_supernodal(
                 }
             }
             matmul(
-                top_y.as_mut(),
+                y.rb_mut().subrows_mut(row0, height),
                 Accum::Add,
                 bottom.transpose(),
                 below.as_ref(),
@@ -219,12 +202,7 @@ fn tail_solve_supernodal(
                 par,
             );
         }
-        solve_upper_triangular_in_place(top.transpose(), top_y.as_mut(), par);
-        for c in 0..columns {
-            for r in 0..height {
-                y[(row0 + r, c)] = top_y[(r, c)];
-            }
-        }
+        solve_upper_triangular_in_place(top.transpose(), y.rb_mut().subrows_mut(row0, height), par);
     }
 }
 
