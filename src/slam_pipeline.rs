@@ -18,10 +18,11 @@ use crate::absolute::{AbsoluteStage, CorrectedPose};
 use crate::relative::config::ConfigError;
 use crate::relative::{
     build_estimator, EstimatorKind, FrameInput, OdometryError, RelativeEstimator, RelativeOutput,
-    RigModel, SensorMode,
+    RigModel, SensorMode, TrackingState,
 };
 use crate::sensors::ImuSample;
 use crate::slam_config::SlamSettings;
+use nalgebra::Vector3;
 
 /// Relocalising an inertial run in a map made by one: the transform
 /// between their gravity-aligned worlds may tilt z by at most this. On
@@ -83,6 +84,10 @@ pub struct SlamPipeline {
     relative: Box<dyn RelativeEstimator>,
     absolute: Option<AbsoluteStage>,
     localiser: Option<MapLocaliser>,
+    /// The stamp of the last relative answer the second stage took, and
+    /// where it was if it was tracking: the motion of the next one is
+    /// measured from it.
+    last_taken: Option<(i64, Option<Vector3<f64>>)>,
 }
 
 impl SlamPipeline {
@@ -120,6 +125,7 @@ impl SlamPipeline {
             relative,
             absolute,
             localiser,
+            last_taken: None,
         })
     }
 
@@ -148,12 +154,20 @@ impl SlamPipeline {
         if !self.relative.work_pending() {
             return self.second_stage(relative);
         }
+        self.carried(relative)
+    }
+
+    /// The second stage's last correction carried to `relative`, which it
+    /// does not take (now).
+    fn carried(&self, mut relative: RelativeOutput) -> PipelineFrame {
         let start = Instant::now();
+        let delta = self.measure_from_taken(&mut relative);
         let corrected = self.absolute.as_ref().map(|stage| stage.carry(&relative));
         let localised = self
             .localiser
             .as_ref()
             .and_then(|localiser| localiser.carry(&relative));
+        relative.delta_translation_world_m = delta;
         PipelineFrame {
             relative,
             corrected,
@@ -172,24 +186,59 @@ impl SlamPipeline {
         Some(self.second_stage(refined))
     }
 
+    /// Measures `output`'s motion from the answer the second stage took
+    /// last (the relative stage measures it from its own last answer,
+    /// which the second stage may not have taken: an answer repeated for
+    /// a frame out of order); the relative stage's own measure, to be put
+    /// back once the second stage has used it.
+    fn measure_from_taken(&self, output: &mut RelativeOutput) -> Vector3<f64> {
+        let delta = match self.last_taken {
+            Some((_, Some(last))) if output.state == TrackingState::Tracking => {
+                output.T_world_body.translation.vector - last
+            }
+            _ => Vector3::zeros(),
+        };
+        std::mem::replace(&mut output.delta_translation_world_m, delta)
+    }
+
     /// The second stage on a relative-stage output.
-    fn second_stage(&mut self, relative: RelativeOutput) -> PipelineFrame {
+    fn second_stage(&mut self, mut relative: RelativeOutput) -> PipelineFrame {
+        if self.absolute.is_none() && self.localiser.is_none() {
+            return PipelineFrame {
+                relative,
+                corrected: None,
+                localised: None,
+                second_stage_ms: 0.0,
+            };
+        }
+        if self
+            .last_taken
+            .is_some_and(|(t_ns, _)| relative.t_ns <= t_ns)
+        {
+            // The second stage takes frames in time order: an answer not
+            // newer than the last it took (the relative stage's last
+            // answer again, for a frame out of order) gets the correction
+            // carried to it.
+            return self.carried(relative);
+        }
         let start = Instant::now();
+        let delta = self.measure_from_taken(&mut relative);
         let corrected = self.absolute.as_mut().map(|stage| stage.push(&relative));
         let localised = self
             .localiser
             .as_mut()
             .and_then(|localiser| localiser.push(&relative));
-        let second_stage_ms = if self.absolute.is_some() || self.localiser.is_some() {
-            start.elapsed().as_secs_f64() * 1e3
-        } else {
-            0.0
-        };
+        relative.delta_translation_world_m = delta;
+        self.last_taken = Some((
+            relative.t_ns,
+            (relative.state == TrackingState::Tracking)
+                .then_some(relative.T_world_body.translation.vector),
+        ));
         PipelineFrame {
             relative,
             corrected,
             localised,
-            second_stage_ms,
+            second_stage_ms: start.elapsed().as_secs_f64() * 1e3,
         }
     }
 

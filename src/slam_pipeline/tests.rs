@@ -312,3 +312,66 @@ fn a_keyframe_pose_goes_out_before_the_window_optimisation_whoever_calls_it() {
     assert_eq!((sa.frames, sa.solves), (sb.frames, sb.solves));
     assert_eq!(sa.frames, finished.len());
 }
+
+#[test]
+fn the_second_stage_takes_frames_in_time_order_and_measures_motion_from_the_last_it_took() {
+    let run = drifting_laps(1.0, None);
+    let mut settings = SlamSettings::default();
+    settings.absolute.enabled = true;
+    let mut p = pipeline(&settings, SecondStage::BuildMap);
+    let outputs: Vec<_> = run
+        .outputs
+        .iter()
+        .filter(|o| o.state == TrackingState::Tracking)
+        .take(40)
+        .cloned()
+        .collect();
+    assert_eq!(outputs.len(), 40);
+    for o in &outputs[..20] {
+        p.second_stage(o.clone());
+    }
+    let taken = |p: &SlamPipeline| p.absolute().expect("runs").stats().frames;
+    assert_eq!(taken(&p), 20);
+    // An answer again (a frame out of order): carried, not taken.
+    let again = p.second_stage(outputs[19].clone());
+    assert_eq!(taken(&p), 20);
+    assert_eq!(again.relative, outputs[19], "the answer passes unchanged");
+    // Five frames the second stage did not take, and an answer whose
+    // motion the relative stage measured from something else: the next
+    // one taken moves the filter by the whole way since the last one
+    // taken.
+    let mut skipping = outputs[25].clone();
+    skipping.delta_translation_world_m = Vector3::new(100.0, 0.0, 0.0);
+    let expected = p.absolute().expect("runs").carry(&RelativeOutput {
+        delta_translation_world_m: outputs[25].T_world_body.translation.vector
+            - outputs[19].T_world_body.translation.vector,
+        ..outputs[25].clone()
+    });
+    let carried = p.carried(skipping.clone());
+    assert_eq!(
+        carried.corrected.expect("corrected").T_world_body,
+        expected.T_world_body
+    );
+    assert_eq!(carried.relative, skipping, "the answer passes unchanged");
+    let taken_frame = p.second_stage(skipping);
+    assert_eq!(taken(&p), 21);
+    let moved = taken_frame
+        .corrected
+        .expect("corrected")
+        .T_world_body
+        .translation
+        .vector
+        - again
+            .corrected
+            .expect("corrected")
+            .T_world_body
+            .translation
+            .vector;
+    let way =
+        outputs[25].T_world_body.translation.vector - outputs[19].T_world_body.translation.vector;
+    assert!(way.norm() > 0.5, "way {way:?}");
+    assert!(
+        (moved - way).norm() < 0.2 * way.norm(),
+        "moved {moved:?}, way {way:?}"
+    );
+}
