@@ -13,10 +13,11 @@
 //!
 //! `cargo bench -p rigslam --bench daemon -- [--dataset DIR] [--minutes M]
 //! [--mode MODE] [--relative-only] [--map] [--cpu N] [--tum-dir DIR]
-//! [--daemon PATH]`
+//! [--daemon PATH] [--absolute-set KEY=VALUE]`
 //! (default: `../shared/data/euroc/V1_01_micro` played once at recorded
 //! pace, both stages as the daemon runs them by default).
-//! `--relative-only` sets `[slam.absolute] enabled = false`; `--map` gives the daemon a map file
+//! `--relative-only` sets `[slam.absolute] enabled = false` (`--absolute-set KEY=VALUE`
+//! sets any other key of that table); `--map` gives the daemon a map file
 //! saved every 60 s of sensor time, and the map's size at each save
 //! (landmarks, unknowns of the last solve, from the daemon's log) is
 //! reported over time; `--cpu N` pins the daemon and its threads to core N
@@ -41,6 +42,8 @@ struct Args {
     cpu: Option<usize>,
     tum_dir: Option<PathBuf>,
     daemon: Option<PathBuf>,
+    /// `KEY = VALUE` lines for `[slam.absolute]`.
+    absolute_settings: Vec<String>,
 }
 
 fn args() -> Args {
@@ -56,6 +59,7 @@ fn args() -> Args {
         cpu: None,
         tum_dir: None,
         daemon: None,
+        absolute_settings: Vec::new(),
     };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
@@ -82,6 +86,13 @@ fn args() -> Args {
             // Another build of rigslamd (an older commit's) for a
             // comparison in the same run.
             "--daemon" => a.daemon = Some(it.next().expect("--daemon PATH").into()),
+            // A setting of the absolute stage, e.g. `solve_every_frames=10`.
+            "--absolute-set" => {
+                let kv = it.next().expect("--absolute-set KEY=VALUE");
+                let (k, v) = kv.split_once('=').expect("--absolute-set KEY=VALUE");
+                a.absolute_settings
+                    .push(format!("{} = {}", k.trim(), v.trim()));
+            }
             // cargo bench passes --bench.
             _ => {}
         }
@@ -216,10 +227,14 @@ fn main() {
         .as_ref()
         .map(|m| format!("[slam]\nmode = {m:?}\n"))
         .unwrap_or_default();
-    let absolute = if a.relative_only {
-        "[slam.absolute]\nenabled = false\n"
+    let mut absolute_lines = a.absolute_settings.clone();
+    if a.relative_only {
+        absolute_lines.push("enabled = false".into());
+    }
+    let absolute = if absolute_lines.is_empty() {
+        String::new()
     } else {
-        ""
+        format!("[slam.absolute]\n{}\n", absolute_lines.join("\n"))
     };
     let map_path = dir.path().join("map.txt");
     let map = if a.map {
