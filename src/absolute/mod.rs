@@ -12,7 +12,8 @@
 //! [`solve_schedule`]); the relative stage's orientation is corrected by
 //! an offset the map's landmarks measure ([`orientation_filter`]); and the
 //! robot position is corrected with the Kalman filter of eq. 60-71
-//! ([`position_filter`], checked by [`nees`]).
+//! ([`position_filter`], checked by [`nees`]), whose cross-covariance
+//! with the map's errors [`map_cross_covariance`] keeps between solves.
 //! What the stage is built with is [`config`], read from the settings
 //! file's table by [`settings`]. A map outlives the run through
 //! [`map_file`]; [`localise`] places a robot in a saved map.
@@ -24,6 +25,7 @@ mod landmark_registry;
 pub mod localise;
 pub mod loop_run;
 mod map_builder;
+pub mod map_cross_covariance;
 pub mod map_file;
 pub mod map_worker;
 pub mod nees;

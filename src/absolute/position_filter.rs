@@ -39,13 +39,26 @@ pub struct LandmarkFix {
 }
 
 /// What one correction did.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct CorrectionReport {
     /// Landmarks used in the correction.
     pub landmarks: usize,
     /// Normalised innovation squared `r^T S^-1 r` (chi-square with
     /// `3 * landmarks` degrees of freedom when the filter is consistent).
     pub nis: f64,
+    /// The gain `K` (3 x 3 landmarks, in the order of the fixes): how the
+    /// map sensitivities moved (`G_k <- (I - Σ K_v) G_k`, `G_v += K_v`).
+    pub gain: DMatrix<f64>,
+}
+
+impl Default for CorrectionReport {
+    fn default() -> Self {
+        Self {
+            landmarks: 0,
+            nis: 0.0,
+            gain: DMatrix::zeros(3, 0),
+        }
+    }
 }
 
 /// Why a correction was not applied.
@@ -209,7 +222,11 @@ impl PositionFilter {
         }
         self.map_sensitivity
             .retain(|_, g| g.norm() > SENSITIVITY_FLOOR);
-        Ok(CorrectionReport { landmarks: m, nis })
+        Ok(CorrectionReport {
+            landmarks: m,
+            nis,
+            gain,
+        })
     }
 }
 

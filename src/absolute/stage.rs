@@ -66,6 +66,7 @@ pub use super::map_builder::MapReference;
 pub use super::solve_schedule::SolveMode;
 
 use super::map_builder::MapBuilder;
+use super::map_cross_covariance::MapCrossCovariance;
 use super::map_worker::{MapSolveRequest, MapSolveWorker, SolvedMap};
 use super::orientation_filter::{DirectionFix, OrientationFilter, OrientationUpdate};
 use super::position_filter::{LandmarkFix, PositionFilter};
@@ -247,6 +248,9 @@ pub struct AbsoluteStage {
     /// None when the orientation is taken as the relative stage gives it.
     orientation: Option<OrientationFilter>,
     map: Option<SolvedMap>,
+    /// The filter's cross-covariance with the errors of `map`'s
+    /// covariance-block landmarks, followed from correction to correction.
+    map_cross: Option<MapCrossCovariance>,
     /// Where the map is solved, with what is in flight.
     solver: MapSolver,
     frames_since_solve: usize,
@@ -280,6 +284,7 @@ impl AbsoluteStage {
             config,
             filter: None,
             map: None,
+            map_cross: None,
             solver,
             frames_since_solve: 0,
             wait_for_due_solves: true,
@@ -498,10 +503,9 @@ impl AbsoluteStage {
             t_ns: output.t_ns,
             T_world_body: Isometry3::from_parts(Translation3::from(translation), orientation),
             position_covariance_m2: covariance,
-            landmarks_used: report
-                .map_or(0, |r: super::position_filter::CorrectionReport| r.landmarks),
+            landmarks_used: report.as_ref().map_or(0, |r| r.landmarks),
             map_version: self.map.as_ref().map_or(0, |m| m.version),
-            nis: report.map_or(0.0, |r| r.nis),
+            nis: report.as_ref().map_or(0.0, |r| r.nis),
         }
     }
 
@@ -557,6 +561,7 @@ impl AbsoluteStage {
     /// landmark is, and the robot is as uncertain as that landmark's
     /// measurement.
     fn anchor(&mut self, output: &RelativeOutput, rotation: &Matrix3<f64>) {
+        self.map_cross = None;
         let first = &output.landmarks[0];
         let position = output.T_world_body.translation.vector;
         if self.builder.has_frame_nodes() {
@@ -757,7 +762,13 @@ impl AbsoluteStage {
         let (covariance, cross) = match (self.config.covariance, cached) {
             (LandmarkCovariance::Exact, Some(blocks)) => {
                 let c = blocks.select(&ids)?;
-                (c, Some(cross_covariance(map, &ids, filter)))
+                // Solved once per map, then followed (module docs of
+                // `map_cross_covariance`).
+                let kept = self.map_cross.take().filter(|k| k.is_for(map));
+                let kept = kept.unwrap_or_else(|| MapCrossCovariance::solve(map, blocks, filter));
+                let cross = kept.select(blocks, &ids)?;
+                self.map_cross = Some(kept);
+                (c, Some(cross))
             }
             (LandmarkCovariance::Exact, None) => (submatrix_blocks(map, &ids, 2), None),
             (LandmarkCovariance::SubMatrix { hops }, _) => {
@@ -784,6 +795,11 @@ impl AbsoluteStage {
         }
         match filter.correct(&fixes, &covariance, cross.as_ref()) {
             Ok(report) => {
+                if let (Some(kept), Some(blocks)) = (self.map_cross.as_mut(), cached) {
+                    if kept.follow(blocks, &ids, &report.gain).is_none() {
+                        self.map_cross = None;
+                    }
+                }
                 self.stats.corrections += 1;
                 self.stats.nis_sum += report.nis;
                 self.stats.nis_dof += 3 * report.landmarks;
@@ -827,53 +843,6 @@ fn correct_orientation(
 /// a correction uses, so that tracks lost in the frames after it leave
 /// others to use.
 const IN_VIEW_FACTOR: usize = 2;
-
-/// `Σ_k G_k Σ_L(k, V)` (3 x 3m): the cross-covariance of the position
-/// error with the map errors of `ids`, the rows of `ids` in a
-/// three-column solve with the factor (`A^-1 G^T`), without the
-/// `Σ_L(V, V)` columns. The solve runs over the factor's tail only
-/// ([`crate::edge_map::solve::CholeskyFactor::solve_rows`]): the landmarks
-/// recently used and those in view sit late in the ordering.
-fn cross_covariance(map: &SolvedMap, ids: &[u32], filter: &PositionFilter) -> DMatrix<f64> {
-    let factor = map.factor.as_ref().expect("called with a factor");
-    let dim = map.laplacian.dim();
-    let mut rhs = vec![0.0; dim * 3];
-    for (&id, g) in filter.map_sensitivity() {
-        if let Some(u) = map.unknown_of(id) {
-            for c in 0..3 {
-                for r in 0..3 {
-                    rhs[c * dim + 3 * u + r] = g[(c, r)];
-                }
-            }
-        }
-    }
-    // The scalar rows of the landmarks with unknowns (the reference has
-    // none: its columns stay zero).
-    let unknowns: Vec<Option<usize>> = ids.iter().map(|&id| map.unknown_of(id)).collect();
-    let rows: Vec<usize> = unknowns
-        .iter()
-        .flatten()
-        .flat_map(|&u| (0..3).map(move |r| 3 * u + r))
-        .collect();
-    let solved = if dim > 0 {
-        factor.solve_rows(&rhs, 3, &rows)
-    } else {
-        DMatrix::zeros(rows.len(), 3)
-    };
-    let mut cross = DMatrix::zeros(3, 3 * ids.len());
-    let mut next = 0;
-    for (k, u) in unknowns.iter().enumerate() {
-        if u.is_some() {
-            for r in 0..3 {
-                for c in 0..3 {
-                    cross[(r, 3 * k + c)] = solved[(next + c, r)];
-                }
-            }
-            next += 3;
-        }
-    }
-    cross
-}
 
 /// Variance of the robot's position at the anchoring frame node, m² (it
 /// defines the map's origin; not zero, to keep the filter well posed).

@@ -1117,3 +1117,52 @@ fn the_map_is_anchored_where_the_robot_was_not_at_a_guessed_depth() {
     assert!(stage.stats().corrections > 20);
     assert!(worst < 0.01, "corrected position up to {worst} m off");
 }
+
+#[test]
+fn the_cross_covariance_followed_between_solves_equals_a_fresh_solve() {
+    // Each correction moves the kept cross-covariance as it moves the
+    // filter's sensitivities; a fresh solve with the map's factor after
+    // it must give the same matrix.
+    use crate::absolute::map_cross_covariance::MapCrossCovariance;
+    let run = simulate_room_run(&RoomRunOptions {
+        laps: 2.0,
+        ..RoomRunOptions::default()
+    });
+    let mut stage = AbsoluteStage::new(inline(AbsoluteConfig::default()));
+    let (mut compared, mut followed) = (0, 0);
+    let mut corrections = 0;
+    let mut worst = 0.0f64;
+    for output in &run.outputs {
+        stage.push(output);
+        let (Some(kept), Some(map), Some(filter)) = (&stage.map_cross, &stage.map, &stage.filter)
+        else {
+            continue;
+        };
+        let blocks = map.covariance.as_ref().expect("exact covariance blocks");
+        if !kept.is_for(map) {
+            continue;
+        }
+        let fresh = MapCrossCovariance::solve(map, blocks, filter);
+        let scale = fresh.matrix().norm();
+        let error = (kept.matrix() - fresh.matrix()).norm();
+        // Rounding, and the sensitivities the filter dropped below its
+        // floor (1e-9), which the followed matrix keeps.
+        worst = worst.max(error / scale);
+        assert!(
+            error <= 1e-7 * scale,
+            "followed {} vs solved {scale}: off by {error}",
+            kept.matrix().norm()
+        );
+        compared += 1;
+        if stage.stats().corrections > corrections + 1 {
+            followed += 1;
+        }
+        corrections = stage.stats().corrections;
+    }
+    eprintln!("{compared} frames compared, worst relative difference {worst:.1e}");
+    assert!(compared > 100, "{compared} frames compared");
+    assert!(
+        followed > 20,
+        "{followed} frames followed more than one correction"
+    );
+}
