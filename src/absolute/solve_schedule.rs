@@ -10,7 +10,7 @@ use nalgebra::Vector3;
 
 use super::map_worker::{MapSolveRequest, MapSolveWorker, RobustWeights, SolvedMap};
 use crate::edge_map::edge::{EdgeChanges, EdgeMap};
-use crate::edge_map::problem::MapProblem;
+use crate::edge_map::problem::{MapProblem, ProblemMirror};
 use crate::edge_map::solve::SolverChoice;
 use crate::edge_map::EdgeMapError;
 
@@ -262,7 +262,7 @@ impl SolveThread {
             .name("rigslam-map-solve".into())
             .spawn(move || {
                 crate::thread_priority::lower_this_threads_priority(MAP_SOLVE_NICE);
-                let mut mirror = EdgeMap::new();
+                let mut mirror = ProblemMirror::new();
                 for request in request_rx {
                     if let Some(gate) = &gate {
                         if gate.recv().is_err() {
@@ -272,7 +272,7 @@ impl SolveThread {
                     mirror.apply_changes(&request.changes);
                     let request = MapSolveRequest {
                         version: request.version,
-                        problem: MapProblem::from_edge_map(&mirror, 0),
+                        problem: mirror.problem(0),
                         previous_m: request.previous_m,
                         covariance_of: request.covariance_of,
                     };

@@ -2,7 +2,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::edge::EdgeMap;
+use super::edge::{EdgeChanges, EdgeMap};
 
 /// One fused edge as the map optimisation sees it: `y_m` estimates
 /// `L_j - L_i` (world frame) with information `info = Σ^-1`.
@@ -16,6 +16,72 @@ pub struct MapEdge {
     pub y_m: Vector3<f64>,
     /// Information of that estimate (inverse covariance), m^-2.
     pub info: Matrix3<f64>,
+}
+
+/// A map's problem kept up to date from the edge map's changes
+/// ([`EdgeMap::take_changes`]) on the thread that solves it: the edges stay
+/// sorted by landmark pair, and a change is merged in place of the edge it
+/// replaces, so a solve neither sorts every edge again nor recomputes the
+/// mean of edges that did not change. The problem equals
+/// [`MapProblem::from_edge_map`] of the map the changes came from.
+#[derive(Clone, Debug, Default)]
+pub struct ProblemMirror {
+    landmark_count: u32,
+    /// Sorted by `(i, j)`, `i < j`; edges without a mean left out.
+    edges: Vec<MapEdge>,
+}
+
+impl ProblemMirror {
+    /// An empty mirror.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Merges `changes` (each edge's whole fused value).
+    pub fn apply_changes(&mut self, changes: &EdgeChanges) {
+        self.landmark_count = self.landmark_count.max(changes.landmark_count);
+        let mut changed: Vec<&((u32, u32), super::edge::FusedEdge)> =
+            changes.edges.iter().collect();
+        if !changed.windows(2).all(|w| w[0].0 < w[1].0) {
+            // `take_changes` gives them sorted and unique; the last of a
+            // repeated key is its latest value.
+            changed.sort_by_key(|c| c.0);
+            changed.reverse();
+            changed.dedup_by_key(|c| c.0);
+            changed.reverse();
+        }
+        if changed.is_empty() {
+            return;
+        }
+        let old = std::mem::take(&mut self.edges);
+        let mut merged = Vec::with_capacity(old.len() + changed.len());
+        let mut old = old.into_iter().peekable();
+        for &&((i, j), edge) in &changed {
+            while let Some(e) = old.next_if(|e| (e.i, e.j) < (i, j)) {
+                merged.push(e);
+            }
+            old.next_if(|e| (e.i, e.j) == (i, j));
+            if let Some(y_m) = edge.mean() {
+                merged.push(MapEdge {
+                    i,
+                    j,
+                    y_m,
+                    info: edge.info,
+                });
+            }
+        }
+        merged.extend(old);
+        self.edges = merged;
+    }
+
+    /// The problem with `reference` fixed at the origin (a copy).
+    pub fn problem(&self, reference: u32) -> MapProblem {
+        MapProblem {
+            landmark_count: self.landmark_count,
+            reference,
+            edges: self.edges.clone(),
+        }
+    }
 }
 
 /// Landmarks `0..landmark_count`, edges between them, and the reference
@@ -129,5 +195,62 @@ impl MapProblem {
             edges,
         };
         (problem, keep)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Matrix3, Vector3};
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// Fed only the changes, the mirror's problem is the one built from
+    /// the whole map, edges without a mean (no information yet) included.
+    #[test]
+    fn a_problem_mirror_fed_the_changes_equals_the_problem_of_the_map() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let mut map = EdgeMap::new();
+        map.track_changes();
+        let mut mirror = ProblemMirror::new();
+        let mut singular = 0;
+        for round in 0..8 {
+            for _ in 0..60 {
+                // Later rounds mostly revisit old pairs and add a few new.
+                let top = 20 + 5 * round;
+                let i = rng.gen_range(0..top);
+                let j = rng.gen_range(0..top);
+                let y = Vector3::from_fn(|_, _| rng.gen_range(-5.0..5.0));
+                let info = if rng.gen_bool(0.05) {
+                    singular += 1;
+                    Matrix3::zeros()
+                } else {
+                    let m = Matrix3::from_fn(|_, _| rng.gen_range(-1.0..1.0));
+                    m * m.transpose() + Matrix3::identity() * 0.1
+                };
+                map.add_measurement(i, j, &y, &info);
+            }
+            mirror.apply_changes(&map.take_changes());
+            let want = MapProblem::from_edge_map(&map, 0);
+            let got = mirror.problem(0);
+            assert_eq!(got.landmark_count, want.landmark_count);
+            assert_eq!(got.edges, want.edges, "round {round}");
+        }
+        assert!(singular > 0);
+        // Unsorted, repeated changes: the last value of a key wins.
+        let mut one = EdgeMap::new();
+        one.add_measurement(3, 4, &Vector3::new(1.0, 0.0, 0.0), &Matrix3::identity());
+        let first = *one.edge(3, 4).expect("edge");
+        one.add_measurement(3, 4, &Vector3::new(3.0, 0.0, 0.0), &Matrix3::identity());
+        let second = *one.edge(3, 4).expect("edge");
+        let mut mirror = ProblemMirror::new();
+        mirror.apply_changes(&EdgeChanges {
+            landmark_count: 5,
+            edges: vec![((3, 4), first), ((1, 2), first), ((3, 4), second)],
+        });
+        let edges = mirror.problem(0).edges;
+        assert_eq!(edges.len(), 2);
+        assert_eq!((edges[0].i, edges[0].j), (1, 2));
+        assert!((edges[1].y_m - Vector3::new(2.0, 0.0, 0.0)).norm() < 1e-12);
     }
 }
