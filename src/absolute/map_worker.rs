@@ -248,20 +248,11 @@ impl MapSolveWorker {
             previous_m,
             covariance_of,
         } = request;
-        let (problem, kept) = if full.components().len() > 1 {
-            full.reference_component()
-        } else {
-            let kept = (0..full.landmark_count).collect();
-            (full, kept)
-        };
+        let (problem, kept) = full.into_reference_component();
         // The reference's component is connected by construction: A is
         // positive definite on it.
         let mut problem = problem;
-        let mut laplacian = BlockLaplacian::assemble(&problem);
-        let mut report = SolveReport {
-            assemble_ms: ms_since(start),
-            ..Default::default()
-        };
+        let mut report = SolveReport::default();
         let has_previous = previous_m.iter().any(Option::is_some);
         let use_cg = match self.choice {
             SolverChoice::Cholesky => false,
@@ -270,6 +261,33 @@ impl MapSolveWorker {
                 problem.landmark_count as usize > cg_above_landmarks && has_previous
             }
         };
+        // The unweighted edges (only needed to reweigh them).
+        let original = match self.robust {
+            Some(_) if !use_cg => problem.edges.clone(),
+            _ => Vec::new(),
+        };
+        // The weights A holds (None: all 1).
+        let mut weighed: Option<Vec<f64>> = None;
+        let solved_before = self.last_positions_m.iter().any(Option::is_some);
+        if let Some(robust) = self
+            .robust
+            .filter(|r| !use_cg && r.from_previous && solved_before)
+        {
+            // Weights at the previous map (new landmarks placed through
+            // their edges): the map moves little between solves, so the
+            // first factorisation is already a reweighted one. Applied
+            // before A is assembled: one fill instead of two.
+            let t = Instant::now();
+            let placed = warm_start(&problem, &kept, &self.last_positions_m);
+            let weights = robust.weights(&problem, &original, &placed);
+            report.downweighted_edges = weights.iter().filter(|&&w| w < 1.0).count();
+            apply_weights(&mut problem, &original, &weights);
+            weighed = Some(weights);
+            report.reweight_ms += ms_since(t);
+        }
+        let mut laplacian = BlockLaplacian::assemble(&problem);
+        // The component split and the assembly.
+        report.assemble_ms = ms_since(start) - report.reweight_ms;
         let mut cold_cg_iterations = None;
         let mut symbolic_path = None;
         let (x, factor) = if use_cg {
@@ -284,27 +302,6 @@ impl MapSolveWorker {
             report.method = "pcg";
             (x, None)
         } else {
-            // The unweighted edges (only needed to reweigh them).
-            let original = match self.robust {
-                Some(_) => problem.edges.clone(),
-                None => Vec::new(),
-            };
-            // The weights A holds (None: all 1).
-            let mut weighed: Option<Vec<f64>> = None;
-            let solved_before = self.last_positions_m.iter().any(Option::is_some);
-            if let Some(robust) = self.robust.filter(|r| r.from_previous && solved_before) {
-                // Weights at the previous map (new landmarks placed through
-                // their edges): the map moves little between solves, so the
-                // first factorisation is already a reweighted one.
-                let t = Instant::now();
-                let start = warm_start(&problem, &kept, &self.last_positions_m);
-                let weights = robust.weights(&problem, &original, &start);
-                report.downweighted_edges = weights.iter().filter(|&&w| w < 1.0).count();
-                apply_weights(&mut problem, &original, &weights);
-                laplacian.refill(&problem);
-                weighed = Some(weights);
-                report.reweight_ms += ms_since(t);
-            }
             let t = Instant::now();
             let (mut factor, path) =
                 self.symbolic

@@ -173,7 +173,24 @@ impl MapProblem {
     /// The sub-problem of the reference's connected component, landmarks
     /// renumbered in their old order; also returns the old id of each new id.
     pub fn reference_component(&self) -> (MapProblem, Vec<u32>) {
-        let mut keep = self.components().swap_remove(0);
+        self.component_problem(self.components().swap_remove(0))
+    }
+
+    /// [`Self::reference_component`], taking the problem: when it is
+    /// connected, it is returned as it is (no copy), and the components
+    /// are found once either way.
+    pub fn into_reference_component(self) -> (MapProblem, Vec<u32>) {
+        let mut components = self.components();
+        if components.len() <= 1 {
+            // Connected (or empty): every landmark, in order.
+            let kept = components.pop().unwrap_or_default();
+            return (self, kept);
+        }
+        self.component_problem(components.swap_remove(0))
+    }
+
+    /// The sub-problem of the landmarks `keep` (all edges within them).
+    fn component_problem(&self, mut keep: Vec<u32>) -> (MapProblem, Vec<u32>) {
         keep.sort_unstable();
         let mut new_id = vec![u32::MAX; self.landmark_count as usize];
         for (k, &old) in keep.iter().enumerate() {
@@ -204,6 +221,42 @@ mod tests {
     use nalgebra::{Matrix3, Vector3};
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
+
+    #[test]
+    fn taking_the_reference_component_equals_copying_it() {
+        let edge = |i, j| MapEdge {
+            i,
+            j,
+            y_m: Vector3::new(f64::from(j) - f64::from(i), 0.0, 0.0),
+            info: Matrix3::identity(),
+        };
+        // Two components: {0, 1, 3} with the reference 1, and {2, 4}.
+        let split = MapProblem {
+            landmark_count: 5,
+            reference: 1,
+            edges: vec![edge(0, 1), edge(1, 3), edge(2, 4)],
+        };
+        let (copied, copied_ids) = split.reference_component();
+        let (taken, taken_ids) = split.clone().into_reference_component();
+        assert_eq!(taken_ids, vec![0, 1, 3]);
+        assert_eq!(taken_ids, copied_ids);
+        assert_eq!(taken.edges, copied.edges);
+        assert_eq!(
+            (taken.landmark_count, taken.reference),
+            (copied.landmark_count, copied.reference)
+        );
+        // Connected: the problem itself and every id.
+        let joined = MapProblem {
+            edges: vec![edge(0, 1), edge(1, 3), edge(2, 4), edge(3, 4)],
+            ..split
+        };
+        let (same, ids) = joined.clone().into_reference_component();
+        assert_eq!(ids, vec![0, 1, 2, 3, 4]);
+        assert_eq!(same.edges, joined.edges);
+        // Empty: nothing, no panic.
+        let (empty, none) = MapProblem::default().into_reference_component();
+        assert!(none.is_empty() && empty.edges.is_empty());
+    }
 
     /// Fed only the changes, the mirror's problem is the one built from
     /// the whole map, edges without a mean (no information yet) included.
