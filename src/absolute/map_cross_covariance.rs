@@ -85,14 +85,17 @@ impl MapCrossCovariance {
         for k in 0..ids.len() {
             keep -= gain.fixed_view::<3, 3>(0, 3 * k);
         }
-        // Σ_L(V, S): the used landmarks' rows of the blocks.
-        let width = self.matrix.ncols();
-        let mut rows = DMatrix::zeros(3 * ids.len(), width);
+        let mut next = keep * &self.matrix;
+        // K_v Σ_L(v, S), straight from the blocks' rows.
         for (k, &slot) in slots.iter().enumerate() {
-            rows.rows_mut(3 * k, 3)
-                .copy_from(&blocks.matrix.rows(3 * slot, 3));
+            next.gemm(
+                1.0,
+                &gain.fixed_view::<3, 3>(0, 3 * k),
+                &blocks.matrix.rows(3 * slot, 3),
+                1.0,
+            );
         }
-        self.matrix = keep * &self.matrix + gain * rows;
+        self.matrix = next;
         Some(())
     }
 
@@ -109,7 +112,7 @@ impl MapCrossCovariance {
 /// recently used and those in view sit late in the ordering. The
 /// reference has no unknowns: its columns stay zero, as do those of an id
 /// outside the solved map.
-pub fn cross_covariance(map: &SolvedMap, ids: &[u32], filter: &PositionFilter) -> DMatrix<f64> {
+fn cross_covariance(map: &SolvedMap, ids: &[u32], filter: &PositionFilter) -> DMatrix<f64> {
     let factor = map.factor.as_ref().expect("called with a factor");
     let dim = map.laplacian.dim();
     let mut rhs = vec![0.0; dim * 3];

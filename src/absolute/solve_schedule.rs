@@ -252,8 +252,8 @@ impl MapSolver {
 pub const MAP_SOLVE_NICE: i32 = 10;
 
 impl SolveThread {
-    /// Starts `rigslam-map-solve`, which keeps a mirror of the edge map
-    /// from the changes it receives and solves it with `worker`.
+    /// Starts `rigslam-map-solve`, which keeps a mirror of the map's
+    /// problem from the edge-map changes it receives and solves it with `worker`.
     /// `gate`: each solve first waits for a token on it (tests).
     fn spawn(mut worker: MapSolveWorker, gate: Option<Receiver<()>>) -> Self {
         let (request_tx, request_rx) = mpsc::channel::<ThreadRequest>();

@@ -150,14 +150,6 @@ impl EdgeMap {
         }
     }
 
-    /// Applies another map's changes: their edges replace these.
-    pub fn apply_changes(&mut self, changes: &EdgeChanges) {
-        self.landmark_count = self.landmark_count.max(changes.landmark_count);
-        for (key, edge) in &changes.edges {
-            self.edges.insert(*key, *edge);
-        }
-    }
-
     /// Turns one frame's observations into edge measurements for the pairs
     /// the policy chose (eq. 41-42) and fuses them (eq. 43).
     /// `R_world_body` is the relative stage's orientation, taken as exact.
@@ -246,31 +238,6 @@ mod tests {
     fn random_spd(rng: &mut ChaCha8Rng) -> Matrix3<f64> {
         let m = Matrix3::from_fn(|_, _| rng.gen_range(-1.0..1.0));
         m * m.transpose() + Matrix3::identity() * 0.1
-    }
-
-    /// A mirror fed only the changes between takes ends equal to the map.
-    #[test]
-    fn a_mirror_fed_the_changes_equals_the_map() {
-        let mut rng = ChaCha8Rng::seed_from_u64(3);
-        let mut map = EdgeMap::new();
-        map.track_changes();
-        let mut mirror = EdgeMap::new();
-        for _ in 0..6 {
-            for _ in 0..40 {
-                let i = rng.gen_range(0..30u32);
-                let j = rng.gen_range(0..30u32);
-                let y = Vector3::from_fn(|_, _| rng.gen_range(-5.0..5.0));
-                map.add_measurement(i, j, &y, &random_spd(&mut rng));
-            }
-            let changes = map.take_changes();
-            assert!(!changes.edges.is_empty());
-            // Each key once, sorted.
-            assert!(changes.edges.windows(2).all(|w| w[0].0 < w[1].0));
-            mirror.apply_changes(&changes);
-            assert_eq!(mirror.sorted_edges(), map.sorted_edges());
-            assert_eq!(mirror.landmark_count(), map.landmark_count());
-        }
-        assert!(map.take_changes().edges.is_empty());
     }
 
     #[test]

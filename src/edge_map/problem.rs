@@ -2,7 +2,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::edge::{EdgeChanges, EdgeMap};
+use super::edge::{EdgeChanges, EdgeMap, FusedEdge};
 
 /// One fused edge as the map optimisation sees it: `y_m` estimates
 /// `L_j - L_i` (world frame) with information `info = Σ^-1`.
@@ -16,6 +16,19 @@ pub struct MapEdge {
     pub y_m: Vector3<f64>,
     /// Information of that estimate (inverse covariance), m^-2.
     pub info: Matrix3<f64>,
+}
+
+impl MapEdge {
+    /// The fused edge `(i, j)` as the map optimisation sees it; None while
+    /// its information is singular (no mean yet).
+    pub fn from_fused((i, j): (u32, u32), edge: &FusedEdge) -> Option<Self> {
+        edge.mean().map(|y_m| MapEdge {
+            i,
+            j,
+            y_m,
+            info: edge.info,
+        })
+    }
 }
 
 /// A map's problem kept up to date from the edge map's changes
@@ -40,8 +53,7 @@ impl ProblemMirror {
     /// Merges `changes` (each edge's whole fused value).
     pub fn apply_changes(&mut self, changes: &EdgeChanges) {
         self.landmark_count = self.landmark_count.max(changes.landmark_count);
-        let mut changed: Vec<&((u32, u32), super::edge::FusedEdge)> =
-            changes.edges.iter().collect();
+        let mut changed: Vec<&((u32, u32), FusedEdge)> = changes.edges.iter().collect();
         if !changed.windows(2).all(|w| w[0].0 < w[1].0) {
             // `take_changes` gives them sorted and unique; the last of a
             // repeated key is its latest value.
@@ -56,19 +68,12 @@ impl ProblemMirror {
         let old = std::mem::take(&mut self.edges);
         let mut merged = Vec::with_capacity(old.len() + changed.len());
         let mut old = old.into_iter().peekable();
-        for &&((i, j), edge) in &changed {
-            while let Some(e) = old.next_if(|e| (e.i, e.j) < (i, j)) {
+        for &&(key, ref edge) in &changed {
+            while let Some(e) = old.next_if(|e| (e.i, e.j) < key) {
                 merged.push(e);
             }
-            old.next_if(|e| (e.i, e.j) == (i, j));
-            if let Some(y_m) = edge.mean() {
-                merged.push(MapEdge {
-                    i,
-                    j,
-                    y_m,
-                    info: edge.info,
-                });
-            }
+            old.next_if(|e| (e.i, e.j) == key);
+            merged.extend(MapEdge::from_fused(key, edge));
         }
         merged.extend(old);
         self.edges = merged;
@@ -103,14 +108,7 @@ impl MapProblem {
         let edges = map
             .sorted_edges()
             .into_iter()
-            .filter_map(|((i, j), e)| {
-                e.mean().map(|y_m| MapEdge {
-                    i,
-                    j,
-                    y_m,
-                    info: e.info,
-                })
-            })
+            .filter_map(|(key, e)| MapEdge::from_fused(key, &e))
             .collect();
         Self {
             landmark_count: map.landmark_count(),
@@ -283,13 +281,18 @@ mod tests {
                 };
                 map.add_measurement(i, j, &y, &info);
             }
-            mirror.apply_changes(&map.take_changes());
+            let changes = map.take_changes();
+            assert!(!changes.edges.is_empty());
+            // Each key once, sorted.
+            assert!(changes.edges.windows(2).all(|w| w[0].0 < w[1].0));
+            mirror.apply_changes(&changes);
             let want = MapProblem::from_edge_map(&map, 0);
             let got = mirror.problem(0);
             assert_eq!(got.landmark_count, want.landmark_count);
             assert_eq!(got.edges, want.edges, "round {round}");
         }
         assert!(singular > 0);
+        assert!(map.take_changes().edges.is_empty());
         // Unsorted, repeated changes: the last value of a key wins.
         let mut one = EdgeMap::new();
         one.add_measurement(3, 4, &Vector3::new(1.0, 0.0, 0.0), &Matrix3::identity());
