@@ -56,6 +56,12 @@ pub enum LandmarkCovariance {
 /// default of a node every 5 frames at 20 Hz, a landmark in view for 5 s.
 pub const DEFAULT_FRAME_NODE_SATURATION: usize = 20;
 
+/// Passes of the robot on which a place takes frame nodes: the first maps
+/// it, the next two join the landmarks recognition finds again to those it
+/// does not (a corner seen from elsewhere); later passes are corrected
+/// against the map and add nothing to it.
+pub const DEFAULT_NODE_PASSES_PER_PLACE: usize = 3;
+
 /// How fast the orientation offset may wander, rad per sqrt(s): chosen on
 /// the development renderings (5e-5 to 2e-4 give two-stage means within
 /// 4 % of each other, 5e-5 the lowest mean and the smallest excess over
@@ -107,6 +113,13 @@ pub struct AbsoluteConfig {
     /// its frames are still corrected against the map, they only stop
     /// adding measurements of what it already knows well.
     pub frame_node_saturation: usize,
+    /// A place (a cube of [`super::node_places::PLACE_SIZE_M`] and a
+    /// viewing direction) takes frame nodes on at most this many passes
+    /// of the robot; later passes add none there
+    /// ([`EdgePolicy::FrameNodes`] only; 0: no limit). Bounds the map when
+    /// recognition misses landmarks seen again, which the saturation above
+    /// cannot see.
+    pub node_passes_per_place: usize,
     /// Correct the orientation too: the relative stage's orientation,
     /// turned by an offset the map's landmarks estimate, which wanders by
     /// this much, rad per sqrt(s) (0: the paper's filter, the orientation
@@ -133,6 +146,7 @@ impl Default for AbsoluteConfig {
             robust: Some(RobustWeights::default()),
             odometry_edges: true,
             frame_node_saturation: DEFAULT_FRAME_NODE_SATURATION,
+            node_passes_per_place: DEFAULT_NODE_PASSES_PER_PLACE,
             orientation_sigma_rad_per_sqrt_s: DEFAULT_ORIENTATION_SIGMA_RAD_PER_SQRT_S,
         }
     }

@@ -34,6 +34,17 @@ impl LandmarkRegistry {
         self.first_tracks.is_empty()
     }
 
+    /// Map ids handed out (landmarks, with or without edges, and frame
+    /// nodes).
+    pub(super) fn map_ids(&self) -> usize {
+        self.first_tracks.len()
+    }
+
+    /// Track ids that have a map id.
+    pub(super) fn tracks(&self) -> usize {
+        self.map_ids.len()
+    }
+
     /// The map id of a track, if it has one.
     pub(super) fn map_id_of(&self, track: LandmarkId) -> Option<u32> {
         self.map_ids.get(&track).copied()
@@ -122,5 +133,8 @@ mod tests {
         assert!(registry.is_frame_node(0) && !registry.is_frame_node(1));
         assert_eq!(registry.aliases().collect::<Vec<_>>(), vec![(12, 7)]);
         assert_eq!(registry.assign(13, None), 3);
+        // Four ids (a node, three landmarks) for four tracks, one of them
+        // (12) sharing 7's id and the node having none.
+        assert_eq!((registry.map_ids(), registry.tracks()), (4, 4));
     }
 }

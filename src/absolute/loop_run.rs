@@ -227,7 +227,7 @@ mod tests {
             laps: 20.0,
             ..revisiting_room(4)
         };
-        let run = |saturation, new_landmark_after_frames| {
+        let run = |saturation, new_landmark_after_frames, passes| {
             let recognition = crate::absolute::recognition::RecognitionConfig {
                 new_landmark_after_frames,
                 ..Default::default()
@@ -237,6 +237,7 @@ mod tests {
                 &AbsoluteConfig {
                     solve_mode: SolveMode::Inline,
                     frame_node_saturation: saturation,
+                    node_passes_per_place: passes,
                     recognition: Some(recognition),
                     ..AbsoluteConfig::default()
                 },
@@ -246,9 +247,10 @@ mod tests {
         let bounded = run(
             crate::absolute::config::DEFAULT_FRAME_NODE_SATURATION,
             defaults.new_landmark_after_frames,
+            crate::absolute::config::DEFAULT_NODE_PASSES_PER_PLACE,
         );
-        let every_node = run(0, defaults.new_landmark_after_frames);
-        let at_once = run(0, 1);
+        let every_node = run(0, defaults.new_landmark_after_frames, 0);
+        let at_once = run(0, 1, 0);
         // Landmarks (the reference, node 0, is not an unknown).
         let landmarks = |c: &LoopComparison| -> Vec<usize> {
             c.map_per_lap
@@ -299,6 +301,71 @@ mod tests {
             "{summary}"
         );
         assert!(last_b < 1.2 * last_every + 0.02, "{summary}");
+    }
+
+    /// The same laps where recognition can find only half the landmarks
+    /// again: the other half come back without a descriptor (as tracks
+    /// near the image border do), so every lap brings them as new tracks,
+    /// a frame full of them is not mostly mapped, and without a limit per
+    /// place it adds a node and its new landmarks on every lap. With the
+    /// limit, places stop taking nodes after their passes: the map's
+    /// growth dies down, and the error stays within that of the map that
+    /// keeps growing.
+    #[test]
+    fn places_mapped_on_their_passes_bound_the_map_when_recognition_misses_landmarks() {
+        let options = RoomRunOptions {
+            laps: 20.0,
+            step_m: 0.1,
+            undescribed_share: 0.5,
+            ..revisiting_room(5)
+        };
+        let run = |passes| {
+            compare_loops(
+                &options,
+                &AbsoluteConfig {
+                    solve_mode: SolveMode::Inline,
+                    node_passes_per_place: passes,
+                    ..AbsoluteConfig::default()
+                },
+            )
+        };
+        let limited = run(crate::absolute::config::DEFAULT_NODE_PASSES_PER_PLACE);
+        let unlimited = run(0);
+        let unknowns = |c: &LoopComparison| -> Vec<usize> {
+            c.map_per_lap.iter().map(|m| m.unknowns).collect()
+        };
+        let (u, u_all) = (unknowns(&limited), unknowns(&unlimited));
+        let last = limited.laps - 1;
+        let summary = format!(
+            "unknowns per lap with the limit {u:?}, without {u_all:?}; last-lap error {:.3} m \
+             (without the limit {:.3}, first lap {:.3}); recognised {} / {}",
+            limited.recognised_lap_rmse(last),
+            unlimited.recognised_lap_rmse(last),
+            limited.recognised_lap_rmse(0),
+            limited.recognised,
+            unlimited.recognised,
+        );
+        println!("{summary}");
+        let growth = |v: &[usize], laps: usize| v[last] as f64 - v[last - laps] as f64;
+        // Without the limit the map grows on every lap: the last eight
+        // laps add more than the first lap mapped.
+        assert!(growth(&u_all, 8) > u_all[0] as f64, "{summary}");
+        // With it, a place stops taking nodes after three passes; the
+        // robot's turns to take a node fall in a place on some laps and
+        // not others, so the last places fill slowly: the last eight laps
+        // add under a quarter of what they add without the limit.
+        assert!(growth(&u, 8) < 0.25 * growth(&u_all, 8), "{summary}");
+        // Recognition still closes the loop, and the error stays bounded.
+        assert!(limited.recognised > 100, "{summary}");
+        let last_limited = limited.recognised_lap_rmse(last);
+        assert!(
+            last_limited < 1.5 * limited.recognised_lap_rmse(0) + 0.05,
+            "{summary}"
+        );
+        assert!(
+            last_limited < 1.2 * unlimited.recognised_lap_rmse(last) + 0.02,
+            "{summary}"
+        );
     }
 
     #[test]

@@ -11,6 +11,7 @@ use super::config::{AbsoluteConfig, EdgeWeighting};
 use super::landmark_registry::LandmarkRegistry;
 use super::map_file::MapLandmark;
 use super::map_worker::SolvedMap;
+use super::node_places::NodePlaces;
 use crate::edge_map::edge::{EdgeMap, LandmarkObservation};
 use crate::edge_map::policy::EdgePolicy;
 use crate::relative::types::{LandmarkId, RelativeOutput};
@@ -68,6 +69,13 @@ pub(super) struct MapBuilder {
     nodes_per_landmark: Vec<u16>,
     /// See [`AbsoluteConfig::frame_node_saturation`] (0: off).
     saturation: usize,
+    /// Where the frame nodes were taken.
+    places: NodePlaces,
+    /// See [`AbsoluteConfig::node_passes_per_place`] (0: off).
+    passes_per_place: usize,
+    /// Frames whose turn it was to become a node, left out because their
+    /// place took nodes on `passes_per_place` passes already.
+    frames_place_full: usize,
 }
 
 impl MapBuilder {
@@ -93,6 +101,9 @@ impl MapBuilder {
             frames_saturated: 0,
             nodes_per_landmark: Vec::new(),
             saturation: config.frame_node_saturation,
+            places: NodePlaces::default(),
+            passes_per_place: config.node_passes_per_place,
+            frames_place_full: 0,
         }
     }
 
@@ -100,6 +111,17 @@ impl MapBuilder {
     /// already ([`AbsoluteConfig::frame_node_saturation`]).
     pub(super) fn frames_saturated(&self) -> usize {
         self.frames_saturated
+    }
+
+    /// Frames left out of the map because their place was mapped on
+    /// enough passes already ([`AbsoluteConfig::node_passes_per_place`]).
+    pub(super) fn frames_place_full(&self) -> usize {
+        self.frames_place_full
+    }
+
+    /// Places holding frame nodes.
+    pub(super) fn node_places(&self) -> usize {
+        self.places.len()
     }
 
     /// Whether most of a frame's landmarks (more than
@@ -237,13 +259,15 @@ impl MapBuilder {
     }
 
     /// Edges of one tracking frame (eq. 41-43) with the configured policy
-    /// and weighting. Tracks for which `pending` holds (a recognition not
-    /// yet confirmed) are left out: they get a map id once they are
-    /// confirmed or given up.
+    /// and weighting; `position_m` is the robot's corrected world
+    /// position (the place a frame node is taken at). Tracks for which
+    /// `pending` holds (a recognition not yet confirmed) are left out:
+    /// they get a map id once they are confirmed or given up.
     pub(super) fn fuse(
         &mut self,
         output: &RelativeOutput,
         rotation: &Matrix3<f64>,
+        position_m: &Vector3<f64>,
         pending: impl Fn(LandmarkId) -> bool,
     ) {
         if output.landmarks.len() < 2 {
@@ -272,7 +296,7 @@ impl MapBuilder {
             return;
         }
         if let EdgePolicy::FrameNodes { every } = self.policy {
-            self.fuse_frame_node(rotation, &observations, every, anchor_node);
+            self.fuse_frame_node(rotation, position_m, &observations, every, anchor_node);
             return;
         }
         let positions: Vec<Vector3<f64>> = observations.iter().map(|o| o.p_body_m).collect();
@@ -320,6 +344,7 @@ impl MapBuilder {
     fn fuse_frame_node(
         &mut self,
         rotation: &Matrix3<f64>,
+        position_m: &Vector3<f64>,
         observations: &[LandmarkObservation],
         every: usize,
         anchor_node: bool,
@@ -330,11 +355,31 @@ impl MapBuilder {
             // correct later frames once another frame maps them.
             return;
         }
+        // Where the frame looks: the mean direction of its landmarks.
+        let looking = rotation
+            * observations
+                .iter()
+                .filter_map(|o| o.p_body_m.try_normalize(0.0))
+                .sum::<Vector3<f64>>();
+        let place = self.places.turn(position_m, &looking);
         if !anchor_node && self.mostly_mapped(observations) {
             // The odometry since the last node goes on accumulating: the
             // next node's edge spans both.
             self.frames_saturated += 1;
             return;
+        }
+        if let Some(place) = place {
+            if !anchor_node
+                && self.passes_per_place > 0
+                && self.places.is_full(place, self.passes_per_place)
+            {
+                // Mapped from here on enough passes already (with landmarks
+                // recognition did not find again): the odometry goes on
+                // accumulating.
+                self.frames_place_full += 1;
+                return;
+            }
+            self.places.add_node(place);
         }
         let node = if anchor_node {
             0

@@ -7,7 +7,8 @@
 //! old identity ([`recognition`]'s gates, confirmed over frames); the
 //! `map_builder` adds the frame's edges to the [`crate::edge_map`] (the
 //! linear maths) and keeps which track is which unknown
-//! (`landmark_registry`); the map is solved every few frames off the
+//! (`landmark_registry`) and where its frame nodes were taken
+//! (`node_places`); the map is solved every few frames off the
 //! frame-rate path ([`map_worker`], scheduled by mode in
 //! [`solve_schedule`]); the relative stage's orientation is corrected by
 //! an offset the map's landmarks measure ([`orientation_filter`]); and the
@@ -29,6 +30,7 @@ pub mod map_cross_covariance;
 pub mod map_file;
 pub mod map_worker;
 pub mod nees;
+mod node_places;
 pub mod orientation_filter;
 pub mod position_filter;
 mod recogniser;

@@ -85,6 +85,11 @@ pub struct AbsoluteSettings {
     /// that keeps revisiting the same room stops growing its map (0:
     /// every frame adds one, the map grows for as long as the robot runs).
     pub frame_node_saturation: usize,
+    /// A place (a 0.5 m cube and a viewing direction, about 45 degrees)
+    /// takes frame nodes on at most this many passes of the robot, so the
+    /// map stops growing on revisits where recognition misses landmarks
+    /// seen again (0: no limit).
+    pub node_passes_per_place: usize,
     /// Correct the orientation as well as the position: the map's
     /// landmarks estimate an offset of the relative stage's orientation
     /// that wanders by this much, rad per sqrt(s) (0: the paper's filter,
@@ -126,6 +131,7 @@ impl Default for AbsoluteSettings {
             robust_map: config.robust.is_some(),
             odometry_edges: config.odometry_edges,
             frame_node_saturation: config.frame_node_saturation,
+            node_passes_per_place: config.node_passes_per_place,
             orientation_sigma_rad_per_sqrt_s: config.orientation_sigma_rad_per_sqrt_s,
         }
     }
@@ -290,6 +296,7 @@ impl AbsoluteSettings {
             robust: self.robust_map.then(RobustWeights::default),
             odometry_edges: self.odometry_edges,
             frame_node_saturation: self.frame_node_saturation,
+            node_passes_per_place: self.node_passes_per_place,
             orientation_sigma_rad_per_sqrt_s: orientation,
             ..AbsoluteConfig::default()
         })
@@ -345,6 +352,7 @@ mod tests {
         assert_eq!(config.robust, stage.robust);
         assert_eq!(config.odometry_edges, stage.odometry_edges);
         assert_eq!(config.frame_node_saturation, stage.frame_node_saturation);
+        assert_eq!(config.node_passes_per_place, stage.node_passes_per_place);
         assert_eq!(
             config.translation_sigma_per_sqrt_m,
             stage.translation_sigma_per_sqrt_m
@@ -377,6 +385,7 @@ mod tests {
             max_correction_landmarks: 17,
             solve_every_frames: 7,
             frame_node_saturation: 13,
+            node_passes_per_place: 7,
             recognition_max_hamming: 41,
             recognition_confirm_frames: 4,
             recognition_new_landmark_after_frames: 6,
@@ -389,6 +398,7 @@ mod tests {
         assert_eq!(config.max_correction_landmarks, 17);
         assert_eq!(config.solve_every_frames, 7);
         assert_eq!(config.frame_node_saturation, 13);
+        assert_eq!(config.node_passes_per_place, 7);
         let recognition = config.recognition.expect("on");
         assert_eq!(recognition.max_landmark_sigma_m, 0.3);
         assert_eq!(recognition.consensus_gate_m, 0.45);

@@ -51,6 +51,9 @@ pub struct RoomRunOptions {
     /// Give each track a descriptor: the landmark's own 256 bits with this
     /// many flipped at the track's birth (None: no descriptors).
     pub descriptor_bit_flips: Option<u32>,
+    /// Share of tracks born without a descriptor (too near the image
+    /// border for one), so recognition can never find them again.
+    pub undescribed_share: f64,
     /// Systematic odometry drift, world frame, m per m travelled: added
     /// to every increment in proportion to its length, so (unlike a scale
     /// error on a closed path) it accumulates lap after lap.
@@ -87,6 +90,7 @@ impl Default for RoomRunOptions {
             isotropic_landmarks: false,
             fresh_track_ids: false,
             descriptor_bit_flips: None,
+            undescribed_share: 0.0,
             drift_per_m: Vector3::zeros(),
             rotation_drift_rad_per_m: Vector3::zeros(),
             noise_seed: None,
@@ -230,14 +234,19 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
                 } else {
                     index as LandmarkId
                 };
-                let descriptor = options.descriptor_bit_flips.map(|flips| {
-                    let mut d = appearance[index];
-                    for _ in 0..flips {
-                        let bit = looks.gen_range(0..256usize);
-                        d[bit / 64] ^= 1 << (bit % 64);
-                    }
-                    d
-                });
+                let described = options.undescribed_share <= 0.0
+                    || looks.gen::<f64>() >= options.undescribed_share;
+                let descriptor = options
+                    .descriptor_bit_flips
+                    .filter(|_| described)
+                    .map(|flips| {
+                        let mut d = appearance[index];
+                        for _ in 0..flips {
+                            let bit = looks.gen_range(0..256usize);
+                            d[bit / 64] ^= 1 << (bit % 64);
+                        }
+                        d
+                    });
                 (id, descriptor)
             });
             track_landmark.insert(track.0, index);

@@ -10,6 +10,9 @@
 //! growing, and a frame whose landmarks are mostly joined to
 //! `frame_node_saturation` nodes already adds no node of its own (it is
 //! still corrected against the map), so the frame nodes stop growing too.
+//! Where recognition misses landmarks seen again, a place (a cube of the
+//! position and a viewing direction) that took nodes on
+//! `node_passes_per_place` passes takes no more (`node_places`).
 //!
 //! Per frame ([`AbsoluteStage::push`]):
 //! 1. install a map solve that has finished, if any;
@@ -188,6 +191,18 @@ pub struct AbsoluteStats {
     /// their landmarks were mapped already
     /// ([`AbsoluteConfig::frame_node_saturation`]).
     pub frames_saturated: usize,
+    /// Frames whose turn it was to become a frame node, left out because
+    /// their place took nodes on enough passes already
+    /// ([`AbsoluteConfig::node_passes_per_place`]).
+    pub frames_place_full: usize,
+    /// Places holding frame nodes.
+    pub node_places: usize,
+    /// Map ids handed out: one per track seen in a tracking frame (most
+    /// never join an edge), recognised tracks sharing theirs, and one per
+    /// frame node.
+    pub map_ids: usize,
+    /// Track ids the map knows (each has a map id).
+    pub tracks_known: usize,
     /// Frames whose orientation offset the landmarks corrected.
     pub orientation_corrections: usize,
     /// Orientation corrections refused as too large for one frame
@@ -472,14 +487,19 @@ impl AbsoluteStage {
             None if tracking && output.landmarks.len() >= 2 => self.anchor(output, &rotation),
             None => {}
         }
-        if tracking && self.filter.is_some() {
+        if let Some(filter) = self.filter.as_ref().filter(|_| tracking) {
             let recogniser = self.recogniser.as_ref();
-            self.builder.fuse(output, &rotation, |track| {
+            let position_m = filter.position_world_m();
+            self.builder.fuse(output, &rotation, &position_m, |track| {
                 recogniser.is_some_and(|r| r.is_pending(track))
             });
             self.note_in_view(output);
             self.stats.frame_nodes = self.builder.frame_nodes();
             self.stats.frames_saturated = self.builder.frames_saturated();
+            self.stats.frames_place_full = self.builder.frames_place_full();
+            self.stats.node_places = self.builder.node_places();
+            self.stats.map_ids = self.builder.registry().map_ids();
+            self.stats.tracks_known = self.builder.registry().tracks();
         }
         self.frames_since_solve += 1;
         if self.frames_since_solve >= self.config.solve_every_frames
