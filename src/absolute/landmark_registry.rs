@@ -5,7 +5,12 @@
 //! every track id mapped to its map id (several tracks may share one when
 //! recognition says they are the same landmark), and for every map id the
 //! track it entered the map under and its descriptor, for recognition and
-//! for saving the map.
+//! for saving the map. With frame nodes, a track gets its map id when a
+//! node is joined to it; until then a track fused in frames that add no
+//! node is only known (so recognition leaves it alone, and its first
+//! descriptor is kept) until it has been out of the fused frames for
+//! [`FORGET_AFTER_FRAMES`]: a robot that keeps driving does not keep an
+//! entry for every track it ever saw.
 
 use std::collections::HashMap;
 
@@ -26,7 +31,17 @@ pub(super) struct LandmarkRegistry {
     /// By map id: the landmark's descriptor (None for frame nodes and
     /// tracks that had none).
     descriptors: Vec<Option<Descriptor>>,
+    /// Tracks fused without a map id yet: their first descriptor, and the
+    /// fused frame they were last in.
+    known_without_id: HashMap<LandmarkId, (Option<Descriptor>, u64)>,
+    /// Frames fused ([`LandmarkRegistry::note_without_id`] calls).
+    fused_frames: u64,
 }
+
+/// A track fused without a map id is forgotten after this many fused
+/// frames without it (5 s at 20 Hz): a tracker's track that leaves the
+/// view never comes back under its id. Checked every this many frames.
+const FORGET_AFTER_FRAMES: u64 = 100;
 
 impl LandmarkRegistry {
     /// True before the first unknown.
@@ -50,14 +65,47 @@ impl LandmarkRegistry {
         self.map_ids.get(&track).copied()
     }
 
-    /// True when the track has a map id.
+    /// True when the track has a map id, or was fused without one: it is
+    /// a landmark of its own, recognition does not look for it.
     pub(super) fn contains(&self, track: LandmarkId) -> bool {
-        self.map_ids.contains_key(&track)
+        self.map_ids.contains_key(&track) || self.known_without_id.contains_key(&track)
+    }
+
+    /// One fused frame: its tracks that have no map id (with their
+    /// descriptors). Tracks out of the fused frames for
+    /// [`FORGET_AFTER_FRAMES`] are forgotten.
+    pub(super) fn note_without_id(
+        &mut self,
+        tracks: impl IntoIterator<Item = (LandmarkId, Option<Descriptor>)>,
+    ) {
+        self.fused_frames += 1;
+        let now = self.fused_frames;
+        for (track, descriptor) in tracks {
+            let entry = self.known_without_id.entry(track).or_insert((None, now));
+            entry.0 = entry.0.or(descriptor);
+            entry.1 = now;
+        }
+        if now % FORGET_AFTER_FRAMES == 0 {
+            self.known_without_id
+                .retain(|_, (_, seen)| now - *seen < FORGET_AFTER_FRAMES);
+        }
+    }
+
+    /// Tracks fused without a map id that are still remembered.
+    #[cfg(test)]
+    fn known_without_id(&self) -> usize {
+        self.known_without_id.len()
     }
 
     /// The map id of `track`, a new one if it has none. A landmark first
     /// seen without a descriptor takes the first one it is seen with.
     pub(super) fn assign(&mut self, track: LandmarkId, descriptor: Option<Descriptor>) -> u32 {
+        // A track fused before without an id keeps the descriptor it was
+        // first seen with.
+        let descriptor = match self.known_without_id.remove(&track) {
+            Some((first, _)) => first.or(descriptor),
+            None => descriptor,
+        };
         let next = self.first_tracks.len() as u32;
         let map_id = *self.map_ids.entry(track).or_insert(next);
         if map_id == next {
@@ -136,5 +184,21 @@ mod tests {
         // Four ids (a node, three landmarks) for four tracks, one of them
         // (12) sharing 7's id and the node having none.
         assert_eq!((registry.map_ids(), registry.tracks()), (4, 4));
+        // Tracks fused without an id are known (with their first
+        // descriptor) until they have been out of the fused frames for
+        // FORGET_AFTER_FRAMES.
+        registry.note_without_id([(20, None), (21, Some([1; 4]))]);
+        assert!(registry.contains(20) && registry.contains(21) && registry.contains(7));
+        assert_eq!(registry.map_id_of(20), None);
+        for _ in 0..2 * FORGET_AFTER_FRAMES {
+            registry.note_without_id([(21, Some([2; 4]))]);
+        }
+        assert!(!registry.contains(20) && registry.contains(21));
+        assert_eq!(registry.known_without_id(), 1);
+        assert_eq!((registry.map_ids(), registry.tracks()), (4, 4));
+        // Its id, when it gets one, comes with the first descriptor.
+        assert_eq!(registry.assign(21, Some([3; 4])), 4);
+        assert_eq!(registry.descriptors()[4], Some([1; 4]));
+        assert_eq!(registry.known_without_id(), 0);
     }
 }

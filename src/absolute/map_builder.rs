@@ -14,6 +14,7 @@ use super::map_worker::SolvedMap;
 use super::node_places::NodePlaces;
 use crate::edge_map::edge::{EdgeMap, LandmarkObservation};
 use crate::edge_map::policy::EdgePolicy;
+use crate::features::orb::Descriptor;
 use crate::relative::types::{LandmarkId, RelativeOutput};
 
 /// What the map's reference (map id 0, fixed at the anchor) is.
@@ -279,24 +280,50 @@ impl MapBuilder {
         if anchor_node {
             self.registry.add_frame_node();
         }
-        let mut observations: Vec<LandmarkObservation> = output
-            .landmarks
-            .iter()
-            .filter(|l| !pending(l.id))
-            .map(|l| LandmarkObservation {
-                id: self.registry.assign(l.id, l.descriptor),
+        // With frame nodes a track gets its map id when a node is joined
+        // to it: (index in `observations`, track, descriptor) of those
+        // that have none yet.
+        let frame_nodes = self.has_frame_nodes();
+        let mut without_id = Vec::new();
+        let mut observations: Vec<LandmarkObservation> = Vec::with_capacity(output.landmarks.len());
+        // Two live tracks recognised as one landmark: keep the first.
+        let mut seen = std::collections::HashSet::with_capacity(output.landmarks.len());
+        for l in output.landmarks.iter().filter(|l| !pending(l.id)) {
+            let id = if frame_nodes && self.registry.map_id_of(l.id).is_none() {
+                without_id.push((observations.len(), l.id, l.descriptor));
+                NO_ID_YET
+            } else {
+                let id = self.registry.assign(l.id, l.descriptor);
+                if !seen.insert(id) {
+                    continue;
+                }
+                id
+            };
+            observations.push(LandmarkObservation {
+                id,
                 p_body_m: l.position_body_m,
                 cov_body_m2: l.covariance_body_m2,
-            })
-            .collect();
-        // Two live tracks recognised as one landmark: keep the first.
-        let mut seen = std::collections::HashSet::with_capacity(observations.len());
-        observations.retain(|o| seen.insert(o.id));
-        if observations.len() < 2 {
-            return;
+            });
         }
         if let EdgePolicy::FrameNodes { every } = self.policy {
-            self.fuse_frame_node(rotation, position_m, &observations, every, anchor_node);
+            let node = observations.len() >= 2
+                && self.fuse_frame_node(
+                    rotation,
+                    position_m,
+                    &mut observations,
+                    &without_id,
+                    every,
+                    anchor_node,
+                );
+            let still_without = if node { Vec::new() } else { without_id };
+            self.registry.note_without_id(
+                still_without
+                    .into_iter()
+                    .map(|(_, track, descriptor)| (track, descriptor)),
+            );
+            return;
+        }
+        if observations.len() < 2 {
             return;
         }
         let positions: Vec<Vector3<f64>> = observations.iter().map(|o| o.p_body_m).collect();
@@ -340,20 +367,21 @@ impl MapBuilder {
 
     /// [`EdgePolicy::FrameNodes`]: every `every`-th mapped frame becomes a
     /// node joined to its landmarks, and to the previous node by the
-    /// odometry between them.
+    /// odometry between them. The tracks of `without_id` (index in
+    /// `observations`, track, descriptor) get their map ids when the node
+    /// is added. True when it is.
     fn fuse_frame_node(
         &mut self,
         rotation: &Matrix3<f64>,
         position_m: &Vector3<f64>,
-        observations: &[LandmarkObservation],
+        observations: &mut [LandmarkObservation],
+        without_id: &[(usize, LandmarkId, Option<Descriptor>)],
         every: usize,
         anchor_node: bool,
-    ) {
+    ) -> bool {
         self.mapped_frames += 1;
         if (self.mapped_frames - 1) % every != 0 {
-            // The frame's landmarks still have their map ids: they may
-            // correct later frames once another frame maps them.
-            return;
+            return false;
         }
         // Where the frame looks: the mean direction of its landmarks.
         let looking = rotation
@@ -366,7 +394,7 @@ impl MapBuilder {
             // The odometry since the last node goes on accumulating: the
             // next node's edge spans both.
             self.frames_saturated += 1;
-            return;
+            return false;
         }
         if let Some(place) = place {
             if !anchor_node
@@ -377,9 +405,12 @@ impl MapBuilder {
                 // recognition did not find again): the odometry goes on
                 // accumulating.
                 self.frames_place_full += 1;
-                return;
+                return false;
             }
             self.places.add_node(place);
+        }
+        for &(k, track, descriptor) in without_id {
+            observations[k].id = self.registry.assign(track, descriptor);
         }
         let node = if anchor_node {
             0
@@ -387,7 +418,7 @@ impl MapBuilder {
             self.registry.add_frame_node()
         };
         self.frame_nodes += 1;
-        for o in observations {
+        for o in observations.iter() {
             let k = o.id as usize;
             if self.nodes_per_landmark.len() <= k {
                 self.nodes_per_landmark.resize(k + 1, 0);
@@ -409,6 +440,7 @@ impl MapBuilder {
             travelled_m: Vector3::zeros(),
             distance_m: 0.0,
         });
+        true
     }
 }
 
@@ -438,6 +470,10 @@ fn positive_part(block: &Matrix3<f64>) -> Option<Matrix3<f64>> {
 /// adds counts for at least half its landmarks, so a room of `L`
 /// landmarks seen `m` at a time gets at most `2 L saturation / m` nodes.
 const MAPPED_SHARE_TO_SKIP: f64 = 0.5;
+
+/// The id of an observation whose track gets its map id only if the frame
+/// adds a node (never a map id: the registry hands them out densely).
+const NO_ID_YET: u32 = u32::MAX;
 
 /// Smallest eigenvalue kept in an edge's information, relative to its
 /// largest: keeps fused edges positive definite (see [`positive_part`]).

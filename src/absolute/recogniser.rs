@@ -94,7 +94,14 @@ impl Recogniser {
             registry.descriptors(),
             &output.landmarks,
             placement,
-            |track| registry.map_id_of(track),
+            // A track fused before is a landmark of its own, mapped or not
+            // yet (no map id until a frame node joins it): not looked for.
+            // The stand-in id is no map landmark's.
+            |track| {
+                registry
+                    .map_id_of(track)
+                    .or_else(|| registry.contains(track).then_some(u32::MAX))
+            },
             config,
             &mut self.candidates,
         );

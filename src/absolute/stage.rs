@@ -684,18 +684,28 @@ impl AbsoluteStage {
 
     fn note_in_view(&mut self, output: &RelativeOutput) {
         let registry = self.builder.registry();
-        let mut ranked: Vec<(f64, u32)> = output
+        // Every track the map knows takes a place in the ranking, those
+        // not joined to a frame node yet (no map id) included: the
+        // covariance blocks go to the most precise of the frame's tracks,
+        // whether or not each is mapped yet.
+        let mut ranked: Vec<(f64, Option<u32>)> = output
             .landmarks
             .iter()
-            .filter_map(|l| Some((l.covariance_body_m2.trace(), registry.map_id_of(l.id)?)))
+            .filter(|l| registry.contains(l.id))
+            .map(|l| (l.covariance_body_m2.trace(), registry.map_id_of(l.id)))
             .collect();
         ranked.sort_by(|a, b| a.0.total_cmp(&b.0));
         self.in_view.clear();
+        let mut unmapped = 0;
         for (_, id) in ranked {
-            if !self.in_view.contains(&id) {
-                self.in_view.push(id);
+            match id {
+                Some(id) if !self.in_view.contains(&id) => self.in_view.push(id),
+                Some(_) => {}
+                None => unmapped += 1,
             }
-            if self.in_view.len() >= IN_VIEW_FACTOR * self.config.max_correction_landmarks {
+            if self.in_view.len() + unmapped
+                >= IN_VIEW_FACTOR * self.config.max_correction_landmarks
+            {
                 break;
             }
         }

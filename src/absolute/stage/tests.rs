@@ -1166,3 +1166,42 @@ fn the_cross_covariance_followed_between_solves_equals_a_fresh_solve() {
         "{followed} frames followed more than one correction"
     );
 }
+
+#[test]
+fn only_tracks_joined_to_a_frame_node_get_a_map_id() {
+    // Laps of a room where every landmark comes back as a new track: the
+    // map ids stay those of the map's unknowns (landmarks joined to a
+    // frame node, and the nodes), not one per track ever seen, so a robot
+    // that keeps driving does not keep an entry per track.
+    let run = simulate_room_run(&RoomRunOptions {
+        laps: 3.0,
+        fresh_track_ids: true,
+        descriptor_bit_flips: Some(20),
+        ..RoomRunOptions::default()
+    });
+    let mut stage = AbsoluteStage::new(inline(AbsoluteConfig::default()));
+    for output in &run.outputs {
+        stage.push(output);
+    }
+    let map = stage.finish_map().expect("a map");
+    let stats = stage.stats();
+    let tracks = run.track_landmark.len();
+    let summary = format!(
+        "{} map ids, {} frame nodes, {} landmarks saved, {tracks} tracks in the run",
+        stats.map_ids,
+        stats.frame_nodes,
+        map.landmarks.len()
+    );
+    println!("{summary}");
+    // Every map id is a frame node or a saved landmark (one map, all of
+    // it joined to the reference).
+    assert_eq!(
+        stats.map_ids,
+        stats.frame_nodes + map.landmarks.len(),
+        "{summary}"
+    );
+    // Far fewer than the tracks: a map id per track would fail the above.
+    assert!(2 * stats.map_ids < tracks, "{summary}");
+    // Recognition still names tracks by the landmarks they are.
+    assert!(stats.recognised > 50, "{summary}");
+}
