@@ -43,14 +43,17 @@ pub(super) struct LandmarkRegistry {
 /// view never comes back under its id. Checked every this many frames.
 const FORGET_AFTER_FRAMES: u64 = 100;
 
+/// Stands for the map id of a track known without one (never a map id:
+/// they are handed out densely from 0).
+pub(super) const NO_ID_YET: u32 = u32::MAX;
+
 impl LandmarkRegistry {
     /// True before the first unknown.
     pub(super) fn is_empty(&self) -> bool {
         self.first_tracks.is_empty()
     }
 
-    /// Map ids handed out (landmarks, with or without edges, and frame
-    /// nodes).
+    /// Map ids handed out (landmarks and frame nodes).
     pub(super) fn map_ids(&self) -> usize {
         self.first_tracks.len()
     }
@@ -58,6 +61,17 @@ impl LandmarkRegistry {
     /// Track ids that have a map id.
     pub(super) fn tracks(&self) -> usize {
         self.map_ids.len()
+    }
+
+    /// The map id of a track; [`NO_ID_YET`] for one fused without an id
+    /// yet; None for a track the map does not know (which recognition may
+    /// look for).
+    pub(super) fn known_as(&self, track: LandmarkId) -> Option<u32> {
+        self.map_id_of(track).or_else(|| {
+            self.known_without_id
+                .contains_key(&track)
+                .then_some(NO_ID_YET)
+        })
     }
 
     /// The map id of a track, if it has one.
@@ -190,6 +204,9 @@ mod tests {
         registry.note_without_id([(20, None), (21, Some([1; 4]))]);
         assert!(registry.contains(20) && registry.contains(21) && registry.contains(7));
         assert_eq!(registry.map_id_of(20), None);
+        assert_eq!(registry.known_as(20), Some(NO_ID_YET));
+        assert_eq!(registry.known_as(7), Some(1));
+        assert_eq!(registry.known_as(99), None);
         for _ in 0..2 * FORGET_AFTER_FRAMES {
             registry.note_without_id([(21, Some([2; 4]))]);
         }

@@ -8,7 +8,7 @@
 use nalgebra::{Matrix3, Vector3};
 
 use super::config::{AbsoluteConfig, EdgeWeighting};
-use super::landmark_registry::LandmarkRegistry;
+use super::landmark_registry::{LandmarkRegistry, NO_ID_YET};
 use super::map_file::MapLandmark;
 use super::map_worker::SolvedMap;
 use super::node_places::NodePlaces;
@@ -470,10 +470,6 @@ fn positive_part(block: &Matrix3<f64>) -> Option<Matrix3<f64>> {
 /// adds counts for at least half its landmarks, so a room of `L`
 /// landmarks seen `m` at a time gets at most `2 L saturation / m` nodes.
 const MAPPED_SHARE_TO_SKIP: f64 = 0.5;
-
-/// The id of an observation whose track gets its map id only if the frame
-/// adds a node (never a map id: the registry hands them out densely).
-const NO_ID_YET: u32 = u32::MAX;
 
 /// Smallest eigenvalue kept in an edge's information, relative to its
 /// largest: keeps fused edges positive definite (see [`positive_part`]).

@@ -96,12 +96,7 @@ impl Recogniser {
             placement,
             // A track fused before is a landmark of its own, mapped or not
             // yet (no map id until a frame node joins it): not looked for.
-            // The stand-in id is no map landmark's.
-            |track| {
-                registry
-                    .map_id_of(track)
-                    .or_else(|| registry.contains(track).then_some(u32::MAX))
-            },
+            |track| registry.known_as(track),
             config,
             &mut self.candidates,
         );

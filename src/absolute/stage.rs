@@ -197,11 +197,11 @@ pub struct AbsoluteStats {
     pub frames_place_full: usize,
     /// Places holding frame nodes.
     pub node_places: usize,
-    /// Map ids handed out: one per track seen in a tracking frame (most
-    /// never join an edge), recognised tracks sharing theirs, and one per
-    /// frame node.
+    /// Map ids handed out: one per landmark (with frame nodes, once a node
+    /// joins it; recognised tracks share theirs) and one per frame node.
     pub map_ids: usize,
-    /// Track ids the map knows (each has a map id).
+    /// Track ids that have a map id (a landmark's first track, and the
+    /// tracks recognised as it).
     pub tracks_known: usize,
     /// Frames whose orientation offset the landmarks corrected.
     pub orientation_corrections: usize,
@@ -684,10 +684,10 @@ impl AbsoluteStage {
 
     fn note_in_view(&mut self, output: &RelativeOutput) {
         let registry = self.builder.registry();
-        // Every track the map knows takes a place in the ranking, those
-        // not joined to a frame node yet (no map id) included: the
-        // covariance blocks go to the most precise of the frame's tracks,
-        // whether or not each is mapped yet.
+        // The budget counts every track the map knows, those no frame
+        // node joined yet (no map id, so no block to ask for) included:
+        // the blocks go to the most precise of the frame's known tracks
+        // that are mapped.
         let mut ranked: Vec<(f64, Option<u32>)> = output
             .landmarks
             .iter()
