@@ -10,7 +10,12 @@
 //! node is only known (so recognition leaves it alone, and its first
 //! descriptor is kept) until it has been out of the fused frames for
 //! [`FORGET_AFTER_FRAMES`]: a robot that keeps driving does not keep an
-//! entry for every track it ever saw.
+//! entry for every track it ever saw. A recognised track (an alias of a
+//! map landmark) is dropped the same way once it has been out of the
+//! fused frames for as long; its landmark keeps its map id under the
+//! track it entered the map with. A run that checks its recognitions
+//! afterwards asks for a log of every alias made
+//! ([`LandmarkRegistry::keep_alias_log`]).
 
 use std::collections::HashMap;
 
@@ -34,6 +39,10 @@ pub(super) struct LandmarkRegistry {
     /// Tracks fused without a map id yet: their first descriptor, and the
     /// fused frame they were last in.
     known_without_id: HashMap<LandmarkId, (Option<Descriptor>, u64)>,
+    /// Recognised tracks (aliases) and the fused frame they were last in.
+    alias_seen: HashMap<LandmarkId, u64>,
+    /// Every alias made, (track, map id), when asked for.
+    alias_log: Option<Vec<(LandmarkId, u32)>>,
     /// Frames fused ([`LandmarkRegistry::note_without_id`] calls).
     fused_frames: u64,
 }
@@ -86,8 +95,8 @@ impl LandmarkRegistry {
     }
 
     /// One fused frame: its tracks that have no map id (with their
-    /// descriptors). Tracks out of the fused frames for
-    /// [`FORGET_AFTER_FRAMES`] are forgotten.
+    /// descriptors). Tracks without a map id and aliases out of the fused
+    /// frames for [`FORGET_AFTER_FRAMES`] are forgotten.
     pub(super) fn note_without_id(
         &mut self,
         tracks: impl IntoIterator<Item = (LandmarkId, Option<Descriptor>)>,
@@ -102,7 +111,22 @@ impl LandmarkRegistry {
         if now % FORGET_AFTER_FRAMES == 0 {
             self.known_without_id
                 .retain(|_, (_, seen)| now - *seen < FORGET_AFTER_FRAMES);
+            let map_ids = &mut self.map_ids;
+            self.alias_seen.retain(|track, seen| {
+                let keep = now - *seen < FORGET_AFTER_FRAMES;
+                if !keep {
+                    map_ids.remove(track);
+                }
+                keep
+            });
         }
+    }
+
+    /// From now on every alias is logged for [`LandmarkRegistry::aliases`],
+    /// also once its track is forgotten (a run that checks its
+    /// recognitions against the ground truth at the end).
+    pub(super) fn keep_alias_log(&mut self) {
+        self.alias_log.get_or_insert_with(Vec::new);
     }
 
     /// Tracks fused without a map id that are still remembered.
@@ -120,6 +144,9 @@ impl LandmarkRegistry {
             Some((first, _)) => first.or(descriptor),
             None => descriptor,
         };
+        if let Some(seen) = self.alias_seen.get_mut(&track) {
+            *seen = self.fused_frames;
+        }
         let next = self.first_tracks.len() as u32;
         let map_id = *self.map_ids.entry(track).or_insert(next);
         if map_id == next {
@@ -141,6 +168,10 @@ impl LandmarkRegistry {
     /// Records that `track` is the landmark `map_id` (a recognition).
     pub(super) fn alias(&mut self, track: LandmarkId, map_id: u32) {
         self.map_ids.insert(track, map_id);
+        self.alias_seen.insert(track, self.fused_frames);
+        if let Some(log) = self.alias_log.as_mut() {
+            log.push((track, map_id));
+        }
     }
 
     /// The track a map landmark entered the map under; None for a frame
@@ -163,12 +194,25 @@ impl LandmarkRegistry {
     }
 
     /// Track ids recognised as a landmark already in the map: (the track
-    /// id, the id the landmark entered the map with).
-    pub(super) fn aliases(&self) -> impl Iterator<Item = (LandmarkId, LandmarkId)> + '_ {
-        self.map_ids.iter().filter_map(|(&track, &map_id)| {
-            let first = self.first_tracks[map_id as usize];
-            (first != track).then_some((track, first))
-        })
+    /// id, the id the landmark entered the map with). Every one made since
+    /// [`LandmarkRegistry::keep_alias_log`], else those of tracks still
+    /// remembered.
+    pub(super) fn aliases(&self) -> Vec<(LandmarkId, LandmarkId)> {
+        let pairs: Vec<(LandmarkId, u32)> = match &self.alias_log {
+            Some(log) => log.clone(),
+            None => self
+                .alias_seen
+                .keys()
+                .filter_map(|&track| Some((track, *self.map_ids.get(&track)?)))
+                .collect(),
+        };
+        pairs
+            .into_iter()
+            .filter_map(|(track, map_id)| {
+                let first = self.first_tracks[map_id as usize];
+                (first != track).then_some((track, first))
+            })
+            .collect()
     }
 }
 
@@ -193,7 +237,7 @@ mod tests {
         assert_eq!(registry.first_track(1), Some(7));
         assert_eq!(registry.first_track(0), None);
         assert!(registry.is_frame_node(0) && !registry.is_frame_node(1));
-        assert_eq!(registry.aliases().collect::<Vec<_>>(), vec![(12, 7)]);
+        assert_eq!(registry.aliases(), vec![(12, 7)]);
         assert_eq!(registry.assign(13, None), 3);
         // Four ids (a node, three landmarks) for four tracks, one of them
         // (12) sharing 7's id and the node having none.
@@ -212,10 +256,47 @@ mod tests {
         }
         assert!(!registry.contains(20) && registry.contains(21));
         assert_eq!(registry.known_without_id(), 1);
-        assert_eq!((registry.map_ids(), registry.tracks()), (4, 4));
+        // The alias 12, out of the fused frames as long, is forgotten too;
+        // its landmark keeps its id under 7.
+        assert_eq!(registry.map_id_of(12), None);
+        assert!(registry.aliases().is_empty());
+        assert_eq!((registry.map_ids(), registry.tracks()), (4, 3));
+        assert_eq!(registry.map_id_of(7), Some(1));
         // Its id, when it gets one, comes with the first descriptor.
         assert_eq!(registry.assign(21, Some([3; 4])), 4);
         assert_eq!(registry.descriptors()[4], Some([1; 4]));
         assert_eq!(registry.known_without_id(), 0);
+    }
+
+    #[test]
+    fn an_alias_in_view_is_kept_and_the_log_keeps_every_alias() {
+        let mut registry = LandmarkRegistry::default();
+        registry.add_frame_node();
+        let landmark = registry.assign(7, None);
+        registry.alias(12, landmark);
+        registry.alias(13, landmark);
+        registry.keep_alias_log();
+        registry.alias(14, landmark);
+        // 12 stays in the fused frames, 13 and 14 leave them.
+        for _ in 0..2 * FORGET_AFTER_FRAMES {
+            assert_eq!(registry.assign(12, None), landmark);
+            registry.note_without_id([]);
+        }
+        assert_eq!(registry.map_id_of(12), Some(landmark));
+        assert_eq!(registry.map_id_of(13), None);
+        assert_eq!(registry.map_id_of(14), None);
+        // Without the log only 12 is listed; with it every alias made
+        // since the log was asked for is, forgotten or not.
+        assert_eq!(registry.aliases(), vec![(14, 7)]);
+        let mut quiet = LandmarkRegistry::default();
+        quiet.add_frame_node();
+        let id = quiet.assign(7, None);
+        quiet.alias(12, id);
+        quiet.alias(13, id);
+        for _ in 0..2 * FORGET_AFTER_FRAMES {
+            quiet.assign(12, None);
+            quiet.note_without_id([]);
+        }
+        assert_eq!(quiet.aliases(), vec![(12, 7)]);
     }
 }

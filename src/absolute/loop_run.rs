@@ -104,6 +104,7 @@ pub fn compare_loops(options: &RoomRunOptions, config: &AbsoluteConfig) -> LoopC
             recognition,
             ..config.clone()
         });
+        stage.keep_alias_log();
         let mut map_per_lap = vec![LapMap::default(); laps];
         let errors: Vec<Option<f64>> = run
             .outputs
@@ -128,6 +129,7 @@ pub fn compare_loops(options: &RoomRunOptions, config: &AbsoluteConfig) -> LoopC
         stage.wait_for_solve();
         let wrong = stage
             .aliases()
+            .into_iter()
             .filter(|(track, first)| run.track_landmark.get(track) != run.track_landmark.get(first))
             .count();
         (errors, stage.stats().recognised, wrong, map_per_lap)

@@ -394,9 +394,18 @@ impl AbsoluteStage {
     }
 
     /// Track ids recognised as a landmark already in the map: (the track
-    /// id, the id the landmark entered the map with).
-    pub fn aliases(&self) -> impl Iterator<Item = (LandmarkId, LandmarkId)> + '_ {
+    /// id, the id the landmark entered the map with). Every one made
+    /// since [`AbsoluteStage::keep_alias_log`]; without it only those of
+    /// tracks still in view lately (a long run forgets ended tracks).
+    pub fn aliases(&self) -> Vec<(LandmarkId, LandmarkId)> {
         self.builder.registry().aliases()
+    }
+
+    /// Logs every recognition from now on for [`AbsoluteStage::aliases`]
+    /// (a run that checks them against the ground truth at its end; the
+    /// log grows with every recognition).
+    pub fn keep_alias_log(&mut self) {
+        self.builder.registry_mut().keep_alias_log();
     }
 
     /// Solves the map with every edge fused so far (waiting for a running

@@ -172,6 +172,11 @@ pub fn run_dataset(
         .as_ref()
         .filter(|_| build_map)
         .map(|_| SightingLog::default());
+    if sightings.is_some() {
+        if let Some(stage) = pipeline.absolute_mut() {
+            stage.keep_alias_log();
+        }
+    }
     let mut covariance_poses = Vec::new();
     let mut outcome = run_stream(&mut stream, &mut pipeline, run.options, |frame| {
         let o = &frame.relative;
@@ -251,7 +256,7 @@ pub fn run_dataset(
         .absolute()
         .zip(ground_truth.as_ref())
         .zip(sightings.as_ref())
-        .and_then(|((stage, gt), log)| check_recognitions(log, stage.aliases(), gt));
+        .and_then(|((stage, gt), log)| check_recognitions(log, stage.aliases().into_iter(), gt));
     if let Some(check) = &recognition_check {
         tracing::info!(
             "recognitions against the ground truth: {} of {} over {WRONG_M} m ({} over 1 m), median {:.3} m",
