@@ -3,6 +3,7 @@
 //! to systemd. See `rigslam::daemon` for the pipeline and src/publish/README.md
 //! for what it publishes.
 
+mod heap;
 mod notify;
 mod report;
 mod signals;
@@ -73,7 +74,11 @@ struct Args {
 }
 
 fn main() -> std::process::ExitCode {
+    let one_arena = heap::one_arena();
     rigslam::console::init_logging();
+    if !one_arena {
+        tracing::debug!("the C library kept its own malloc arenas");
+    }
     let args = Args::parse();
     match run(args) {
         Ok(code) => code,
