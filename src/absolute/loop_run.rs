@@ -43,6 +43,9 @@ pub struct LapMap {
     /// Unknowns of the last solve (landmarks and frame nodes, reference
     /// excluded).
     pub unknowns: usize,
+    /// Recognised tracks whose alias the stage still keeps (tracks with
+    /// a map id less the landmarks' own tracks).
+    pub aliases_kept: usize,
 }
 
 /// RMS of the errors in lap `lap` (NaN when it has none).
@@ -117,6 +120,9 @@ pub fn compare_loops(options: &RoomRunOptions, config: &AbsoluteConfig) -> LoopC
                 map_per_lap[lap] = LapMap {
                     frame_nodes: stats.frame_nodes,
                     unknowns: stats.last_unknowns / 3,
+                    aliases_kept: stats
+                        .tracks_known
+                        .saturating_sub(stats.map_ids.saturating_sub(stats.frame_nodes)),
                 };
                 pose.position_covariance_m2?;
                 let (reference, anchor) = stage.reference()?;
@@ -340,12 +346,14 @@ mod tests {
         let last = limited.laps - 1;
         let summary = format!(
             "unknowns per lap with the limit {u:?}, without {u_all:?}; last-lap error {:.3} m \
-             (without the limit {:.3}, first lap {:.3}); recognised {} / {}",
+             (without the limit {:.3}, first lap {:.3}); recognised {} / {}; aliases kept at the \
+             end {}",
             limited.recognised_lap_rmse(last),
             unlimited.recognised_lap_rmse(last),
             limited.recognised_lap_rmse(0),
             limited.recognised,
             unlimited.recognised,
+            limited.map_per_lap[last].aliases_kept,
         );
         println!("{summary}");
         let growth = |v: &[usize], laps: usize| v[last] as f64 - v[last - laps] as f64;
@@ -359,6 +367,15 @@ mod tests {
         assert!(growth(&u, 8) < 0.25 * growth(&u_all, 8), "{summary}");
         // Recognition still closes the loop, and the error stays bounded.
         assert!(limited.recognised > 100, "{summary}");
+        // A recognised track's alias is forgotten once the track has
+        // ended: the stage keeps those of the tracks in view lately, not
+        // one per recognition made.
+        let kept = limited.map_per_lap[last].aliases_kept;
+        assert!(
+            kept < limited.recognised / 5,
+            "{kept} aliases kept after {} recognitions; {summary}",
+            limited.recognised
+        );
         let last_limited = limited.recognised_lap_rmse(last);
         assert!(
             last_limited < 1.5 * limited.recognised_lap_rmse(0) + 0.05,
