@@ -198,21 +198,18 @@ impl LandmarkRegistry {
     /// [`LandmarkRegistry::keep_alias_log`], else those of tracks still
     /// remembered.
     pub(super) fn aliases(&self) -> Vec<(LandmarkId, LandmarkId)> {
-        let pairs: Vec<(LandmarkId, u32)> = match &self.alias_log {
-            Some(log) => log.clone(),
+        let with_first = |(track, map_id): (LandmarkId, u32)| {
+            let first = self.first_tracks[map_id as usize];
+            (first != track).then_some((track, first))
+        };
+        match &self.alias_log {
+            Some(log) => log.iter().copied().filter_map(with_first).collect(),
             None => self
                 .alias_seen
                 .keys()
-                .filter_map(|&track| Some((track, *self.map_ids.get(&track)?)))
+                .filter_map(|&track| with_first((track, *self.map_ids.get(&track)?)))
                 .collect(),
-        };
-        pairs
-            .into_iter()
-            .filter_map(|(track, map_id)| {
-                let first = self.first_tracks[map_id as usize];
-                (first != track).then_some((track, first))
-            })
-            .collect()
+        }
     }
 }
 
