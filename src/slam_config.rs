@@ -121,6 +121,7 @@ mod tests {
             ("imu_noise_scale_accel = -2.0\n", "noise_scale_accel"),
             ("imu_noise_scale_accel = 1000.0\n", "noise_scale_accel"),
             ("imu_noise_adaptation_memory_s = nan\n", "memory_s"),
+            ("level_time_constant_s = -1.0\n", "level_time_constant_s"),
         ] {
             let e = err(&format!("[relative]\n{text}"));
             assert!(e.contains(key), "{text}: {e}");

@@ -8,7 +8,8 @@ settings (`--config`, default: the defaults). Columns: ATE RMSE (se3,
 m), scale error (%), NEES per dof of the published covariance, and
 whether the run lost track or re-initialised; with the absolute stage on
 (`[absolute] enabled = true` in `--config`), the two-stage ATE against
-the relative stage's poses of the same run. The means per set and mode
+the relative stage's poses of the same run; in the inertial modes the
+relative stage's roll and pitch error against gravity (rms, deg). The means per set and mode
 are at the end; with `stereo` among the modes, each inertial run is also
 compared with the same cameras without the IMU.
 
@@ -58,6 +59,8 @@ def run(binary, root, seq, mode, config):
         "nees": nees.get("mean_per_dof"),
         "nees_position": nees.get("position_per_dof"),
         "nees_rotation": nees.get("rotation_per_dof"),
+        # Roll and pitch against the ground truth's, rms (inertial modes).
+        "tilt_deg": (r.get("tilt") or {}).get("rms_deg"),
         "lost": r.get("lost_count"),
         "resets": counters.get("resets"),
         "ms_per_frame": r.get("mean_ms_per_frame"),
@@ -94,8 +97,8 @@ def main():
         with open(a.out, "w") as f:
             json.dump(rows, f, indent=1)
     by = {(r["sequence"], r["mode"]): r for r in rows}
-    print("| set | sequence | mode | ATE m | scale err % | NEES/dof | lost | vs stereo | vs relative stage |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| set | sequence | mode | ATE m | scale err % | NEES/dof | tilt deg | lost | vs stereo | vs relative stage |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         if "error" in r:
             print(f"| {r['set']} | {r['sequence']} | {r['mode']} | failed: {r['error'][-80:]} |")
@@ -105,11 +108,12 @@ def main():
         if r["mode"] != "stereo" and vision and vision.get("ate_m") and r.get("ate_m"):
             versus = f"{r['ate_m'] / vision['ate_m']:.2f}x"
         print(f"| {r['set']} | {r['sequence']} | {r['mode']} | {fmt(r['ate_m'], '.4f')} | "
-              f"{fmt(r['scale_error_pct'], '.2f')} | {fmt(r['nees'], '.2f')} | {r['lost']} | {versus} | "
+              f"{fmt(r['scale_error_pct'], '.2f')} | {fmt(r['nees'], '.2f')} | {fmt(r.get('tilt_deg'), '.2f')} | "
+              f"{r['lost']} | {versus} | "
               f"{ratio(r.get('ate_m'), r.get('ate_relative_m'))} |")
     print()
-    print("| set | mode | mean ATE m (from rest) | mean ATE m (all) | max scale err % | mean NEES/dof |")
-    print("|---|---|---|---|---|---|")
+    print("| set | mode | mean ATE m (from rest) | mean ATE m (all) | max scale err % | mean NEES/dof | mean tilt deg |")
+    print("|---|---|---|---|---|---|---|")
     for s in a.sets:
         for mode in a.modes:
             rs = [r for r in rows if r["set"] == s and r["mode"] == mode and r.get("ate_m") is not None]
@@ -118,9 +122,10 @@ def main():
             rest = [r["ate_m"] for r in rs if "flight" not in r["sequence"]]
             scale = [r["scale_error_pct"] for r in rs if r["scale_error_pct"] is not None]
             nees = [r["nees"] for r in rs if r["nees"] is not None]
+            tilt = [r["tilt_deg"] for r in rs if r.get("tilt_deg") is not None]
             mean = lambda v: sum(v) / len(v) if v else None
             print(f"| {s} | {mode} | {fmt(mean(rest), '.4f')} | {fmt(mean([r['ate_m'] for r in rs]), '.4f')} | "
-                  f"{fmt(max(scale) if scale else None, '.2f')} | {fmt(mean(nees), '.2f')} |")
+                  f"{fmt(max(scale) if scale else None, '.2f')} | {fmt(mean(nees), '.2f')} | {fmt(mean(tilt), '.2f')} |")
 
 
 if __name__ == "__main__":

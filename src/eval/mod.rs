@@ -4,7 +4,8 @@
 //! ground-truth poses by time; [`align`] fits the requested transformation;
 //! [`metrics`] computes the errors; [`report`] gathers them into the numbers
 //! `rigslam eval` prints (`crate::plot::evaluation` draws them). [`consistency`] checks a
-//! published covariance against the errors (NEES).
+//! published covariance against the errors (NEES); [`tilt`] scores roll and
+//! pitch against gravity, which an alignment would hide.
 
 pub mod align;
 pub mod associate;
@@ -12,6 +13,7 @@ pub mod consistency;
 pub mod error;
 pub mod metrics;
 pub mod report;
+pub mod tilt;
 
 pub use align::{Alignment, Sim3};
 pub use associate::{associate, MatchedPoses};

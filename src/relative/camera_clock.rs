@@ -70,4 +70,8 @@ impl RelativeEstimator for ShiftedFrames {
     fn camera_imu(&self) -> Option<crate::relative::window::CameraImuEstimate> {
         self.inner.camera_imu()
     }
+
+    fn gravity_world_m_s2(&self) -> Option<nalgebra::Vector3<f64>> {
+        self.inner.gravity_world_m_s2()
+    }
 }

@@ -119,6 +119,18 @@ pub struct RelativeConfig {
     /// Share of a solve's information about the calibration carried to
     /// the next one, in [0, 1).
     pub camera_imu_carry_weight: f64,
+    /// Turn the poses so that the estimated gravity points along -z
+    /// (`relative/level.rs`): an odometry frame with z up. The window's
+    /// own world is levelled by the first guess of gravity, made before
+    /// the accelerometer biases are known, and stays tilted by up to a
+    /// degree. Inertial modes only; vision-only poses are untouched.
+    pub level_poses: bool,
+    /// How quickly the level follows the gravity estimate, s (a
+    /// first-order filter; 0 follows at once). Slow enough that the
+    /// estimate's jitter between solves (tenths of a degree) does not bend
+    /// the path, quick enough to take out the world's tilt within a
+    /// minute.
+    pub level_time_constant_s: f64,
 }
 
 impl Default for RelativeConfig {
@@ -146,6 +158,8 @@ impl Default for RelativeConfig {
             camera_imu_time_offset_sigma_s: 0.01,
             camera_imu_stereo_rotation_sigma_deg: 0.2,
             camera_imu_carry_weight: 0.9,
+            level_poses: true,
+            level_time_constant_s: 20.0,
         }
     }
 }
@@ -250,6 +264,12 @@ impl RelativeConfig {
             "imu_only_max_s",
             self.imu_only_max_s.is_finite() && self.imu_only_max_s >= 0.0,
             self.imu_only_max_s.to_string(),
+            "a number >= 0",
+        )?;
+        range(
+            "level_time_constant_s",
+            self.level_time_constant_s.is_finite() && self.level_time_constant_s >= 0.0,
+            self.level_time_constant_s.to_string(),
             "a number >= 0",
         )?;
         if let Err(message) = self.noise_adaptation().validate() {

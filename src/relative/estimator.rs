@@ -210,6 +210,12 @@ pub trait RelativeEstimator {
     fn camera_imu(&self) -> Option<crate::relative::window::CameraImuEstimate> {
         None
     }
+
+    /// Gravity in the world of the outputs as the estimator holds it now,
+    /// m/s^2 (None: no IMU, or not estimated yet).
+    fn gravity_world_m_s2(&self) -> Option<nalgebra::Vector3<f64>> {
+        None
+    }
 }
 
 #[cfg(test)]

@@ -1,5 +1,6 @@
 //! The relative stage's factory: the estimator a config asks for, behind
-//! the [`RelativeEstimator`] interface, on the IMU's clock. It sits above
+//! the [`RelativeEstimator`] interface, on the IMU's clock, its poses
+//! levelled by its gravity estimate. It sits above
 //! the estimators (which know only the interface) so that no estimator
 //! module depends on another.
 
@@ -7,6 +8,7 @@ use super::camera_clock::on_imu_clock;
 use super::config::{EstimatorKind, RelativeConfig};
 use super::ekf_odometry::EkfOdometry;
 use super::estimator::{RelativeEstimator, RigModel, SensorMode};
+use super::level::levelled;
 use super::odometry::WindowOdometry;
 use super::setup::OdometryError;
 
@@ -20,6 +22,11 @@ pub fn build_estimator(
     let estimator: Box<dyn RelativeEstimator> = match kind {
         EstimatorKind::Window => Box::new(WindowOdometry::new(mode, rig, config)?),
         EstimatorKind::Ekf => Box::new(EkfOdometry::new(mode, rig, config)?),
+    };
+    let estimator = if config.level_poses {
+        levelled(estimator, config.level_time_constant_s)
+    } else {
+        estimator
     };
     Ok(on_imu_clock(estimator, rig))
 }

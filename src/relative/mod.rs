@@ -19,6 +19,7 @@ pub mod estimator;
 pub mod factory;
 pub mod imu_buffer;
 pub mod initializer;
+pub mod level;
 pub mod odometry;
 pub mod setup;
 pub mod tracker;

@@ -1243,6 +1243,12 @@ impl RelativeEstimator for WindowOdometry {
         self.window.camera_imu()
     }
 
+    fn gravity_world_m_s2(&self) -> Option<Vector3<f64>> {
+        self.window
+            .imu_enabled()
+            .then(|| self.window.gravity_world_m_s2())
+    }
+
     fn noise_at_bound(&self) -> bool {
         self.window.noise_adaptation().at_bound()
     }

@@ -314,6 +314,15 @@ pub fn run_dataset(
             .as_ref()
             .filter(|_| mode.uses_imu() || mode.uses_stereo())
             .and_then(|gt| pose_nees(&covariance_poses, gt)),
+        tilt: ground_truth
+            .as_ref()
+            .filter(|_| mode.uses_imu())
+            .and_then(|gt| {
+                crate::eval::tilt::tilt_error(
+                    trajectory_relative.as_ref().unwrap_or(&outcome.trajectory),
+                    gt,
+                )
+            }),
         peak_rss_mib: rss_peak,
         rss_at_10pct_mib: outcome.rss_at_10pct_mib,
         rss_at_end_mib: rss_now,

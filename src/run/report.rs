@@ -104,6 +104,10 @@ pub struct RunReport {
     /// truth (NEES per degree of freedom; 1 is consistent). None without
     /// ground truth and in `mono`, whose poses have no metric scale.
     pub nees: Option<crate::eval::consistency::NeesReport>,
+    /// Roll and pitch against the ground truth's, whatever the heading
+    /// (`crate::eval::tilt`), of the relative stage's poses in the
+    /// inertial modes. None without ground truth or an IMU.
+    pub tilt: Option<crate::eval::tilt::TiltReport>,
     /// Peak resident memory of the process, MiB (Linux VmHWM).
     pub peak_rss_mib: Option<f64>,
     /// Resident memory at 10 % and at the end of the run, MiB: flat memory
