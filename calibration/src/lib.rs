@@ -1,6 +1,6 @@
 //! Calibration tools for rigslam: IMU intrinsics and noise, camera
 //! intrinsics, camera-IMU extrinsics and time offset. Built on the core's
-//! camera model and IMU code (see the Calibration issue).
+//! camera model and IMU code.
 
 pub use rigslam::camera;
 

@@ -185,7 +185,7 @@ fn babbling_device_suggests_the_baud_rate() {
 }
 
 /// Keeps up with a 2 kHz stream with zero lost packets. Runs 3 s by
-/// default; `RIGSLAM_YEI_PTY_SECONDS=60` for the 60 s run.
+/// default; `RIGSLAM_YEI_PTY_SECONDS=60` for a 60 s run.
 #[test]
 fn keeps_up_with_2_khz() {
     let seconds: f64 = std::env::var("RIGSLAM_YEI_PTY_SECONDS")
