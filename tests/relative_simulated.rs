@@ -330,7 +330,7 @@ fn a_loss_in_flight_continues_the_trajectory() {
             &RelativeConfig::default(),
         )
         .expect("estimator");
-        let mut tracked: Vec<(i64, nalgebra::Vector3<f64>)> = Vec::new();
+        let mut tracked: Vec<(i64, nalgebra::Isometry3<f64>)> = Vec::new();
         for event in &events {
             match event {
                 SensorEvent::Imu(s) => estimator.push_imu(s),
@@ -345,7 +345,7 @@ fn a_loss_in_flight_continues_the_trajectory() {
                             .then(|| &right.as_ref().expect("stereo").image),
                     });
                     if out.state == TrackingState::Tracking {
-                        tracked.push((out.t_ns, out.T_world_body.translation.vector));
+                        tracked.push((out.t_ns, out.T_world_body));
                     }
                 }
             }
@@ -355,21 +355,31 @@ fn a_loss_in_flight_continues_the_trajectory() {
         assert!(counters["resumed"] >= 1, "{mode}: {counters:?}");
         let before = *tracked.iter().rfind(|p| p.0 < gap.0).expect("before");
         let after = *tracked.iter().find(|p| p.0 >= gap.1).expect("after");
-        let at = |t: i64| {
-            rigslam::eval::consistency::interpolate(&truth, t)
-                .expect("inside the truth")
-                .translation
-                .vector
-        };
-        let moved = (after.1 - before.1).norm();
-        let truly = (at(after.0) - at(before.0)).norm();
+        let at =
+            |t: i64| rigslam::eval::consistency::interpolate(&truth, t).expect("inside the truth");
+        let moved = (after.1.translation.vector - before.1.translation.vector).norm();
+        let truly = (at(after.0).translation.vector - at(before.0).translation.vector).norm();
+        // The turn across the loss, in the body frame before it (the same
+        // in any world): the estimate's against the truth's.
+        let turned = before.1.rotation.inverse() * after.1.rotation;
+        let truly_turned = at(before.0).rotation.inverse() * at(after.0).rotation;
+        let turn_error_deg = turned.angle_to(&truly_turned).to_degrees();
         eprintln!(
-            "{mode}: moved {moved:.3} m across the loss ({:.2} s), the truth {truly:.3} m",
-            (after.0 - before.0) as f64 * 1e-9
+            "{mode}: moved {moved:.3} m across the loss ({:.2} s), the truth {truly:.3} m; turned {:.1} deg, {turn_error_deg:.2} deg off the truth",
+            (after.0 - before.0) as f64 * 1e-9,
+            truly_turned.angle().to_degrees()
         );
         assert!(
             (moved - truly).abs() < 0.5,
             "{mode}: moved {moved} m, the truth {truly} m"
+        );
+        // Measured 1.3 / 1.1 deg (stereo-inertial / mono-inertial); with
+        // the heading read from where the body's x axis points (near
+        // vertical on EuRoC's IMU) 3.4 / 3.1 deg here, and 51 deg on a
+        // rendered lap.
+        assert!(
+            turn_error_deg < 2.5,
+            "{mode}: turned {turn_error_deg} deg off the truth across the loss"
         );
     }
 }
