@@ -169,6 +169,7 @@ fn damaged_input_never_gives_nan_or_an_unannounced_jump() {
         let mut frame_index = 0usize;
         let mut last_frame: Option<Image> = None;
         let mut previous: Option<(i64, nalgebra::Vector3<f64>, TrackingState)> = None;
+        let mut previous_tracked: Option<(i64, nalgebra::UnitQuaternion<f64>)> = None;
         let mut outputs = 0;
         for event in &events {
             match event {
@@ -257,6 +258,21 @@ fn damaged_input_never_gives_nan_or_an_unannounced_jump() {
                                 (p - p_prev).norm()
                             );
                         }
+                    }
+                    if out.state == TrackingState::Tracking {
+                        // Nor a turn: across a loss too (a rest found
+                        // after it keeps the heading), V1_02 turns at
+                        // most about 100 deg/s.
+                        if let Some((t_prev, q_prev)) = previous_tracked {
+                            let dt = (*t_ns - t_prev) as f64 * 1e-9;
+                            let rate =
+                                q_prev.angle_to(&out.T_world_body.rotation).to_degrees() / dt;
+                            assert!(
+                                rate < 400.0,
+                                "{mode}: turned at {rate:.0} deg/s at frame {frame_index}"
+                            );
+                        }
+                        previous_tracked = Some((*t_ns, out.T_world_body.rotation));
                     }
                     previous = Some((*t_ns, p, out.state));
                     last_frame = Some(image);

@@ -788,9 +788,16 @@ impl WindowOdometry {
             .last
             .map_or(Vector3::zeros(), |s| s.T_world_body.translation.vector);
         // Once resting, the attitude is held: re-levelling every frame
-        // would make the pose wander with the accelerometer noise.
-        let rotation = match &self.phase {
-            Phase::Resting { state, .. } => state.T_world_body.rotation,
+        // would make the pose wander with the accelerometer noise. A rest
+        // after a pose (a stop, or a loss that ends at rest) keeps the
+        // heading the trajectory had and takes the tilt from the
+        // accelerometer: the static start's own heading is arbitrary (on
+        // a rendered lap, 52 deg from the pose before a loss).
+        let rotation = match (&self.phase, &self.last) {
+            (Phase::Resting { state, .. }, _) => state.T_world_body.rotation,
+            (_, Some(last)) => {
+                heading_turn(&rest.R_world_body, &last.T_world_body.rotation) * rest.R_world_body
+            }
             _ => rest.R_world_body,
         };
         Some(KeyframeState {
