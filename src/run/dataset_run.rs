@@ -458,5 +458,11 @@ pub fn summary_line(r: &RunReport) -> String {
             n.mean_per_dof, n.position_per_dof, n.rotation_per_dof
         );
     }
+    if let Some(t) = &r.tilt {
+        line += &format!(
+            "; roll and pitch {:.2} deg rms from the truth's ({:.2} max)",
+            t.rms_deg, t.max_deg
+        );
+    }
     line
 }
