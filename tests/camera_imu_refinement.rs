@@ -34,7 +34,10 @@ use rigslam::relative::{CameraImuRefinement, RelativeConfig, SensorMode};
 use rigslam::rig::RigModel;
 use rigslam::run::dataset_run::{rig_of, run_dataset, DatasetRun};
 use rigslam::run::report::CameraImuReport;
-use rigslam::simulate::{simulate, ImuSource, SimConfig};
+
+#[path = "common/v1_02_synthetic.rs"]
+mod v1_02_synthetic;
+use v1_02_synthetic::render_v1_02_synthetic;
 
 fn shared_data() -> std::path::PathBuf {
     std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data")
@@ -98,19 +101,10 @@ fn from_truth(report: &CameraImuReport, truth: &Isometry3<f64>) -> (f64, f64) {
 fn a_wrong_calibration_file_is_corrected_online() {
     let work = tempfile::tempdir().expect("temp dir");
     let sequence = work.path().join("sequence");
-    simulate(
-        &SimConfig {
-            trajectory: Some(shared_data().join("euroc/ground_truth/V1_02_groundtruth.csv")),
-            duration_s: Some(30.0),
-            imu: ImuSource::Synthetic,
-            stereo: true,
-            seed: 7,
-            show_progress: false,
-            ..SimConfig::default()
-        },
+    render_v1_02_synthetic(
+        &shared_data().join("euroc/ground_truth/V1_02_groundtruth.csv"),
         &sequence,
-    )
-    .expect("render");
+    );
     let dataset = rigslam::dataset::open_dataset(&sequence).expect("opens");
     let truth_rig = rig_of(&dataset);
     let truth = truth_rig.cameras[0].T_body_cam;

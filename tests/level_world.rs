@@ -13,7 +13,10 @@
 
 use rigslam::relative::{RelativeConfig, SensorMode};
 use rigslam::run::dataset_run::{run_dataset, DatasetRun};
-use rigslam::simulate::{simulate, ImuSource, SimConfig};
+
+#[path = "common/v1_02_synthetic.rs"]
+mod v1_02_synthetic;
+use v1_02_synthetic::render_v1_02_synthetic;
 
 /// (tilt rms deg, ATE m) of the relative stage's poses.
 fn run(sequence: &std::path::Path, level: bool) -> (f64, f64) {
@@ -47,19 +50,7 @@ fn the_published_attitude_is_level() {
     };
     let work = tempfile::tempdir().expect("temp dir");
     let sequence = work.path().join("sequence");
-    simulate(
-        &SimConfig {
-            trajectory: Some(ground_truth.join("V1_02_groundtruth.csv")),
-            duration_s: Some(30.0),
-            imu: ImuSource::Synthetic,
-            stereo: true,
-            seed: 7,
-            show_progress: false,
-            ..SimConfig::default()
-        },
-        &sequence,
-    )
-    .expect("render");
+    render_v1_02_synthetic(&ground_truth.join("V1_02_groundtruth.csv"), &sequence);
     let (tilt_off, ate_off) = run(&sequence, false);
     let (tilt_on, ate_on) = run(&sequence, true);
     assert!(

@@ -391,8 +391,7 @@ fn a_loss_in_flight_continues_the_trajectory() {
         );
         // Measured 1.3 / 1.1 deg (stereo-inertial / mono-inertial); with
         // the heading read from where the body's x axis points (near
-        // vertical on EuRoC's IMU) 3.4 / 3.1 deg here, and 51 deg on a
-        // rendered lap.
+        // vertical on EuRoC's IMU) 3.4 / 3.1 deg.
         assert!(
             turn_error_deg < 2.5,
             "{mode}: turned {turn_error_deg} deg off the truth across the loss"
