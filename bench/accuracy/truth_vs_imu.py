@@ -126,6 +126,11 @@ def analyse(name, truth_path, imu_path):
         raise SystemExit(f"{folder}: ground truth and IMU overlap by {end - start:.1f} s, need 10")
     grid = np.arange(start, end, DT)
     q = truth[:, 4:8] / np.linalg.norm(truth[:, 4:8], axis=1)[:, None]
+    # q and -q are one rotation, and recorded truths flip between them
+    # (EuRoC keeps w >= 0); interpolating across a flip would pass near
+    # zero, so make the sign continuous first.
+    flips = np.cumsum(np.concatenate([[0], np.sum(q[1:] * q[:-1], 1) < 0])) % 2
+    q = q * np.where(flips == 1, -1.0, 1.0)[:, None]
     tm, rates = body_rates(t, q)
     truth_rate = resample(tm, rates, grid)
     gyro_bias = resample(t, truth[:, 11:14], grid) if truth.shape[1] >= 17 else 0.0
