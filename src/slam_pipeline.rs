@@ -30,6 +30,13 @@ use nalgebra::Vector3;
 /// wrong fit in another room by 176 deg (7 inliers, upside down).
 const RELOCALISE_MAX_TILT_DEG: f64 = 15.0;
 
+/// Localising a mono-inertial run: the scale between its world and the
+/// map may differ from 1 by at most this factor either way. Its scale is
+/// metric to a few per cent (1-2 % off over the accuracy sets); a map
+/// made by another mono-inertial session carries its own error of the
+/// same size.
+const RELOCALISE_MAX_SCALE_RATIO: f64 = 1.2;
+
 /// What follows the relative stage.
 #[derive(Debug, Clone, Default)]
 pub enum SecondStage {
@@ -116,6 +123,14 @@ impl SlamPipeline {
                 // by one (a vision-only map does not, and is not gated).
                 if mode.uses_imu() {
                     config.max_tilt_rad = Some(RELOCALISE_MAX_TILT_DEG.to_radians());
+                }
+                // One camera: the relative stage's lengths are its own
+                // (arbitrary without the IMU, a few per cent off with it).
+                if !mode.uses_stereo() {
+                    config.fit_scale = true;
+                    if mode.uses_imu() {
+                        config.max_scale_ratio = Some(RELOCALISE_MAX_SCALE_RATIO);
+                    }
                 }
                 (None, Some(MapLocaliser::new(&map, config)))
             }

@@ -12,6 +12,16 @@
 //! descriptor and Mahalanobis distance as in [`super::recognition`].
 //! When the relative stage loses tracking its world frame is no longer
 //! the one the transform was fitted in, so the localiser starts over.
+//!
+//! A monocular relative stage has a scale of its own: arbitrary without
+//! the IMU, and with it a few per cent off the map's and moving (a map
+//! made in another session has its own error). There the transform is a
+//! similarity (`fit_scale`): relative-world lengths times `s`, then the
+//! rotation and the shift; increments and landmark offsets are scaled by
+//! `s` before they reach the filter and the recognition, and every refit
+//! updates `s` with the rotation. A rigid transform would leave the scale
+//! difference to the corrections: a track that is pulled back a few
+//! centimetres every frame and jumps at each refit.
 
 use std::collections::HashMap;
 
@@ -50,6 +60,13 @@ pub struct LocaliseConfig {
     /// can only turn about z; a hypothesis tilting z by more than this is
     /// rejected. None: any rotation (vision-only modes).
     pub max_tilt_rad: Option<f64>,
+    /// Fit a scale between the relative stage's world and the map as
+    /// well (monocular modes); false: rigid.
+    pub fit_scale: bool,
+    /// With `fit_scale`: a fit whose scale is further than this factor
+    /// from 1 either way is rejected (inertial modes, whose scale is
+    /// metric to a few per cent). None: any scale (vision-only mono).
+    pub max_scale_ratio: Option<f64>,
     /// Increment noise of the filter's prediction, m per sqrt(m).
     pub translation_sigma_per_sqrt_m: f64,
     /// At most this many landmarks (the most precise) per correction.
@@ -67,6 +84,14 @@ pub struct LocaliseConfig {
     pub refit_every_frames: usize,
     /// Recognised landmark pairs (relative world, map) the refit uses, newest first.
     pub refit_pairs: usize,
+    /// The localisation is dropped (and the robot relocalised from
+    /// scratch) after this many frames in a row whose recognised
+    /// landmarks all failed the innovation gate: the map and the track
+    /// disagree everywhere, which a right transform does not do for long
+    /// (a turn without map landmarks in view tests nothing and does not
+    /// count). A relocalisation from a few poorly placed landmarks can be
+    /// wrong, and nothing else would ever undo it.
+    pub drop_after_rejected_frames: usize,
     /// Seed of the RANSAC sampler; the same seed and input give the same result.
     pub seed: u64,
 }
@@ -80,6 +105,8 @@ impl Default for LocaliseConfig {
             inlier_m: 0.3,
             min_inliers: 8,
             max_tilt_rad: None,
+            fit_scale: false,
+            max_scale_ratio: None,
             ransac_iterations: 1000,
             translation_sigma_per_sqrt_m: 0.02,
             max_correction_landmarks: 30,
@@ -87,6 +114,7 @@ impl Default for LocaliseConfig {
             gate_chi2: 16.27,
             refit_every_frames: 10,
             refit_pairs: 600,
+            drop_after_rejected_frames: 20,
             seed: 0,
         }
     }
@@ -116,6 +144,12 @@ pub struct LocaliseStats {
     pub gated_out: usize,
     /// Refits of the relative-world -> map transform.
     pub refits: usize,
+    /// Localisations dropped because every recognised landmark failed the
+    /// gate for `drop_after_rejected_frames` frames in a row.
+    pub dropped: usize,
+    /// Map lengths per relative-world length in the transform in use (1
+    /// when rigid).
+    pub scale: f64,
 }
 
 /// The pose of one frame in the map frame, once localised.
@@ -137,6 +171,8 @@ pub struct LocalisedPose {
 #[derive(Clone, Debug)]
 struct Fit {
     T_map_world: Isometry3<f64>,
+    /// Map lengths per relative-world length: `map = T (s world)`.
+    scale: f64,
     /// (track id, map index) of the inliers.
     inliers: Vec<(LandmarkId, u32)>,
     rms_m: f64,
@@ -145,10 +181,14 @@ struct Fit {
 #[allow(non_snake_case)]
 struct Localised {
     T_map_world: Isometry3<f64>,
+    /// Map lengths per relative-world length (see [`Fit::scale`]).
+    scale: f64,
     filter: PositionFilter,
     /// (landmark in the relative world, in the map) of recent corrections.
     pairs: std::collections::VecDeque<(Vector3<f64>, Vector3<f64>)>,
     frames_since_refit: usize,
+    /// Frames in a row whose tested landmarks all failed the gate.
+    rejected_frames: usize,
 }
 
 /// Localises the relative stage's output in a saved map.
@@ -184,7 +224,10 @@ impl MapLocaliser {
             index,
             state: None,
             associations: HashMap::new(),
-            stats: LocaliseStats::default(),
+            stats: LocaliseStats {
+                scale: 1.0,
+                ..LocaliseStats::default()
+            },
             candidates: Vec::new(),
         }
     }
@@ -210,7 +253,7 @@ impl MapLocaliser {
         if output.state != TrackingState::Tracking || !pose_is_finite(output) {
             return None;
         }
-        let delta = state.T_map_world.rotation * output.delta_translation_world_m;
+        let delta = state.T_map_world.rotation * (state.scale * output.delta_translation_world_m);
         let delta = if delta.iter().all(|v| v.is_finite()) {
             delta
         } else {
@@ -242,7 +285,8 @@ impl MapLocaliser {
         let used;
         match self.state.as_mut() {
             Some(state) => {
-                let delta = state.T_map_world.rotation * output.delta_translation_world_m;
+                let delta =
+                    state.T_map_world.rotation * (state.scale * output.delta_translation_world_m);
                 if delta.iter().all(|v| v.is_finite()) {
                     let q = Matrix3::identity()
                         * self.config.translation_sigma_per_sqrt_m.powi(2)
@@ -251,29 +295,36 @@ impl MapLocaliser {
                 }
                 self.recognise_new(output);
                 used = self.correct(output);
+                if self.drop_if_rejected() {
+                    return None;
+                }
                 self.refit();
             }
             None => {
                 self.stats.attempts += 1;
                 let fit = self.relocalise(output)?;
                 let position = (fit.T_map_world
-                    * nalgebra::Point3::from(output.T_world_body.translation.vector))
+                    * nalgebra::Point3::from(fit.scale * output.T_world_body.translation.vector))
                 .coords;
                 let z = fit.T_map_world.rotation * Vector3::z();
                 tracing::info!(
-                    "relocalised in the map: {} inliers, rms {:.3} m, transform turns {:.1} deg, tilts z by {:.2} deg",
+                    "relocalised in the map: {} inliers, rms {:.3} m, transform turns {:.1} deg, tilts z by {:.2} deg, scale {:.4}",
                     fit.inliers.len(),
                     fit.rms_m,
                     fit.T_map_world.rotation.angle().to_degrees(),
-                    z.z.clamp(-1.0, 1.0).acos().to_degrees()
+                    z.z.clamp(-1.0, 1.0).acos().to_degrees(),
+                    fit.scale
                 );
+                self.stats.scale = fit.scale;
                 let variance = fit.rms_m.powi(2).max(1e-4) / fit.inliers.len() as f64 * 10.0;
                 self.associations = fit.inliers.iter().copied().collect();
                 self.state = Some(Localised {
                     T_map_world: fit.T_map_world,
+                    scale: fit.scale,
                     filter: PositionFilter::new(position, Matrix3::identity() * variance),
                     pairs: Default::default(),
                     frames_since_refit: 0,
+                    rejected_frames: 0,
                 });
                 self.stats.relocalisations += 1;
                 used = self.correct(output);
@@ -328,20 +379,21 @@ impl MapLocaliser {
         let positions = &self.positions_m;
         let inlier_m = self.config.inlier_m;
         let max_tilt_rad = self.config.max_tilt_rad;
-        let upright = |t: &Isometry3<f64>| {
-            max_tilt_rad.is_none_or(|max| {
-                let z = t.rotation * Vector3::z();
-                z.z.clamp(-1.0, 1.0).acos() <= max
-            })
+        let with_scale = self.config.fit_scale;
+        let max_scale_ratio = self.config.max_scale_ratio;
+        let acceptable = |(t, scale): &(Isometry3<f64>, f64)| {
+            let z = t.rotation * Vector3::z();
+            max_tilt_rad.is_none_or(|max| z.z.clamp(-1.0, 1.0).acos() <= max)
+                && scale_within(max_scale_ratio, *scale)
         };
         // (query, map landmark) of the queries a transform places within
         // inlier_m of one of their candidates (the nearest).
-        let inliers_of = |t: &Isometry3<f64>| -> Vec<(usize, u32)> {
+        let inliers_of = |(t, scale): &(Isometry3<f64>, f64)| -> Vec<(usize, u32)> {
             queries
                 .iter()
                 .enumerate()
                 .filter_map(|(k, (_, q, candidates))| {
-                    let moved = (t * nalgebra::Point3::from(*q)).coords;
+                    let moved = (t * nalgebra::Point3::from(*scale * q)).coords;
                     candidates
                         .iter()
                         .map(|&m| ((moved - positions[m as usize]).norm(), m))
@@ -365,21 +417,29 @@ impl MapLocaliser {
             }
             let world = picks.map(|(k, _)| queries[k].1);
             let map = picks.map(|(_, m)| self.positions_m[m as usize]);
-            // A rigid motion keeps distances: most wrong samples stop here.
-            let keeps = |i: usize, j: usize| {
-                ((world[i] - world[j]).norm() - (map[i] - map[j]).norm()).abs() <= 2.0 * inlier_m
+            // A rigid motion keeps distances, a similarity their ratios:
+            // most wrong samples stop here.
+            let (dw, dm) = (
+                [0, 1, 2].map(|i| (world[i] - world[(i + 1) % 3]).norm()),
+                [0, 1, 2].map(|i| (map[i] - map[(i + 1) % 3]).norm()),
+            );
+            let consistent = if with_scale {
+                let s = dm[0] / dw[0].max(1e-12);
+                (1..3).all(|i| (dm[i] - s * dw[i]).abs() <= 2.0 * inlier_m)
+            } else {
+                (0..3).all(|i| (dw[i] - dm[i]).abs() <= 2.0 * inlier_m)
             };
-            if !(keeps(0, 1) && keeps(1, 2) && keeps(0, 2)) {
+            if !consistent {
                 continue;
             }
             // A degenerate (nearly collinear) sample fixes no rotation.
             if (world[1] - world[0]).cross(&(world[2] - world[0])).norm() < 1e-3 {
                 continue;
             }
-            let Some(t) = rigid_fit(&world, &map) else {
+            let Some(t) = transform_fit(&world, &map, with_scale) else {
                 continue;
             };
-            if !upright(&t) {
+            if !acceptable(&t) {
                 continue;
             }
             let inliers = inliers_of(&t);
@@ -393,7 +453,7 @@ impl MapLocaliser {
         let fit = |set: &[(usize, u32)]| {
             let world: Vec<Vector3<f64>> = set.iter().map(|&(k, _)| queries[k].1).collect();
             let map: Vec<Vector3<f64>> = set.iter().map(|&(_, m)| positions[m as usize]).collect();
-            rigid_fit(&world, &map)
+            transform_fit(&world, &map, with_scale)
         };
         let t = fit(&best)?;
         let refined = inliers_of(&t);
@@ -401,13 +461,13 @@ impl MapLocaliser {
             return None;
         }
         let t = fit(&refined)?;
-        if !upright(&t) {
+        if !acceptable(&t) {
             return None;
         }
         let rms_m = (refined
             .iter()
             .map(|&(k, m)| {
-                ((t * nalgebra::Point3::from(queries[k].1)).coords - positions[m as usize])
+                ((t.0 * nalgebra::Point3::from(t.1 * queries[k].1)).coords - positions[m as usize])
                     .norm_squared()
             })
             .sum::<f64>()
@@ -424,7 +484,8 @@ impl MapLocaliser {
             return None;
         }
         Some(Fit {
-            T_map_world: t,
+            T_map_world: t.0,
+            scale: t.1,
             inliers,
             rms_m,
         })
@@ -434,9 +495,11 @@ impl MapLocaliser {
         let Some(state) = self.state.as_ref() else {
             return;
         };
+        // Scaled: body offsets reach the map in its lengths.
         let rotation = *(state.T_map_world.rotation * output.T_world_body.rotation)
             .to_rotation_matrix()
-            .matrix();
+            .matrix()
+            * state.scale;
         let placement = FramePlacement {
             rotation,
             position_m: state.filter.position_world_m(),
@@ -472,6 +535,27 @@ impl MapLocaliser {
         }
     }
 
+    /// Drops the localisation when the map and the track have disagreed
+    /// for `drop_after_rejected_frames` frames in a row; true when it did.
+    fn drop_if_rejected(&mut self) -> bool {
+        let limit = self.config.drop_after_rejected_frames;
+        if limit == 0
+            || self
+                .state
+                .as_ref()
+                .is_none_or(|s| s.rejected_frames < limit)
+        {
+            return false;
+        }
+        tracing::warn!(
+            "localisation dropped: every recognised map landmark failed the gate for {limit} frames; relocalising"
+        );
+        self.state = None;
+        self.associations.clear();
+        self.stats.dropped += 1;
+        true
+    }
+
     /// Refits the relative-world -> map transform to the recent pairs.
     fn refit(&mut self) {
         let Some(state) = self.state.as_mut() else {
@@ -486,8 +570,12 @@ impl MapLocaliser {
         state.frames_since_refit = 0;
         let (world, map): (Vec<Vector3<f64>>, Vec<Vector3<f64>>) =
             state.pairs.iter().copied().unzip();
-        if let Some(t) = rigid_fit(&world, &map) {
+        let fitted = transform_fit(&world, &map, self.config.fit_scale);
+        if let Some((t, scale)) = fitted.filter(|f| scale_within(self.config.max_scale_ratio, f.1))
+        {
             state.T_map_world = t;
+            state.scale = scale;
+            self.stats.scale = scale;
             self.stats.refits += 1;
         }
     }
@@ -498,12 +586,14 @@ impl MapLocaliser {
         let Some(state) = self.state.as_mut() else {
             return 0;
         };
+        // Scaled: body offsets reach the map in its lengths.
         let rotation = *(state.T_map_world.rotation * output.T_world_body.rotation)
             .to_rotation_matrix()
-            .matrix();
+            .matrix()
+            * state.scale;
         let p = state.filter.covariance_m2();
         let x = state.filter.position_world_m();
-        let mut fixes: Vec<(f64, LandmarkFix)> = Vec::new();
+        let mut fixes: Vec<(f64, LandmarkFix, Vector3<f64>)> = Vec::new();
         let mut rejected = Vec::new();
         for l in &output.landmarks {
             let Some(&map) = self.associations.get(&l.id) else {
@@ -526,11 +616,17 @@ impl MapLocaliser {
                         offset_world_m: offset,
                         offset_covariance_m2: offset_covariance,
                     },
+                    (output.T_world_body * nalgebra::Point3::from(l.position_body_m)).coords,
                 )),
                 _ => rejected.push(l.id),
             }
         }
         self.stats.gated_out += rejected.len();
+        if fixes.is_empty() && !rejected.is_empty() {
+            state.rejected_frames += 1;
+        } else if !fixes.is_empty() {
+            state.rejected_frames = 0;
+        }
         for id in rejected {
             self.associations.remove(&id);
         }
@@ -539,13 +635,10 @@ impl MapLocaliser {
         if fixes.is_empty() {
             return 0;
         }
-        let fixes: Vec<LandmarkFix> = fixes.into_iter().map(|f| f.1).collect();
-        let world_rotation = state.T_map_world.rotation.inverse();
-        let body_world = output.T_world_body.translation.vector;
         for f in &fixes {
-            let world = body_world + world_rotation * f.offset_world_m;
-            state.pairs.push_back((world, f.landmark_world_m));
+            state.pairs.push_back((f.2, f.1.landmark_world_m));
         }
+        let fixes: Vec<LandmarkFix> = fixes.into_iter().map(|f| f.1).collect();
         while state.pairs.len() > self.config.refit_pairs {
             state.pairs.pop_front();
         }
@@ -578,6 +671,24 @@ fn pose_is_finite(output: &RelativeOutput) -> bool {
         .all(|v| v.is_finite())
 }
 
+/// `max` None: any finite positive scale; else within a factor `max` of 1.
+fn scale_within(max: Option<f64>, scale: f64) -> bool {
+    scale.is_finite() && scale > 0.0 && max.is_none_or(|m| scale <= m && scale >= 1.0 / m)
+}
+
+/// [`similarity_fit`] with `with_scale`, else [`rigid_fit`] with scale 1.
+fn transform_fit(
+    a: &[Vector3<f64>],
+    b: &[Vector3<f64>],
+    with_scale: bool,
+) -> Option<(Isometry3<f64>, f64)> {
+    if with_scale {
+        similarity_fit(a, b)
+    } else {
+        rigid_fit(a, b).map(|t| (t, 1.0))
+    }
+}
+
 /// The rigid transform `T` minimising `Σ |T a_k - b_k|²` (Kabsch, by SVD
 /// of the centred cross-covariance, reflection excluded).
 pub fn rigid_fit(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> Option<Isometry3<f64>> {
@@ -600,6 +711,43 @@ pub fn rigid_fit(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> Option<Isometry3<f64
     t.iter()
         .all(|v| v.is_finite())
         .then(|| Isometry3::from_parts(Translation3::from(t), rotation))
+}
+
+/// The similarity `b = T (s a)` minimising `Σ |T (s a_k) - b_k|²`
+/// (Umeyama 1991: the rotation as Kabsch's, then `s = tr(D S) / var(a)`
+/// with `D` the singular values and `S` the reflection guard, and the
+/// shift between the centroids). None for fewer than three pairs, points
+/// that all coincide, or a non-finite result.
+pub fn similarity_fit(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> Option<(Isometry3<f64>, f64)> {
+    if a.len() != b.len() || a.len() < 3 {
+        return None;
+    }
+    let n = a.len() as f64;
+    let ca = a.iter().sum::<Vector3<f64>>() / n;
+    let cb = b.iter().sum::<Vector3<f64>>() / n;
+    let mut h = Matrix3::zeros();
+    let mut var_a = 0.0;
+    for (p, q) in a.iter().zip(b) {
+        h += (q - cb) * (p - ca).transpose();
+        var_a += (p - ca).norm_squared();
+    }
+    if !(var_a > 1e-18) {
+        return None;
+    }
+    let svd = h.svd(true, true);
+    let (u, v_t) = (svd.u?, svd.v_t?);
+    let d = (u * v_t).determinant().signum();
+    let guard = Vector3::new(1.0, 1.0, d);
+    let r = u * Matrix3::from_diagonal(&guard) * v_t;
+    let scale = svd.singular_values.dot(&guard) / var_a;
+    let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
+    let t = cb - rotation * (scale * ca);
+    (scale.is_finite() && scale > 0.0 && t.iter().all(|v| v.is_finite())).then(|| {
+        (
+            Isometry3::from_parts(Translation3::from(t), rotation),
+            scale,
+        )
+    })
 }
 
 #[cfg(test)]

@@ -231,3 +231,193 @@ fn the_tilt_gate_keeps_turns_about_gravity_and_rejects_tilts() {
     assert_eq!(localised(&tilted, gate), 0);
     assert!(localised(&tilted, None) > 0);
 }
+
+#[test]
+fn similarity_fit_recovers_a_known_similarity() {
+    let t = Isometry3::from_parts(
+        Translation3::new(0.3, -1.0, 2.0),
+        UnitQuaternion::from_euler_angles(0.2, -0.4, 1.1),
+    );
+    let scale = 1.37;
+    let a: Vec<Vector3<f64>> = [
+        [0.0, 0.0, 0.0],
+        [1.0, 0.2, 0.0],
+        [0.1, 2.0, 0.3],
+        [0.5, 0.5, 1.5],
+        [-1.0, 0.3, 0.7],
+    ]
+    .iter()
+    .map(|p| Vector3::new(p[0], p[1], p[2]))
+    .collect();
+    let b: Vec<Vector3<f64>> = a
+        .iter()
+        .map(|p| (t * nalgebra::Point3::from(scale * p)).coords)
+        .collect();
+    let (fit, s) = similarity_fit(&a, &b).expect("fit");
+    assert!((s - scale).abs() < 1e-12, "scale {s}");
+    assert!((fit.translation.vector - t.translation.vector).norm() < 1e-12);
+    assert!(fit.rotation.angle_to(&t.rotation) < 1e-12);
+    // Without a scale in the data the similarity is the rigid fit.
+    let rigid_b: Vec<Vector3<f64>> = a
+        .iter()
+        .map(|p| (t * nalgebra::Point3::from(*p)).coords)
+        .collect();
+    let (same, one) = similarity_fit(&a, &rigid_b).expect("fit");
+    assert!((one - 1.0).abs() < 1e-12);
+    assert!(same.rotation.angle_to(&t.rotation) < 1e-12);
+    // Too few pairs, mismatched lists, and points that all coincide fix nothing.
+    assert!(similarity_fit(&a[..2], &b[..2]).is_none());
+    assert!(similarity_fit(&a, &b[..4]).is_none());
+    assert!(similarity_fit(&[a[1]; 4], &b[..4]).is_none());
+}
+
+/// The drive as a monocular relative stage with its own lengths would see
+/// it: every position, increment and landmark offset times `scale`, in a
+/// frame moved by `offset`.
+fn scaled(run: &RoomRun, scale: f64, offset: &Isometry3<f64>) -> Vec<RelativeOutput> {
+    run.outputs
+        .iter()
+        .map(|o| {
+            let mut t = o.T_world_body;
+            t.translation.vector *= scale;
+            RelativeOutput {
+                T_world_body: offset * t,
+                delta_translation_world_m: offset.rotation * (scale * o.delta_translation_world_m),
+                landmarks: o
+                    .landmarks
+                    .iter()
+                    .map(|l| crate::relative::types::BodyLandmark {
+                        position_body_m: scale * l.position_body_m,
+                        covariance_body_m2: scale * scale * l.covariance_body_m2,
+                        ..l.clone()
+                    })
+                    .collect(),
+                ..o.clone()
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn a_second_drive_with_its_own_scale_localises_with_a_similarity() {
+    // A mono-inertial second session is a few per cent off the map's
+    // scale. Rigid, the transform leaves that to the corrections and the
+    // refits; with `fit_scale` the localiser finds the scale and the
+    // track is as good as an unscaled drive's.
+    let first = simulate_room_run(&room(None, 2.0));
+    let (map, map_to_truth) = saved_map(&first);
+    let second = simulate_room_run(&room(Some(99), 1.0));
+    let outputs = scaled(&second, 1.04, &offset());
+    let run = |config: LocaliseConfig| {
+        let mut localiser = MapLocaliser::new(&map, config);
+        let mut squared = Vec::new();
+        for (output, truth) in outputs.iter().zip(&second.truth_position_m) {
+            if let Some(pose) = localiser.push(output) {
+                let in_truth =
+                    map_to_truth * nalgebra::Point3::from(pose.T_map_body.translation.vector);
+                squared.push((in_truth.coords - truth).norm_squared());
+            }
+        }
+        let rms = (squared.iter().sum::<f64>() / squared.len().max(1) as f64).sqrt();
+        (rms, squared.len(), localiser.stats().clone())
+    };
+    let (rigid, rigid_frames, rigid_stats) = run(LocaliseConfig::default());
+    let (similar, frames, stats) = run(LocaliseConfig {
+        fit_scale: true,
+        max_scale_ratio: Some(1.2),
+        ..LocaliseConfig::default()
+    });
+    eprintln!(
+        "scaled 1.04: rigid {rigid:.4} m over {rigid_frames} frames, similarity {similar:.4} m over {frames} frames, scale {:.4}",
+        stats.scale
+    );
+    assert_eq!(rigid_stats.scale, 1.0);
+    assert!(frames + 5 > outputs.len(), "{stats:?}");
+    assert!(
+        (stats.scale * 1.04 - 1.0).abs() < 0.01,
+        "scale {:.4}, the truth {:.4}",
+        stats.scale,
+        1.0 / 1.04
+    );
+    assert!(similar < 0.06, "{similar:.4} m, {stats:?}");
+    assert!(
+        similar < 0.7 * rigid,
+        "similarity {similar:.4} m against rigid {rigid:.4} m"
+    );
+    // The scale gate: a drive 1.5x the map's is refused where the gate
+    // allows 1.2x, and localised where it allows any scale.
+    let far = scaled(&second, 1.5, &offset());
+    let localised = |max_scale_ratio| {
+        let mut localiser = MapLocaliser::new(
+            &map,
+            LocaliseConfig {
+                fit_scale: true,
+                max_scale_ratio,
+                ..LocaliseConfig::default()
+            },
+        );
+        far.iter().filter(|o| localiser.push(o).is_some()).count()
+    };
+    assert_eq!(localised(Some(1.2)), 0);
+    assert!(localised(None) > 0);
+}
+
+#[test]
+fn a_track_the_map_disagrees_with_everywhere_is_relocalised() {
+    const JUMP_M: f64 = 0.2;
+    const JUMP_DEG: f64 = 2.0;
+    // The relative stage's frame jumps by 1.5 m and 20 deg at frame 40
+    // without reporting a loss (as a silent re-initialisation would):
+    // from then on every recognised landmark fails the gate, the
+    // localisation is dropped after `drop_after_rejected_frames`, and the
+    // next relocalisation places the robot right again.
+    let first = simulate_room_run(&room(None, 2.0));
+    let (map, map_to_truth) = saved_map(&first);
+    let second = simulate_room_run(&room(Some(99), 1.0));
+    let before = moved(&second, &offset());
+    let jump = Isometry3::from_parts(
+        Translation3::new(JUMP_M, 0.0, 0.0),
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), JUMP_DEG.to_radians()),
+    );
+    let after = moved(&second, &(jump * offset()));
+    let outputs: Vec<RelativeOutput> = before[..40].iter().chain(&after[40..]).cloned().collect();
+    let mut localiser = MapLocaliser::new(&map, LocaliseConfig::default());
+    let mut late = Vec::new();
+    for (k, (output, truth)) in outputs.iter().zip(&second.truth_position_m).enumerate() {
+        let pose = localiser.push(output);
+        if k >= 70 {
+            let pose = pose.expect("localised again by frame 70");
+            let in_truth =
+                map_to_truth * nalgebra::Point3::from(pose.T_map_body.translation.vector);
+            late.push((in_truth.coords - truth).norm_squared());
+        }
+    }
+    let stats = localiser.stats();
+    let rms = (late.iter().sum::<f64>() / late.len() as f64).sqrt();
+    eprintln!("after the jump: {rms:.3} m, {stats:?}");
+    assert_eq!(stats.dropped, 1, "{stats:?}");
+    assert_eq!(stats.relocalisations, 2, "{stats:?}");
+    assert!(rms < 0.06, "{rms:.3} m after relocalising, {stats:?}");
+    // Without the check the first transform stays, and so does the error.
+    let mut kept = MapLocaliser::new(
+        &map,
+        LocaliseConfig {
+            drop_after_rejected_frames: 0,
+            ..LocaliseConfig::default()
+        },
+    );
+    let mut kept_late = Vec::new();
+    for (k, (output, truth)) in outputs.iter().zip(&second.truth_position_m).enumerate() {
+        if let Some(pose) = kept.push(output).filter(|_| k >= 70) {
+            let in_truth =
+                map_to_truth * nalgebra::Point3::from(pose.T_map_body.translation.vector);
+            kept_late.push((in_truth.coords - truth).norm_squared());
+        }
+    }
+    let kept_rms = (kept_late.iter().sum::<f64>() / kept_late.len().max(1) as f64).sqrt();
+    assert_eq!(kept.stats().dropped, 0);
+    assert!(
+        kept_rms > 3.0 * rms,
+        "kept {kept_rms:.3} m against {rms:.3} m"
+    );
+}
