@@ -34,6 +34,7 @@ use super::position_filter::{LandmarkFix, PositionFilter};
 use super::recognition::{
     consistent_recognitions, recognise_tracks, FramePlacement, LandmarkIndex, RecognitionConfig,
 };
+use crate::eval::align::umeyama;
 use crate::features::matching::hamming;
 use crate::features::orb::Descriptor;
 use crate::relative::types::{LandmarkId, RelativeOutput, TrackingState};
@@ -714,40 +715,22 @@ pub fn rigid_fit(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> Option<Isometry3<f64
 }
 
 /// The similarity `b = T (s a)` minimising `Σ |T (s a_k) - b_k|²`
-/// (Umeyama 1991: the rotation as Kabsch's, then `s = tr(D S) / var(a)`
-/// with `D` the singular values and `S` the reflection guard, and the
-/// shift between the centroids). None for fewer than three pairs, points
-/// that all coincide, or a non-finite result.
+/// ([`crate::eval::align::umeyama`] with the scale), as a rigid transform
+/// and the scale. None for mismatched lists, fewer than three pairs or
+/// points that fix no rotation (all one point, or on a line).
 pub fn similarity_fit(a: &[Vector3<f64>], b: &[Vector3<f64>]) -> Option<(Isometry3<f64>, f64)> {
-    if a.len() != b.len() || a.len() < 3 {
+    if a.len() != b.len() {
         return None;
     }
-    let n = a.len() as f64;
-    let ca = a.iter().sum::<Vector3<f64>>() / n;
-    let cb = b.iter().sum::<Vector3<f64>>() / n;
-    let mut h = Matrix3::zeros();
-    let mut var_a = 0.0;
-    for (p, q) in a.iter().zip(b) {
-        h += (q - cb) * (p - ca).transpose();
-        var_a += (p - ca).norm_squared();
-    }
-    if !(var_a > 1e-18) {
-        return None;
-    }
-    let svd = h.svd(true, true);
-    let (u, v_t) = (svd.u?, svd.v_t?);
-    let d = (u * v_t).determinant().signum();
-    let guard = Vector3::new(1.0, 1.0, d);
-    let r = u * Matrix3::from_diagonal(&guard) * v_t;
-    let scale = svd.singular_values.dot(&guard) / var_a;
-    let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
-    let t = cb - rotation * (scale * ca);
-    (scale.is_finite() && scale > 0.0 && t.iter().all(|v| v.is_finite())).then(|| {
-        (
-            Isometry3::from_parts(Translation3::from(t), rotation),
-            scale,
-        )
-    })
+    let fit = umeyama(a, b, true).ok()?;
+    let rotation = UnitQuaternion::from_rotation_matrix(&fit.rotation);
+    (fit.scale.is_finite() && fit.scale > 0.0 && fit.translation.iter().all(|v| v.is_finite()))
+        .then(|| {
+            (
+                Isometry3::from_parts(Translation3::from(fit.translation), rotation),
+                fit.scale,
+            )
+        })
 }
 
 #[cfg(test)]

@@ -62,13 +62,9 @@ fn offset() -> Isometry3<f64> {
     )
 }
 
-#[test]
-fn rigid_fit_recovers_a_known_transform() {
-    let t = Isometry3::from_parts(
-        Translation3::new(0.3, -1.0, 2.0),
-        UnitQuaternion::from_euler_angles(0.2, -0.4, 1.1),
-    );
-    let a: Vec<Vector3<f64>> = [
+/// Five points that fix a rotation (not on one line).
+fn five_points() -> Vec<Vector3<f64>> {
+    [
         [0.0, 0.0, 0.0],
         [1.0, 0.2, 0.0],
         [0.1, 2.0, 0.3],
@@ -77,7 +73,16 @@ fn rigid_fit_recovers_a_known_transform() {
     ]
     .iter()
     .map(|p| Vector3::new(p[0], p[1], p[2]))
-    .collect();
+    .collect()
+}
+
+#[test]
+fn rigid_fit_recovers_a_known_transform() {
+    let t = Isometry3::from_parts(
+        Translation3::new(0.3, -1.0, 2.0),
+        UnitQuaternion::from_euler_angles(0.2, -0.4, 1.1),
+    );
+    let a = five_points();
     let b: Vec<Vector3<f64>> = a
         .iter()
         .map(|p| (t * nalgebra::Point3::from(*p)).coords)
@@ -239,16 +244,7 @@ fn similarity_fit_recovers_a_known_similarity() {
         UnitQuaternion::from_euler_angles(0.2, -0.4, 1.1),
     );
     let scale = 1.37;
-    let a: Vec<Vector3<f64>> = [
-        [0.0, 0.0, 0.0],
-        [1.0, 0.2, 0.0],
-        [0.1, 2.0, 0.3],
-        [0.5, 0.5, 1.5],
-        [-1.0, 0.3, 0.7],
-    ]
-    .iter()
-    .map(|p| Vector3::new(p[0], p[1], p[2]))
-    .collect();
+    let a = five_points();
     let b: Vec<Vector3<f64>> = a
         .iter()
         .map(|p| (t * nalgebra::Point3::from(scale * p)).coords)
