@@ -65,6 +65,8 @@ def run(binary, root, seq, mode, config):
         "resets": counters.get("resets"),
         "ms_per_frame": r.get("mean_ms_per_frame"),
         "noise_scale_end": r.get("imu_noise_scale"),
+        # The online camera-IMU calibration at the end (refined modes).
+        "camera_imu_end": r.get("camera_imu"),
     }
 
 

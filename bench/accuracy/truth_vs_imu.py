@@ -19,7 +19,15 @@ left out):
 - translation: the truth's acceleration (its positions differentiated
   twice) against the accelerometer turned into the world less gravity and
   the truth's accelerometer bias: the displacement the two disagree by
-  (the difference integrated twice, rms, mm; from 1 Hz up).
+  (the difference integrated twice, rms, mm; from 1 Hz up), and the
+  accelerometer's gain on the truth's acceleration (least squares over
+  the three axes; a scale error of the accelerometer, or of the truth's
+  positions, shows here, and an estimate whose lengths come from the IMU,
+  mono-inertial, takes it as its scale error). Noise in the truth's
+  acceleration pulls the fit towards zero and noise in the
+  accelerometer's pulls the reverse fit (its inverse) away from it: both
+  are printed and the gain lies between them; where they differ by much
+  (V1_01's truth above 0.3 Hz) the truth is too noisy in that band to say.
 And the lag between the truth's rates and the gyroscope (cross-correlation,
 ms; positive: the truth lags the IMU), and the angle between the truth's
 body frame and the IMU's (the rotation that best takes one's rates onto
@@ -152,8 +160,8 @@ def analyse(name, truth_path, imu_path):
     print(f"{folder}: {end - start:.0f} s; lag of the truth's rates behind the gyroscope "
           f"{lag_ms(t, q, ti, imu[:, 1:4], start, end):+.1f} ms; the IMU turned {turned:.3f} deg "
           "from the truth's body frame")
-    print("| band Hz | gyroscope / truth rate, x y z | attitude apart, deg rms | truth acceleration, m/s^2 rms | position apart, mm rms |")
-    print("|---|---|---|---|---|")
+    print("| band Hz | gyroscope / truth rate, x y z | attitude apart, deg rms | truth acceleration, m/s^2 rms | accelerometer / truth acceleration, fit and reverse fit | position apart, mm rms |")
+    print("|---|---|---|---|---|---|")
     s_wt, f = spectrum(truth_rate)
     s_wg, _ = spectrum(gyro)
     s_p, _ = spectrum(position)
@@ -165,6 +173,10 @@ def analyse(name, truth_path, imu_path):
         gain = np.sum(wt * wg, 0) / np.maximum(np.sum(wt * wt, 0), 1e-30)
         attitude = np.fft.irfft(integrate(in_band(s_wg - s_wt, f, lo, hi), f, 1), n=n, axis=0)
         truth_accel = np.fft.irfft(in_band(s_p * ((2j * np.pi * f) ** 2)[:, None], f, lo, hi), n=n, axis=0)
+        felt = np.fft.irfft(in_band(s_a, f, lo, hi), n=n, axis=0)
+        both = np.sum(truth_accel * felt)
+        accel_gain = both / max(np.sum(truth_accel ** 2), 1e-30)
+        accel_gain_reverse = np.sum(felt ** 2) / both if both > 0 else float("nan")
         apart = np.fft.irfft(in_band(s_p - integrate(s_a, f, 2), f, lo, hi), n=n, axis=0)
         # Below 1 Hz, twice integrating turns the accelerometer's bias and
         # scale errors into more than the motion: not shown.
@@ -172,6 +184,7 @@ def analyse(name, truth_path, imu_path):
         print(f"| {lo}-{hi} | {gain[0]:.3f} {gain[1]:.3f} {gain[2]:.3f} | "
               f"{np.degrees(np.sqrt((attitude ** 2).sum(1).mean())):.3f} | "
               f"{np.sqrt((truth_accel ** 2).sum(1).mean()):.3f} | "
+              f"{accel_gain:.3f}, {accel_gain_reverse:.3f} | "
               f"{position} |")
 
 
