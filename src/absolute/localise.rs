@@ -384,7 +384,7 @@ impl MapLocaliser {
         let max_scale_ratio = self.config.max_scale_ratio;
         let acceptable = |(t, scale): &(Isometry3<f64>, f64)| {
             let z = t.rotation * Vector3::z();
-            max_tilt_rad.is_none_or(|max| z.z.clamp(-1.0, 1.0).acos() <= max)
+            max_tilt_rad.map_or(true, |max| z.z.clamp(-1.0, 1.0).acos() <= max)
                 && scale_within(max_scale_ratio, *scale)
         };
         // (query, map landmark) of the queries a transform places within
@@ -544,7 +544,7 @@ impl MapLocaliser {
             || self
                 .state
                 .as_ref()
-                .is_none_or(|s| s.rejected_frames < limit)
+                .map_or(true, |s| s.rejected_frames < limit)
         {
             return false;
         }
@@ -674,7 +674,7 @@ fn pose_is_finite(output: &RelativeOutput) -> bool {
 
 /// `max` None: any finite positive scale; else within a factor `max` of 1.
 fn scale_within(max: Option<f64>, scale: f64) -> bool {
-    scale.is_finite() && scale > 0.0 && max.is_none_or(|m| scale <= m && scale >= 1.0 / m)
+    scale.is_finite() && scale > 0.0 && max.map_or(true, |m| scale <= m && scale >= 1.0 / m)
 }
 
 /// [`similarity_fit`] with `with_scale`, else [`rigid_fit`] with scale 1.
