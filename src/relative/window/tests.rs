@@ -1020,6 +1020,28 @@ fn imu_prediction(
     }
 }
 
+/// Keyframe `k` of a sliding run, pushed and optimised as the pipeline
+/// does: guessed by the IMU from the window's newest estimate (`start`
+/// for the first), seen with 1 px noise.
+fn slide_keyframe(
+    w: &mut Window,
+    scene: &Scene,
+    k: usize,
+    start: impl FnOnce(i64) -> KeyframeState,
+    stereo: bool,
+    r: &mut ChaCha8Rng,
+) {
+    let t = keyframe_time(k);
+    let imu = (k > 0).then(|| scene.preintegrate(keyframe_time(k - 1), t));
+    let guess = match (&imu, w.latest()) {
+        (Some(pre), Some(prev)) => imu_prediction(w, pre, prev, t),
+        _ => start(t),
+    };
+    let frame = scene.frame(t, stereo, 1.0, 0.0, r);
+    w.push_keyframe(guess, &frame, imu).expect("valid");
+    w.optimize();
+}
+
 fn mono_inertial_sliding(cfg: WindowConfig, verbose: bool) -> (f64, f64, f64) {
     let mut r = rng(59);
     let scene = Scene::new(&mut r, 1500, 12.0);
@@ -1027,14 +1049,7 @@ fn mono_inertial_sliding(cfg: WindowConfig, verbose: bool) -> (f64, f64, f64) {
     let mut worst = (0.0f64, 0.0f64, 0.0f64);
     for k in 0..30 {
         let t = keyframe_time(k);
-        let imu = (k > 0).then(|| scene.preintegrate(keyframe_time(k - 1), t));
-        let guess = match (&imu, w.latest()) {
-            (Some(pre), Some(prev)) => imu_prediction(&w, pre, prev, t),
-            _ => scene.truth(t),
-        };
-        let frame = scene.frame(t, false, 1.0, 0.0, &mut r);
-        w.push_keyframe(guess, &frame, imu).expect("valid");
-        w.optimize();
+        slide_keyframe(&mut w, &scene, k, |t| scene.truth(t), false, &mut r);
         let latest = *w.latest().expect("keyframes");
         let (dp, dr) = pose_error(&latest, &scene.truth(t));
         let g = w
@@ -1088,19 +1103,12 @@ fn bias_error_sliding(cfg: WindowConfig, keyframes: usize) -> (f64, f64) {
     let mut w = Window::new(cfg, &scene.rig).expect("valid");
     let (mut sum_g, mut sum_a, mut n) = (0.0, 0.0, 0);
     for k in 0..keyframes {
-        let t = keyframe_time(k);
-        let imu = (k > 0).then(|| scene.preintegrate(keyframe_time(k - 1), t));
-        let guess = match (&imu, w.latest()) {
-            (Some(pre), Some(prev)) => imu_prediction(&w, pre, prev, t),
-            // What an initialiser hands over: biases unknown.
-            _ => KeyframeState {
-                biases: ImuBiases::default(),
-                ..scene.truth(t)
-            },
+        // What an initialiser hands over: biases unknown.
+        let start = |t| KeyframeState {
+            biases: ImuBiases::default(),
+            ..scene.truth(t)
         };
-        let frame = scene.frame(t, true, 1.0, 0.0, &mut r);
-        w.push_keyframe(guess, &frame, imu).expect("valid");
-        w.optimize();
+        slide_keyframe(&mut w, &scene, k, start, true, &mut r);
         if k >= keyframes / 2 {
             let b = w.latest().expect("keyframes").biases;
             sum_g += (b.gyro_rad_s - scene.biases.gyro_rad_s).norm_squared();
@@ -1237,14 +1245,7 @@ fn sliding_nees(seed: u64, keyframes: usize, cfg: WindowConfig, stereo: bool) ->
     let (mut sums, mut n, mut given, mut n_given) = ([0.0; 3], 0usize, 0.0, 0usize);
     for k in 0..keyframes {
         let t = keyframe_time(k);
-        let imu = (k > 0).then(|| scene.preintegrate(keyframe_time(k - 1), t));
-        let guess = match (&imu, w.latest()) {
-            (Some(pre), Some(prev)) => imu_prediction(&w, pre, prev, t),
-            _ => scene.truth(t),
-        };
-        let frame = scene.frame(t, stereo, 1.0, 0.0, &mut r);
-        w.push_keyframe(guess, &frame, imu).expect("valid");
-        w.optimize();
+        slide_keyframe(&mut w, &scene, k, |t| scene.truth(t), stereo, &mut r);
         if k < 12 {
             continue;
         }
