@@ -358,7 +358,18 @@ impl Window {
             // The information at the answer.
             let mut h = Matrix9x9::zeros();
             let mut b = Vector9::zeros();
-            evaluate(&state, rows, Some((&mut h, &mut b)), &estimated);
+            // Published with the covariance's pixel sigma
+            // ([`Window::covariance_pixel_scale`]).
+            let published = Weights {
+                vision_weight: if self.use_imu {
+                    let s = super::covariance_pixel_scale(scale.pixel);
+                    1.0 / (s * s)
+                } else {
+                    1.0
+                },
+                ..estimated
+            };
+            evaluate(&state, rows, Some((&mut h, &mut b)), &published);
             out.pose_marginal =
                 pose_marginal(&h, dim).map(|m| m * self.vision_only_covariance_factor());
         }

@@ -20,7 +20,7 @@ use super::prior::{GravityPrior, OldestFreePrior};
 use super::reprojection::{reproject, reprojection_error, GATE_SQ};
 use super::schur::{self, Chunk, LandmarkBlock, ObservationRow};
 use super::state::{apply_update, BG, FULL_DIM, POSE_DIM, VEL};
-use super::Window;
+use super::{covariance_pixel_scale, Window};
 use crate::imu::so3::hat;
 use crate::relative::types::BodyLandmark;
 
@@ -319,10 +319,10 @@ impl Window {
         // units so that the outlier gates keep their size in pixels.
         // Without the IMU only the published covariance takes it
         // ([`Window::vision_only_covariance_factor`]).
-        let pixel_scale = if self.use_imu {
-            self.noise.scale().pixel
-        } else {
-            1.0
+        let pixel_scale = match (self.use_imu, p.covariance_pixels) {
+            (false, _) => 1.0,
+            (true, false) => self.noise.scale().pixel,
+            (true, true) => covariance_pixel_scale(self.noise.scale().pixel),
         };
         let walk_scale = self.noise.scale();
         let sigma = self.config.pixel_sigma * pixel_scale;
@@ -656,6 +656,22 @@ impl Window {
     /// keeps what the next solve and the absolute stage need: the free
     /// velocities' marginals, the gravity prior, the body-frame landmarks.
     pub(super) fn compute_marginals(&mut self) -> bool {
+        // The published covariance's own system when its pixel sigma is
+        // not the estimate's: inverted, and its coupling to the held
+        // poses taken, before the estimator's system replaces it.
+        let published = (self.use_imu && self.covariance_pixel_scale() != self.noise.scale().pixel)
+            .then(|| {
+                self.problem.covariance_pixels = true;
+                self.linearize(true);
+                self.problem.covariance_pixels = false;
+                let p = &mut self.problem;
+                schur::reduced_inverse(&mut p.eq, &p.rows, &mut p.landmarks, p.calib_offset).map(
+                    |cov| {
+                        let coupling = self.held_pose_coupling();
+                        (cov, coupling)
+                    },
+                )
+            });
         self.linearize(true);
         let cov = {
             let p = &mut self.problem;
@@ -701,6 +717,14 @@ impl Window {
             }
         }
         self.update_pose_covariances(self.problem.n_fixed);
+        match (published, &cov) {
+            (Some(Some((c, coupling))), _) => self.propagate_pose_covariances(&c, &coupling),
+            (None, Some(c)) => {
+                let coupling = self.held_pose_coupling();
+                self.propagate_pose_covariances(c, &coupling);
+            }
+            _ => {}
+        }
         self.fill_body_landmarks(cov.as_ref());
         let exact = cov.is_some();
         self.state_covariance = cov;

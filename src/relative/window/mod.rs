@@ -35,6 +35,7 @@ pub mod new_landmarks;
 pub mod noise_adaptation;
 pub mod pose_covariance;
 pub mod prior;
+pub mod propagated_covariance;
 pub mod reprojection;
 pub mod rig_camera;
 pub mod schur;
@@ -406,6 +407,9 @@ pub(crate) struct Problem {
     pub backup_calibration: Option<camera_imu::Values>,
     /// `S^-1 Y` of one landmark (body-frame covariances).
     pub z_buffer: DMatrix<f64>,
+    /// Linearise with the pixel sigma the published covariance takes
+    /// ([`Window::covariance_pixel_scale`]) instead of the estimate's.
+    pub covariance_pixels: bool,
 }
 
 /// The sliding-window estimator.
@@ -441,12 +445,19 @@ pub struct Window {
     /// Stamp and pose of the keyframe the pose covariances are relative
     /// to ([`pose_covariance`]).
     covariance_origin: Option<(i64, Isometry3<f64>)>,
+    /// What the pose covariances are carried in ([`propagated_covariance`]).
+    joint_covariance: Option<propagated_covariance::JointCovariance>,
     body_landmarks: Vec<BodyLandmark>,
     /// Scratch for the stereo pairing of a new keyframe.
     scratch_pairs: Vec<(LandmarkId, usize)>,
     /// Scratch for the landmarks still seen after a slide.
     scratch_seen: HashSet<LandmarkId>,
     track: frame_pose::TrackBuffers,
+}
+
+/// [`Window::covariance_pixel_scale`] from the estimated scale.
+pub(crate) fn covariance_pixel_scale(estimated: f64) -> f64 {
+    estimated.max(1.0)
 }
 
 impl Window {
@@ -489,6 +500,7 @@ impl Window {
             },
             state_covariance: None,
             covariance_origin: None,
+            joint_covariance: None,
             body_landmarks: Vec::new(),
             scratch_pairs: Vec::new(),
             scratch_seen: HashSet::new(),
@@ -676,11 +688,19 @@ impl Window {
             kf.pose_covariance = Some(Matrix6::zeros());
             (kf.state.t_ns, kf.state.T_world_body)
         });
+        self.joint_covariance = self.keyframes.front().map(|kf| {
+            propagated_covariance::JointCovariance::single(
+                propagated_covariance::Block::Pose(kf.seq),
+                DMatrix::zeros(6, 6),
+            )
+        });
     }
 
     /// Carries the pose covariances to the keyframes after a solve: fixed
     /// ones that have none from the one before them, every free one from
-    /// the boundary and its marginal ([`pose_covariance`]).
+    /// the boundary and its marginal ([`pose_covariance`]); the free ones
+    /// are then replaced by the propagated covariance when the solve's
+    /// inverse exists ([`propagated_covariance`]).
     fn update_pose_covariances(&mut self, n_fixed: usize) {
         // A marginal given the held keyframes is too confident (they are
         // not exact): the same scale as for the boundary prior.
@@ -737,6 +757,9 @@ impl Window {
         }
         self.gravity_dir = gravity_world_m_s2 / n;
         self.gravity_prior = GravityPrior::isotropic(self.gravity_dir, sigma_rad);
+        if let Some(j) = self.joint_covariance.as_mut() {
+            j.remove(propagated_covariance::Block::Gravity);
+        }
         self.state_covariance = None;
         Ok(())
     }
@@ -981,6 +1004,18 @@ impl Window {
     /// on every term moves no estimate, and leaving it out keeps the
     /// vision-only trajectories exactly as they were) and only the
     /// published covariance takes the estimate: `(pixel scale)^2`.
+    /// The pixel sigma (on the declared one) the published covariance
+    /// of an inertial mode is computed with: the estimate, but never
+    /// below the declared sigma. The estimate comes from the residuals'
+    /// redundancy, which shows only the white part of a feature's error:
+    /// what is slow along a track moves its landmark and not its
+    /// residuals, and reaches the poses all the same. The declared sigma
+    /// is the user's statement of the whole error, so the estimate may
+    /// raise it (images noisier than declared) but not lower it.
+    pub(super) fn covariance_pixel_scale(&self) -> f64 {
+        covariance_pixel_scale(self.noise.scale().pixel)
+    }
+
     pub(super) fn vision_only_covariance_factor(&self) -> f64 {
         if self.use_imu {
             1.0

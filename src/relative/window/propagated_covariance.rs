@@ -1,0 +1,525 @@
+//! The published covariance carried through the solves as a joint
+//! covariance of every estimate that a later solve takes as given.
+//!
+//! A solve estimates the free keyframes (and gravity, the boundary's
+//! velocity and biases) with three kinds of input held as if exact: the
+//! held keyframes' poses, the mean of the boundary prior (eq. 34) and the
+//! mean of the gravity prior. Each input is itself an earlier estimate,
+//! wrong by an amount the earlier solves know. Linearised at the result,
+//! the estimate moves with each input by the solve's sensitivity
+//!
+//! ```text
+//! S_x = -H^-1 H_ax      (a held pose: its coupling in the reduced system)
+//! S_m =  H^-1 J^T J     (a prior's mean: its whitened Jacobian J)
+//! ```
+//!
+//! and with the measurements by the rest, whose covariance is the
+//! inverse with each prior's information taken back out:
+//! `N = H^-1 - sum S_m H^-1`. So the free estimates' covariance is
+//!
+//! ```text
+//! Sigma_a = S Sigma_in S^T + N,  Cov(a, in) = S Sigma_in
+//! ```
+//!
+//! with `Sigma_in` the inputs' joint covariance from the solves before.
+//! The matrix kept here holds, relative to the origin keyframe (zero
+//! covariance, the gauge), every held pose, the current prior's mean and
+//! the last solve's free estimates, with their cross-covariances: the
+//! held keyframes' errors are then carried into the free ones with their
+//! correlations, where treating them as exact (or as moving rigidly with
+//! the boundary) makes the pose covariance too confident.
+//!
+//! Left out: the measurements a later solve shares with the earlier ones
+//! (a landmark's older observations), treated as independent of the
+//! inputs' errors.
+
+use nalgebra::{DMatrix, Matrix6};
+
+use super::camera_imu::CALIB_DIM;
+use super::inertial::{inertial_factor, GRAVITY_COL};
+use super::schur::Matrix6x3;
+use super::state::{FULL_DIM, VEL};
+use super::Window;
+
+/// Which estimate a block of the joint covariance is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Block {
+    /// A keyframe's `[dphi, dp]` (window convention).
+    Pose(u64),
+    /// A keyframe's `[dv, d b_g, d b_a]`.
+    Rest(u64),
+    /// The mean of the boundary prior on keyframe `seq`'s `[v, b_g, b_a]`.
+    BoundaryPrior(u64),
+    /// The gravity direction (2 numbers in the tangent basis).
+    Gravity,
+}
+
+impl Block {
+    /// Numbers in the block.
+    pub fn size(self) -> usize {
+        match self {
+            Block::Pose(_) => 6,
+            Block::Rest(_) | Block::BoundaryPrior(_) => 9,
+            Block::Gravity => 2,
+        }
+    }
+}
+
+/// Joint covariance of a set of blocks.
+#[derive(Debug, Clone, Default)]
+pub struct JointCovariance {
+    blocks: Vec<(Block, usize)>,
+    matrix: DMatrix<f64>,
+}
+
+/// One input of a solve: its block, the solve's sensitivity to it (one
+/// column per number of the block, one row per free column), and the
+/// covariance to use when no earlier solve estimated it.
+pub struct Input {
+    /// The input.
+    pub block: Block,
+    /// `d estimate / d input`, free columns by the block's numbers.
+    pub sensitivity: DMatrix<f64>,
+    /// Its covariance when the joint covariance does not hold it.
+    pub fallback: DMatrix<f64>,
+}
+
+impl JointCovariance {
+    /// One block with covariance `c`.
+    pub fn single(block: Block, c: DMatrix<f64>) -> Self {
+        let mut j = Self::default();
+        j.push_uncorrelated(block, &c);
+        j
+    }
+
+    /// Start of `block`'s rows, when held.
+    fn start(&self, block: Block) -> Option<usize> {
+        self.blocks
+            .iter()
+            .find(|(b, _)| *b == block)
+            .map(|&(_, s)| s)
+    }
+
+    /// The covariance of `block`.
+    pub fn get(&self, block: Block) -> Option<DMatrix<f64>> {
+        let s = self.start(block)?;
+        let n = block.size();
+        Some(self.matrix.view((s, s), (n, n)).into_owned())
+    }
+
+    /// The cross-covariance of `a` (rows) and `b` (columns).
+    pub fn cross(&self, a: Block, b: Block) -> Option<DMatrix<f64>> {
+        (self.contains(a) && self.contains(b)).then(|| self.gather(&[a], &[b]))
+    }
+
+    /// True when `block` is held.
+    pub fn contains(&self, block: Block) -> bool {
+        self.start(block).is_some()
+    }
+
+    /// Names `from` `to` (a prior's mean is the estimate it was centred
+    /// on). Does nothing when `from` is not held or `to` already is.
+    pub fn rename(&mut self, from: Block, to: Block) {
+        if from.size() != to.size() || self.contains(to) {
+            return;
+        }
+        if let Some(entry) = self.blocks.iter_mut().find(|(b, _)| *b == from) {
+            entry.0 = to;
+        }
+    }
+
+    /// Appends `block` with covariance `c`, uncorrelated with the rest.
+    fn push_uncorrelated(&mut self, block: Block, c: &DMatrix<f64>) {
+        let n = self.matrix.nrows();
+        let len = block.size();
+        let mut m = DMatrix::zeros(n + len, n + len);
+        m.view_mut((0, 0), (n, n)).copy_from(&self.matrix);
+        m.view_mut((n, n), (len, len)).copy_from(c);
+        self.matrix = m;
+        self.blocks.push((block, n));
+    }
+
+    /// Rows of `blocks`, stacked, against the columns of `columns`.
+    fn gather(&self, rows: &[Block], columns: &[Block]) -> DMatrix<f64> {
+        let nr: usize = rows.iter().map(|b| b.size()).sum();
+        let nc: usize = columns.iter().map(|b| b.size()).sum();
+        let mut out = DMatrix::zeros(nr, nc);
+        let mut r0 = 0;
+        for &rb in rows {
+            let (Some(sr), lr) = (self.start(rb), rb.size()) else {
+                r0 += rb.size();
+                continue;
+            };
+            let mut c0 = 0;
+            for &cb in columns {
+                if let Some(sc) = self.start(cb) {
+                    out.view_mut((r0, c0), (lr, cb.size()))
+                        .copy_from(&self.matrix.view((sr, sc), (lr, cb.size())));
+                }
+                c0 += cb.size();
+            }
+            r0 += lr;
+        }
+        out
+    }
+
+    /// The joint covariance after a solve. `inputs` are what the solve
+    /// held, `noise` the free columns' covariance from the measurements
+    /// alone (`N`), `outputs` the free estimates kept (block and first
+    /// free column), `carried` the blocks that stay as they were (the
+    /// held poses, the prior's mean).
+    pub fn after_solve(
+        &self,
+        inputs: &[Input],
+        noise: &DMatrix<f64>,
+        outputs: &[(Block, usize)],
+        carried: &[Block],
+    ) -> Self {
+        let mut previous = self.clone();
+        for input in inputs {
+            if !previous.contains(input.block) {
+                previous.push_uncorrelated(input.block, &input.fallback);
+            }
+        }
+        let free = noise.nrows();
+        let n_in: usize = inputs.iter().map(|i| i.block.size()).sum();
+        let mut s = DMatrix::zeros(free, n_in);
+        let mut c0 = 0;
+        for i in inputs {
+            s.view_mut((0, c0), (free, i.block.size()))
+                .copy_from(&i.sensitivity);
+            c0 += i.block.size();
+        }
+        let in_blocks: Vec<Block> = inputs.iter().map(|i| i.block).collect();
+        let carried: Vec<Block> = carried
+            .iter()
+            .copied()
+            .filter(|b| previous.contains(*b))
+            .collect();
+        let sigma_in = previous.gather(&in_blocks, &in_blocks);
+        let sigma_in_carried = previous.gather(&in_blocks, &carried);
+        let all = &s * sigma_in * s.transpose() + noise;
+        let cross = &s * sigma_in_carried;
+        let nc: usize = carried.iter().map(|b| b.size()).sum();
+        let no: usize = outputs.iter().map(|(b, _)| b.size()).sum();
+        let mut m = DMatrix::zeros(nc + no, nc + no);
+        m.view_mut((0, 0), (nc, nc))
+            .copy_from(&previous.gather(&carried, &carried));
+        let mut blocks: Vec<(Block, usize)> = Vec::with_capacity(carried.len() + outputs.len());
+        let mut at = 0;
+        for &b in &carried {
+            blocks.push((b, at));
+            at += b.size();
+        }
+        for &(ob, oa) in outputs {
+            let lo = ob.size();
+            let mut at2 = nc;
+            for &(pb, pa) in outputs {
+                let lp = pb.size();
+                m.view_mut((at, at2), (lo, lp))
+                    .copy_from(&all.view((oa, pa), (lo, lp)));
+                at2 += lp;
+            }
+            let c = cross.rows(oa, lo);
+            m.view_mut((at, 0), (lo, nc)).copy_from(&c);
+            m.view_mut((0, at), (nc, lo)).copy_from(&c.transpose());
+            blocks.push((ob, at));
+            at += lo;
+        }
+        let m = (&m + m.transpose()) * 0.5;
+        Self { blocks, matrix: m }
+    }
+}
+
+impl JointCovariance {
+    /// Drops `block` (an estimate replaced by one not derived from it).
+    pub fn remove(&mut self, block: Block) {
+        if !self.contains(block) {
+            return;
+        }
+        let keep: Vec<Block> = self
+            .blocks
+            .iter()
+            .map(|&(b, _)| b)
+            .filter(|&b| b != block)
+            .collect();
+        let matrix = self.gather(&keep, &keep);
+        let mut at = 0;
+        self.blocks = keep
+            .into_iter()
+            .map(|b| {
+                let e = (b, at);
+                at += b.size();
+                e
+            })
+            .collect();
+        self.matrix = matrix;
+    }
+}
+
+/// `a`'s information inverted (a fallback covariance); zeros when singular.
+fn inverse_or_zero(a: &DMatrix<f64>) -> DMatrix<f64> {
+    let sym = (a + a.transpose()) * 0.5;
+    sym.cholesky()
+        .map(|c| c.inverse())
+        .filter(|m| m.iter().all(|v| v.is_finite()))
+        .unwrap_or_else(|| DMatrix::zeros(a.nrows(), a.ncols()))
+}
+
+impl Window {
+    /// After a solve whose reduced inverse is `cov` and whose coupling to
+    /// the held poses is `coupling` ([`Self::held_pose_coupling`], the
+    /// same linearisation): the joint covariance carried to the free
+    /// estimates, and each free keyframe's pose covariance from it.
+    pub(super) fn propagate_pose_covariances(
+        &mut self,
+        cov: &DMatrix<f64>,
+        coupling: &DMatrix<f64>,
+    ) {
+        let Some(mut previous) = self.joint_covariance.take() else {
+            return;
+        };
+        let p = &self.problem;
+        let (nf, sd, a) = (p.n_fixed, p.state_dim, p.eq.dim);
+        let n = self.keyframes.len();
+        if nf == 0 || nf >= n || cov.nrows() != a || coupling.shape() != (a, 6 * nf) {
+            self.joint_covariance = Some(previous);
+            return;
+        }
+        let keyframes = &self.keyframes;
+        let mut inputs = Vec::with_capacity(nf + 2);
+        for (pos, kf) in keyframes.iter().take(nf).enumerate() {
+            let h = coupling.columns(6 * pos, 6);
+            if h.iter().all(|v| *v == 0.0) {
+                continue;
+            }
+            let fallback = kf.pose_covariance.map_or_else(
+                || DMatrix::zeros(6, 6),
+                |c| DMatrix::from_iterator(6, 6, c.iter().copied()),
+            );
+            inputs.push(Input {
+                block: Block::Pose(kf.seq),
+                sensitivity: -(cov * h),
+                fallback,
+            });
+        }
+        let mut noise = cov.clone();
+        let boundary = &keyframes[nf - 1];
+        let mut carried: Vec<Block> = keyframes
+            .iter()
+            .take(nf)
+            .map(|k| Block::Pose(k.seq))
+            .collect();
+        let mut outputs: Vec<(Block, usize)> = Vec::with_capacity(2 * (n - nf) + 2);
+        for (slot, kf) in keyframes.iter().skip(nf).enumerate() {
+            outputs.push((Block::Pose(kf.seq), slot * sd));
+            if self.use_imu {
+                outputs.push((Block::Rest(kf.seq), slot * sd + VEL));
+            }
+        }
+        if let Some(ob) = p.boundary_offset {
+            if let Some(prior) = self.velocity_prior.filter(|pr| pr.seq == boundary.seq) {
+                let (_, j) = prior.factor(&boundary.state);
+                let w = DMatrix::from_iterator(9, 9, (j.transpose() * j).iter().copied());
+                let block = Block::BoundaryPrior(boundary.seq);
+                previous.rename(Block::Rest(boundary.seq), block);
+                let s = cov.columns(ob, 9) * &w;
+                noise -= &s * cov.rows(ob, 9);
+                inputs.push(Input {
+                    block,
+                    sensitivity: s,
+                    fallback: inverse_or_zero(&w),
+                });
+                carried.push(block);
+            }
+            outputs.push((Block::Rest(boundary.seq), ob));
+        }
+        if let Some(og) = p.gravity_offset {
+            let (_, j) = self
+                .gravity_prior
+                .factor(&self.gravity_dir, &p.gravity_basis);
+            let w = DMatrix::from_iterator(2, 2, (j.transpose() * j).iter().copied());
+            let s = cov.columns(og, 2) * &w;
+            noise -= &s * cov.rows(og, 2);
+            inputs.push(Input {
+                block: Block::Gravity,
+                sensitivity: s,
+                fallback: inverse_or_zero(&w),
+            });
+            outputs.push((Block::Gravity, og));
+        }
+        noise *= self.vision_only_covariance_factor();
+        let joint = previous.after_solve(&inputs, &noise, &outputs, &carried);
+        for kf in self.keyframes.iter_mut().skip(nf) {
+            if let Some(c) = joint.get(Block::Pose(kf.seq)) {
+                let m = Matrix6::from_iterator(c.iter().copied());
+                if m.iter().all(|v| v.is_finite()) {
+                    kf.pose_covariance = Some(m);
+                }
+            }
+        }
+        self.joint_covariance = Some(joint);
+    }
+
+    /// The reduced system's coupling between the free columns and each
+    /// held keyframe's pose (6 columns per held keyframe, oldest first):
+    /// the landmarks the held and free keyframes share (after the
+    /// landmarks are eliminated), the calibration, and the inertial link
+    /// from the boundary to the oldest free keyframe.
+    pub(super) fn held_pose_coupling(&self) -> DMatrix<f64> {
+        let p = &self.problem;
+        let (nf, a) = (p.n_fixed, p.eq.dim);
+        let mut h = DMatrix::<f64>::zeros(a, 6 * nf);
+        for lm in p.landmarks.iter().filter(|l| l.usable) {
+            let rows = &p.rows[lm.rows.clone()];
+            for held in rows
+                .iter()
+                .filter(|r| r.kf < nf && r.valid && r.weight > 0.0)
+            {
+                let wh: Matrix6x3 = held.d_pose.transpose() * held.d_point * held.weight;
+                let y = lm.v_inv * wh.transpose();
+                let col = 6 * held.kf;
+                for free in rows {
+                    if let Some(o) = free.offset.filter(|_| free.valid) {
+                        let mut block = h.fixed_view_mut::<6, 6>(o, col);
+                        block -= free.w_block * y;
+                    }
+                }
+                if let Some(oc) = p.calib_offset {
+                    let direct = held.d_calib.transpose() * held.d_pose * held.weight;
+                    let mut block = h.fixed_view_mut::<CALIB_DIM, 6>(oc, col);
+                    block += direct - lm.w_calib * y;
+                }
+            }
+        }
+        if self.use_imu {
+            let (ki, kj) = (&self.keyframes[nf - 1], &self.keyframes[nf]);
+            if let Some(link) = &kj.imu {
+                let (_, j) = inertial_factor(
+                    link,
+                    &ki.state,
+                    &kj.state,
+                    &self.gravity_dir,
+                    &p.gravity_basis,
+                );
+                let jx = j.fixed_columns::<6>(0);
+                let col = 6 * (nf - 1);
+                for (c, len, offset) in [
+                    (VEL, 9, p.boundary_offset),
+                    (FULL_DIM, FULL_DIM, Some(0)),
+                    (GRAVITY_COL, 2, p.gravity_offset),
+                ] {
+                    if let Some(o) = offset {
+                        let mut block = h.view_mut((o, col), (len, 6));
+                        block += j.columns(c, len).transpose() * jx;
+                    }
+                }
+            }
+        }
+        h
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::{DVector, Matrix2};
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, StandardNormal};
+
+    use super::*;
+
+    #[test]
+    fn a_chain_of_linear_solves_matches_its_sampled_errors() {
+        // Scalar positions on a line, two per "keyframe" block reused as a
+        // 6-vector: x_k = x_(k-1) + d_k + noise, each solve estimating the
+        // newest from the held one. After a chain the propagated variance
+        // must be the sum of the steps' variances, and the cross-covariance
+        // with a carried block the carried block's variance.
+        let step = 0.3f64;
+        let id6 = DMatrix::<f64>::identity(6, 6);
+        let mut joint = JointCovariance::single(Block::Pose(0), DMatrix::zeros(6, 6));
+        for k in 1..5u64 {
+            let inputs = [Input {
+                block: Block::Pose(k - 1),
+                sensitivity: id6.clone(),
+                fallback: DMatrix::zeros(6, 6),
+            }];
+            joint = joint.after_solve(
+                &inputs,
+                &(&id6 * (step * step)),
+                &[(Block::Pose(k), 0)],
+                &[Block::Pose(k - 1)],
+            );
+        }
+        let last = joint.get(Block::Pose(4)).expect("held");
+        assert!((last[(0, 0)] - 4.0 * step * step).abs() < 1e-12);
+        let cross = joint.gather(&[Block::Pose(4)], &[Block::Pose(3)]);
+        assert!((cross[(2, 2)] - 3.0 * step * step).abs() < 1e-12);
+        assert!(!joint.contains(Block::Pose(2)));
+    }
+
+    #[test]
+    fn an_averaging_solve_matches_monte_carlo() {
+        // Two held inputs with correlated errors; the solve averages them
+        // with weights (0.7, 0.3) and adds its own noise. Sampled errors
+        // of the estimate against the propagated covariance.
+        let l = Matrix2::new(0.2, 0.0, 0.15, 0.1);
+        let c_in = l * l.transpose();
+        let mut joint = JointCovariance::default();
+        let mut m = DMatrix::zeros(12, 12);
+        for i in 0..6 {
+            m[(i, i)] = c_in[(0, 0)];
+            m[(i + 6, i + 6)] = c_in[(1, 1)];
+            m[(i, i + 6)] = c_in[(0, 1)];
+            m[(i + 6, i)] = c_in[(0, 1)];
+        }
+        joint.blocks = vec![(Block::Pose(0), 0), (Block::Pose(1), 6)];
+        joint.matrix = m;
+        let id6 = DMatrix::<f64>::identity(6, 6);
+        let noise_sigma = 0.05;
+        let inputs = [
+            Input {
+                block: Block::Pose(0),
+                sensitivity: &id6 * 0.7,
+                fallback: DMatrix::zeros(6, 6),
+            },
+            Input {
+                block: Block::Pose(1),
+                sensitivity: &id6 * 0.3,
+                fallback: DMatrix::zeros(6, 6),
+            },
+        ];
+        let after = joint.after_solve(
+            &inputs,
+            &(&id6 * (noise_sigma * noise_sigma)),
+            &[(Block::Pose(2), 0)],
+            &[Block::Pose(1)],
+        );
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let n = 50_000;
+        let (mut var, mut cov) = (0.0, 0.0);
+        for _ in 0..n {
+            let z = DVector::from_fn(2, |_, _| StandardNormal.sample(&mut rng));
+            let e = l * nalgebra::Vector2::new(z[0], z[1]);
+            let own: f64 = StandardNormal.sample(&mut rng);
+            let est = 0.7 * e[0] + 0.3 * e[1] + noise_sigma * own;
+            var += est * est;
+            cov += est * e[1];
+        }
+        let (var, cov) = (var / n as f64, cov / n as f64);
+        let p = after.get(Block::Pose(2)).expect("output");
+        let c = after.gather(&[Block::Pose(2)], &[Block::Pose(1)]);
+        assert!(
+            (p[(3, 3)] - var).abs() < 0.03 * var,
+            "{} vs {var}",
+            p[(3, 3)]
+        );
+        assert!(
+            (c[(3, 3)] - cov).abs() < 0.03 * cov,
+            "{} vs {cov}",
+            c[(3, 3)]
+        );
+        assert!(c[(3, 4)].abs() < 1e-15);
+    }
+}
