@@ -19,11 +19,11 @@
 //! older fixed keyframes as if only `b` conditioned `k` is the
 //! approximation: it is exact for a chain of relative poses.
 //!
-//! The window publishes the covariance carried in
+//! In the inertial modes the window publishes the covariance carried in
 //! [`super::propagated_covariance`], which replaces that approximation by
-//! the solve's sensitivity to each held pose; this chain remains for a
-//! solve whose inverse failed and for held keyframes that never had a
-//! covariance (after a restart of the chain).
+//! the solve's sensitivity to each held pose; this chain remains for
+//! vision-only modes, for a solve whose inverse failed and for held
+//! keyframes that never had a covariance (after a restart of the chain).
 //!
 //! Inside the window the pose perturbation is `[dphi, dp]` with
 //! `R <- R Exp(dphi)` (body frame) and `p <- p + dp` (world), as the

@@ -29,6 +29,9 @@
 //! correlations, where treating them as exact (or as moving rigidly with
 //! the boundary) makes the pose covariance too confident.
 //!
+//! Used in the inertial modes; without the IMU the window keeps the
+//! chain of [`super::pose_covariance`].
+//!
 //! Left out: the measurements a later solve shares with the earlier ones
 //! (a landmark's older observations), treated as independent of the
 //! inputs' errors.
