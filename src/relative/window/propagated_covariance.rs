@@ -353,12 +353,16 @@ impl Window {
         }
         noise *= self.vision_only_covariance_factor();
         let joint = previous.after_solve(&inputs, &noise, &outputs, &carried);
+        if !joint.matrix.iter().all(|v| v.is_finite()) {
+            // Keep what was carried; the free keyframes keep the chain's
+            // covariance ([`Self::update_pose_covariances`]).
+            tracing::debug!("propagated pose covariance not finite; kept the chain's");
+            self.joint_covariance = Some(previous);
+            return;
+        }
         for kf in self.keyframes.iter_mut().skip(nf) {
             if let Some(c) = joint.get(Block::Pose(kf.seq)) {
-                let m = Matrix6::from_iterator(c.iter().copied());
-                if m.iter().all(|v| v.is_finite()) {
-                    kf.pose_covariance = Some(m);
-                }
+                kf.pose_covariance = Some(Matrix6::from_iterator(c.iter().copied()));
             }
         }
         self.joint_covariance = Some(joint);
