@@ -362,7 +362,17 @@ impl Window {
         }
         for kf in self.keyframes.iter_mut().skip(nf) {
             if let Some(c) = joint.get(Block::Pose(kf.seq)) {
-                kf.pose_covariance = Some(Matrix6::from_iterator(c.iter().copied()));
+                let m = Matrix6::from_iterator(c.iter().copied());
+                // Published only when positive definite (a covariance a
+                // consumer can invert); else the chain's value stays.
+                if m.cholesky().is_some() {
+                    kf.pose_covariance = Some(m);
+                } else {
+                    tracing::debug!(
+                        seq = kf.seq,
+                        "propagated pose covariance not positive definite; kept the chain's"
+                    );
+                }
             }
         }
         self.joint_covariance = Some(joint);
