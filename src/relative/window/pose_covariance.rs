@@ -125,7 +125,8 @@ mod tests {
     use rand_distr::{Distribution, StandardNormal};
 
     use super::*;
-    use crate::imu::so3::{exp, log};
+    use crate::imu::so3::exp;
+    use crate::relative::window::synthetic::pose_difference;
 
     #[allow(non_snake_case)]
     fn pose(rx: f64, ry: f64, rz: f64, x: f64, y: f64, z: f64) -> Isometry3<f64> {
@@ -144,18 +145,6 @@ mod tests {
         )
     }
 
-    /// The window's perturbation taking `t` to `perturbed`.
-    fn difference(t: &Isometry3<f64>, perturbed: &Isometry3<f64>) -> Vector6<f64> {
-        let r = t.rotation.to_rotation_matrix().into_inner();
-        let rp = perturbed.rotation.to_rotation_matrix().into_inner();
-        let mut d = Vector6::zeros();
-        d.fixed_rows_mut::<3>(0)
-            .copy_from(&log(&(r.transpose() * rp)));
-        d.fixed_rows_mut::<3>(3)
-            .copy_from(&(perturbed.translation.vector - t.translation.vector));
-        d
-    }
-
     #[test]
     #[allow(non_snake_case)]
     fn transport_jacobian_matches_finite_differences() {
@@ -167,8 +156,8 @@ mod tests {
         for col in 0..6 {
             let mut d = Vector6::zeros();
             d[col] = h;
-            let plus = difference(&b, &(perturb(&a, &d) * T_a_b));
-            let minus = difference(&b, &(perturb(&a, &-d) * T_a_b));
+            let plus = pose_difference(&b, &(perturb(&a, &d) * T_a_b));
+            let minus = pose_difference(&b, &(perturb(&a, &-d) * T_a_b));
             let numeric = (plus - minus) / (2.0 * h);
             let analytic = j.column(col);
             assert!(
@@ -206,7 +195,7 @@ mod tests {
             let da = la * draw();
             let db = lb * draw();
             let sample = perturb(&(perturb(&a, &da) * T_a_b), &db);
-            let d = difference(&b, &sample);
+            let d = pose_difference(&b, &sample);
             sum += d * d.transpose();
         }
         let sampled = sum / n as f64;

@@ -3,7 +3,7 @@
 //! projections through the EuRoC radtan cameras, and a noise-free IMU
 //! synthesised from the same motion and preintegrated between keyframes.
 
-use nalgebra::{UnitQuaternion, Vector2, Vector3};
+use nalgebra::{Isometry3, UnitQuaternion, Vector2, Vector3, Vector6};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -203,4 +203,17 @@ pub(crate) fn pose_error(estimate: &KeyframeState, truth: &KeyframeState) -> (f6
         .angle()
         .to_degrees();
     (dp, dr)
+}
+
+/// The window's pose perturbation `[dphi (body), dp (world)]` that takes
+/// `from` to `to`: `R_to = R_from Exp(dphi)`, `p_to = p_from + dp`.
+pub(crate) fn pose_difference(from: &Isometry3<f64>, to: &Isometry3<f64>) -> Vector6<f64> {
+    let r_from = from.rotation.to_rotation_matrix().into_inner();
+    let r_to = to.rotation.to_rotation_matrix().into_inner();
+    let mut d = Vector6::zeros();
+    d.fixed_rows_mut::<3>(0)
+        .copy_from(&crate::imu::so3::log(&(r_from.transpose() * r_to)));
+    d.fixed_rows_mut::<3>(3)
+        .copy_from(&(to.translation.vector - from.translation.vector));
+    d
 }

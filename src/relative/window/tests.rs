@@ -16,7 +16,7 @@ use super::prior::{GravityPrior, ScaleAnchor};
 use super::reprojection::reproject;
 use super::schur;
 use super::state::{apply_update, FULL_DIM};
-use super::synthetic::{keyframe_time, perturb, pose_error, Scene};
+use super::synthetic::{keyframe_time, perturb, pose_difference, pose_error, Scene};
 use super::*;
 use crate::imu::GRAVITY_M_S2;
 use crate::rig::euroc::euroc_cam0;
@@ -1231,16 +1231,7 @@ fn sliding_nees(seed: u64, keyframes: usize, cfg: WindowConfig, stereo: bool) ->
     let mut w = Window::new(cfg, &scene.rig).expect("valid");
     // [dphi (body), dp (world)] of `est` against `truth`, the window's
     // perturbation convention.
-    let error = |est: &Isometry3<f64>, truth: &Isometry3<f64>| {
-        let r_est = est.rotation.to_rotation_matrix().into_inner();
-        let r_true = truth.rotation.to_rotation_matrix().into_inner();
-        let mut e = nalgebra::Vector6::zeros();
-        e.fixed_rows_mut::<3>(0)
-            .copy_from(&crate::imu::so3::log(&(r_est.transpose() * r_true)));
-        e.fixed_rows_mut::<3>(3)
-            .copy_from(&(truth.translation.vector - est.translation.vector));
-        e
-    };
+    let error = pose_difference;
     let nees = |e: &nalgebra::Vector6<f64>, c: &nalgebra::Matrix6<f64>| {
         c.try_inverse().map(|info| e.dot(&(info * e)))
     };
@@ -1424,16 +1415,7 @@ fn held_pose_sensitivity_matches_finite_differences() {
     let on = (newest - nf) * solved.problem.state_dim;
     let pose_of = |w: &Window| w.keyframes[newest].state.T_world_body;
     let base = pose_of(&solved);
-    let diff = |a: &Isometry3<f64>| {
-        let ra = base.rotation.to_rotation_matrix().into_inner();
-        let rb = a.rotation.to_rotation_matrix().into_inner();
-        let mut d = nalgebra::Vector6::zeros();
-        d.fixed_rows_mut::<3>(0)
-            .copy_from(&crate::imu::so3::log(&(ra.transpose() * rb)));
-        d.fixed_rows_mut::<3>(3)
-            .copy_from(&(a.translation.vector - base.translation.vector));
-        d
-    };
+    let diff = |a: &Isometry3<f64>| pose_difference(&base, a);
     let h = 1e-4;
     let mut worst = 0.0f64;
     for pos in 0..nf {
