@@ -19,7 +19,9 @@ fn main() -> anyhow::Result<()> {
     let mut estimator =
         build_estimator(EstimatorKind::Window, mode, &rig, &RelativeConfig::default())?;
     let (stereo, imu) = (mode.uses_stereo(), mode.uses_imu());
-    let options = StreamOptions { stereo, imu, start_ns: None, max_frames: None };
+    // A camera behind the IMU clock needs the IMU up to its instant on that clock.
+    let imu_lead_ns = rig.frame_shift_ns();
+    let options = StreamOptions { stereo, imu, start_ns: None, max_frames: None, imu_lead_ns };
     let mut poses = Vec::new();
     for event in SensorStream::new(&dataset, options)? {
         match event? {

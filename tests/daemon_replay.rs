@@ -124,6 +124,7 @@ fn sensor_events(dataset: &rigslam::dataset::Dataset) -> Vec<SensorEvent> {
             imu: true,
             start_ns: None,
             max_frames: None,
+            imu_lead_ns: 0,
         },
     )
     .expect("stream")

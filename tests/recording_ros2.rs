@@ -113,6 +113,7 @@ fn dataset_events(root: &Path) -> (Vec<ImuSample>, Vec<(i64, Vec<u8>, Vec<u8>)>)
             imu: true,
             start_ns: None,
             max_frames: None,
+            imu_lead_ns: 0,
         },
     )
     .expect("stream");

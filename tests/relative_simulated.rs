@@ -60,6 +60,7 @@ fn stereo_imu_stream(dataset: &Dataset) -> SensorStream<'_> {
             imu: true,
             start_ns: None,
             max_frames: None,
+            imu_lead_ns: 0,
         },
     )
     .expect("stream")

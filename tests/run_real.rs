@@ -107,6 +107,53 @@ fn euroc_at_rest_initialises_from_the_static_start_and_stays_within_a_centimetre
     }
 }
 
+/// A camera whose clock runs 7 ms behind the IMU's (Kalibr's
+/// `timeshift_cam_imu: 0.007`, as a calibration of a real rig may say):
+/// every frame is preintegrated up to its instant on the IMU clock, 7 ms
+/// after its stamp. The reader used to hand over a frame with the IMU up
+/// to its stamp and one sample (5 ms) past, so each frame's interval was
+/// short of samples and the inertial modes ran without the IMU after
+/// their start, silently.
+#[test]
+fn a_camera_behind_the_imu_clock_still_gets_its_imu() {
+    let Some(root) = shared("euroc/V1_01_micro") else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let copy = dir.path().join("shifted");
+    for link in ["mav0/imu0", "mav0/state_groundtruth_estimate0"] {
+        std::fs::create_dir_all(copy.join(link).parent().expect("parent")).expect("mkdir");
+        std::os::unix::fs::symlink(root.join(link), copy.join(link)).expect("link");
+    }
+    for cam in ["mav0/cam0", "mav0/cam1"] {
+        std::fs::create_dir_all(copy.join(cam)).expect("mkdir");
+        std::os::unix::fs::symlink(root.join(cam).join("data"), copy.join(cam).join("data"))
+            .expect("link");
+        std::fs::copy(
+            root.join(cam).join("data.csv"),
+            copy.join(cam).join("data.csv"),
+        )
+        .expect("copy");
+        let yaml = std::fs::read_to_string(root.join(cam).join("sensor.yaml")).expect("yaml");
+        assert!(!yaml.contains("timeshift_cam_imu"));
+        std::fs::write(
+            copy.join(cam).join("sensor.yaml"),
+            format!("{yaml}\ntimeshift_cam_imu: 0.007\n"),
+        )
+        .expect("write yaml");
+    }
+    for mode in ["stereo-inertial", "mono-inertial"] {
+        let (report, poses) = run(&copy, mode, dir.path());
+        assert!(report["initialized_at_s"].as_f64().is_some(), "{mode}");
+        assert!(poses.len() >= 85, "{mode}: {} poses", poses.len());
+        assert_eq!(
+            report["counters"]["frames_without_imu"], 0,
+            "{mode}: {}",
+            report["counters"]
+        );
+    }
+}
+
 #[test]
 fn run_report_has_the_contract_keys() {
     let Some(root) = shared("euroc/V1_01_micro") else {

@@ -110,6 +110,7 @@ fn sequence_s(dataset: &Path) -> f64 {
             imu: true,
             start_ns: None,
             max_frames: None,
+            imu_lead_ns: 0,
         },
     )
     .expect("stream");

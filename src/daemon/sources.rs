@@ -250,6 +250,9 @@ fn replay_loop(replay: &ReplayConfig, mode: SensorMode, links: &SourceLinks) -> 
                         imu: mode.uses_imu(),
                         start_ns: None,
                         max_frames: replay.max_frames,
+                        // The SLAM stage holds each frame until the IMU
+                        // has passed its instant on the IMU clock.
+                        imu_lead_ns: 0,
                     },
                 )?;
                 let mut stopped = false;

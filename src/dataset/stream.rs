@@ -67,6 +67,8 @@ pub struct SensorStream<'a> {
     right_cursor: usize,
     /// Stop after this many frames.
     max_frames: usize,
+    /// See [`StreamOptions::imu_lead_ns`] (never negative).
+    imu_lead_ns: i64,
     counts: StreamCounts,
 }
 
@@ -82,6 +84,14 @@ pub struct StreamOptions {
     pub start_ns: Option<i64>,
     /// Stop after this many frames (all when `None`).
     pub max_frames: Option<usize>,
+    /// Deliver the IMU up to this long past each frame's stamp (and one
+    /// sample more) before the frame, ns. A camera whose clock runs behind
+    /// the IMU's (a positive `timeshift_cam_imu`) took its image at the
+    /// stamp plus the shift on the IMU clock, and the estimator
+    /// preintegrates up to that instant: the rig's
+    /// [`crate::rig::RigModel::frame_shift_ns`] (0 or less: one sample
+    /// past the stamp).
+    pub imu_lead_ns: i64,
 }
 
 impl<'a> SensorStream<'a> {
@@ -165,6 +175,7 @@ impl<'a> SensorStream<'a> {
             next_imu,
             right_cursor: 0,
             max_frames: options.max_frames.unwrap_or(usize::MAX),
+            imu_lead_ns: options.imu_lead_ns.max(0),
             counts: StreamCounts {
                 imu_samples_nonfinite,
                 ..StreamCounts::default()
@@ -228,15 +239,16 @@ impl Iterator for SensorStream<'_> {
             } else {
                 None
             };
-            // IMU up to the frame and one past it (or the rest when the
-            // frames are exhausted and the run is not capped).
+            // IMU up to the frame (on the IMU clock) and one past it (or
+            // the rest when the frames are exhausted and the run is not
+            // capped).
             if let Some(sample) = self.imu.get(self.next_imu) {
                 let previous_ns = self
                     .next_imu
                     .checked_sub(1)
                     .and_then(|i| self.imu.get(i))
                     .map(|s| s.t_ns);
-                let wanted = match frame_ns {
+                let wanted = match frame_ns.map(|f| f.saturating_add(self.imu_lead_ns)) {
                     Some(f) => sample.t_ns <= f || previous_ns.map_or(true, |p| p <= f),
                     None => false,
                 };
@@ -288,6 +300,7 @@ mod tests {
                 imu: true,
                 start_ns: None,
                 max_frames: Some(20),
+                imu_lead_ns: 0,
             },
         )
         .expect("stream");
@@ -393,6 +406,7 @@ mod tests {
             imu: true,
             start_ns: None,
             max_frames: None,
+            imu_lead_ns: 0,
         };
         let stream = SensorStream::new(&dataset, options).expect("stream");
         let imu = stream
@@ -400,6 +414,41 @@ mod tests {
             .count();
         // The sample at the frame's stamp and the one after it.
         assert_eq!(imu, 2);
+    }
+
+    /// A camera behind the IMU clock: the samples up to the frame's
+    /// stamp plus the lead, and one past it, come before the frame; with
+    /// no lead, one past the stamp. The IMU stamps are 2.775 ms off the
+    /// frame's, as in a rendering.
+    #[test]
+    fn the_imu_reaches_past_a_late_cameras_instant() {
+        let imu: Vec<i64> = (0..40).map(|k| 2_775_000 + 5_000_000 * k).collect();
+        let delivered = |lead_ns: i64| -> Vec<i64> {
+            let dataset = dataset(&[&[(100_000_000, "0.png")]], &imu);
+            let options = StreamOptions {
+                stereo: false,
+                imu: true,
+                start_ns: None,
+                max_frames: None,
+                imu_lead_ns: lead_ns,
+            };
+            SensorStream::new(&dataset, options)
+                .expect("stream")
+                .filter_map(|e| match e {
+                    Ok(SensorEvent::Imu(s)) => Some(s.t_ns),
+                    _ => None,
+                })
+                .collect()
+        };
+        let plain = delivered(0);
+        assert_eq!(plain.last(), Some(&102_775_000));
+        assert_eq!(plain.len(), 21);
+        // 7 ms behind: up to 107 ms and one past, 107.775 ms.
+        let late = delivered(7_000_000);
+        assert_eq!(late.last(), Some(&107_775_000));
+        assert_eq!(late.len(), 22);
+        // A camera ahead of the IMU (negative shift) needs nothing more.
+        assert_eq!(delivered(-7_000_000), plain);
     }
 
     /// Writes what a `tracing` subscriber prints into a shared buffer.
@@ -433,6 +482,7 @@ mod tests {
             imu: false,
             start_ns: Some(2000),
             max_frames: None,
+            imu_lead_ns: 0,
         };
         let captured = Captured::default();
         let writer = captured.clone();
@@ -475,6 +525,7 @@ mod tests {
                 imu: true,
                 start_ns: None,
                 max_frames: None,
+                imu_lead_ns: 0,
             },
         )
         .err()
@@ -487,6 +538,7 @@ mod tests {
                 imu: false,
                 start_ns: None,
                 max_frames: None,
+                imu_lead_ns: 0,
             },
         )
         .expect("mono stream");

@@ -159,6 +159,7 @@ pub fn run_dataset(
             imu: mode.uses_imu(),
             start_ns: Some(first_ns + (run.start_s * 1e9).round() as i64),
             max_frames: run.max_frames,
+            imu_lead_ns: rig.frame_shift_ns(),
         },
     )?;
     let listed = stream.frames_listed();

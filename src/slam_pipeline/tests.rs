@@ -182,6 +182,7 @@ fn published_bits(
             imu: true,
             start_ns: None,
             max_frames: None,
+            imu_lead_ns: 0,
         },
     )
     .expect("stream");

@@ -291,6 +291,7 @@ pub fn dataset_dir(data: &[u8]) {
             imu,
             start_ns: None,
             max_frames: None,
+            imu_lead_ns: 0,
         };
         let stream = match SensorStream::new(&dataset, options) {
             Ok(s) => s,

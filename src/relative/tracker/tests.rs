@@ -20,6 +20,7 @@ fn euroc_frames(n: usize) -> Option<(Vec<CameraCalibration>, Vec<(i64, Frame, Op
             imu: false,
             start_ns: None,
             max_frames: Some(n),
+            imu_lead_ns: 0,
         },
     )
     .expect("stream");
