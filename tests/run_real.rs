@@ -152,6 +152,38 @@ fn a_camera_behind_the_imu_clock_still_gets_its_imu() {
             report["counters"]
         );
     }
+    // Had any frame gone without the IMU, the summary says so: here the
+    // IMU stops 1 s before the camera.
+    let dropped = tempfile::tempdir().expect("tempdir");
+    let imu = std::fs::read_to_string(root.join("mav0/imu0/data.csv")).expect("imu csv");
+    let frames = std::fs::read_to_string(root.join("mav0/cam0/data.csv")).expect("cam0 csv");
+    let stamp = |l: &str| l.split(',').next().and_then(|t| t.parse::<i64>().ok());
+    let last_frame_ns = frames.lines().filter_map(stamp).max().expect("frames");
+    let kept: Vec<&str> = imu
+        .lines()
+        .filter(|l| stamp(l).map_or(true, |t| t <= last_frame_ns - 1_000_000_000))
+        .collect();
+    let gap = dropped.path().join("gap");
+    std::fs::create_dir_all(gap.join("mav0/imu0")).expect("mkdir");
+    std::fs::write(gap.join("mav0/imu0/data.csv"), kept.join("\n") + "\n").expect("write");
+    std::fs::copy(
+        root.join("mav0/imu0/sensor.yaml"),
+        gap.join("mav0/imu0/sensor.yaml"),
+    )
+    .expect("copy");
+    for link in ["mav0/cam0", "mav0/cam1", "mav0/state_groundtruth_estimate0"] {
+        std::os::unix::fs::symlink(root.join(link), gap.join(link)).expect("link");
+    }
+    let out = succeeds(
+        rigslam_run()
+            .args(["--mode", "stereo-inertial", "--dataset"])
+            .arg(&gap),
+    );
+    let summary = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        summary.contains("frames without the IMU (it did not reach their instant"),
+        "{summary}"
+    );
 }
 
 #[test]

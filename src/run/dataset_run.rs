@@ -402,6 +402,11 @@ pub fn summary_line(r: &RunReport) -> String {
         None => line += "never initialised, ",
     }
     line += &format!("lost {}x, {} poses", r.lost_count, r.poses_written);
+    if let Some(&n) = r.counters.get("frames_without_imu").filter(|&&n| n > 0) {
+        line += &format!(
+            "; {n} frames without the IMU (it did not reach their instant: a gap in it, or a camera clock behind it)"
+        );
+    }
     if r.stream.any_skipped() {
         let s = &r.stream;
         line += &format!(
