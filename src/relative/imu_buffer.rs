@@ -57,9 +57,11 @@ impl ImuBuffer {
     }
 
     /// The interval `[t_start_ns, t_end_ns]` preintegrated with `biases`;
-    /// `None` when the samples do not cover it (a gap, a camera that starts
-    /// before the IMU). An interval with dropped samples or long gaps comes
-    /// back marked unreliable.
+    /// `None` when the samples do not cover it (a camera that starts
+    /// before the IMU) or leave a gap in it longer than the interval
+    /// limit (25 ms): integrated across, a gap would stand for motion
+    /// nobody measured. An interval with dropped samples comes back
+    /// marked unreliable.
     pub fn preintegrate(
         &mut self,
         t_start_ns: i64,
@@ -69,7 +71,8 @@ impl ImuBuffer {
         let interval = self
             .stream
             .interval(t_start_ns, t_end_ns, &self.interval)
-            .ok()?;
+            .ok()
+            .filter(|i| i.report.long_gaps == 0)?;
         self.preintegrator
             .integrate_interval(&interval, biases)
             .ok()
@@ -200,5 +203,25 @@ mod tests {
             .preintegrate(0, 5_000_000, &ImuBiases::default())
             .expect("covered");
         assert!(!pre.reliable, "a NaN sample inside marks it unreliable");
+    }
+
+    /// An interval across a gap longer than 25 ms is refused: integrated
+    /// across, 0.3 s without samples read as 0.3 s of the last rate.
+    #[test]
+    fn an_interval_across_a_long_gap_is_refused() {
+        let mut buf = ImuBuffer::new(ImuNoise::EUROC_ADIS16448, ImuIntrinsics::IDENTITY);
+        for k in (0..=40).chain(100..=140) {
+            buf.push(&sample(k * 5_000_000, 0.5));
+        }
+        let b = ImuBiases::default();
+        assert!(buf.preintegrate(0, 200_000_000, &b).is_some());
+        assert!(buf.preintegrate(500_000_000, 700_000_000, &b).is_some());
+        assert!(buf.preintegrate(150_000_000, 550_000_000, &b).is_none());
+        // 20 ms between samples is within the limit.
+        let mut sparse = ImuBuffer::new(ImuNoise::EUROC_ADIS16448, ImuIntrinsics::IDENTITY);
+        for k in 0..=20 {
+            sparse.push(&sample(k * 20_000_000, 0.5));
+        }
+        assert!(sparse.preintegrate(0, 400_000_000, &b).is_some());
     }
 }
