@@ -116,9 +116,8 @@ pub struct RelativeConfig {
     /// How far the stereo calibration's rotation between the cameras may
     /// be off, one sigma, deg.
     pub camera_imu_stereo_rotation_sigma_deg: f64,
-    /// Share of the calibration's carried information kept at each solve,
-    /// in [0, 1), before the solve adds its new measurements' share
-    /// (`relative/window/camera_imu.rs`); 0.99 remembers about 100 solves.
+    /// Share of a solve's information about the calibration carried to
+    /// the next one, in [0, 1).
     pub camera_imu_carry_weight: f64,
     /// Turn the poses so that the estimated gravity points along -z
     /// (`relative/level.rs`): an odometry frame with z up. The window's
@@ -158,7 +157,7 @@ impl Default for RelativeConfig {
             camera_imu_translation_sigma_m: 0.0005,
             camera_imu_time_offset_sigma_s: 0.01,
             camera_imu_stereo_rotation_sigma_deg: 0.2,
-            camera_imu_carry_weight: 0.99,
+            camera_imu_carry_weight: 0.9,
             level_poses: true,
             level_time_constant_s: 20.0,
         }

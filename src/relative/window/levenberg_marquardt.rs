@@ -677,13 +677,10 @@ impl Window {
             let p = &mut self.problem;
             schur::reduced_inverse(&mut p.eq, &p.rows, &mut p.landmarks, p.calib_offset)
         };
-        // A keyframe's measurements take part in about this many solves.
-        let window_keyframes = self.config.keyframes_kept;
         if let (Some(oc), Some(c)) = (self.problem.calib_offset, self.camera_imu.as_mut()) {
             c.after_solve(
                 cov.as_ref()
                     .map(|m| m.fixed_view::<CALIB_DIM, CALIB_DIM>(oc, oc).into_owned()),
-                window_keyframes,
             );
             let e = c.estimate();
             tracing::trace!(
