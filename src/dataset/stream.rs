@@ -418,8 +418,8 @@ mod tests {
 
     /// A camera behind the IMU clock: the samples up to the frame's
     /// stamp plus the lead, and one past it, come before the frame; with
-    /// no lead, one past the stamp. The IMU stamps are 2.775 ms off the
-    /// frame's, as in a rendering.
+    /// no lead, one past the stamp. The IMU stamps are not on the
+    /// frame's (2.775 ms off).
     #[test]
     fn the_imu_reaches_past_a_late_cameras_instant() {
         let imu: Vec<i64> = (0..40).map(|k| 2_775_000 + 5_000_000 * k).collect();
