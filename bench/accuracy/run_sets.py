@@ -63,6 +63,9 @@ def run(binary, root, seq, mode, config):
         "tilt_deg": (r.get("tilt") or {}).get("rms_deg"),
         "lost": r.get("lost_count"),
         "resets": counters.get("resets"),
+        # Frames the IMU did not reach (a gap, a camera clock behind it):
+        # an inertial run with many of them ran on its cameras.
+        "frames_without_imu": counters.get("frames_without_imu"),
         "ms_per_frame": r.get("mean_ms_per_frame"),
         "noise_scale_end": r.get("imu_noise_scale"),
         # The online camera-IMU calibration at the end (refined modes).
@@ -113,6 +116,9 @@ def main():
               f"{fmt(r['scale_error_pct'], '.2f')} | {fmt(r['nees'], '.2f')} | {fmt(r.get('tilt_deg'), '.2f')} | "
               f"{r['lost']} | {versus} | "
               f"{ratio(r.get('ate_m'), r.get('ate_relative_m'))} |")
+    short = [r for r in rows if r.get("frames_without_imu")]
+    for r in short:
+        print(f"warning: {r['sequence']} {r['mode']}: {r['frames_without_imu']} frames without the IMU")
     print()
     print("| set | mode | mean ATE m (from rest) | mean ATE m (all) | max scale err % | mean NEES/dof | mean tilt deg |")
     print("|---|---|---|---|---|---|---|")
