@@ -7,6 +7,7 @@
 //! stage is reported stuck (what stops the systemd watchdog pings).
 
 use std::collections::VecDeque;
+use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -432,26 +433,65 @@ fn timestamps_jumping_are_refused_backwards_flagged_and_survived() {
     );
 }
 
+/// A copy of `root` (a EuRoC folder) whose camera files say the camera
+/// clock runs `shift_s` behind the IMU's (`timeshift_cam_imu`); images,
+/// IMU and ground truth linked.
+fn with_time_shift(root: &Path, dir: &Path, shift_s: f64) -> PathBuf {
+    let copy = dir.join("shifted");
+    for link in ["mav0/imu0", "mav0/state_groundtruth_estimate0"] {
+        std::fs::create_dir_all(copy.join(link).parent().expect("parent")).expect("mkdir");
+        std::os::unix::fs::symlink(root.join(link), copy.join(link)).expect("link");
+    }
+    for cam in ["mav0/cam0", "mav0/cam1"] {
+        std::fs::create_dir_all(copy.join(cam)).expect("mkdir");
+        std::os::unix::fs::symlink(root.join(cam).join("data"), copy.join(cam).join("data"))
+            .expect("link");
+        std::fs::copy(
+            root.join(cam).join("data.csv"),
+            copy.join(cam).join("data.csv"),
+        )
+        .expect("copy");
+        let yaml = std::fs::read_to_string(root.join(cam).join("sensor.yaml")).expect("yaml");
+        std::fs::write(
+            copy.join(cam).join("sensor.yaml"),
+            format!("{yaml}\ntimeshift_cam_imu: {shift_s}\n"),
+        )
+        .expect("write yaml");
+    }
+    copy
+}
+
 /// `rigslam run`'s path (the library call behind it) and the daemon's
 /// replay as fast as possible, with the same settings, give the same poses
 /// bit for bit: with the relative stage alone, and with both stages (the
-/// daemon's `rigslam/pose` then carries the corrected position).
+/// daemon's `rigslam/pose` then carries the corrected position); and with
+/// a camera clock 7 ms behind the IMU's, where both must hand each frame
+/// the IMU up to its instant on the IMU clock (the daemon handed it the
+/// samples up to its stamp only, and ran without the IMU).
 #[test]
 fn rigslam_run_and_the_daemon_give_the_same_poses_with_one_or_both_stages() {
     use rigslam::run::dataset_run::{run_dataset, DatasetRun};
-    let Some(dataset) = shared_data::path_or_skip("euroc/V1_01_micro") else {
+    let Some(micro) = shared_data::path_or_skip("euroc/V1_01_micro") else {
         return;
     };
+    let work = tempfile::tempdir().expect("tempdir");
+    let shifted = with_time_shift(&micro, work.path(), 0.007);
     let mut corrections_seen = 0;
-    for both_stages in [false, true] {
-        let mut config = DaemonConfig::replay(&dataset, SensorMode::StereoInertial);
+    for (dataset, both_stages) in [(&micro, false), (&micro, true), (&shifted, false)] {
+        let mut config = DaemonConfig::replay(dataset, SensorMode::StereoInertial);
         config.slam.absolute.enabled = both_stages;
         let run = DatasetRun {
             mode: Some(SensorMode::StereoInertial),
             settings: config.slam.settings(),
             ..DatasetRun::default()
         };
-        let result = run_dataset(&dataset, &run, |_, _| {}).expect("rigslam run's path");
+        let result = run_dataset(dataset, &run, |_, _| {}).expect("rigslam run's path");
+        assert_eq!(
+            result.report.counters.get("frames_without_imu"),
+            Some(&0),
+            "{}",
+            dataset.display()
+        );
         let (poses, _) = run_replay(config);
         let tracked: Vec<&PoseMessage> = poses
             .iter()

@@ -269,6 +269,7 @@ impl Pipeline {
             health: health.clone(),
             reload: reload.clone(),
         };
+        let frame_shift_ns = rig.frame_shift_ns();
         // The estimator is built on the stage's thread (it is not Send);
         // a setup error comes back through the join.
         let stage = std::thread::Builder::new()
@@ -291,7 +292,8 @@ impl Pipeline {
                 .clone()
                 .expect("check() refuses a replay source without [replay]");
             sources.push(
-                spawn_replay(r, mode, links).map_err(|e| PipelineError::Thread("replay", e))?,
+                spawn_replay(r, mode, frame_shift_ns, links)
+                    .map_err(|e| PipelineError::Thread("replay", e))?,
             );
         } else {
             if config.camera.source != CameraSource::Replay {

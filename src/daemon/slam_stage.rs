@@ -6,10 +6,12 @@
 //!
 //! Order rule (what makes a replay give the same poses bit for bit): the
 //! IMU samples received are held in `pending`; before a frame, the stage
-//! pushes the pending samples up to the frame's stamp and the first one
-//! after it, never more, however far ahead the IMU queue is. In the
-//! inertial modes it waits (bounded) for that one sample past the frame,
-//! unless the IMU has gone quiet.
+//! pushes the pending samples up to the frame's instant on the IMU clock
+//! (its stamp plus the camera's time shift when the camera runs behind)
+//! and the first one after it, never more, however far ahead the IMU
+//! queue is: what `rigslam run`'s reader delivers. In the inertial modes
+//! it waits (bounded) for that one sample past the frame, unless the IMU
+//! has gone quiet.
 
 use std::collections::VecDeque;
 use std::sync::atomic::Ordering;
@@ -432,9 +434,11 @@ impl Stage {
     fn track_frame(&mut self, frame: FrameItem, sink: &mut dyn PoseSink) {
         let health = Arc::clone(&self.inputs.health);
         self.last_frame_t_ns = Some(frame.t_ns);
-        // The samples up to the frame and the first one past it.
+        // The samples up to the frame's instant on the IMU clock and the
+        // first one past it.
+        let instant_ns = frame.t_ns.saturating_add(self.clocks.frame_shift_ns.max(0));
         while let Some(s) = self.pending.front() {
-            let past = s.t_ns > frame.t_ns;
+            let past = s.t_ns > instant_ns;
             let s = *s;
             self.pending.pop_front();
             self.pipeline.push_imu(&s);

@@ -118,14 +118,18 @@ fn spawn(name: &str, f: impl FnOnce() + Send + 'static) -> std::io::Result<JoinH
 
 /// Replays a EuRoC folder or an MCAP recording: both sensors from one
 /// merged stream, so the order the SLAM stage sees is the recorded one.
-/// Closes the queues at the end (the daemon then exits).
+/// A EuRoC folder's IMU is handed over up to `imu_lead_ns` past each
+/// frame (the rig's camera time shift, as `rigslam run` reads it), so
+/// that the last frame too has its samples. Closes the queues at the end
+/// (the daemon then exits).
 pub fn spawn_replay(
     replay: ReplayConfig,
     mode: SensorMode,
+    imu_lead_ns: i64,
     links: SourceLinks,
 ) -> std::io::Result<JoinHandle<()>> {
     spawn("replay", move || {
-        if let Err(e) = replay_loop(&replay, mode, &links) {
+        if let Err(e) = replay_loop(&replay, mode, imu_lead_ns, &links) {
             // The errors name the file (and where in it) themselves.
             tracing::error!("replay stopped: {e}");
             links.health.source_failed.store(true, Ordering::Relaxed);
@@ -218,7 +222,12 @@ impl Player<'_> {
     }
 }
 
-fn replay_loop(replay: &ReplayConfig, mode: SensorMode, links: &SourceLinks) -> anyhow::Result<()> {
+fn replay_loop(
+    replay: &ReplayConfig,
+    mode: SensorMode,
+    imu_lead_ns: i64,
+    links: &SourceLinks,
+) -> anyhow::Result<()> {
     let path = Path::new(&replay.dataset);
     let dataset = if is_mcap(path) {
         None
@@ -250,9 +259,7 @@ fn replay_loop(replay: &ReplayConfig, mode: SensorMode, links: &SourceLinks) -> 
                         imu: mode.uses_imu(),
                         start_ns: None,
                         max_frames: replay.max_frames,
-                        // The SLAM stage holds each frame until the IMU
-                        // has passed its instant on the IMU clock.
-                        imu_lead_ns: 0,
+                        imu_lead_ns,
                     },
                 )?;
                 let mut stopped = false;

@@ -136,8 +136,11 @@ pub fn run_stream(
                     TrackingState::Initializing => was_tracking = false,
                 }
                 if output.state == TrackingState::Tracking && is_finite(&output.T_world_body) {
+                    // Stamped on the IMU clock, like the daemon's poses and
+                    // the ground truth: a camera behind the IMU took the
+                    // image at its stamp plus the time shift.
                     poses.push(StampedPose::new(
-                        t_ns,
+                        output.t_ns,
                         output.T_world_body.translation.vector,
                         output.T_world_body.rotation,
                     ));
