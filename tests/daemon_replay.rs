@@ -7,7 +7,6 @@
 //! stage is reported stuck (what stops the systemd watchdog pings).
 
 use std::collections::VecDeque;
-use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -25,6 +24,9 @@ use rigslam::shared_data;
 #[path = "common/collect.rs"]
 mod collect;
 use collect::Collect;
+#[path = "common/time_shift.rs"]
+mod time_shift;
+use time_shift::with_time_shift;
 
 fn bits(m: &PoseMessage) -> Vec<u64> {
     let mut v = vec![m.t_ns as u64, m.tracking_state as u64, m.flags as u64];
@@ -431,34 +433,6 @@ fn timestamps_jumping_are_refused_backwards_flagged_and_survived() {
         "no tracking after the stamps jumped forward: {:?}",
         after.iter().map(|m| m.tracking_state).collect::<Vec<_>>()
     );
-}
-
-/// A copy of `root` (a EuRoC folder) whose camera files say the camera
-/// clock runs `shift_s` behind the IMU's (`timeshift_cam_imu`); images,
-/// IMU and ground truth linked.
-fn with_time_shift(root: &Path, dir: &Path, shift_s: f64) -> PathBuf {
-    let copy = dir.join("shifted");
-    for link in ["mav0/imu0", "mav0/state_groundtruth_estimate0"] {
-        std::fs::create_dir_all(copy.join(link).parent().expect("parent")).expect("mkdir");
-        std::os::unix::fs::symlink(root.join(link), copy.join(link)).expect("link");
-    }
-    for cam in ["mav0/cam0", "mav0/cam1"] {
-        std::fs::create_dir_all(copy.join(cam)).expect("mkdir");
-        std::os::unix::fs::symlink(root.join(cam).join("data"), copy.join(cam).join("data"))
-            .expect("link");
-        std::fs::copy(
-            root.join(cam).join("data.csv"),
-            copy.join(cam).join("data.csv"),
-        )
-        .expect("copy");
-        let yaml = std::fs::read_to_string(root.join(cam).join("sensor.yaml")).expect("yaml");
-        std::fs::write(
-            copy.join(cam).join("sensor.yaml"),
-            format!("{yaml}\ntimeshift_cam_imu: {shift_s}\n"),
-        )
-        .expect("write yaml");
-    }
-    copy
 }
 
 /// `rigslam run`'s path (the library call behind it) and the daemon's

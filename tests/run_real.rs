@@ -5,6 +5,10 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+#[path = "common/time_shift.rs"]
+mod time_shift;
+use time_shift::with_time_shift;
+
 fn shared(relative: &str) -> Option<PathBuf> {
     rigslam::shared_data::path_or_skip(relative)
 }
@@ -120,28 +124,7 @@ fn a_camera_behind_the_imu_clock_still_gets_its_imu() {
         return;
     };
     let dir = tempfile::tempdir().expect("tempdir");
-    let copy = dir.path().join("shifted");
-    for link in ["mav0/imu0", "mav0/state_groundtruth_estimate0"] {
-        std::fs::create_dir_all(copy.join(link).parent().expect("parent")).expect("mkdir");
-        std::os::unix::fs::symlink(root.join(link), copy.join(link)).expect("link");
-    }
-    for cam in ["mav0/cam0", "mav0/cam1"] {
-        std::fs::create_dir_all(copy.join(cam)).expect("mkdir");
-        std::os::unix::fs::symlink(root.join(cam).join("data"), copy.join(cam).join("data"))
-            .expect("link");
-        std::fs::copy(
-            root.join(cam).join("data.csv"),
-            copy.join(cam).join("data.csv"),
-        )
-        .expect("copy");
-        let yaml = std::fs::read_to_string(root.join(cam).join("sensor.yaml")).expect("yaml");
-        assert!(!yaml.contains("timeshift_cam_imu"));
-        std::fs::write(
-            copy.join(cam).join("sensor.yaml"),
-            format!("{yaml}\ntimeshift_cam_imu: 0.007\n"),
-        )
-        .expect("write yaml");
-    }
+    let copy = with_time_shift(&root, dir.path(), 0.007);
     for mode in ["stereo-inertial", "mono-inertial"] {
         let (report, poses) = run(&copy, mode, dir.path());
         assert!(report["initialized_at_s"].as_f64().is_some(), "{mode}");
