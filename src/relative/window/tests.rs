@@ -286,13 +286,29 @@ fn schur_solve_equals_dense_solve() {
 
 #[test]
 fn normal_equations_hold_the_cost_gradient() {
+    gradient_check(false);
+}
+
+#[test]
+fn normal_equations_hold_the_cost_gradient_with_the_calibration_refined() {
+    // Three held keyframes: the calibration columns reach their rows too,
+    // which hold the body pose and move with the calibration's camera.
+    gradient_check(true);
+}
+
+fn gradient_check(refine: bool) {
     // b = -J^T W r must be minus the gradient of the robust cost for every
     // free unknown: checks the assembly of all terms (reprojection,
-    // inertial, bias walk, velocity and gravity priors) and their column
-    // placement.
+    // inertial, bias walk, velocity and gravity priors, the calibration)
+    // and their column placement.
     let mut r = rng(6);
     let scene = Scene::new(&mut r, 200, 4.0);
-    let mut w = filled_window(&scene, config(true), 5, 1, true, 0.5, 0.0, &mut r);
+    let mut cfg = config(true);
+    cfg.camera_imu.enabled = refine;
+    let held = if refine { 3 } else { 1 };
+    cfg.keyframes_free = 4;
+    let mut w = filled_window(&scene, cfg, 4 + held, 1, true, 0.5, 0.0, &mut r);
+    assert_eq!(w.fixed_count(), held);
     w.set_gravity(Vector3::new(0.03, -0.02, -1.0), 0.01)
         .expect("valid");
     let n_fixed = w.fixed_count();
@@ -301,6 +317,7 @@ fn normal_equations_hold_the_cost_gradient() {
     assert!(w.velocity_prior.is_some());
     w.linearize(true);
     let dim = w.problem.eq.dim;
+    assert_eq!(w.problem.calib_offset.is_some(), refine);
     let grad = w.problem.eq.bc.clone();
     let eps = 1e-7;
     for i in 0..dim {
