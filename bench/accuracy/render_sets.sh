@@ -13,10 +13,17 @@
 # (`--declared-noise datasheet`): what a user on a robot has, not what the
 # ground truth reveals.
 #
-# usage: bench/accuracy/render_sets.sh OUT_DIR [dev|eval|all]
+#   consistent-IMU set (`synth`, not in `all`): 45 s of V1_02 (seeds 10-12)
+#     and of V1_01 (seeds 20-22) with the IMU synthesised from the rendered
+#     motion with the datasheet's noise, so the cameras and the IMU agree
+#     exactly and the calibration file is the truth: where the camera-IMU
+#     refinement can be scored without the real IMU's own disagreement
+#     with the ground truth.
+#
+# usage: bench/accuracy/render_sets.sh OUT_DIR [dev|eval|all|synth]
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-out=${1:?usage: render_sets.sh OUT_DIR [dev|eval|all]}
+out=${1:?usage: render_sets.sh OUT_DIR [dev|eval|all|synth]}
 which=${2:-all}
 data=../shared/data/euroc
 bin=${RIGSLAM:-target/release/rigslam}
@@ -52,4 +59,15 @@ if [ "$which" = eval ] || [ "$which" = all ]; then
   render eval_v102_b --trajectory "$data/ground_truth/V1_02_groundtruth.csv" \
     --imu "real:$data/ground_truth/V1_02_imu0.csv" --spline none \
     --boxes 6 --texel-mm 4 --seed 102
+fi
+if [ "$which" = synth ]; then
+  for seed_boxes in 10:12 11:19 12:20; do
+    seed=${seed_boxes%:*}
+    render "synth_v102_s$seed" --trajectory "$data/ground_truth/V1_02_groundtruth.csv" \
+      --duration-s 45 --seed "$seed" --boxes "${seed_boxes#*:}"
+  done
+  for seed in 20 21 22; do
+    render "synth_v101_s$seed" --trajectory "$data/V1_01_micro/mav0/state_groundtruth_estimate0/data.csv" \
+      --duration-s 45 --seed "$seed"
+  done
 fi

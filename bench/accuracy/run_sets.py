@@ -3,7 +3,9 @@
 
 Every sequence of the development set (seeds 0-5 from rest, seed 0 in
 flight) and of the held-apart evaluation set (V1_01 room A and V1_02
-room B, from rest and in flight) in each mode asked for, with the same
+room B, from rest and in flight), or of the consistent-IMU set
+(`--sets synth`: six renderings from rest and from 20 s), in each mode
+asked for, with the same
 settings (`--config`, default: the defaults). Columns: ATE RMSE (se3,
 m), scale error (%), NEES per dof of the published covariance, and
 whether the run lost track or re-initialised; with the absolute stage on
@@ -14,7 +16,7 @@ are at the end; with `stereo` among the modes, each inertial run is also
 compared with the same cameras without the IMU.
 
 usage: bench/accuracy/run_sets.py SETS_DIR [--modes stereo-inertial mono-inertial stereo]
-       [--config C.toml] [--sets dev eval] [--jobs 2] [--out rows.json]
+       [--config C.toml] [--sets dev eval synth] [--jobs 2] [--out rows.json]
 """
 import argparse, json, os, subprocess, sys, tempfile
 from concurrent.futures import ThreadPoolExecutor
@@ -28,6 +30,13 @@ EVAL = [
     ("V1_02 B rest", "eval_v102_b", 0, None),
     ("V1_02 B flight", "eval_v102_b", 25, None),
 ]
+# The consistent-IMU set (`render_sets.sh OUT synth`): an IMU synthesised
+# from the rendered motion, so cameras and IMU agree exactly and the
+# calibration file is the truth; for the camera-IMU refinement.
+SYNTH = [(f"synth {f} {'flight' if t else 'rest'}", f"synth_{f}", t, None)
+         for f in ["v102_s10", "v102_s11", "v102_s12", "v101_s20", "v101_s21", "v101_s22"]
+         for t in (0, 20)]
+SETS = {"dev": DEV, "eval": EVAL, "synth": SYNTH}
 
 
 def run(binary, root, seq, mode, config):
@@ -85,13 +94,13 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("root", help="the folder render_sets.sh wrote")
     ap.add_argument("--modes", nargs="+", default=["stereo-inertial", "mono-inertial", "stereo"])
-    ap.add_argument("--sets", nargs="+", default=["dev", "eval"], choices=["dev", "eval"])
+    ap.add_argument("--sets", nargs="+", default=["dev", "eval"], choices=list(SETS))
     ap.add_argument("--config")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out")
     ap.add_argument("--bin", default=os.environ.get("RIGSLAM", "target/release/rigslam"))
     a = ap.parse_args()
-    seqs = [(s, seq) for s in a.sets for seq in (DEV if s == "dev" else EVAL)]
+    seqs = [(s, seq) for s in a.sets for seq in SETS[s]]
     for _, (_, folder, _, _) in seqs:
         if not os.path.isdir(os.path.join(a.root, folder)):
             sys.exit(f"{os.path.join(a.root, folder)} is missing: render it with bench/accuracy/render_sets.sh")
