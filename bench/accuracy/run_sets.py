@@ -5,8 +5,7 @@ Every sequence of the development set (seeds 0-5 from rest, seed 0 in
 flight) and of the held-apart evaluation set (V1_01 room A and V1_02
 room B, from rest and in flight), or of the consistent-IMU set
 (`--sets synth`: six renderings from rest and from 20 s), in each mode
-asked for, with the same
-settings (`--config`, default: the defaults). Columns: ATE RMSE (se3,
+asked for, with the same settings (`--config`, default: the defaults). Columns: ATE RMSE (se3,
 m), scale error (%), NEES per dof of the published covariance, and
 whether the run lost track or re-initialised; with the absolute stage on
 (`[absolute] enabled = true` in `--config`), the two-stage ATE against
