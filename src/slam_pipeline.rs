@@ -95,6 +95,11 @@ pub struct SlamPipeline {
     /// where it was if it was tracking: the motion of the next one is
     /// measured from it.
     last_taken: Option<(i64, Option<Vector3<f64>>)>,
+    /// Frames whose landmarks the second stage did not get because the
+    /// relative stage was settling ([`RelativeEstimator::settling`]), and
+    /// whether the last frame taken was one of them.
+    held_back_frames: u64,
+    holding_back: bool,
 }
 
 impl SlamPipeline {
@@ -141,6 +146,8 @@ impl SlamPipeline {
             absolute,
             localiser,
             last_taken: None,
+            held_back_frames: 0,
+            holding_back: false,
         })
     }
 
@@ -238,11 +245,34 @@ impl SlamPipeline {
         }
         let start = Instant::now();
         let delta = self.measure_from_taken(&mut relative);
-        let corrected = self.absolute.as_mut().map(|stage| stage.push(&relative));
+        // While the relative stage settles after a start in motion its
+        // landmarks carry the alignment's errors: the second stage gets
+        // the motion without them (no map anchor, no edges, no
+        // corrections from those frames; the pose passes through).
+        let held_back;
+        let settling = self.relative.settling();
+        if self.holding_back && !settling {
+            tracing::info!(
+                frames = self.held_back_frames,
+                "the relative stage has settled after its start in motion: the second stage takes its landmarks again"
+            );
+        }
+        self.holding_back = settling;
+        let input = if settling && !relative.landmarks.is_empty() {
+            self.held_back_frames += 1;
+            held_back = RelativeOutput {
+                landmarks: Vec::new(),
+                ..relative.clone()
+            };
+            &held_back
+        } else {
+            &relative
+        };
+        let corrected = self.absolute.as_mut().map(|stage| stage.push(input));
         let localised = self
             .localiser
             .as_mut()
-            .and_then(|localiser| localiser.push(&relative));
+            .and_then(|localiser| localiser.push(input));
         relative.delta_translation_world_m = delta;
         self.last_taken = Some((
             relative.t_ns,
@@ -261,6 +291,12 @@ impl SlamPipeline {
     /// estimate).
     pub fn relative(&self) -> &dyn RelativeEstimator {
         self.relative.as_ref()
+    }
+
+    /// Frames whose landmarks the second stage was not given while the
+    /// relative stage settled after a start in motion.
+    pub fn held_back_frames(&self) -> u64 {
+        self.held_back_frames
     }
 
     /// The absolute stage, when it runs.

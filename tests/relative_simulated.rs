@@ -543,3 +543,93 @@ fn datasheet_noise_is_corrected_online() {
         "{nees:?} vs declared {nees_declared:?}"
     );
 }
+
+/// After a start in flight the relative stage says it is settling until
+/// every keyframe the alignment placed has left its window, and the
+/// pipeline's absolute stage starts its map only then: until that frame
+/// the map-frame pose is the relative pose, with no filter covariance.
+#[test]
+fn the_map_waits_for_a_start_in_flight_to_settle() {
+    use rigslam::slam_config::SlamSettings;
+    use rigslam::slam_pipeline::{SecondStage, SlamPipeline};
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path().join("flight");
+    if render(&dir, 25.0, 8.0).is_none() {
+        return;
+    }
+    let dataset = open_dataset(&dir).expect("open");
+    let rig = rig_of(&dataset);
+    let mut settings = SlamSettings::default();
+    settings.absolute.enabled = true;
+    let mut pipeline = SlamPipeline::new(
+        EstimatorKind::Window,
+        SensorMode::StereoInertial,
+        &rig,
+        &settings,
+        SecondStage::BuildMap,
+    )
+    .expect("pipeline");
+    // (stamp, tracking, settling, map-frame pose == relative pose, filter covariance)
+    let mut frames: Vec<(i64, bool, bool, bool, bool)> = Vec::new();
+    for event in stereo_imu_stream(&dataset) {
+        match event.expect("event") {
+            SensorEvent::Imu(s) => pipeline.push_imu(&s),
+            SensorEvent::Frame { t_ns, left, right } => {
+                let input = FrameInput {
+                    t_ns,
+                    left: &left.image,
+                    right: right.as_ref().map(|r| &r.image),
+                };
+                let answer = pipeline.push_frame(&input);
+                let settling = pipeline.relative().settling();
+                let corrected = answer.corrected.expect("the absolute stage runs");
+                let same = (corrected.T_world_body.translation.vector
+                    - answer.relative.T_world_body.translation.vector)
+                    .norm()
+                    < 1e-12;
+                frames.push((
+                    t_ns,
+                    answer.relative.state == TrackingState::Tracking,
+                    settling,
+                    same,
+                    corrected.position_covariance_m2.is_some(),
+                ));
+            }
+        }
+    }
+    let first_tracking = frames
+        .iter()
+        .position(|f| f.1)
+        .expect("the flight start initialises");
+    assert!(
+        frames[first_tracking].2,
+        "settling on the first tracking frame"
+    );
+    let settled = first_tracking
+        + frames[first_tracking..]
+            .iter()
+            .position(|f| !f.2)
+            .expect("the start settles within the 8 s");
+    let settle_s = (frames[settled].0 - frames[first_tracking].0) as f64 * 1e-9;
+    eprintln!("settled {settle_s:.2} s after the first tracking frame");
+    // Ten keyframes: between a second and a few at this speed.
+    assert!(
+        (0.5..5.0).contains(&settle_s),
+        "settled {settle_s} s after tracking began"
+    );
+    assert!(
+        frames[settled..].iter().all(|f| !f.2),
+        "settling again after it settled"
+    );
+    for f in &frames[..settled] {
+        assert!(f.3 && !f.4, "the map started while settling: {f:?}");
+    }
+    let anchored = frames[settled..]
+        .iter()
+        .position(|f| f.4)
+        .expect("the map starts once settled");
+    assert!(
+        anchored < 20,
+        "the map started {anchored} frames after settling"
+    );
+}

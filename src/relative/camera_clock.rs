@@ -74,4 +74,8 @@ impl RelativeEstimator for ShiftedFrames {
     fn gravity_world_m_s2(&self) -> Option<nalgebra::Vector3<f64>> {
         self.inner.gravity_world_m_s2()
     }
+
+    fn settling(&self) -> bool {
+        self.inner.settling()
+    }
 }

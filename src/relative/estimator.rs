@@ -216,6 +216,15 @@ pub trait RelativeEstimator {
     fn gravity_world_m_s2(&self) -> Option<nalgebra::Vector3<f64>> {
         None
     }
+
+    /// True while the estimate still rests on a start in motion: after
+    /// the visual-inertial alignment of a moving start (or a resume in
+    /// motion), until every keyframe it placed has left the window. Those
+    /// first windows carry the alignment's velocity, bias and gravity
+    /// errors; the absolute stage takes no landmarks from them.
+    fn settling(&self) -> bool {
+        false
+    }
 }
 
 #[cfg(test)]

@@ -135,6 +135,10 @@ impl RelativeEstimator for Levelled {
         self.inner.camera_imu()
     }
 
+    fn settling(&self) -> bool {
+        self.inner.settling()
+    }
+
     fn gravity_world_m_s2(&self) -> Option<Vector3<f64>> {
         self.inner
             .gravity_world_m_s2()

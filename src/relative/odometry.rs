@@ -147,6 +147,10 @@ pub struct WindowOdometry {
     /// Where the first keyframe of a vision restart is taken to be, with
     /// the covariance the way there adds: stamp, pose, covariance.
     resume: Option<(i64, Isometry3<f64>, Matrix6<f64>)>,
+    /// Stamp of the newest keyframe the alignment of a moving start
+    /// placed: the estimate settles once the window's oldest keyframe is
+    /// newer ([`RelativeEstimator::settling`]).
+    aligned_until_ns: Option<i64>,
     /// A digest of the previous left image, and whether the newest frame's
     /// is the same (see [`image_digest`]).
     previous_left_digest: Option<u64>,
@@ -223,6 +227,7 @@ impl WindowOdometry {
             imu,
             static_config: StaticStartConfig::default(),
             phase: Phase::Initializing { first: None },
+            aligned_until_ns: None,
             last: None,
             last_output: None,
             gyro_bias_rad_s: Vector3::zeros(),
@@ -422,6 +427,7 @@ impl WindowOdometry {
         self.tracker.reset();
         self.new_window();
         self.phase = Phase::Initializing { first: None };
+        self.aligned_until_ns = None;
         self.bad_frames = 0;
         self.previous_pixels.clear();
     }
@@ -1061,6 +1067,7 @@ impl WindowOdometry {
             .window
             .latest()
             .expect("an aligned window has keyframes");
+        self.aligned_until_ns = Some(state.t_ns);
         self.last = Some(state);
         self.trust(state);
         self.gyro_bias_rad_s = state.biases.gyro_rad_s;
@@ -1258,6 +1265,15 @@ impl RelativeEstimator for WindowOdometry {
     fn camera_imu(&self) -> Option<crate::relative::window::CameraImuEstimate> {
         self.imu.as_ref()?;
         self.window.camera_imu()
+    }
+
+    fn settling(&self) -> bool {
+        self.aligned_until_ns.is_some_and(|until| {
+            self.window
+                .keyframes()
+                .next()
+                .is_none_or(|oldest| oldest.t_ns <= until)
+        })
     }
 
     fn gravity_world_m_s2(&self) -> Option<Vector3<f64>> {

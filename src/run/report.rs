@@ -123,6 +123,10 @@ pub struct RunReport {
     pub eval_relative: Option<EvalReport>,
     /// The absolute stage's counters and times, when it ran.
     pub absolute: Option<AbsoluteStats>,
+    /// Frames whose landmarks the absolute stage or the localiser did not
+    /// take while the relative stage settled after a start in motion
+    /// (None without either).
+    pub second_stage_held_back_frames: Option<u64>,
     /// The absolute stage's recognitions checked against the ground truth,
     /// when it ran and recognised landmarks.
     pub recognition_check: Option<super::recognition_check::RecognitionCheck>,
