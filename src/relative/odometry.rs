@@ -1272,7 +1272,7 @@ impl RelativeEstimator for WindowOdometry {
             self.window
                 .keyframes()
                 .next()
-                .is_none_or(|oldest| oldest.t_ns <= until)
+                .map_or(true, |oldest| oldest.t_ns <= until)
         })
     }
 
