@@ -125,6 +125,10 @@ pub struct AbsoluteConfig {
     /// this much, rad per sqrt(s) (0: the paper's filter, the orientation
     /// as the relative stage gives it).
     pub orientation_sigma_rad_per_sqrt_s: f64,
+    /// Leave a landmark out of a position correction when its own
+    /// innovation exceeds this chi-square (3 dof), as the localiser does;
+    /// None: every landmark in view corrects.
+    pub correction_gate_chi2: Option<f64>,
 }
 
 impl Default for AbsoluteConfig {
@@ -148,6 +152,7 @@ impl Default for AbsoluteConfig {
             frame_node_saturation: DEFAULT_FRAME_NODE_SATURATION,
             node_passes_per_place: DEFAULT_NODE_PASSES_PER_PLACE,
             orientation_sigma_rad_per_sqrt_s: DEFAULT_ORIENTATION_SIGMA_RAD_PER_SQRT_S,
+            correction_gate_chi2: None,
         }
     }
 }

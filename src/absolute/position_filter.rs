@@ -125,6 +125,44 @@ impl PositionFilter {
         self.covariance_m2 += q_m2;
     }
 
+    /// Each fix's own normalised innovation squared, `r_k^T S_kk^-1 r_k`
+    /// with `S_kk` its diagonal block of the correction's `S` (arguments
+    /// as for [`Self::correct`]); chi-square with 3 dof for a landmark
+    /// the map, the relative stage and the filter agree on. NaN where the
+    /// block is not positive definite or the shapes do not fit.
+    pub fn landmark_nis(
+        &self,
+        fixes: &[LandmarkFix],
+        map_covariance_m2: &DMatrix<f64>,
+        cross_covariance_m2: Option<&DMatrix<f64>>,
+    ) -> Vec<f64> {
+        let dim = 3 * fixes.len();
+        let fits = map_covariance_m2.nrows() == dim
+            && map_covariance_m2.ncols() == dim
+            && cross_covariance_m2.map_or(true, |c| c.nrows() == 3 && c.ncols() == dim);
+        fixes
+            .iter()
+            .enumerate()
+            .map(|(k, fix)| {
+                if !fits {
+                    return f64::NAN;
+                }
+                let r = fix.landmark_world_m - fix.offset_world_m - self.position_world_m;
+                let mut s: Matrix3<f64> = map_covariance_m2
+                    .fixed_view::<3, 3>(3 * k, 3 * k)
+                    .into_owned()
+                    + fix.offset_covariance_m2
+                    + self.covariance_m2;
+                if let Some(cross) = cross_covariance_m2 {
+                    let c: Matrix3<f64> = cross.fixed_view::<3, 3>(0, 3 * k).into_owned();
+                    s -= c + c.transpose();
+                }
+                let s = 0.5 * (s + s.transpose());
+                s.cholesky().map_or(f64::NAN, |ch| r.dot(&ch.solve(&r)))
+            })
+            .collect()
+    }
+
     /// Correction (eq. 63-71) with the visible landmarks `fixes`, their
     /// joint map covariance `map_covariance_m2` (3m x 3m, `Σ_L` over the
     /// fixes in order) and, optionally, the cross-covariance
@@ -272,6 +310,39 @@ mod tests {
             .unwrap();
         assert!((g.position_world_m().x - 1.5).abs() < 1e-14);
         assert!((g.covariance_m2()[(0, 0)] - 1.0).abs() < 1e-14);
+    }
+
+    #[test]
+    fn each_landmark_nis_matches_the_hand_computation_and_the_joint_one() {
+        // x = 1, P = 2; landmark 0 at L = 5 seen 3 m ahead (r = 1), map
+        // variance 1: innovation 1 on x, S = 2 + 1 + 1 = 4, NIS 1/4.
+        // Landmark 1 at L = 10 seen 2 m ahead: innovation 7, NIS 49/4.
+        let mut f = PositionFilter::new(Vector3::zeros(), iso(1.0));
+        f.predict(&Vector3::new(1.0, 0.0, 0.0), &iso(1.0));
+        let fixes = [fix(0, 5.0, 3.0, 1.0), fix(1, 10.0, 2.0, 1.0)];
+        let map = DMatrix::identity(6, 6);
+        let nis = f.landmark_nis(&fixes, &map, None);
+        assert!((nis[0] - 0.25).abs() < 1e-14, "{nis:?}");
+        assert!((nis[1] - 49.0 / 4.0).abs() < 1e-13, "{nis:?}");
+        // With independent landmarks and an exact filter position (P = 0)
+        // the joint NIS of the correction is the sum of the two.
+        let exact = PositionFilter::new(Vector3::new(1.0, 0.0, 0.0), iso(0.0));
+        let each = exact.landmark_nis(&fixes, &map, None);
+        let joint = exact.clone().correct(&fixes, &map, None).unwrap().nis;
+        assert!(
+            (each[0] + each[1] - joint).abs() < 1e-12,
+            "{each:?} {joint}"
+        );
+        // A cross-covariance C between the position and the map error
+        // takes C + C^T off S: 4 - 2 * 0.5 = 3 on landmark 0.
+        let mut cross = DMatrix::zeros(3, 6);
+        cross[(0, 0)] = 0.5;
+        let with_cross = f.landmark_nis(&fixes, &map, Some(&cross));
+        assert!((with_cross[0] - 1.0 / 3.0).abs() < 1e-14, "{with_cross:?}");
+        assert!((with_cross[1] - nis[1]).abs() < 1e-14);
+        // Shapes that do not fit give NaN, not a panic.
+        let wrong = f.landmark_nis(&fixes, &DMatrix::identity(3, 3), None);
+        assert!(wrong.iter().all(|v| v.is_nan()));
     }
 
     #[test]

@@ -1205,3 +1205,35 @@ fn only_tracks_joined_to_a_frame_node_get_a_map_id() {
     // Recognition still names tracks by the landmarks they are.
     assert!(stats.recognised > 50, "{summary}");
 }
+
+#[test]
+fn a_landmark_the_map_disagrees_with_is_left_out_of_the_correction() {
+    // The robot moves 1 m along x (the filter's prediction noise grows to
+    // about 2 cm); landmark 0's track is then seen 0.5 m from where the
+    // map has it (a wrong association, or a landmark a solve moved),
+    // fifty of its standard deviations.
+    type Room = RecognitionRoom;
+    let mut gated = Room::mapped(RecognitionConfig::default());
+    gated.config.correction_gate_chi2 = Some(16.27);
+    let mut open = Room::mapped(RecognitionConfig::default());
+    let shift = Vector3::new(1.0, 0.0, 0.0);
+    let mut frame = Room::frame(3, Vec::new());
+    frame.T_world_body = Isometry3::translation(shift.x, shift.y, shift.z);
+    frame.delta_translation_world_m = shift;
+    for l in &mut frame.landmarks {
+        l.position_body_m -= shift;
+        if l.id == 0 {
+            l.position_body_m += Vector3::new(0.0, 0.5, 0.0);
+        }
+    }
+    let after = gated.push(&frame);
+    assert_eq!(gated.stats().gated_out, 1);
+    let error = (after.T_world_body.translation.vector - shift).norm();
+    assert!(error < 5e-3, "the robot is {error} m off");
+    assert!(after.landmarks_used >= 7, "{}", after.landmarks_used);
+    // Without the gate (the default) it is kept and pulls the robot off.
+    let kept = open.push(&frame);
+    assert_eq!(open.stats().gated_out, 0);
+    let error = (kept.T_world_body.translation.vector - shift).norm();
+    assert!(error > 0.03, "the robot is {error} m off");
+}
