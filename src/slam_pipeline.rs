@@ -293,6 +293,12 @@ impl SlamPipeline {
         self.relative.as_ref()
     }
 
+    /// Whether a second stage runs and waits for the relative stage to
+    /// settle after a start in motion (its last frame was held back).
+    pub fn second_stage_waiting(&self) -> bool {
+        self.holding_back && (self.absolute.is_some() || self.localiser.is_some())
+    }
+
     /// Frames whose landmarks the second stage was not given while the
     /// relative stage settled after a start in motion.
     pub fn held_back_frames(&self) -> u64 {

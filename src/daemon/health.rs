@@ -85,6 +85,10 @@ pub struct Health {
     pub map_frames_placed: AtomicU64,
     /// See [`Self::map_frames`].
     pub map_placed_now: AtomicBool,
+    /// The second stage (map or localiser) is waiting for the relative
+    /// stage to settle after a start in motion (the map-frame pose is the
+    /// odometry-frame pose meanwhile).
+    pub second_stage_waiting: AtomicBool,
     /// How far the absolute stage has turned the relative stage's
     /// orientation to fit its map, degrees as f64 bits (0 until it has).
     orientation_offset_deg_bits: AtomicU64,
@@ -322,6 +326,14 @@ impl Health {
             }
             _ => None,
         }
+    }
+
+    /// The status words while the second stage waits for the relative
+    /// stage to settle after a start in motion, None otherwise.
+    pub fn waiting_words(&self) -> Option<&'static str> {
+        self.second_stage_waiting.load(Ordering::Relaxed).then_some(
+            "map: waiting for the odometry to settle after a start in motion; poses are in the odometry frame until then",
+        )
     }
 
     /// After each frame while localising in a saved map: whether the
@@ -669,6 +681,20 @@ mod tests {
         assert!((m.pose_rate_hz - 20.0).abs() < 1e-9, "{m:?}");
         // The IMU stopped: 0 Hz is then the truth.
         assert_eq!(m.imu_rate_hz, 0.0, "{m:?}");
+    }
+
+    #[test]
+    fn the_status_says_when_the_map_waits_for_a_start_in_motion_to_settle() {
+        let health = Health::new();
+        assert_eq!(health.waiting_words(), None);
+        health.second_stage_waiting.store(true, Ordering::Relaxed);
+        let words = health.waiting_words().expect("words");
+        assert!(
+            words.contains("settle") && words.contains("odometry frame"),
+            "{words}"
+        );
+        health.second_stage_waiting.store(false, Ordering::Relaxed);
+        assert_eq!(health.waiting_words(), None);
     }
 
     #[test]

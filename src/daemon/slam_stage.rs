@@ -465,6 +465,9 @@ impl Stage {
         if health.map_mode.load(Ordering::Relaxed) == MAP_LOCALISING {
             health.record_map_placement(frame_out.localised.is_some());
         }
+        health
+            .second_stage_waiting
+            .store(self.pipeline.second_stage_waiting(), Ordering::Relaxed);
         let output = &frame_out.relative;
         self.fast.on_frame_in_map(output, map_pose(&frame_out));
         health

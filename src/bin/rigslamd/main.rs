@@ -298,7 +298,9 @@ fn run(args: Args) -> anyhow::Result<std::process::ExitCode> {
                     status.camera_imu_time_offset_s * 1e3
                 );
             }
-            if let Some(map) = pipeline.health().map_words() {
+            if let Some(waiting) = pipeline.health().waiting_words() {
+                line += &format!("; {waiting}");
+            } else if let Some(map) = pipeline.health().map_words() {
                 line += &format!("; {map}");
             }
             if let Err(e) = status_publisher.publish(&status) {
