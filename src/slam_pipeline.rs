@@ -225,7 +225,7 @@ impl SlamPipeline {
 
     /// The second stage on a relative-stage output.
     fn second_stage(&mut self, mut relative: RelativeOutput) -> PipelineFrame {
-        if self.absolute.is_none() && self.localiser.is_none() {
+        if !self.has_second_stage() {
             return PipelineFrame {
                 relative,
                 corrected: None,
@@ -296,13 +296,18 @@ impl SlamPipeline {
     /// Whether a second stage runs and waits for the relative stage to
     /// settle after a start in motion (its last frame was held back).
     pub fn second_stage_waiting(&self) -> bool {
-        self.holding_back && (self.absolute.is_some() || self.localiser.is_some())
+        self.holding_back && self.has_second_stage()
     }
 
     /// Frames whose landmarks the second stage was not given while the
-    /// relative stage settled after a start in motion.
-    pub fn held_back_frames(&self) -> u64 {
-        self.held_back_frames
+    /// relative stage settled after a start in motion (None without a
+    /// second stage).
+    pub fn held_back_frames(&self) -> Option<u64> {
+        self.has_second_stage().then_some(self.held_back_frames)
+    }
+
+    fn has_second_stage(&self) -> bool {
+        self.absolute.is_some() || self.localiser.is_some()
     }
 
     /// The absolute stage, when it runs.

@@ -852,15 +852,11 @@ impl AbsoluteStage {
         // solve moved by decimetres) is left out, as the localiser does:
         // on the accuracy sets one such landmark among thirty often
         // carried most of the correction's NIS.
-        let gate = self.config.correction_gate_chi2;
-        let nis = gate
-            .map(|_| filter.landmark_nis(&fixes, &covariance, cross.as_ref()))
-            .unwrap_or_default();
-        let kept: Vec<usize> = match gate {
-            Some(gate) => (0..fixes.len()).filter(|&k| nis[k] <= gate).collect(),
-            None => (0..fixes.len()).collect(),
-        };
-        if kept.len() < fixes.len() {
+        let kept: Option<Vec<usize>> = self.config.correction_gate_chi2.map(|gate| {
+            let nis = filter.landmark_nis(&fixes, &covariance, cross.as_ref());
+            (0..fixes.len()).filter(|&k| nis[k] <= gate).collect()
+        });
+        if let Some(kept) = kept.filter(|kept| kept.len() < fixes.len()) {
             self.stats.gated_out += fixes.len() - kept.len();
             if kept.is_empty() {
                 return None;

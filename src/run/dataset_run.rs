@@ -330,9 +330,7 @@ pub fn run_dataset(
         eval: evaluation.as_ref().map(|e| e.report.clone()),
         eval_relative: evaluation_relative.as_ref().map(|e| e.report.clone()),
         absolute: pipeline.absolute().map(|s| s.stats().clone()),
-        second_stage_held_back_frames: (pipeline.absolute().is_some()
-            || pipeline.localiser().is_some())
-        .then(|| pipeline.held_back_frames()),
+        second_stage_held_back_frames: pipeline.held_back_frames(),
         recognition_check,
         localise: pipeline.localiser().map(|l| l.stats().clone()),
     };
