@@ -37,6 +37,13 @@ const RELOCALISE_MAX_TILT_DEG: f64 = 15.0;
 /// same size.
 const RELOCALISE_MAX_SCALE_RATIO: f64 = 1.2;
 
+/// Localising a monocular run: a relocalisation is taken when a fit this
+/// many frames later (half a second at 20 Hz) agrees with it. Early in a
+/// monocular run, and on tracks just begun, landmark depths are poor; a
+/// fit to ten of them can be tens of degrees and decimetres off and is
+/// consistent over the frames that see the same landmarks.
+const RELOCALISE_CONFIRM_FRAMES: usize = 10;
+
 /// What follows the relative stage.
 #[derive(Debug, Clone, Default)]
 pub enum SecondStage {
@@ -133,6 +140,7 @@ impl SlamPipeline {
                 // (arbitrary without the IMU, a few per cent off with it).
                 if !mode.uses_stereo() {
                     config.fit_scale = true;
+                    config.confirm_after_frames = RELOCALISE_CONFIRM_FRAMES;
                     if mode.uses_imu() {
                         config.max_scale_ratio = Some(RELOCALISE_MAX_SCALE_RATIO);
                     }

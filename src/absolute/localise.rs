@@ -93,6 +93,23 @@ pub struct LocaliseConfig {
     /// count). A relocalisation from a few poorly placed landmarks can be
     /// wrong, and nothing else would ever undo it.
     pub drop_after_rejected_frames: usize,
+    /// Once localised, the frame's landmarks are matched to the map by
+    /// descriptor alone again this often (frames; 0: never), as a second
+    /// opinion on the transform in use: when a fresh fit explains at
+    /// least `second_opinion_ratio` times as many matches as the transform
+    /// in use does on the same matches, it replaces it. The innovation gate
+    /// cannot see a wrong transform that the recognitions follow: a track
+    /// placed wrongly is recognised against the map landmarks near where it
+    /// was put, and those agree with it.
+    pub second_opinion_every_frames: usize,
+    /// See `second_opinion_every_frames`.
+    pub second_opinion_ratio: f64,
+    /// A relocalisation is taken only when a fit from a frame at least
+    /// this many frames later agrees with it (see [`fits_agree`]); 0: the
+    /// first fit is taken (stereo modes, whose landmarks each frame
+    /// places). A wrong fit from a few poorly placed landmarks holds for
+    /// the frames that see the same landmarks, not for later ones.
+    pub confirm_after_frames: usize,
     /// Seed of the RANSAC sampler; the same seed and input give the same result.
     pub seed: u64,
 }
@@ -116,6 +133,9 @@ impl Default for LocaliseConfig {
             refit_every_frames: 10,
             refit_pairs: 600,
             drop_after_rejected_frames: 20,
+            second_opinion_every_frames: 10,
+            second_opinion_ratio: 2.0,
+            confirm_after_frames: 0,
             seed: 0,
         }
     }
@@ -148,6 +168,12 @@ pub struct LocaliseStats {
     /// Localisations dropped because every recognised landmark failed the
     /// gate for `drop_after_rejected_frames` frames in a row.
     pub dropped: usize,
+    /// Fits a later frame's fit did not confirm (see
+    /// `LocaliseConfig::confirm_after_frames`).
+    pub unconfirmed: usize,
+    /// Transforms replaced by a second opinion that explained more
+    /// descriptor matches (see `LocaliseConfig::second_opinion_every_frames`).
+    pub replaced: usize,
     /// Map lengths per relative-world length in the transform in use (1
     /// when rigid).
     pub scale: f64,
@@ -190,6 +216,8 @@ struct Localised {
     frames_since_refit: usize,
     /// Frames in a row whose tested landmarks all failed the gate.
     rejected_frames: usize,
+    /// Frames since the last second opinion.
+    frames_since_second_opinion: usize,
 }
 
 /// Localises the relative stage's output in a saved map.
@@ -203,6 +231,9 @@ pub struct MapLocaliser {
     /// Track id -> map index, for the tracks recognised as map landmarks.
     associations: HashMap<LandmarkId, u32>,
     stats: LocaliseStats,
+    /// A relocalisation waiting for a later frame's fit to confirm it,
+    /// and the frames since it was made.
+    candidate: Option<(Fit, usize)>,
     rng: ChaCha8Rng,
     candidates: Vec<u32>,
 }
@@ -230,6 +261,7 @@ impl MapLocaliser {
                 ..LocaliseStats::default()
             },
             candidates: Vec::new(),
+            candidate: None,
         }
     }
 
@@ -280,6 +312,7 @@ impl MapLocaliser {
             if self.state.take().is_some() {
                 self.stats.resets += 1;
             }
+            self.candidate = None;
             self.associations.clear();
             return None;
         }
@@ -294,40 +327,23 @@ impl MapLocaliser {
                         * delta.norm();
                     state.filter.predict(&delta, &q);
                 }
-                self.recognise_new(output);
-                used = self.correct(output);
-                if self.drop_if_rejected() {
-                    return None;
+                if let Some(fit) = self.second_opinion(output) {
+                    self.stats.replaced += 1;
+                    self.localise_at(output, fit);
+                    used = self.correct(output);
+                } else {
+                    self.recognise_new(output);
+                    used = self.correct(output);
+                    if self.drop_if_rejected() {
+                        return None;
+                    }
+                    self.refit();
                 }
-                self.refit();
             }
             None => {
                 self.stats.attempts += 1;
-                let fit = self.relocalise(output)?;
-                let position = (fit.T_map_world
-                    * nalgebra::Point3::from(fit.scale * output.T_world_body.translation.vector))
-                .coords;
-                let z = fit.T_map_world.rotation * Vector3::z();
-                tracing::info!(
-                    "relocalised in the map: {} inliers, rms {:.3} m, transform turns {:.1} deg, tilts z by {:.2} deg, scale {:.4}",
-                    fit.inliers.len(),
-                    fit.rms_m,
-                    fit.T_map_world.rotation.angle().to_degrees(),
-                    z.z.clamp(-1.0, 1.0).acos().to_degrees(),
-                    fit.scale
-                );
-                self.stats.scale = fit.scale;
-                let variance = fit.rms_m.powi(2).max(1e-4) / fit.inliers.len() as f64 * 10.0;
-                self.associations = fit.inliers.iter().copied().collect();
-                self.state = Some(Localised {
-                    T_map_world: fit.T_map_world,
-                    scale: fit.scale,
-                    filter: PositionFilter::new(position, Matrix3::identity() * variance),
-                    pairs: Default::default(),
-                    frames_since_refit: 0,
-                    rejected_frames: 0,
-                });
-                self.stats.relocalisations += 1;
+                let fit = self.confirmed(output)?;
+                self.localise_at(output, fit);
                 used = self.correct(output);
             }
         }
@@ -345,9 +361,121 @@ impl MapLocaliser {
         })
     }
 
+    /// This frame's fit when it confirms the candidate made at least
+    /// `confirm_after_frames` earlier; otherwise None, this frame's fit
+    /// (if any) becoming the candidate when there is none or it could not
+    /// be confirmed in time.
+    fn confirmed(&mut self, output: &RelativeOutput) -> Option<Fit> {
+        let wait = self.config.confirm_after_frames;
+        if let Some((_, age)) = self.candidate.as_mut() {
+            *age += 1;
+        }
+        let (fit, _) = self.relocalise(output, None)?;
+        if wait == 0 {
+            return Some(fit);
+        }
+        let body = output.T_world_body.translation.vector;
+        match self.candidate.take() {
+            Some((candidate, age)) if age >= wait && fits_agree(&candidate, &fit, &body) => {
+                Some(fit)
+            }
+            // Too young to confirm: kept, unless much weaker than this one.
+            Some((candidate, age)) if age < wait => {
+                self.candidate = Some(if fit.inliers.len() > 2 * candidate.inliers.len() {
+                    (fit, 0)
+                } else {
+                    (candidate, age)
+                });
+                None
+            }
+            Some((candidate, _)) => {
+                tracing::debug!(
+                    "a relocalisation ({} inliers, scale {:.4}) not confirmed at {:.2} s",
+                    candidate.inliers.len(),
+                    candidate.scale,
+                    output.t_ns as f64 * 1e-9
+                );
+                self.stats.unconfirmed += 1;
+                self.candidate = Some((fit, 0));
+                None
+            }
+            None => {
+                self.candidate = Some((fit, 0));
+                None
+            }
+        }
+    }
+
+    /// Takes `fit` as the transform to the map from this frame on, the
+    /// filter starting where it places the body.
+    fn localise_at(&mut self, output: &RelativeOutput, fit: Fit) {
+        let position = (fit.T_map_world
+            * nalgebra::Point3::from(fit.scale * output.T_world_body.translation.vector))
+        .coords;
+        let z = fit.T_map_world.rotation * Vector3::z();
+        tracing::info!(
+            "relocalised in the map at {:.2} s: {} inliers, rms {:.3} m, transform turns {:.1} deg, tilts z by {:.2} deg, scale {:.4}",
+            output.t_ns as f64 * 1e-9,
+            fit.inliers.len(),
+            fit.rms_m,
+            fit.T_map_world.rotation.angle().to_degrees(),
+            z.z.clamp(-1.0, 1.0).acos().to_degrees(),
+            fit.scale
+        );
+        self.stats.scale = fit.scale;
+        let variance = fit.rms_m.powi(2).max(1e-4) / fit.inliers.len() as f64 * 10.0;
+        self.associations = fit.inliers.iter().copied().collect();
+        self.state = Some(Localised {
+            T_map_world: fit.T_map_world,
+            scale: fit.scale,
+            filter: PositionFilter::new(position, Matrix3::identity() * variance),
+            pairs: Default::default(),
+            frames_since_refit: 0,
+            rejected_frames: 0,
+            frames_since_second_opinion: 0,
+        });
+        self.stats.relocalisations += 1;
+    }
+
+    /// Every `second_opinion_every_frames` while localised: a fit from
+    /// descriptor matches alone, returned when it explains at least
+    /// `second_opinion_ratio` times as many of them as the transform in
+    /// use.
+    fn second_opinion(&mut self, output: &RelativeOutput) -> Option<Fit> {
+        let every = self.config.second_opinion_every_frames;
+        let state = self.state.as_mut()?;
+        state.frames_since_second_opinion += 1;
+        if every == 0 || state.frames_since_second_opinion < every {
+            return None;
+        }
+        state.frames_since_second_opinion = 0;
+        let in_use = (state.T_map_world, state.scale);
+        let (fit, explained) = self.relocalise(output, Some(in_use))?;
+        tracing::debug!(
+            "second opinion at {:.2} s: in use explains {explained}, fresh fit {} (rms {:.3} m, scale {:.4})",
+            output.t_ns as f64 * 1e-9,
+            fit.inliers.len(),
+            fit.rms_m,
+            fit.scale
+        );
+        if (fit.inliers.len() as f64) < self.config.second_opinion_ratio * explained as f64 {
+            return None;
+        }
+        tracing::warn!(
+            "the transform to the map in use explains {explained} of this frame's descriptor matches, a fresh fit {}: replaced",
+            fit.inliers.len()
+        );
+        Some(fit)
+    }
+
     /// Descriptor matches of the frame's landmarks to the whole map, then
-    /// RANSAC over three-point rigid fits.
-    fn relocalise(&mut self, output: &RelativeOutput) -> Option<Fit> {
+    /// RANSAC over three-point rigid fits; with `in_use`, also how many of
+    /// the matches that transform (and scale) explains.
+    fn relocalise(
+        &mut self,
+        output: &RelativeOutput,
+        in_use: Option<(Isometry3<f64>, f64)>,
+    ) -> Option<(Fit, usize)> {
         // Per landmark of the frame: where it is in the relative world and
         // its nearest map landmarks by descriptor. No ratio test: a map
         // holds repeated textures and the same corner more than once, so
@@ -451,6 +579,12 @@ impl MapLocaliser {
         if best.len() < self.config.min_inliers {
             return None;
         }
+        // One map landmark per track and one track per map landmark.
+        let distinct = |set: &[(usize, u32)]| {
+            let mut taken = std::collections::HashSet::new();
+            set.iter().filter(|&&(_, m)| taken.insert(m)).count()
+        };
+        let explained = in_use.map_or(0, |t| distinct(&inliers_of(&t)));
         let fit = |set: &[(usize, u32)]| {
             let world: Vec<Vector3<f64>> = set.iter().map(|&(k, _)| queries[k].1).collect();
             let map: Vec<Vector3<f64>> = set.iter().map(|&(_, m)| positions[m as usize]).collect();
@@ -484,12 +618,15 @@ impl MapLocaliser {
         if inliers.len() < self.config.min_inliers {
             return None;
         }
-        Some(Fit {
-            T_map_world: t.0,
-            scale: t.1,
-            inliers,
-            rms_m,
-        })
+        Some((
+            Fit {
+                T_map_world: t.0,
+                scale: t.1,
+                inliers,
+                rms_m,
+            },
+            explained,
+        ))
     }
 
     fn recognise_new(&mut self, output: &RelativeOutput) {
@@ -671,6 +808,22 @@ fn pose_is_finite(output: &RelativeOutput) -> bool {
         .chain(output.T_world_body.rotation.coords.iter())
         .all(|v| v.is_finite())
 }
+
+/// Two fits of the relative world to the map agree when they turn it
+/// within [`AGREE_DEG`] of each other and place the body at `body`
+/// (relative world) within [`AGREE_M`]. A right fit of one frame is off
+/// by about a degree and a few centimetres (its landmarks' errors); chance
+/// matches give fits tens of degrees and decimetres apart.
+fn fits_agree(a: &Fit, b: &Fit, body: &Vector3<f64>) -> bool {
+    let place = |f: &Fit| (f.T_map_world * nalgebra::Point3::from(f.scale * body)).coords;
+    a.T_map_world.rotation.angle_to(&b.T_map_world.rotation) <= AGREE_DEG.to_radians()
+        && (place(a) - place(b)).norm() <= AGREE_M
+}
+
+/// See [`fits_agree`].
+const AGREE_DEG: f64 = 3.0;
+/// See [`fits_agree`].
+const AGREE_M: f64 = 0.15;
 
 /// `max` None: any finite positive scale; else within a factor `max` of 1.
 fn scale_within(max: Option<f64>, scale: f64) -> bool {
