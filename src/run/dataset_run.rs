@@ -417,8 +417,8 @@ pub fn summary_line(r: &RunReport) -> String {
     }
     if let Some(l) = &r.localise {
         line += &format!(
-            "; localised in the map {} of {} frames ({} relocalisations)",
-            l.localised_frames, l.frames, l.relocalisations
+            "; localised in the map {} of {} frames ({} relocalisations: {} after a drop, {} by a second opinion)",
+            l.localised_frames, l.frames, l.relocalisations, l.dropped, l.replaced
         );
     }
     if let Some(e) = &r.eval_relative {
