@@ -86,12 +86,13 @@ pub struct LocaliseConfig {
     /// Recognised landmark pairs (relative world, map) the refit uses, newest first.
     pub refit_pairs: usize,
     /// The localisation is dropped (and the robot relocalised from
-    /// scratch) after this many frames in a row whose recognised
+    /// scratch, its pose carried on in the map by the relative stage's
+    /// motion meanwhile) after this many frames in a row whose recognised
     /// landmarks all failed the innovation gate: the map and the track
     /// disagree everywhere, which a right transform does not do for long
     /// (a turn without map landmarks in view tests nothing and does not
     /// count). A relocalisation from a few poorly placed landmarks can be
-    /// wrong, and nothing else would ever undo it.
+    /// wrong.
     pub drop_after_rejected_frames: usize,
     /// Once localised, the frame's landmarks are matched to the map by
     /// descriptor alone again this often (frames; 0: never), as a second
@@ -168,6 +169,9 @@ pub struct LocaliseStats {
     /// Localisations dropped because every recognised landmark failed the
     /// gate for `drop_after_rejected_frames` frames in a row.
     pub dropped: usize,
+    /// Frames placed by the relative stage's motion alone after a drop,
+    /// while relocalising (counted in `localised_frames` too).
+    pub held_frames: usize,
     /// Fits a later frame's fit did not confirm (see
     /// `LocaliseConfig::confirm_after_frames`).
     pub unconfirmed: usize,
@@ -218,6 +222,11 @@ struct Localised {
     rejected_frames: usize,
     /// Frames since the last second opinion.
     frames_since_second_opinion: usize,
+    /// The localisation was dropped: the pose carries on in the map by
+    /// the relative stage's motion alone (no recognition, correction or
+    /// refit) until a new fit is confirmed, so the map-frame pose does
+    /// not fall back to the relative stage's frame and jump.
+    held: bool,
 }
 
 /// Localises the relative stage's output in a saved map.
@@ -327,16 +336,26 @@ impl MapLocaliser {
                         * delta.norm();
                     state.filter.predict(&delta, &q);
                 }
-                if let Some(fit) = self.second_opinion(output) {
+                if state.held {
+                    self.stats.attempts += 1;
+                    match self.confirmed(output) {
+                        Some(fit) => {
+                            self.localise_at(output, fit);
+                            used = self.correct(output);
+                        }
+                        None => {
+                            self.stats.held_frames += 1;
+                            used = 0;
+                        }
+                    }
+                } else if let Some(fit) = self.second_opinion(output) {
                     self.stats.replaced += 1;
                     self.localise_at(output, fit);
                     used = self.correct(output);
                 } else {
                     self.recognise_new(output);
                     used = self.correct(output);
-                    if self.drop_if_rejected() {
-                        return None;
-                    }
+                    self.drop_if_rejected();
                     self.refit();
                 }
             }
@@ -433,6 +452,7 @@ impl MapLocaliser {
             frames_since_refit: 0,
             rejected_frames: 0,
             frames_since_second_opinion: 0,
+            held: false,
         });
         self.stats.relocalisations += 1;
     }
@@ -674,29 +694,31 @@ impl MapLocaliser {
     }
 
     /// Drops the localisation when the map and the track have disagreed
-    /// for `drop_after_rejected_frames` frames in a row; true when it did.
-    fn drop_if_rejected(&mut self) -> bool {
+    /// for `drop_after_rejected_frames` frames in a row.
+    fn drop_if_rejected(&mut self) {
         let limit = self.config.drop_after_rejected_frames;
         if limit == 0
             || self
                 .state
                 .as_ref()
-                .map_or(true, |s| s.rejected_frames < limit)
+                .map_or(true, |s| s.held || s.rejected_frames < limit)
         {
-            return false;
+            return;
         }
         tracing::warn!(
-            "localisation dropped: every recognised map landmark failed the gate for {limit} frames; relocalising"
+            "localisation dropped: every recognised map landmark failed the gate for {limit} frames; relocalising, the pose carried on by the odometry meanwhile"
         );
-        self.state = None;
+        if let Some(state) = self.state.as_mut() {
+            state.held = true;
+        }
+        self.candidate = None;
         self.associations.clear();
         self.stats.dropped += 1;
-        true
     }
 
     /// Refits the relative-world -> map transform to the recent pairs.
     fn refit(&mut self) {
-        let Some(state) = self.state.as_mut() else {
+        let Some(state) = self.state.as_mut().filter(|s| !s.held) else {
             return;
         };
         state.frames_since_refit += 1;

@@ -384,8 +384,10 @@ fn a_track_the_map_disagrees_with_everywhere_is_relocalised() {
     };
     let mut localiser = MapLocaliser::new(&map, drop_only.clone());
     let mut late = Vec::new();
+    let mut placed: Vec<Option<Vector3<f64>>> = Vec::new();
     for (k, (output, truth)) in outputs.iter().zip(&second.truth_position_m).enumerate() {
         let pose = localiser.push(output);
+        placed.push(pose.as_ref().map(|p| p.T_map_body.translation.vector));
         if k >= 70 {
             let pose = pose.expect("localised again by frame 70");
             let in_truth =
@@ -398,6 +400,37 @@ fn a_track_the_map_disagrees_with_everywhere_is_relocalised() {
     eprintln!("after the jump: {rms:.3} m, {stats:?}");
     assert_eq!(stats.dropped, 1, "{stats:?}");
     assert_eq!(stats.relocalisations, 2, "{stats:?}");
+    // Through the drop the pose carries on in the map: every frame from
+    // the first localisation has one, and none falls back to the relative
+    // stage's frame (3.6 m and 40 deg away).
+    let first = placed.iter().position(Option::is_some).expect("localised");
+    let placed: Vec<Vector3<f64>> = placed[first..]
+        .iter()
+        .map(|p| p.expect("a pose on every frame through the drop"))
+        .collect();
+    let step = placed
+        .windows(2)
+        .map(|w| (w[1] - w[0]).norm())
+        .fold(0.0, f64::max);
+    assert!(step < 0.5, "the pose stepped {step:.2} m between frames");
+    // Waiting for a confirmed fit after the drop, the frames in between are
+    // carried by the odometry.
+    let mut confirming = MapLocaliser::new(
+        &map,
+        LocaliseConfig {
+            confirm_after_frames: 10,
+            ..drop_only.clone()
+        },
+    );
+    let carried = outputs
+        .iter()
+        .map(|o| confirming.push(o).is_some())
+        .skip_while(|placed| !placed)
+        .collect::<Vec<bool>>();
+    let held = confirming.stats();
+    assert_eq!(held.dropped, 1, "{held:?}");
+    assert!(held.held_frames >= 10, "{held:?}");
+    assert!(carried.iter().all(|&p| p), "{held:?}");
     assert!(rms < 0.06, "{rms:.3} m after relocalising, {stats:?}");
     // Without the check the first transform stays, and so does the error.
     let mut kept = MapLocaliser::new(
