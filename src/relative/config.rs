@@ -78,6 +78,13 @@ pub struct RelativeConfig {
     /// After a loss, how long the IMU alone may carry the state before a
     /// full re-initialisation is needed, s.
     pub imu_only_max_s: f64,
+    /// Leaving a rest, how long the IMU alone may carry the state before
+    /// the images place a frame, s. The rest measured the velocity (zero)
+    /// and the biases, so the IMU drifts far less than after a loss in
+    /// motion; a monocular window has no landmarks until the motion gives
+    /// parallax, which a gentle start (a robot leaving its dock) takes a few
+    /// seconds to give.
+    pub imu_only_after_rest_max_s: f64,
     /// Estimate online how much noisier (or quieter) the IMU is than its
     /// calibration declares, from the window's inertial residuals, and
     /// weigh it by that (`relative/window/noise_adaptation.rs`).
@@ -145,6 +152,7 @@ impl Default for RelativeConfig {
             init_max_scale_rel_std: 0.03,
             lost_after_frames: 3,
             imu_only_max_s: 1.0,
+            imu_only_after_rest_max_s: 3.0,
             imu_noise_adaptation: true,
             imu_noise_scale_gyro: 1.0,
             imu_noise_scale_accel: 1.0,
@@ -264,6 +272,12 @@ impl RelativeConfig {
             "imu_only_max_s",
             self.imu_only_max_s.is_finite() && self.imu_only_max_s >= 0.0,
             self.imu_only_max_s.to_string(),
+            "a number >= 0",
+        )?;
+        range(
+            "imu_only_after_rest_max_s",
+            self.imu_only_after_rest_max_s.is_finite() && self.imu_only_after_rest_max_s >= 0.0,
+            self.imu_only_after_rest_max_s.to_string(),
             "a number >= 0",
         )?;
         range(

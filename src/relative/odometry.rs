@@ -26,7 +26,10 @@
 //! When vision fails (black, blank or frozen frames) the IMU carries the
 //! state for at most `imu_only_max_s`; after that the frame is reported
 //! lost and the stage re-initialises, from the IMU-carried state when it
-//! is recent enough, so the pose does not jump.
+//! is recent enough, so the pose does not jump. Leaving a rest, before the
+//! images have placed a frame (a monocular window has no landmarks until
+//! the motion gives parallax), the IMU carries the rest's state for up to
+//! `imu_only_after_rest_max_s`.
 
 use std::collections::HashMap;
 
@@ -130,6 +133,11 @@ pub struct WindowOdometry {
     last_flow_px: Option<f64>,
     /// Stamp of the last frame the images placed.
     last_vision_ns: Option<i64>,
+    /// The window started from a rest and the images have placed no frame
+    /// since: a monocular window has no landmarks until the motion gives
+    /// parallax, and the IMU carries the rest's well-known state until then
+    /// (for at most `imu_only_after_rest_max_s`).
+    leaving_rest: bool,
     /// Consecutive frames without a usable pose.
     bad_frames: usize,
     /// The last trusted metric state, carried through a loss by the IMU.
@@ -235,6 +243,7 @@ impl WindowOdometry {
             rest_anchor: HashMap::new(),
             last_flow_px: None,
             last_vision_ns: None,
+            leaving_rest: false,
             bad_frames: 0,
             last_good: None,
             frame_marginal: None,
@@ -428,6 +437,7 @@ impl WindowOdometry {
         self.new_window();
         self.phase = Phase::Initializing { first: None };
         self.aligned_until_ns = None;
+        self.leaving_rest = false;
         self.bad_frames = 0;
         self.previous_pixels.clear();
     }
@@ -580,6 +590,7 @@ impl WindowOdometry {
         }
         let mut state = if placed.good && !carried_over_repeat {
             self.last_vision_ns = Some(t_ns);
+            self.leaving_rest = false;
             self.bad_frames = 0;
             self.frame_marginal = placed.pose_marginal;
             placed.state
@@ -604,7 +615,12 @@ impl WindowOdometry {
                     return out;
                 }
             }
-            let carried = pre.is_some() && since_vision_s <= self.config.imu_only_max_s;
+            let carry_max_s = if self.leaving_rest {
+                self.config.imu_only_after_rest_max_s
+            } else {
+                self.config.imu_only_max_s
+            };
+            let carried = pre.is_some() && since_vision_s <= carry_max_s;
             if !carried {
                 self.bad_frames += 1;
                 if self.bad_frames >= self.config.lost_after_frames {
@@ -876,6 +892,7 @@ impl WindowOdometry {
             {
                 if self.start_inertial_window(state, &rest_frame, 0.01, Matrix6::zeros()) {
                     self.phase = Phase::Tracking;
+                    self.leaving_rest = true;
                     let mut frame = frame;
                     frame.is_keyframe = true;
                     return self.track(frame, TrackingState::Tracking);
