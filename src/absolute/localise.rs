@@ -195,6 +195,9 @@ pub struct LocalisedPose {
     pub position_covariance_m2: Matrix3<f64>,
     /// Map landmarks used by this frame's correction.
     pub landmarks_used: usize,
+    /// Placed by the relative stage's motion alone, the localisation
+    /// having been dropped and not yet found again.
+    pub carried: bool,
 }
 
 /// A transform relative-world -> map and the inliers it was fitted to.
@@ -311,6 +314,7 @@ impl MapLocaliser {
             ),
             position_covariance_m2: state.filter.covariance_m2() + q,
             landmarks_used: 0,
+            carried: state.held,
         })
     }
 
@@ -377,6 +381,7 @@ impl MapLocaliser {
             ),
             position_covariance_m2: state.filter.covariance_m2(),
             landmarks_used: used,
+            carried: state.held,
         })
     }
 

@@ -85,6 +85,9 @@ pub struct Health {
     pub map_frames_placed: AtomicU64,
     /// See [`Self::map_frames`].
     pub map_placed_now: AtomicBool,
+    /// The newest frame was placed in the saved map by the odometry alone,
+    /// the localisation dropped and not found again yet.
+    pub map_carried_now: AtomicBool,
     /// The second stage (map or localiser) is waiting for the relative
     /// stage to settle after a start in motion (the map-frame pose is the
     /// odometry-frame pose meanwhile).
@@ -313,7 +316,9 @@ impl Health {
             MAP_LOCALISING => {
                 let frames = self.map_frames.load(Ordering::Relaxed);
                 let placed = self.map_frames_placed.load(Ordering::Relaxed);
-                let now = if self.map_placed_now.load(Ordering::Relaxed) {
+                let now = if self.map_carried_now.load(Ordering::Relaxed) {
+                    "placed in it by the odometry alone while relocalising (the map and the track disagreed)"
+                } else if self.map_placed_now.load(Ordering::Relaxed) {
                     "placed in it"
                 } else if placed == 0 {
                     "not placed in it yet: poses are in the odometry frame until it is (a robot outside the mapped place never will; move the map file away to build a new one)"
@@ -337,13 +342,16 @@ impl Health {
     }
 
     /// After each frame while localising in a saved map: whether the
-    /// frame was placed in it.
-    pub fn record_map_placement(&self, placed: bool) {
+    /// frame was placed in it, and whether by the odometry alone (carried
+    /// through a dropped localisation).
+    pub fn record_map_placement(&self, placed: bool, carried: bool) {
         self.map_frames.fetch_add(1, Ordering::Relaxed);
         if placed {
             self.map_frames_placed.fetch_add(1, Ordering::Relaxed);
         }
         self.map_placed_now.store(placed, Ordering::Relaxed);
+        self.map_carried_now
+            .store(placed && carried, Ordering::Relaxed);
     }
 
     /// The absolute stage's orientation offset after a frame, degrees.
@@ -720,7 +728,7 @@ mod tests {
         health.map_mode.store(MAP_LOCALISING, Ordering::Relaxed);
         health.map_landmarks.store(2180, Ordering::Relaxed);
         for _ in 0..3 {
-            health.record_map_placement(false);
+            health.record_map_placement(false, false);
         }
         let words = health.map_words().expect("words");
         assert!(
@@ -729,18 +737,29 @@ mod tests {
                 && words.contains("0 of 3 frames placed"),
             "{words}"
         );
-        health.record_map_placement(true);
+        health.record_map_placement(true, false);
         let words = health.map_words().expect("words");
         assert!(
             words.contains("2180 landmarks), placed in it; 1 of 4 frames placed"),
             "{words}"
         );
-        health.record_map_placement(false);
+        health.record_map_placement(false, false);
         let words = health.map_words().expect("words");
         assert!(
             words.contains("not placed in it now") && words.contains("1 of 5 frames placed"),
             "{words}"
         );
+        // A dropped localisation: placed by the odometry until found again.
+        health.record_map_placement(true, true);
+        let words = health.map_words().expect("words");
+        assert!(
+            words.contains("by the odometry alone while relocalising")
+                && words.contains("2 of 6 frames placed"),
+            "{words}"
+        );
+        health.record_map_placement(true, false);
+        let words = health.map_words().expect("words");
+        assert!(words.contains("), placed in it; 3 of 7"), "{words}");
     }
 
     #[test]

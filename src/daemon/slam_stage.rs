@@ -463,7 +463,10 @@ impl Stage {
                 .store(stats.last_unknowns as u64, Ordering::Relaxed);
         }
         if health.map_mode.load(Ordering::Relaxed) == MAP_LOCALISING {
-            health.record_map_placement(frame_out.localised.is_some());
+            health.record_map_placement(
+                frame_out.localised.is_some(),
+                frame_out.localised.as_ref().is_some_and(|l| l.carried),
+            );
         }
         health
             .second_stage_waiting

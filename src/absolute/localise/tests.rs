@@ -422,15 +422,18 @@ fn a_track_the_map_disagrees_with_everywhere_is_relocalised() {
             ..drop_only.clone()
         },
     );
-    let carried = outputs
+    let poses = outputs
         .iter()
-        .map(|o| confirming.push(o).is_some())
-        .skip_while(|placed| !placed)
-        .collect::<Vec<bool>>();
+        .map(|o| confirming.push(o))
+        .skip_while(Option::is_none)
+        .collect::<Vec<_>>();
     let held = confirming.stats();
     assert_eq!(held.dropped, 1, "{held:?}");
     assert!(held.held_frames >= 10, "{held:?}");
-    assert!(carried.iter().all(|&p| p), "{held:?}");
+    assert!(poses.iter().all(Option::is_some), "{held:?}");
+    // Those poses say so (and the frame that dropped it), no others do.
+    let carried = poses.iter().flatten().filter(|p| p.carried).count();
+    assert_eq!(carried, held.held_frames + held.dropped, "{held:?}");
     assert!(rms < 0.06, "{rms:.3} m after relocalising, {stats:?}");
     // Without the check the first transform stays, and so does the error.
     let mut kept = MapLocaliser::new(
