@@ -605,11 +605,11 @@ impl MapLocaliser {
             return None;
         }
         // One map landmark per track and one track per map landmark.
-        let distinct = |set: &[(usize, u32)]| {
+        let distinct = |set: Vec<(usize, u32)>| -> Vec<(usize, u32)> {
             let mut taken = std::collections::HashSet::new();
-            set.iter().filter(|&&(_, m)| taken.insert(m)).count()
+            set.into_iter().filter(|&(_, m)| taken.insert(m)).collect()
         };
-        let explained = in_use.map_or(0, |t| distinct(&inliers_of(&t)));
+        let explained = in_use.map_or(0, |t| distinct(inliers_of(&t)).len());
         let fit = |set: &[(usize, u32)]| {
             let world: Vec<Vector3<f64>> = set.iter().map(|&(k, _)| queries[k].1).collect();
             let map: Vec<Vector3<f64>> = set.iter().map(|&(_, m)| positions[m as usize]).collect();
@@ -633,12 +633,9 @@ impl MapLocaliser {
             .sum::<f64>()
             / refined.len() as f64)
             .sqrt();
-        // One map landmark per track and one track per map landmark.
-        let mut taken = std::collections::HashSet::new();
-        let inliers: Vec<(LandmarkId, u32)> = refined
-            .iter()
-            .filter(|&&(_, m)| taken.insert(m))
-            .map(|&(k, m)| (queries[k].0, m))
+        let inliers: Vec<(LandmarkId, u32)> = distinct(refined)
+            .into_iter()
+            .map(|(k, m)| (queries[k].0, m))
             .collect();
         if inliers.len() < self.config.min_inliers {
             return None;

@@ -55,6 +55,30 @@ fn moved(run: &RoomRun, offset: &Isometry3<f64>) -> Vec<RelativeOutput> {
         .collect()
 }
 
+/// Localises `outputs` in `map` with `config`: the RMS error of the
+/// poses from frame `from` on (in the truth's frame, against `truth`), how
+/// many of those frames had a pose, and the localiser's counters.
+fn late_error(
+    map: &SavedMap,
+    map_to_truth: &Isometry3<f64>,
+    outputs: &[RelativeOutput],
+    truth: &[Vector3<f64>],
+    config: LocaliseConfig,
+    from: usize,
+) -> (f64, usize, LocaliseStats) {
+    let mut localiser = MapLocaliser::new(map, config);
+    let mut late = Vec::new();
+    for (k, (output, truth)) in outputs.iter().zip(truth).enumerate() {
+        if let Some(pose) = localiser.push(output).filter(|_| k >= from) {
+            let in_truth =
+                map_to_truth * nalgebra::Point3::from(pose.T_map_body.translation.vector);
+            late.push((in_truth.coords - truth).norm_squared());
+        }
+    }
+    let rms = (late.iter().sum::<f64>() / late.len().max(1) as f64).sqrt();
+    (rms, late.len(), localiser.stats().clone())
+}
+
 fn offset() -> Isometry3<f64> {
     Isometry3::from_parts(
         Translation3::new(3.0, -2.0, 0.5),
@@ -476,18 +500,15 @@ fn a_second_opinion_replaces_a_transform_the_matches_no_longer_support() {
     let before = moved(&second, &offset());
     let after = moved(&second, &(jump * offset()));
     let outputs: Vec<RelativeOutput> = before[..40].iter().chain(&after[40..]).cloned().collect();
-    let late_rms = |config: LocaliseConfig| {
-        let mut localiser = MapLocaliser::new(&map, config);
-        let mut late = Vec::new();
-        for (k, (output, truth)) in outputs.iter().zip(&second.truth_position_m).enumerate() {
-            if let Some(pose) = localiser.push(output).filter(|_| k >= 70) {
-                let in_truth =
-                    map_to_truth * nalgebra::Point3::from(pose.T_map_body.translation.vector);
-                late.push((in_truth.coords - truth).norm_squared());
-            }
-        }
-        let rms = (late.iter().sum::<f64>() / late.len().max(1) as f64).sqrt();
-        (rms, late.len(), localiser.stats().clone())
+    let late_rms = |config| {
+        late_error(
+            &map,
+            &map_to_truth,
+            &outputs,
+            &second.truth_position_m,
+            config,
+            70,
+        )
     };
     let no_drop = LocaliseConfig {
         drop_after_rejected_frames: 0,
@@ -530,26 +551,20 @@ fn a_fit_later_frames_do_not_confirm_is_not_taken() {
     let early = moved(&second, &(wrong * offset()));
     let later = moved(&second, &offset());
     let outputs: Vec<RelativeOutput> = early[..8].iter().chain(&later[8..]).cloned().collect();
-    let run = |confirm_after_frames: usize| {
-        let mut localiser = MapLocaliser::new(
+    let run = |confirm_after_frames| {
+        late_error(
             &map,
+            &map_to_truth,
+            &outputs,
+            &second.truth_position_m,
             LocaliseConfig {
                 drop_after_rejected_frames: 0,
                 second_opinion_every_frames: 0,
                 confirm_after_frames,
                 ..LocaliseConfig::default()
             },
-        );
-        let mut late = Vec::new();
-        for (k, (output, truth)) in outputs.iter().zip(&second.truth_position_m).enumerate() {
-            if let Some(pose) = localiser.push(output).filter(|_| k >= 40) {
-                let in_truth =
-                    map_to_truth * nalgebra::Point3::from(pose.T_map_body.translation.vector);
-                late.push((in_truth.coords - truth).norm_squared());
-            }
-        }
-        let rms = (late.iter().sum::<f64>() / late.len().max(1) as f64).sqrt();
-        (rms, late.len(), localiser.stats().clone())
+            40,
+        )
     };
     let (confirmed, n, stats) = run(10);
     let (at_once, _, at_once_stats) = run(0);
