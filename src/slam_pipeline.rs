@@ -22,7 +22,7 @@ use crate::relative::{
 };
 use crate::sensors::ImuSample;
 use crate::slam_config::SlamSettings;
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 
 /// Relocalising an inertial run in a map made by one: the transform
 /// between their gravity-aligned worlds may tilt z by at most this. On
@@ -90,6 +90,19 @@ pub struct PipelineFrame {
     pub localised: Option<LocalisedPose>,
     /// Time the second stage took on this frame, ms (0 without one).
     pub second_stage_ms: f64,
+}
+
+impl PipelineFrame {
+    /// The covariance published with the map-frame position: the absolute
+    /// stage's (None before its filter starts), else the localiser's; None
+    /// without a second-stage pose.
+    pub fn map_position_covariance_m2(&self) -> Option<Matrix3<f64>> {
+        match (&self.corrected, &self.localised) {
+            (Some(corrected), _) => corrected.position_covariance_m2,
+            (None, Some(localised)) => Some(localised.position_covariance_m2),
+            (None, None) => None,
+        }
+    }
 }
 
 /// The relative stage with what follows it.

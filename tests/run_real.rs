@@ -108,6 +108,12 @@ fn euroc_at_rest_initialises_from_the_static_start_and_stays_within_a_centimetre
             "{mode}: {}",
             report["nees"]
         );
+        // Without a second stage there is no map-frame position to score.
+        assert!(
+            report["map_nees"].is_null(),
+            "{mode}: {}",
+            report["map_nees"]
+        );
     }
 }
 
@@ -326,6 +332,14 @@ fn absolute_writes_both_trajectories_and_scores_both() {
         let ate = report[key]["ate_rmse_m"].as_f64().expect("ate");
         assert!(ate < 0.01, "{key}: ATE {ate} m");
     }
+    // The map-frame covariance is scored on the poses the filter published
+    // (at rest the relative stage hands over landmarks on few frames, and
+    // the filter starts with the first).
+    let map_nees = &report["map_nees"];
+    let scored = map_nees["positions"].as_u64().expect("map NEES positions");
+    assert!(scored >= 1 && scored <= 95, "{map_nees}");
+    let mean = map_nees["mean_per_dof"].as_f64().expect("mean");
+    assert!(mean.is_finite() && mean > 0.0, "{map_nees}");
 }
 
 #[test]
@@ -389,6 +403,9 @@ fn a_saved_map_is_localised_in_again() {
     // frame, so the localised poses stay where that run put the robot.
     let ate = report["eval"]["ate_rmse_m"].as_f64().expect("ate");
     assert!(ate < 0.01, "ATE {ate} m");
+    // The localiser's covariance is scored on its localised poses.
+    let scored = report["map_nees"]["positions"].as_u64().expect("map NEES");
+    assert!(scored >= 1 && scored <= frames, "{}", report["map_nees"]);
 }
 
 #[test]

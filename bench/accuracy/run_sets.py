@@ -9,8 +9,9 @@ asked for, with the same settings (`--config`, default: the defaults). Columns: 
 m), scale error (%), NEES per dof of the published covariance, and
 whether the run lost track or re-initialised; with the absolute stage on
 (`[absolute] enabled = true` in `--config`), the two-stage ATE against
-the relative stage's poses of the same run and the position filter's
-mean NIS per dof; in the inertial modes the
+the relative stage's poses of the same run, the position filter's
+mean NIS per dof and the published map-frame position's NEES per dof
+(mean, and median in brackets); in the inertial modes the
 relative stage's roll and pitch error against gravity (rms, deg). The means per set and mode
 are at the end; with `stereo` among the modes, each inertial run is also
 compared with the same cameras without the IMU.
@@ -67,6 +68,9 @@ def run(binary, root, seq, mode, config):
         # ... and its position filter's mean NIS per dof (about 1 when the
         # landmark covariances it is given are right).
         "absolute_nis": (r.get("absolute") or {}).get("mean_nis_per_dof"),
+        # ... and the NEES of the map-frame position covariance it publishes.
+        "map_nees": (r.get("map_nees") or {}).get("mean_per_dof"),
+        "map_nees_median": (r.get("map_nees") or {}).get("median_per_dof"),
         "scale_error_pct": None if e.get("scale_error") is None else 100 * abs(e["scale_error"]),
         "nees": nees.get("mean_per_dof"),
         "nees_position": nees.get("position_per_dof"),
@@ -114,8 +118,8 @@ def main():
         with open(a.out, "w") as f:
             json.dump(rows, f, indent=1)
     by = {(r["sequence"], r["mode"]): r for r in rows}
-    print("| set | sequence | mode | ATE m | scale err % | NEES/dof | tilt deg | lost | vs stereo | vs relative stage | map NIS/dof |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| set | sequence | mode | ATE m | scale err % | NEES/dof | tilt deg | lost | vs stereo | vs relative stage | map NIS/dof | map NEES/dof |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         if "error" in r:
             print(f"| {r['set']} | {r['sequence']} | {r['mode']} | failed: {r['error'][-80:]} |")
@@ -127,7 +131,8 @@ def main():
         print(f"| {r['set']} | {r['sequence']} | {r['mode']} | {fmt(r['ate_m'], '.4f')} | "
               f"{fmt(r['scale_error_pct'], '.2f')} | {fmt(r['nees'], '.2f')} | {fmt(r.get('tilt_deg'), '.2f')} | "
               f"{r['lost']} | {versus} | "
-              f"{ratio(r.get('ate_m'), r.get('ate_relative_m'))} | {fmt(r.get('absolute_nis'), '.2f')} |")
+              f"{ratio(r.get('ate_m'), r.get('ate_relative_m'))} | {fmt(r.get('absolute_nis'), '.2f')} | "
+              f"{fmt(r.get('map_nees'), '.2f')} ({fmt(r.get('map_nees_median'), '.2f')}) |")
     short = [r for r in rows if r.get("frames_without_imu")]
     for r in short:
         print(f"warning: {r['sequence']} {r['mode']}: {r['frames_without_imu']} frames without the IMU")

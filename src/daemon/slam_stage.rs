@@ -554,11 +554,7 @@ fn frame_message(frame: &PipelineFrame) -> PoseMessage {
     let Some((T_world_body, world_odom)) = map_pose(frame) else {
         return PoseMessage::from_relative(output, relative_covariance.as_ref());
     };
-    let position_covariance = match (&frame.corrected, &frame.localised) {
-        (Some(corrected), _) => corrected.position_covariance_m2,
-        (None, Some(localised)) => Some(localised.position_covariance_m2),
-        (None, None) => None,
-    };
+    let position_covariance = frame.map_position_covariance_m2();
     let covariance = match (relative_covariance, position_covariance) {
         (Some(relative), Some(position)) => {
             let mut c = Matrix6::zeros();

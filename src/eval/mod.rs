@@ -4,13 +4,15 @@
 //! ground-truth poses by time; [`align`] fits the requested transformation;
 //! [`metrics`] computes the errors; [`report`] gathers them into the numbers
 //! `rigslam eval` prints (`crate::plot::evaluation` draws them). [`consistency`] checks a
-//! published covariance against the errors (NEES); [`tilt`] scores roll and
+//! published covariance against the errors (NEES), [`map_consistency`] the
+//! map-frame position covariance of the second stage; [`tilt`] scores roll and
 //! pitch against gravity, which an alignment would hide.
 
 pub mod align;
 pub mod associate;
 pub mod consistency;
 pub mod error;
+pub mod map_consistency;
 pub mod metrics;
 pub mod report;
 pub mod tilt;

@@ -12,6 +12,7 @@ use crate::dataset::{
     groundtruth_trajectory, open_dataset, Dataset, DatasetError, SensorStream, StreamOptions,
 };
 use crate::eval::consistency::{pose_nees, CovariancePose};
+use crate::eval::map_consistency::{map_position_nees, MapPosition};
 use crate::eval::report::Evaluation;
 use crate::eval::{evaluate, Alignment, EvalOptions};
 use crate::relative::TrackingState;
@@ -179,14 +180,17 @@ pub fn run_dataset(
         }
     }
     let mut covariance_poses = Vec::new();
+    let mut map_positions = Vec::new();
     let mut outcome = run_stream(&mut stream, &mut pipeline, run.options, |frame| {
         let o = &frame.relative;
+        let mut map_position = None;
         if let Some(pose) = &frame.localised {
             corrected.push(StampedPose::new(
                 pose.t_ns,
                 pose.T_map_body.translation.vector,
                 pose.T_map_body.rotation,
             ));
+            map_position = Some((pose.t_ns, pose.T_map_body.translation.vector));
         }
         if let Some(pose) = &frame.corrected {
             if let Some(log) = sightings.as_mut() {
@@ -198,7 +202,19 @@ pub fn run_dataset(
                     pose.T_world_body.translation.vector,
                     pose.T_world_body.rotation,
                 ));
+                map_position = Some((pose.t_ns, pose.T_world_body.translation.vector));
             }
+        }
+        if let (Some((t_ns, position_m)), Some(covariance_m2), Some(_)) = (
+            map_position,
+            frame.map_position_covariance_m2(),
+            ground_truth.as_ref(),
+        ) {
+            map_positions.push(MapPosition {
+                t_ns,
+                position_m,
+                covariance_m2,
+            });
         }
         if let (Some(c), Some(_), TrackingState::Tracking) =
             (o.pose_covariance, ground_truth.as_ref(), o.state)
@@ -315,6 +331,11 @@ pub fn run_dataset(
             .as_ref()
             .filter(|_| mode.uses_imu() || mode.uses_stereo())
             .and_then(|gt| pose_nees(&covariance_poses, gt)),
+        map_nees: trajectory_relative
+            .as_ref()
+            .zip(evaluation.as_ref())
+            .zip(ground_truth.as_ref())
+            .and_then(|((_, e), gt)| map_position_nees(&map_positions, &e.alignment, gt)),
         tilt: ground_truth
             .as_ref()
             .filter(|_| mode.uses_imu())
@@ -463,6 +484,14 @@ pub fn summary_line(r: &RunReport) -> String {
         line += &format!(
             "; covariance NEES per dof {:.2} (position {:.2}, rotation {:.2})",
             n.mean_per_dof, n.position_per_dof, n.rotation_per_dof
+        );
+    }
+    if let Some(n) = &r.map_nees {
+        line += &format!(
+            "; map-frame position NEES per dof {:.2} (median {:.2}, {:.0} % under the 95 % bound)",
+            n.mean_per_dof,
+            n.median_per_dof,
+            100.0 * n.within_95
         );
     }
     if let Some(t) = &r.tilt {

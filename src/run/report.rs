@@ -104,6 +104,11 @@ pub struct RunReport {
     /// truth (NEES per degree of freedom; 1 is consistent). None without
     /// ground truth and in `mono`, whose poses have no metric scale.
     pub nees: Option<crate::eval::consistency::NeesReport>,
+    /// Consistency of the published map-frame position covariance (the
+    /// second stage's) against the ground truth, after the alignment that
+    /// scored the trajectory (`crate::eval::map_consistency`). None
+    /// without a second stage or ground truth.
+    pub map_nees: Option<crate::eval::map_consistency::PositionNeesReport>,
     /// Roll and pitch against the ground truth's, whatever the heading
     /// (`crate::eval::tilt`), of the relative stage's poses in the
     /// inertial modes. None without ground truth or an IMU.
