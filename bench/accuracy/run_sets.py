@@ -11,8 +11,7 @@ whether the run lost track or re-initialised; with the absolute stage on
 (`[absolute] enabled = true` in `--config`), the two-stage ATE against
 the relative stage's poses of the same run, the position filter's
 mean NIS per dof and the published map-frame position's NEES per dof
-(mean, and median in brackets; then the mean with the alignment pinned
-at the filter's start, the gauge of its covariance); in the inertial modes the
+(mean, and median in brackets); in the inertial modes the
 relative stage's roll and pitch error against gravity (rms, deg). The means per set and mode
 are at the end; with `stereo` among the modes, each inertial run is also
 compared with the same cameras without the IMU.
@@ -72,8 +71,6 @@ def run(binary, root, seq, mode, config):
         # ... and the NEES of the map-frame position covariance it publishes.
         "map_nees": (r.get("map_nees") or {}).get("mean_per_dof"),
         "map_nees_median": (r.get("map_nees") or {}).get("median_per_dof"),
-        # ... the same in the gauge of the filter's covariance (pinned at its start).
-        "map_nees_from_start": (r.get("map_nees_from_start") or {}).get("mean_per_dof"),
         "scale_error_pct": None if e.get("scale_error") is None else 100 * abs(e["scale_error"]),
         "nees": nees.get("mean_per_dof"),
         "nees_position": nees.get("position_per_dof"),
@@ -121,8 +118,8 @@ def main():
         with open(a.out, "w") as f:
             json.dump(rows, f, indent=1)
     by = {(r["sequence"], r["mode"]): r for r in rows}
-    print("| set | sequence | mode | ATE m | scale err % | NEES/dof | tilt deg | lost | vs stereo | vs relative stage | map NIS/dof | map NEES/dof | from start |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| set | sequence | mode | ATE m | scale err % | NEES/dof | tilt deg | lost | vs stereo | vs relative stage | map NIS/dof | map NEES/dof |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         if "error" in r:
             print(f"| {r['set']} | {r['sequence']} | {r['mode']} | failed: {r['error'][-80:]} |")
@@ -135,8 +132,7 @@ def main():
               f"{fmt(r['scale_error_pct'], '.2f')} | {fmt(r['nees'], '.2f')} | {fmt(r.get('tilt_deg'), '.2f')} | "
               f"{r['lost']} | {versus} | "
               f"{ratio(r.get('ate_m'), r.get('ate_relative_m'))} | {fmt(r.get('absolute_nis'), '.2f')} | "
-              f"{fmt(r.get('map_nees'), '.2f')} ({fmt(r.get('map_nees_median'), '.2f')}) | "
-              f"{fmt(r.get('map_nees_from_start'), '.2f')} |")
+              f"{fmt(r.get('map_nees'), '.2f')} ({fmt(r.get('map_nees_median'), '.2f')}) |")
     short = [r for r in rows if r.get("frames_without_imu")]
     for r in short:
         print(f"warning: {r['sequence']} {r['mode']}: {r['frames_without_imu']} frames without the IMU")

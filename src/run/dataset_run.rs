@@ -12,7 +12,7 @@ use crate::dataset::{
     groundtruth_trajectory, open_dataset, Dataset, DatasetError, SensorStream, StreamOptions,
 };
 use crate::eval::consistency::{pose_nees, CovariancePose};
-use crate::eval::map_consistency::{map_position_nees, pinned_at_first, MapPosition};
+use crate::eval::map_consistency::{map_position_nees, MapPosition};
 use crate::eval::report::Evaluation;
 use crate::eval::{evaluate, Alignment, EvalOptions};
 use crate::relative::TrackingState;
@@ -336,14 +336,6 @@ pub fn run_dataset(
             .zip(evaluation.as_ref())
             .zip(ground_truth.as_ref())
             .and_then(|((_, e), gt)| map_position_nees(&map_positions, &e.alignment, gt)),
-        map_nees_from_start: evaluation
-            .as_ref()
-            .filter(|_| pipeline.absolute().is_some())
-            .zip(ground_truth.as_ref())
-            .and_then(|(e, gt)| {
-                let pinned = pinned_at_first(&map_positions, &e.alignment, gt)?;
-                map_position_nees(&map_positions, &pinned, gt)
-            }),
         tilt: ground_truth
             .as_ref()
             .filter(|_| mode.uses_imu())
@@ -501,9 +493,6 @@ pub fn summary_line(r: &RunReport) -> String {
             n.median_per_dof,
             100.0 * n.within_95
         );
-        if let Some(f) = &r.map_nees_from_start {
-            line += &format!(" ({:.2} from the filter's start)", f.mean_per_dof);
-        }
     }
     if let Some(t) = &r.tilt {
         line += &format!(

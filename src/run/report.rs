@@ -109,11 +109,6 @@ pub struct RunReport {
     /// scored the trajectory (`crate::eval::map_consistency`). None
     /// without a second stage or ground truth.
     pub map_nees: Option<crate::eval::map_consistency::PositionNeesReport>,
-    /// The same with the alignment's translation pinned at the position
-    /// filter's start (`crate::eval::map_consistency::pinned_at_first`),
-    /// the gauge of its covariance. None without the absolute stage (a
-    /// localised session starts in another session's map).
-    pub map_nees_from_start: Option<crate::eval::map_consistency::PositionNeesReport>,
     /// Roll and pitch against the ground truth's, whatever the heading
     /// (`crate::eval::tilt`), of the relative stage's poses in the
     /// inertial modes. None without ground truth or an IMU.
