@@ -106,6 +106,14 @@ pub struct AbsoluteConfig {
     /// between them ([`EdgePolicy::FrameNodes`] only): a frame whose
     /// landmarks are all new stays connected to the map.
     pub odometry_edges: bool,
+    /// Give a frame node's edge to a landmark only the share of the
+    /// landmark's window estimate that is new since the landmark's last
+    /// node ([`crate::relative::types::WindowSupport`]): the window's
+    /// keyframes observing it that the last node's estimate did not rest
+    /// on, over all that this one rests on ([`EdgePolicy::FrameNodes`]
+    /// only). Without it, nodes between two keyframes hand the map the
+    /// same estimate again, counted as new each time.
+    pub count_window_once: bool,
     /// A landmark joined to this many frame nodes counts as mapped, and a
     /// frame whose landmarks are mostly mapped adds no node
     /// ([`EdgePolicy::FrameNodes`] only; 0: every frame adds one). A robot
@@ -149,6 +157,7 @@ impl Default for AbsoluteConfig {
             recognition: Some(RecognitionConfig::default()),
             robust: Some(RobustWeights::default()),
             odometry_edges: true,
+            count_window_once: true,
             frame_node_saturation: DEFAULT_FRAME_NODE_SATURATION,
             node_passes_per_place: DEFAULT_NODE_PASSES_PER_PLACE,
             orientation_sigma_rad_per_sqrt_s: DEFAULT_ORIENTATION_SIGMA_RAD_PER_SQRT_S,

@@ -15,7 +15,7 @@ use super::node_places::NodePlaces;
 use crate::edge_map::edge::{EdgeMap, LandmarkObservation};
 use crate::edge_map::policy::EdgePolicy;
 use crate::features::orb::Descriptor;
-use crate::relative::types::{LandmarkId, RelativeOutput};
+use crate::relative::types::{LandmarkId, RelativeOutput, WindowSupport};
 
 /// What the map's reference (map id 0, fixed at the anchor) is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -77,6 +77,11 @@ pub(super) struct MapBuilder {
     /// Frames whose turn it was to become a node, left out because their
     /// place took nodes on `passes_per_place` passes already.
     frames_place_full: usize,
+    /// See [`AbsoluteConfig::count_window_once`].
+    count_window_once: bool,
+    /// Per map id: the newest window keyframe its estimate rested on
+    /// when it was last joined to a frame node.
+    joined_up_to_keyframe: Vec<Option<u64>>,
 }
 
 impl MapBuilder {
@@ -105,6 +110,8 @@ impl MapBuilder {
             places: NodePlaces::default(),
             passes_per_place: config.node_passes_per_place,
             frames_place_full: 0,
+            count_window_once: config.count_window_once,
+            joined_up_to_keyframe: Vec::new(),
         }
     }
 
@@ -286,6 +293,7 @@ impl MapBuilder {
         let frame_nodes = self.has_frame_nodes();
         let mut without_id = Vec::new();
         let mut observations: Vec<LandmarkObservation> = Vec::with_capacity(output.landmarks.len());
+        let mut supports: Vec<Option<WindowSupport>> = Vec::with_capacity(output.landmarks.len());
         // Two live tracks recognised as one landmark: keep the first.
         let mut seen = std::collections::HashSet::with_capacity(output.landmarks.len());
         for l in output.landmarks.iter().filter(|l| !pending(l.id)) {
@@ -304,6 +312,7 @@ impl MapBuilder {
                 p_body_m: l.position_body_m,
                 cov_body_m2: l.covariance_body_m2,
             });
+            supports.push(l.support);
         }
         if let EdgePolicy::FrameNodes { every } = self.policy {
             let node = observations.len() >= 2
@@ -311,6 +320,7 @@ impl MapBuilder {
                     rotation,
                     position_m,
                     &mut observations,
+                    &supports,
                     &without_id,
                     every,
                     anchor_node,
@@ -375,6 +385,7 @@ impl MapBuilder {
         rotation: &Matrix3<f64>,
         position_m: &Vector3<f64>,
         observations: &mut [LandmarkObservation],
+        supports: &[Option<WindowSupport>],
         without_id: &[(usize, LandmarkId, Option<Descriptor>)],
         every: usize,
         anchor_node: bool,
@@ -425,6 +436,12 @@ impl MapBuilder {
             }
             self.nodes_per_landmark[k] = self.nodes_per_landmark[k].saturating_add(1);
         }
+        if self.count_window_once {
+            for (o, support) in observations.iter_mut().zip(supports) {
+                let share = self.new_share(o.id, *support);
+                o.cov_body_m2 /= share;
+            }
+        }
         self.edges.add_frame_node(rotation, node, observations);
         if let (Some(odometry), Some(sigma)) = (self.odometry, self.odometry_sigma_per_sqrt_m) {
             // The relative stage's own motion between the two nodes, a
@@ -443,6 +460,40 @@ impl MapBuilder {
         true
     }
 }
+
+impl MapBuilder {
+    /// The share of landmark `id`'s window estimate that is new since its
+    /// last frame node (1 for its first node, or without a window), and
+    /// notes `support` as its last. A landmark is taken to be seen by
+    /// every keyframe between the two nodes' newest (a continuous track);
+    /// where it was not, the share is over-estimated, as without this
+    /// rule.
+    fn new_share(&mut self, id: u32, support: Option<WindowSupport>) -> f64 {
+        let Some(support) = support.filter(|s| s.keyframes > 0) else {
+            return 1.0;
+        };
+        let k = id as usize;
+        if self.joined_up_to_keyframe.len() <= k {
+            self.joined_up_to_keyframe.resize(k + 1, None);
+        }
+        let last = self.joined_up_to_keyframe[k].replace(support.newest_keyframe);
+        match last {
+            None => 1.0,
+            Some(last) => {
+                let new = support
+                    .newest_keyframe
+                    .saturating_sub(last)
+                    .min(u64::from(support.keyframes));
+                (new as f64 / f64::from(support.keyframes)).max(MIN_NEW_SHARE)
+            }
+        }
+    }
+}
+
+/// Share of a landmark's window estimate a frame node is given when
+/// nothing in it is new (no keyframe since the landmark's last node):
+/// small, so that the node still has a position in the map.
+const MIN_NEW_SHARE: f64 = 1e-2;
 
 /// The symmetric part of an edge block `S_i W S_j`, with eigenvalues below
 /// a small fraction of the largest raised to it. With anisotropic
@@ -478,3 +529,84 @@ const POSITIVE_PART_FLOOR: f64 = 1e-6;
 /// Shortest distance an odometry edge's variance is computed for, m (a
 /// robot at rest still gets a finite information).
 const MIN_ODOMETRY_DISTANCE_M: f64 = 0.01;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::relative::types::BodyLandmark;
+
+    /// Four landmarks 3 m ahead, sigma 1 cm, whose window estimate rests
+    /// on ten keyframes up to `newest` (None: no window).
+    fn landmarks(newest: Option<u64>) -> Vec<BodyLandmark> {
+        (0..4)
+            .map(|k| BodyLandmark {
+                id: k,
+                position_body_m: Vector3::new(k as f64 - 1.5, 0.5, 3.0),
+                covariance_body_m2: Matrix3::identity() * 1e-4,
+                descriptor: None,
+                support: newest.map(|n| WindowSupport {
+                    keyframes: 10,
+                    newest_keyframe: n,
+                }),
+            })
+            .collect()
+    }
+
+    /// Ten frames at the origin, each a frame node; the information (trace)
+    /// the map holds about track 2 over all its edges, over one frame's.
+    fn information_gathered(count_window_once: bool, newest: impl Fn(u64) -> Option<u64>) -> f64 {
+        let config = AbsoluteConfig {
+            policy: EdgePolicy::FrameNodes { every: 1 },
+            frame_node_saturation: 0,
+            node_passes_per_place: 0,
+            count_window_once,
+            ..AbsoluteConfig::default()
+        };
+        let mut builder = MapBuilder::new(&config, false);
+        for frame in 0..10u64 {
+            let output = RelativeOutput::tracking_at_origin(
+                frame as i64 * 50_000_000,
+                landmarks(newest(frame)),
+            );
+            builder.fuse(&output, &Matrix3::identity(), &Vector3::zeros(), |_| false);
+        }
+        assert_eq!(builder.frame_nodes(), 10);
+        let id = builder.registry().map_id_of(2).expect("mapped");
+        let total: f64 = builder
+            .edges
+            .sorted_edges()
+            .iter()
+            .filter(|((i, j), _)| *i == id || *j == id)
+            .map(|(_, e)| e.info.trace())
+            .sum();
+        total / (3.0 / 1e-4)
+    }
+
+    #[test]
+    fn an_estimate_handed_on_again_adds_almost_nothing() {
+        // Ten frames between the same two keyframes: the same estimate.
+        let once = information_gathered(true, |_| Some(5));
+        let each = information_gathered(false, |_| Some(5));
+        assert!((each - 10.0).abs() < 1e-9, "{each}");
+        assert!((once - (1.0 + 9.0 * MIN_NEW_SHARE)).abs() < 1e-9, "{once}");
+    }
+
+    #[test]
+    fn each_node_adds_the_share_of_new_keyframes() {
+        // A keyframe per frame: each later node adds a tenth.
+        let once = information_gathered(true, |frame| Some(5 + frame));
+        assert!((once - 1.9).abs() < 1e-9, "{once}");
+        // Two per frame: a fifth.
+        let once = information_gathered(true, |frame| Some(5 + 2 * frame));
+        assert!((once - 2.8).abs() < 1e-9, "{once}");
+        // Eleven per frame (more than it rests on): all of it again.
+        let once = information_gathered(true, |frame| Some(5 + 11 * frame));
+        assert!((once - 10.0).abs() < 1e-9, "{once}");
+    }
+
+    #[test]
+    fn without_a_window_every_node_counts_whole() {
+        let once = information_gathered(true, |_| None);
+        assert!((once - 10.0).abs() < 1e-9, "{once}");
+    }
+}

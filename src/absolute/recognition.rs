@@ -564,6 +564,7 @@ mod tests {
             position_body_m: world - robot,
             covariance_body_m2: Matrix3::identity() * 1e-4,
             descriptor: None,
+            support: None,
         };
         let at = |k: u32| index.position(k).expect("placed");
         let mut landmarks: Vec<BodyLandmark> = (0..6).map(|k| seen(10 + k, at(k as u32))).collect();

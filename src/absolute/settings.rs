@@ -80,6 +80,11 @@ pub struct AbsoluteSettings {
     /// (frame policies only), so a frame that sees only new landmarks
     /// stays connected to the map.
     pub odometry_edges: bool,
+    /// A frame node gives the map only what a landmark's window estimate
+    /// gained since the landmark's last node (the share of its window
+    /// keyframes that are new), not the whole estimate again: frames
+    /// between two keyframes hand on the same estimate.
+    pub count_window_once: bool,
     /// A landmark joined to this many frame nodes counts as mapped; a
     /// frame whose landmarks are mostly mapped adds no node, so a robot
     /// that keeps revisiting the same room stops growing its map (0:
@@ -137,6 +142,7 @@ impl Default for AbsoluteSettings {
             },
             robust_map: config.robust.is_some(),
             odometry_edges: config.odometry_edges,
+            count_window_once: config.count_window_once,
             frame_node_saturation: config.frame_node_saturation,
             node_passes_per_place: config.node_passes_per_place,
             orientation_sigma_rad_per_sqrt_s: config.orientation_sigma_rad_per_sqrt_s,
@@ -311,6 +317,7 @@ impl AbsoluteSettings {
             recognition: self.recognition.then(|| self.recognition_config()),
             robust: self.robust_map.then(RobustWeights::default),
             odometry_edges: self.odometry_edges,
+            count_window_once: self.count_window_once,
             frame_node_saturation: self.frame_node_saturation,
             node_passes_per_place: self.node_passes_per_place,
             orientation_sigma_rad_per_sqrt_s: orientation,
@@ -368,6 +375,7 @@ mod tests {
         assert_eq!(config.solve_mode, stage.solve_mode);
         assert_eq!(config.robust, stage.robust);
         assert_eq!(config.odometry_edges, stage.odometry_edges);
+        assert_eq!(config.count_window_once, stage.count_window_once);
         assert_eq!(config.frame_node_saturation, stage.frame_node_saturation);
         assert_eq!(config.node_passes_per_place, stage.node_passes_per_place);
         assert_eq!(config.correction_gate_chi2, stage.correction_gate_chi2);
@@ -408,9 +416,11 @@ mod tests {
             recognition_max_hamming: 41,
             recognition_confirm_frames: 4,
             recognition_new_landmark_after_frames: 6,
+            count_window_once: false,
             ..Default::default()
         };
         let config = settings.to_config().expect("valid");
+        assert!(!config.count_window_once);
         assert_eq!(config.translation_sigma_per_sqrt_m, 0.07);
         assert_eq!(config.landmark_covariance_scale, 3.5);
         assert_eq!(config.orientation_sigma_rad_per_sqrt_s, 3e-4);

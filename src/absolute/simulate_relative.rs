@@ -275,6 +275,7 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
                     position_body_m: body + noise,
                     covariance_body_m2: covariance,
                     descriptor,
+                    support: None,
                 }
             })
             .collect();

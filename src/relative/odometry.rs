@@ -410,6 +410,7 @@ impl WindowOdometry {
                 position_body_m: T_cur_kf.transform_point(&l.position_body_m.into()).coords,
                 covariance_body_m2: r * l.covariance_body_m2 * r.transpose(),
                 descriptor: self.tracker.descriptor(l.id),
+                support: l.support,
             })
             .collect()
     }

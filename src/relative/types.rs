@@ -84,6 +84,23 @@ pub struct BodyLandmark {
     /// tracker could describe it: how the absolute stage recognises the
     /// landmark after its track was lost or on returning to a place.
     pub descriptor: Option<Descriptor>,
+    /// Which of the window's keyframes the estimate rests on, where the
+    /// estimator keeps a window (None otherwise).
+    pub support: Option<WindowSupport>,
+}
+
+/// The keyframes a landmark's window estimate rests on. The frames
+/// between two keyframes hand on the same estimate, and consecutive
+/// keyframes' estimates share most of their observations: whoever fuses
+/// the estimates of several frames (the edge map) must count only what
+/// each one adds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct WindowSupport {
+    /// Window keyframes observing the landmark.
+    pub keyframes: u16,
+    /// The number of the newest of them (keyframe numbers increase by one
+    /// per keyframe, across re-initialisations).
+    pub newest_keyframe: u64,
 }
 
 /// How uncertain a relative pose is: odometry drifts, so the covariance

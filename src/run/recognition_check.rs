@@ -157,6 +157,7 @@ mod tests {
                 position_body_m: rotation.transpose() * (p - position),
                 covariance_body_m2: Matrix3::identity() * sigma_m * sigma_m,
                 descriptor: None,
+                support: None,
             }],
         )
     }

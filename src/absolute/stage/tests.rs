@@ -797,6 +797,7 @@ fn elongated_covariances_along_different_rays_give_usable_edges() {
                     * Matrix3::from_diagonal(&sigmas.component_mul(&sigmas))
                     * frame.transpose(),
                 descriptor: None,
+                support: None,
             }
         })
         .collect();
@@ -859,6 +860,7 @@ fn odometry_joins_frame_nodes_that_share_no_landmark() {
                 position_body_m: Vector3::new(2.0, id as f64 * 0.3 - 2.0, 0.5),
                 covariance_body_m2: Matrix3::identity() * 1e-4,
                 descriptor: None,
+                support: None,
             })
             .collect(),
         pose_covariance: None,
@@ -907,6 +909,7 @@ impl RecognitionRoom {
             position_body_m: p,
             covariance_body_m2: Matrix3::identity() * sigma_m * sigma_m,
             descriptor: Some(Self::descriptor(d)),
+            support: None,
         }
     }
 
@@ -1098,6 +1101,7 @@ fn the_map_is_anchored_where_the_robot_was_not_at_a_guessed_depth() {
                     covariance_body_m2: along * sigma_along * sigma_along
                         + (Matrix3::identity() - along) * 1e-4,
                     descriptor: None,
+                    support: None,
                 }
             })
             .collect();

@@ -957,6 +957,7 @@ impl EkfFilter {
                     position_body_m: p_body,
                     covariance_body_m2: (cov + cov.transpose()) * 0.5,
                     descriptor: None,
+                    support: None,
                 }
             })
             .collect()

@@ -22,7 +22,7 @@ use super::schur::{self, Chunk, LandmarkBlock, ObservationRow};
 use super::state::{apply_update, BG, FULL_DIM, POSE_DIM, VEL};
 use super::{covariance_pixel_scale, Window};
 use crate::imu::so3::hat;
-use crate::relative::types::BodyLandmark;
+use crate::relative::types::{BodyLandmark, WindowSupport};
 
 /// Squared whitened error charged for an observation whose landmark does
 /// not project (behind the camera): a step that pushes points behind the
@@ -809,11 +809,21 @@ impl Window {
             };
             let covariance = (covariance + covariance.transpose()) * 0.5;
             if covariance.iter().all(|v| v.is_finite()) && p_body.iter().all(|v| v.is_finite()) {
+                // Keyframes with a valid observation (one row per camera).
+                let mut observing: Vec<usize> =
+                    rows.iter().filter(|r| r.valid).map(|r| r.kf).collect();
+                observing.sort_unstable();
+                observing.dedup();
+                let support = observing.last().map(|&newest| WindowSupport {
+                    keyframes: u16::try_from(observing.len()).unwrap_or(u16::MAX),
+                    newest_keyframe: self.keyframes[newest].seq,
+                });
                 self.body_landmarks.push(BodyLandmark {
                     id: lm.id,
                     position_body_m: p_body,
                     covariance_body_m2: covariance,
                     descriptor: None,
+                    support,
                 });
             }
         }

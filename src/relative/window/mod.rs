@@ -964,6 +964,9 @@ impl Window {
     /// Continues from an earlier window's camera-IMU estimate (a new
     /// window after a loss of tracking).
     pub fn keep_camera_imu_from(&mut self, other: &Window) {
+        // Keyframe numbers go on increasing across windows
+        // ([`crate::relative::types::WindowSupport`]).
+        self.next_seq = self.next_seq.max(other.next_seq);
         if let (Some(mine), Some(theirs)) = (self.camera_imu.as_mut(), other.camera_imu.as_ref()) {
             if mine.T_cam0_cam.len() == theirs.T_cam0_cam.len() {
                 *mine = theirs.clone();
@@ -1227,6 +1230,7 @@ impl Window {
                     .coords,
                 covariance_body_m2: r * l.covariance_body_m2 * r.transpose(),
                 descriptor: l.descriptor,
+                support: l.support,
             }
         }));
     }

@@ -573,6 +573,44 @@ fn body_landmarks_sit_where_the_truth_is_with_depth_shaped_covariances() {
         "{along_ray} of {}",
         body.len()
     );
+    // Each rests on the keyframes that observe it, the newest among them
+    // (keyframes are numbered from 0, ten pushed).
+    let mut seen_by_all = 0;
+    for l in body {
+        let support = l.support.expect("a window landmark has its support");
+        assert_eq!(support.newest_keyframe, 9, "landmark {}", l.id);
+        let observing = w
+            .keyframes
+            .iter()
+            .filter(|k| k.observations.iter().any(|o| o.landmark == l.id))
+            .count();
+        assert_eq!(
+            usize::from(support.keyframes),
+            observing,
+            "landmark {}",
+            l.id
+        );
+        seen_by_all += usize::from(observing == w.keyframe_count());
+    }
+    assert!(
+        seen_by_all > 0 && seen_by_all < body.len(),
+        "{seen_by_all} of {}",
+        body.len()
+    );
+}
+
+#[test]
+fn keyframe_numbers_go_on_across_windows() {
+    let mut r = rng(24);
+    let scene = Scene::new(&mut r, 500, 6.0);
+    let w = filled_window(&scene, config(false), 4, 4, true, 0.0, 0.0, &mut r);
+    let mut next = Window::new(config(false), &scene.rig).expect("valid");
+    next.keep_camera_imu_from(&w);
+    let t = keyframe_time(5);
+    let frame = scene.frame(t, true, 0.0, 0.0, &mut r);
+    next.push_keyframe(scene.truth(t), &frame, None)
+        .expect("valid");
+    assert_eq!(next.keyframes.back().map(|k| k.seq), Some(4));
 }
 
 #[test]
