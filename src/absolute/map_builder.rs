@@ -459,9 +459,7 @@ impl MapBuilder {
         });
         true
     }
-}
 
-impl MapBuilder {
     /// The share of landmark `id`'s window estimate that is new since its
     /// last frame node (1 for its first node, or without a window), and
     /// notes `support` as its last. A landmark is taken to be seen by

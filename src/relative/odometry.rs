@@ -273,6 +273,7 @@ impl WindowOdometry {
         );
         self.window.keep_noise_adaptation(noise);
         self.window.keep_camera_imu_from(&previous);
+        self.window.continue_numbering_from(&previous);
     }
 
     /// Gyro-predicted rotation of the current left camera in the previous

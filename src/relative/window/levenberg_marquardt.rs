@@ -759,6 +759,7 @@ impl Window {
         let r_bw = r_wb.transpose();
         let t = newest.state.T_world_body.translation.vector;
         let chi2 = self.config.outlier_chi2;
+        let mut observing: Vec<usize> = Vec::new();
         for lm in &p.landmarks {
             let rows = &p.rows[lm.rows.clone()];
             let seen = rows
@@ -810,8 +811,8 @@ impl Window {
             let covariance = (covariance + covariance.transpose()) * 0.5;
             if covariance.iter().all(|v| v.is_finite()) && p_body.iter().all(|v| v.is_finite()) {
                 // Keyframes with a valid observation (one row per camera).
-                let mut observing: Vec<usize> =
-                    rows.iter().filter(|r| r.valid).map(|r| r.kf).collect();
+                observing.clear();
+                observing.extend(rows.iter().filter(|r| r.valid).map(|r| r.kf));
                 observing.sort_unstable();
                 observing.dedup();
                 let support = observing.last().map(|&newest| WindowSupport {

@@ -964,15 +964,19 @@ impl Window {
     /// Continues from an earlier window's camera-IMU estimate (a new
     /// window after a loss of tracking).
     pub fn keep_camera_imu_from(&mut self, other: &Window) {
-        // Keyframe numbers go on increasing across windows
-        // ([`crate::relative::types::WindowSupport`]).
-        self.next_seq = self.next_seq.max(other.next_seq);
         if let (Some(mine), Some(theirs)) = (self.camera_imu.as_mut(), other.camera_imu.as_ref()) {
             if mine.T_cam0_cam.len() == theirs.T_cam0_cam.len() {
                 *mine = theirs.clone();
                 mine.place(&mut self.cameras);
             }
         }
+    }
+
+    /// Numbers keyframes on from an earlier window's (a new window after a
+    /// loss of tracking), so that keyframe numbers keep increasing across
+    /// windows ([`crate::relative::types::WindowSupport`]).
+    pub fn continue_numbering_from(&mut self, other: &Window) {
+        self.next_seq = self.next_seq.max(other.next_seq);
     }
 
     /// Continues from an earlier window's estimate of the IMU's noise (a

@@ -605,7 +605,7 @@ fn keyframe_numbers_go_on_across_windows() {
     let scene = Scene::new(&mut r, 500, 6.0);
     let w = filled_window(&scene, config(false), 4, 4, true, 0.0, 0.0, &mut r);
     let mut next = Window::new(config(false), &scene.rig).expect("valid");
-    next.keep_camera_imu_from(&w);
+    next.continue_numbering_from(&w);
     let t = keyframe_time(5);
     let frame = scene.frame(t, true, 0.0, 0.0, &mut r);
     next.push_keyframe(scene.truth(t), &frame, None)
