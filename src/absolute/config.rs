@@ -112,7 +112,11 @@ pub struct AbsoluteConfig {
     /// keyframes observing it that the last node's estimate did not rest
     /// on, over all that this one rests on ([`EdgePolicy::FrameNodes`]
     /// only). Without it, nodes between two keyframes hand the map the
-    /// same estimate again, counted as new each time.
+    /// same estimate again, counted as new each time. The same rule sets
+    /// the published position covariance: the filter's gain takes each
+    /// frame's estimate as new, the covariance it publishes follows how
+    /// much of each landmark's estimate repeats since its last correction
+    /// ([`super::position_filter`]).
     pub count_window_once: bool,
     /// A landmark joined to this many frame nodes counts as mapped, and a
     /// frame whose landmarks are mostly mapped adds no node

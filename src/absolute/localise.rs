@@ -34,10 +34,11 @@ use super::position_filter::{LandmarkFix, PositionFilter};
 use super::recognition::{
     consistent_recognitions, recognise_tracks, FramePlacement, LandmarkIndex, RecognitionConfig,
 };
+use super::window_share::WindowShares;
 use crate::eval::align::umeyama;
 use crate::features::matching::hamming;
 use crate::features::orb::Descriptor;
-use crate::relative::types::{LandmarkId, RelativeOutput, TrackingState};
+use crate::relative::types::{LandmarkId, RelativeOutput, TrackingState, WindowSupport};
 
 /// Settings of [`MapLocaliser`].
 #[derive(Clone, Debug, PartialEq)]
@@ -218,6 +219,10 @@ struct Localised {
     /// Map lengths per relative-world length (see [`Fit::scale`]).
     scale: f64,
     filter: PositionFilter,
+    /// Per map landmark: how much of its window estimate is new since its
+    /// last correction (the published covariance counts repeated
+    /// estimates).
+    shares: WindowShares,
     /// (landmark in the relative world, in the map) of recent corrections.
     pairs: std::collections::VecDeque<(Vector3<f64>, Vector3<f64>)>,
     frames_since_refit: usize,
@@ -312,7 +317,7 @@ impl MapLocaliser {
                 Translation3::from(state.filter.position_world_m() + delta),
                 state.T_map_world.rotation * output.T_world_body.rotation,
             ),
-            position_covariance_m2: state.filter.covariance_m2() + q,
+            position_covariance_m2: state.filter.published_covariance_m2() + q,
             landmarks_used: 0,
             carried: state.held,
         })
@@ -379,7 +384,7 @@ impl MapLocaliser {
                 Translation3::from(state.filter.position_world_m()),
                 rotation,
             ),
-            position_covariance_m2: state.filter.covariance_m2(),
+            position_covariance_m2: state.filter.published_covariance_m2(),
             landmarks_used: used,
             carried: state.held,
         })
@@ -453,6 +458,7 @@ impl MapLocaliser {
             T_map_world: fit.T_map_world,
             scale: fit.scale,
             filter: PositionFilter::new(position, Matrix3::identity() * variance),
+            shares: WindowShares::default(),
             pairs: Default::default(),
             frames_since_refit: 0,
             rejected_frames: 0,
@@ -755,7 +761,7 @@ impl MapLocaliser {
             * state.scale;
         let p = state.filter.covariance_m2();
         let x = state.filter.position_world_m();
-        let mut fixes: Vec<(f64, LandmarkFix, Vector3<f64>)> = Vec::new();
+        let mut fixes: Vec<(f64, LandmarkFix, Vector3<f64>, Option<WindowSupport>)> = Vec::new();
         let mut rejected = Vec::new();
         for l in &output.landmarks {
             let Some(&map) = self.associations.get(&l.id) else {
@@ -777,8 +783,10 @@ impl MapLocaliser {
                         landmark_world_m: landmark,
                         offset_world_m: offset,
                         offset_covariance_m2: offset_covariance,
+                        offset_new_share: state.shares.share(map, l.support),
                     },
                     (output.T_world_body * nalgebra::Point3::from(l.position_body_m)).coords,
+                    l.support,
                 )),
                 _ => rejected.push(l.id),
             }
@@ -800,6 +808,7 @@ impl MapLocaliser {
         for f in &fixes {
             state.pairs.push_back((f.2, f.1.landmark_world_m));
         }
+        let supports: Vec<Option<WindowSupport>> = fixes.iter().map(|f| f.3).collect();
         let fixes: Vec<LandmarkFix> = fixes.into_iter().map(|f| f.1).collect();
         while state.pairs.len() > self.config.refit_pairs {
             state.pairs.pop_front();
@@ -812,6 +821,9 @@ impl MapLocaliser {
         }
         match state.filter.correct(&fixes, &covariance, None) {
             Ok(report) => {
+                for (fix, &support) in fixes.iter().zip(&supports) {
+                    state.shares.note_used(fix.landmark, support);
+                }
                 self.stats.corrections += 1;
                 report.landmarks
             }

@@ -12,6 +12,7 @@ use super::landmark_registry::{LandmarkRegistry, NO_ID_YET};
 use super::map_file::MapLandmark;
 use super::map_worker::SolvedMap;
 use super::node_places::NodePlaces;
+use super::window_share::WindowShares;
 use crate::edge_map::edge::{EdgeMap, LandmarkObservation};
 use crate::edge_map::policy::EdgePolicy;
 use crate::features::orb::Descriptor;
@@ -79,9 +80,9 @@ pub(super) struct MapBuilder {
     frames_place_full: usize,
     /// See [`AbsoluteConfig::count_window_once`].
     count_window_once: bool,
-    /// Per map id: the newest window keyframe its estimate rested on
-    /// when it was last joined to a frame node.
-    joined_up_to_keyframe: Vec<Option<u64>>,
+    /// Per map id: how much of its window estimate is new since it was
+    /// last joined to a frame node.
+    window_shares: WindowShares,
 }
 
 impl MapBuilder {
@@ -111,7 +112,7 @@ impl MapBuilder {
             passes_per_place: config.node_passes_per_place,
             frames_place_full: 0,
             count_window_once: config.count_window_once,
-            joined_up_to_keyframe: Vec::new(),
+            window_shares: WindowShares::default(),
         }
     }
 
@@ -438,7 +439,10 @@ impl MapBuilder {
         }
         if self.count_window_once {
             for (o, support) in observations.iter_mut().zip(supports) {
-                let share = self.new_share(o.id, *support);
+                let share = self
+                    .window_shares
+                    .use_estimate(o.id, *support)
+                    .max(MIN_NEW_SHARE);
                 o.cov_body_m2 /= share;
             }
         }
@@ -458,33 +462,6 @@ impl MapBuilder {
             distance_m: 0.0,
         });
         true
-    }
-
-    /// The share of landmark `id`'s window estimate that is new since its
-    /// last frame node (1 for its first node, or without a window), and
-    /// notes `support` as its last. A landmark is taken to be seen by
-    /// every keyframe between the two nodes' newest (a continuous track);
-    /// where it was not, the share is over-estimated, as without this
-    /// rule.
-    fn new_share(&mut self, id: u32, support: Option<WindowSupport>) -> f64 {
-        let Some(support) = support.filter(|s| s.keyframes > 0) else {
-            return 1.0;
-        };
-        let k = id as usize;
-        if self.joined_up_to_keyframe.len() <= k {
-            self.joined_up_to_keyframe.resize(k + 1, None);
-        }
-        let last = self.joined_up_to_keyframe[k].replace(support.newest_keyframe);
-        match last {
-            None => 1.0,
-            Some(last) => {
-                let new = support
-                    .newest_keyframe
-                    .saturating_sub(last)
-                    .min(u64::from(support.keyframes));
-                (new as f64 / f64::from(support.keyframes)).max(MIN_NEW_SHARE)
-            }
-        }
     }
 }
 

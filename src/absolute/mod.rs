@@ -39,6 +39,7 @@ pub mod settings;
 pub mod simulate_relative;
 pub mod solve_schedule;
 pub mod stage;
+mod window_share;
 
 pub use position_filter::PositionFilter;
 pub use stage::{

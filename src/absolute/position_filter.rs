@@ -20,6 +20,23 @@
 //! cross-covariance `Cov(e_x, ε_V) = Σ_k G_k Σ_L(k, V)` and passes it to
 //! [`PositionFilter::correct`]. With the cross-covariance left out the
 //! update is the paper's.
+//!
+//! The body-frame estimates `y_i` repeat too: they are the relative
+//! stage's sliding-window estimates, the same between two keyframes and
+//! mostly the same from one keyframe to the next. The gain still takes
+//! each frame's offset error `u_i = R ν_i` as new (counting each window
+//! estimate once in the gain made the corrections too timid: less
+//! accurate on the development sequences), but the covariance the filter
+//! publishes counts the repetition: beside the gain's `P` it keeps
+//! `P_pub`, propagated with the same gain in Joseph form, and the
+//! cross-covariance `D_i = Cov(e_x, u_i)` of the position error with each
+//! landmark's last offset error. A window that replaced the share `s` of
+//! the keyframes an estimate rests on ([`LandmarkFix::offset_new_share`])
+//! keeps `1 - s` of its error: `Cov(e_x, u_i') = (1 - s) D_i` (exact for
+//! an estimate that is the mean of its keyframes' independent errors; the
+//! world-frame error is taken to repeat, as it does while the robot's
+//! orientation changes little between keyframes). With every share 1,
+//! `P_pub = P`.
 
 use std::collections::HashMap;
 
@@ -36,6 +53,12 @@ pub struct LandmarkFix {
     pub offset_world_m: Vector3<f64>,
     /// `R Σ_yi R^T`, m^2.
     pub offset_covariance_m2: Matrix3<f64>,
+    /// The share of the window keyframes `y_i` rests on that are new
+    /// since the landmark's last correction: 1 for an estimate
+    /// independent of the last one, 0 for the same estimate again. Only
+    /// the published covariance uses it (module docs); values outside
+    /// [0, 1] count as 1.
+    pub offset_new_share: f64,
 }
 
 /// What one correction did.
@@ -86,6 +109,12 @@ pub struct PositionFilter {
     covariance_m2: Matrix3<f64>,
     /// `G_k`: sensitivity of the position error to landmark k's map error.
     map_sensitivity: HashMap<u32, Matrix3<f64>>,
+    /// `P_pub`: the covariance published, the body-frame estimates'
+    /// repetition counted (module docs), m^2.
+    published_m2: Matrix3<f64>,
+    /// `D_k = Cov(e_x, u_k)`: the position error's cross-covariance with
+    /// landmark k's last offset error, m^2.
+    offset_cross: HashMap<u32, Matrix3<f64>>,
 }
 
 /// Sensitivities below this (Frobenius norm) are dropped: their landmark's
@@ -100,6 +129,8 @@ impl PositionFilter {
             position_world_m,
             covariance_m2,
             map_sensitivity: HashMap::new(),
+            published_m2: covariance_m2,
+            offset_cross: HashMap::new(),
         }
     }
 
@@ -108,9 +139,15 @@ impl PositionFilter {
         self.position_world_m
     }
 
-    /// Covariance of that position, m^2.
+    /// Covariance of that position the gain works with (`P`), m^2.
     pub fn covariance_m2(&self) -> Matrix3<f64> {
         self.covariance_m2
+    }
+
+    /// Covariance of that position to publish (`P_pub`, module docs):
+    /// `P` with the repetition of the body-frame estimates counted, m^2.
+    pub fn published_covariance_m2(&self) -> Matrix3<f64> {
+        self.published_m2
     }
 
     /// `G_k` of every landmark whose map error the position error depends on.
@@ -118,11 +155,13 @@ impl PositionFilter {
         &self.map_sensitivity
     }
 
-    /// Prediction (eq. 60-62): `x <- x + Δ`, `P <- P + Q`. The map
-    /// sensitivities do not change (the increment's error is new).
+    /// Prediction (eq. 60-62): `x <- x + Δ`, `P <- P + Q` (and
+    /// `P_pub <- P_pub + Q`). The map sensitivities do not change (the
+    /// increment's error is new).
     pub fn predict(&mut self, delta_world_m: &Vector3<f64>, q_m2: &Matrix3<f64>) {
         self.position_world_m += delta_world_m;
         self.covariance_m2 += q_m2;
+        self.published_m2 += q_m2;
     }
 
     /// Each fix's own normalised innovation squared, `r_k^T S_kk^-1 r_k`
@@ -169,7 +208,10 @@ impl PositionFilter {
     /// `Cov(e_x, ε_V)` (3 x 3m) of the position error with their map
     /// errors. Correlated measurement noise is handled by the textbook
     /// gain `K = (P H^T - C_xw) S^-1`, `S = H P H^T + Cov(w) - H C_xw -
-    /// C_xw^T H^T`, `P <- P - K S K^T`.
+    /// C_xw^T H^T`, `P <- P - K S K^T`. The published covariance follows
+    /// with the same gain: `P_pub <- A P_pub A^T + K W K^T + A C K^T +
+    /// K C^T A^T`, `A = I - K H`, `W = Cov(w)`, `C = Cov(e_x, w)`: the
+    /// given `C_xw` less each repeated offset error's `(1 - s_i) D_i`.
     pub fn correct(
         &mut self,
         fixes: &[LandmarkFix],
@@ -235,6 +277,12 @@ impl PositionFilter {
         // K = (P H^T - C_xw) S^-1  <=>  S K^T = (P H^T - C_xw)^T.
         let gain = cholesky.solve(&gain_numerator.transpose()).transpose();
         let nis = residual.dot(&cholesky.solve(&residual));
+        let mut k_sum = Matrix3::zeros();
+        for k in 0..m {
+            k_sum += gain.fixed_view::<3, 3>(0, 3 * k);
+        }
+        let keep = Matrix3::identity() - k_sum;
+        self.follow_published(&keep, &gain, fixes, map_covariance_m2, cross_covariance_m2);
         let update = &gain * &residual;
         self.position_world_m += Vector3::new(update[0], update[1], update[2]);
         // P <- P - K S K^T = P - K (P H^T - C_xw)^T.
@@ -243,11 +291,6 @@ impl PositionFilter {
         self.covariance_m2 -= reduction;
         self.covariance_m2 = 0.5 * (self.covariance_m2 + self.covariance_m2.transpose());
         // e_x <- (I - K H) e_x + K ε_V - K R ν: the sensitivities.
-        let mut k_sum = Matrix3::zeros();
-        for k in 0..m {
-            k_sum += gain.fixed_view::<3, 3>(0, 3 * k);
-        }
-        let keep = Matrix3::identity() - k_sum;
         for g in self.map_sensitivity.values_mut() {
             *g = keep * *g;
         }
@@ -268,6 +311,69 @@ impl PositionFilter {
     }
 }
 
+impl PositionFilter {
+    /// `P_pub` and the offset cross-covariances `D` after a correction
+    /// with gain `gain` (`keep = A = I - K H`; arguments as for
+    /// [`Self::correct`]).
+    fn follow_published(
+        &mut self,
+        keep: &Matrix3<f64>,
+        gain: &DMatrix<f64>,
+        fixes: &[LandmarkFix],
+        map_covariance_m2: &DMatrix<f64>,
+        cross_covariance_m2: Option<&DMatrix<f64>>,
+    ) {
+        let dim = 3 * fixes.len();
+        let kept_share = |fix: &LandmarkFix| {
+            if (0.0..=1.0).contains(&fix.offset_new_share) {
+                1.0 - fix.offset_new_share
+            } else {
+                0.0
+            }
+        };
+        // W = Σ_L + blockdiag(R Σ_y R^T); C = C_xε - (1 - s) D.
+        let mut noise = map_covariance_m2.clone();
+        let mut cross = cross_covariance_m2
+            .cloned()
+            .unwrap_or_else(|| DMatrix::zeros(3, dim));
+        for (k, fix) in fixes.iter().enumerate() {
+            let mut block = noise.fixed_view_mut::<3, 3>(3 * k, 3 * k);
+            block += fix.offset_covariance_m2;
+            if let Some(d) = self.offset_cross.get(&fix.landmark) {
+                let mut block = cross.fixed_view_mut::<3, 3>(0, 3 * k);
+                block -= d * kept_share(fix);
+            }
+        }
+        let knk = gain * noise * gain.transpose();
+        let ck = &cross * gain.transpose();
+        let ack = keep * Matrix3::from_fn(|r, c| ck[(r, c)]);
+        let p = keep * self.published_m2 * keep.transpose()
+            + Matrix3::from_fn(|r, c| knk[(r, c)])
+            + ack
+            + ack.transpose();
+        self.published_m2 = 0.5 * (p + p.transpose());
+        // Cov(e_x', u_m) = A D_m for the landmarks not in this correction;
+        // A (1 - s_k) D_k - K_k Σ_uk for those in it.
+        for fix in fixes {
+            if let Some(d) = self.offset_cross.get_mut(&fix.landmark) {
+                *d *= kept_share(fix);
+            }
+        }
+        for d in self.offset_cross.values_mut() {
+            *d = keep * *d;
+        }
+        for (k, fix) in fixes.iter().enumerate() {
+            let k_block: Matrix3<f64> = gain.fixed_view::<3, 3>(0, 3 * k).into_owned();
+            *self
+                .offset_cross
+                .entry(fix.landmark)
+                .or_insert_with(Matrix3::zeros) -= k_block * fix.offset_covariance_m2;
+        }
+        self.offset_cross
+            .retain(|_, d| d.norm() > SENSITIVITY_FLOOR);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -285,6 +391,7 @@ mod tests {
             landmark_world_m: Vector3::new(l, 0.0, 0.0),
             offset_world_m: Vector3::new(y, 0.0, 0.0),
             offset_covariance_m2: iso(r),
+            offset_new_share: 1.0,
         }
     }
 
@@ -310,6 +417,87 @@ mod tests {
             .unwrap();
         assert!((g.position_world_m().x - 1.5).abs() < 1e-14);
         assert!((g.covariance_m2()[(0, 0)] - 1.0).abs() < 1e-14);
+    }
+
+    #[test]
+    fn published_covariance_counts_a_repeated_estimate_once() {
+        // As in the hand case above: P- = 2, r = 1, K1 = 2/3, P1 = 2/3;
+        // the first use of an estimate is new whatever its share:
+        // P_pub = P. e1 = e0/3 - 2u/3, so D = Cov(e1, u) = -2/3.
+        let first = |share: f64| {
+            let mut f = PositionFilter::new(Vector3::zeros(), iso(1.0));
+            f.predict(&Vector3::new(1.0, 0.0, 0.0), &iso(1.0));
+            let fix = LandmarkFix {
+                offset_new_share: share,
+                ..fix(0, 5.0, 3.0, 1.0)
+            };
+            f.correct(&[fix], &DMatrix::zeros(3, 3), None).unwrap();
+            assert!((f.covariance_m2()[(0, 0)] - 2.0 / 3.0).abs() < 1e-14);
+            assert!((f.published_covariance_m2()[(0, 0)] - 2.0 / 3.0).abs() < 1e-14);
+            (f, fix)
+        };
+        // The same estimate again (share 0): K2 = (2/3) / (2/3 + 1) = 2/5,
+        // P2 = 2/5, but e2 = 3/5 e1 - 2/5 u = e0/5 - 4/5 u: P_pub = 2/25 +
+        // 16/25 = 18/25.
+        let (mut f, fix) = first(0.0);
+        f.correct(&[fix], &DMatrix::zeros(3, 3), None).unwrap();
+        // x2 = 5/3 + 2/5 (2 - 5/3) = 9/5: the gain takes it as new.
+        assert!((f.position_world_m().x - 1.8).abs() < 1e-14);
+        assert!((f.covariance_m2()[(0, 0)] - 0.4).abs() < 1e-14);
+        assert!((f.published_covariance_m2()[(0, 0)] - 18.0 / 25.0).abs() < 1e-14);
+        // Half of its keyframes new: Cov(u', u) = 1/2, Cov(e1, u') = -1/3,
+        // P_pub = 9/25 * 2/3 + 4/25 + 2 * 3/5 * 2/5 * 1/3 = 14/25.
+        let (mut f, fix) = first(1.0);
+        let half = LandmarkFix {
+            offset_new_share: 0.5,
+            ..fix
+        };
+        f.correct(&[half], &DMatrix::zeros(3, 3), None).unwrap();
+        assert!((f.covariance_m2()[(0, 0)] - 0.4).abs() < 1e-14);
+        assert!((f.published_covariance_m2()[(0, 0)] - 14.0 / 25.0).abs() < 1e-14);
+        // A new estimate (share 1) is independent: P_pub = P.
+        let (mut f, fix) = first(1.0);
+        f.correct(&[fix], &DMatrix::zeros(3, 3), None).unwrap();
+        assert!((f.published_covariance_m2()[(0, 0)] - 0.4).abs() < 1e-14);
+        // The prediction adds Q to both.
+        f.predict(&Vector3::zeros(), &iso(0.25));
+        assert!((f.covariance_m2()[(1, 1)] - f.published_covariance_m2()[(1, 1)]).abs() < 1e-14);
+    }
+
+    #[test]
+    fn published_covariance_is_the_gains_when_every_estimate_is_new() {
+        // Random fixes with correlated map errors and a cross-covariance
+        // with the position: with every share 1 the Joseph form equals
+        // P - K S K^T.
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let mut f = PositionFilter::new(Vector3::zeros(), random_spd(&mut rng, 1.0));
+        for _ in 0..20 {
+            f.predict(
+                &Vector3::from_fn(|_, _| rng.gen_range(-1.0..1.0)),
+                &random_spd(&mut rng, 0.1),
+            );
+            let m = rng.gen_range(1..5usize);
+            let fixes: Vec<LandmarkFix> = (0..m)
+                .map(|k| LandmarkFix {
+                    landmark: k as u32,
+                    landmark_world_m: Vector3::from_fn(|_, _| rng.gen_range(-5.0..5.0)),
+                    offset_world_m: Vector3::from_fn(|_, _| rng.gen_range(-5.0..5.0)),
+                    offset_covariance_m2: random_spd(&mut rng, 0.1),
+                    offset_new_share: 1.0,
+                })
+                .collect();
+            let root = DMatrix::from_fn(3 * m, 3 * m, |_, _| rng.gen_range(-0.3..0.3));
+            let map_cov = &root * root.transpose();
+            let cross = DMatrix::from_fn(3, 3 * m, |_, _| rng.gen_range(-0.02..0.02));
+            f.correct(&fixes, &map_cov, Some(&cross)).unwrap();
+            let p = f.covariance_m2();
+            assert!(
+                (f.published_covariance_m2() - p).norm() < 1e-12 * p.norm(),
+                "{} vs {}",
+                f.published_covariance_m2(),
+                p
+            );
+        }
     }
 
     #[test]
@@ -421,6 +609,7 @@ mod tests {
                     landmark_world_m: Vector3::from_fn(|_, _| rng.gen_range(-5.0..5.0)),
                     offset_world_m: Vector3::from_fn(|_, _| rng.gen_range(-5.0..5.0)),
                     offset_covariance_m2: random_spd(&mut rng, 0.1),
+                    offset_new_share: 1.0,
                 })
                 .collect();
             let root = DMatrix::from_fn(3 * m as usize, 3 * m as usize, |_, _| {
@@ -525,6 +714,7 @@ mod tests {
                             ),
                             offset_world_m: (l - truth) + nu,
                             offset_covariance_m2: offset_cov,
+                            offset_new_share: 1.0,
                         }
                     })
                     .collect();
@@ -547,6 +737,101 @@ mod tests {
             total += e.dot(&(f.covariance_m2().try_inverse().unwrap() * e));
         }
         total / runs as f64
+    }
+
+    /// A robot standing still among three exactly mapped landmarks; the
+    /// relative stage's body-frame estimates are a sliding window's: a
+    /// keyframe every `frames_per_keyframe` frames brings new independent
+    /// errors, the window's estimate is the mean of its last `window`
+    /// keyframes' (variance `sigma^2` per axis), and every frame between
+    /// two keyframes hands on the same estimate. Returns the ANEES of the
+    /// final position with the published covariance and with the gain's.
+    fn window_repetition_anees(frames_per_keyframe: usize, window: usize) -> (f64, f64) {
+        use crate::absolute::window_share::WindowShares;
+        use crate::relative::types::WindowSupport;
+        let (runs, keyframes, sigma) = (400, 12, 0.1);
+        let mut rng = ChaCha8Rng::seed_from_u64(8);
+        let landmarks = [
+            Vector3::new(3.0, 0.0, 0.0),
+            Vector3::new(0.0, 4.0, 1.0),
+            Vector3::new(-2.0, 1.0, 2.0),
+        ];
+        let (mut published, mut gain) = (0.0, 0.0);
+        for _ in 0..runs {
+            let mut normal = |scale: f64| {
+                Vector3::from_fn(|_, _| {
+                    let z: f64 = StandardNormal.sample(&mut rng);
+                    scale * z
+                })
+            };
+            // Each keyframe's own error per landmark: variance
+            // window * sigma^2, so that the mean of `window` has sigma^2.
+            let own = sigma * (window as f64).sqrt();
+            let mut errors: Vec<[Vector3<f64>; 3]> = (0..window)
+                .map(|_| [normal(own), normal(own), normal(own)])
+                .collect();
+            let mut f = PositionFilter::new(normal(1.0), Matrix3::identity());
+            let mut shares = WindowShares::default();
+            for keyframe in 0..keyframes {
+                if keyframe > 0 {
+                    errors.remove(0);
+                    errors.push([normal(own), normal(own), normal(own)]);
+                }
+                let support = Some(WindowSupport {
+                    keyframes: window as u16,
+                    newest_keyframe: keyframe as u64,
+                });
+                for _ in 0..frames_per_keyframe {
+                    f.predict(&Vector3::zeros(), &iso(1e-8));
+                    let fixes: Vec<LandmarkFix> = landmarks
+                        .iter()
+                        .enumerate()
+                        .map(|(k, l)| {
+                            let nu =
+                                errors.iter().map(|e| e[k]).sum::<Vector3<f64>>() / window as f64;
+                            LandmarkFix {
+                                landmark: k as u32,
+                                landmark_world_m: *l,
+                                offset_world_m: l + nu,
+                                offset_covariance_m2: iso(sigma * sigma),
+                                offset_new_share: shares.use_estimate(k as u32, support),
+                            }
+                        })
+                        .collect();
+                    f.correct(&fixes, &DMatrix::zeros(9, 9), None).unwrap();
+                }
+            }
+            let e = f.position_world_m();
+            published += e.dot(&(f.published_covariance_m2().try_inverse().unwrap() * e));
+            gain += e.dot(&(f.covariance_m2().try_inverse().unwrap() * e));
+        }
+        (published / runs as f64, gain / runs as f64)
+    }
+
+    #[test]
+    fn published_covariance_stays_consistent_with_repeated_window_estimates() {
+        let (low, high) = crate::absolute::nees::anees_bounds_95(3, 400);
+        // Every frame a new, independent estimate: both are the same
+        // and consistent.
+        let (published, gain) = window_repetition_anees(1, 1);
+        assert!((published - gain).abs() < 1e-9, "{published} {gain}");
+        assert!(published > low && published < high, "{published}");
+        // Four frames hand on each estimate: the gain's covariance is
+        // four times too small, the published one is consistent (the
+        // bookkeeping is exact for an estimate repeated whole).
+        let (published, gain) = window_repetition_anees(4, 1);
+        assert!(published > low && published < high, "{published}");
+        assert!(gain > 3.0 * high, "{gain}");
+        // A window of eight keyframes: consecutive estimates share 7/8 of
+        // their errors. The bookkeeping (Cov(e, u') = (1 - s) D) takes the
+        // correlation with older estimates to decay faster than the
+        // window's mean does, so the published covariance is a little
+        // large; NEES per dof within [0.5, 2], the gain's far above.
+        for frames_per_keyframe in [1, 4] {
+            let (published, gain) = window_repetition_anees(frames_per_keyframe, 8);
+            assert!(published > 1.5 && published < 6.0, "{published}");
+            assert!(gain > 5.0 * high, "{gain}");
+        }
     }
 
     #[test]

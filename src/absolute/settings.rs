@@ -83,7 +83,9 @@ pub struct AbsoluteSettings {
     /// A frame node gives the map only what a landmark's window estimate
     /// gained since the landmark's last node (the share of its window
     /// keyframes that are new), not the whole estimate again: frames
-    /// between two keyframes hand on the same estimate.
+    /// between two keyframes hand on the same estimate. The published
+    /// position covariance counts the same repetition (the gain does
+    /// not).
     pub count_window_once: bool,
     /// A landmark joined to this many frame nodes counts as mapped; a
     /// frame whose landmarks are mostly mapped adds no node, so a robot

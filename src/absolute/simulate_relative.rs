@@ -16,7 +16,9 @@ use rand_distr::{Distribution, StandardNormal};
 
 use crate::features::orb::Descriptor;
 use crate::imu::ImuBiases;
-use crate::relative::types::{BodyLandmark, LandmarkId, RelativeOutput, TrackingState};
+use crate::relative::types::{
+    BodyLandmark, LandmarkId, RelativeOutput, TrackingState, WindowSupport,
+};
 
 /// Parameters of a simulated run.
 #[derive(Clone, Debug)]
@@ -72,6 +74,23 @@ pub struct RoomRunOptions {
     /// Seed of the room (landmark positions and descriptors), and of the drive unless `noise_seed`
     /// is given.
     pub seed: u64,
+    /// Body-frame landmark estimates as a sliding window hands them on
+    /// (None: each frame's error drawn anew).
+    pub window: Option<SimulatedWindow>,
+}
+
+/// A sliding window's landmark estimates: a keyframe every
+/// `frames_per_keyframe` frames draws a new error for each landmark in
+/// view, and a landmark's estimate carries the mean of its last
+/// `keyframes` draws (scaled to the covariance it is given), with its
+/// [`crate::relative::types::WindowSupport`]. Frames between two
+/// keyframes hand on the same estimate.
+#[derive(Clone, Copy, Debug)]
+pub struct SimulatedWindow {
+    /// Frames per keyframe.
+    pub frames_per_keyframe: usize,
+    /// Keyframes a window keeps.
+    pub keyframes: usize,
 }
 
 impl Default for RoomRunOptions {
@@ -95,6 +114,7 @@ impl Default for RoomRunOptions {
             rotation_drift_rad_per_m: Vector3::zeros(),
             noise_seed: None,
             seed: 0,
+            window: None,
         }
     }
 }
@@ -190,7 +210,12 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
     let mut previous_truth: Option<Vector3<f64>> = None;
     let mut relative_position = position_at(0.0);
     let mut t_ns = 0i64;
+    // Per landmark in view: its keyframes' standard-normal draws, oldest
+    // first (window runs only).
+    let mut window_draws: HashMap<usize, std::collections::VecDeque<Vector3<f64>>> = HashMap::new();
+    let mut keyframe: u64 = 0;
     while angle <= end_angle {
+        let frame_index = outputs.len();
         let p = position_at(angle);
         let tangent = Vector3::new(-a * angle.sin(), b * angle.cos(), 0.0);
         let yaw = tangent.y.atan2(tangent.x);
@@ -253,6 +278,22 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
             tracks.insert(index, track);
         }
         live_tracks = tracks;
+        if let Some(window) = options.window {
+            let new_keyframe = frame_index % window.frames_per_keyframe.max(1) == 0;
+            if new_keyframe && frame_index > 0 {
+                keyframe += 1;
+            }
+            window_draws.retain(|index, _| live_tracks.contains_key(index));
+            for &(_, index) in &candidates {
+                let draws = window_draws.entry(index).or_default();
+                if new_keyframe || draws.is_empty() {
+                    draws.push_back(normal3(&mut rng));
+                    if draws.len() > window.keyframes.max(1) {
+                        draws.pop_front();
+                    }
+                }
+            }
+        }
         let landmarks = candidates
             .iter()
             .map(|&(depth, id)| {
@@ -268,14 +309,25 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
                 let covariance = frame
                     * Matrix3::from_diagonal(&sigmas.component_mul(&sigmas))
                     * frame.transpose();
-                let noise = frame * normal3(&mut rng).component_mul(&sigmas);
+                let (draw, support) = match window_draws.get(&id) {
+                    Some(draws) => {
+                        let n = draws.len() as f64;
+                        let support = WindowSupport {
+                            keyframes: draws.len() as u16,
+                            newest_keyframe: keyframe,
+                        };
+                        (draws.iter().sum::<Vector3<f64>>() / n.sqrt(), Some(support))
+                    }
+                    None => (normal3(&mut rng), None),
+                };
+                let noise = frame * draw.component_mul(&sigmas);
                 let (track, descriptor) = live_tracks[&id];
                 BodyLandmark {
                     id: track,
                     position_body_m: body + noise,
                     covariance_body_m2: covariance,
                     descriptor,
-                    support: None,
+                    support,
                 }
             })
             .collect();

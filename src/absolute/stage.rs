@@ -76,6 +76,7 @@ use super::position_filter::{LandmarkFix, PositionFilter};
 use super::recogniser::Recogniser;
 use super::recognition::FramePlacement;
 use super::solve_schedule::MapSolver;
+use super::window_share::WindowShares;
 use crate::edge_map::covariance::submatrix_covariance;
 use crate::edge_map::ordering_reuse::SymbolicPath;
 use crate::edge_map::EdgeMapError;
@@ -269,6 +270,9 @@ pub struct AbsoluteStage {
     /// The filter's cross-covariance with the errors of `map`'s
     /// covariance-block landmarks, followed from correction to correction.
     map_cross: Option<MapCrossCovariance>,
+    /// Per map id: how much of its window estimate is new since its last
+    /// correction (the published covariance counts repeated estimates).
+    correction_shares: WindowShares,
     /// Where the map is solved, with what is in flight.
     solver: MapSolver,
     frames_since_solve: usize,
@@ -303,6 +307,7 @@ impl AbsoluteStage {
             filter: None,
             map: None,
             map_cross: None,
+            correction_shares: WindowShares::default(),
             solver,
             frames_since_solve: 0,
             wait_for_due_solves: true,
@@ -363,7 +368,10 @@ impl AbsoluteStage {
                 let q = Matrix3::identity()
                     * self.config.translation_sigma_per_sqrt_m.powi(2)
                     * delta.norm();
-                (f.position_world_m() + delta, Some(f.covariance_m2() + q))
+                (
+                    f.position_world_m() + delta,
+                    Some(f.published_covariance_m2() + q),
+                )
             }
             None => (output.T_world_body.translation.vector, None),
         };
@@ -521,7 +529,7 @@ impl AbsoluteStage {
             self.request_solve();
         }
         let (translation, covariance) = match &self.filter {
-            Some(f) => (f.position_world_m(), Some(f.covariance_m2())),
+            Some(f) => (f.position_world_m(), Some(f.published_covariance_m2())),
             None => (output.T_world_body.translation.vector, None),
         };
         let offset = self.orientation_offset();
@@ -814,16 +822,26 @@ impl AbsoluteStage {
         if visible.is_empty() {
             return None;
         }
+        let mut supports: Vec<_> = visible
+            .iter()
+            .map(|&(_, _, k)| output.landmarks[k].support)
+            .collect();
         let mut fixes: Vec<LandmarkFix> = visible
             .iter()
             .map(|&(_, id, k)| {
                 let l = &output.landmarks[k];
+                let offset_new_share = if self.config.count_window_once {
+                    self.correction_shares.share(id, l.support)
+                } else {
+                    1.0
+                };
                 LandmarkFix {
                     landmark: id,
                     landmark_world_m: anchor
                         + map.positions_m[id as usize].expect("filtered to solved landmarks"),
                     offset_world_m: *rotation * l.position_body_m,
                     offset_covariance_m2: *rotation * l.covariance_body_m2 * rotation.transpose(),
+                    offset_new_share,
                 }
             })
             .collect();
@@ -863,6 +881,7 @@ impl AbsoluteStage {
             }
             fixes = kept.iter().map(|&k| fixes[k]).collect();
             ids = kept.iter().map(|&k| ids[k]).collect();
+            supports = kept.iter().map(|&k| supports[k]).collect();
             covariance = DMatrix::from_fn(3 * kept.len(), 3 * kept.len(), |r, c| {
                 covariance[(3 * kept[r / 3] + r % 3, 3 * kept[c / 3] + c % 3)]
             });
@@ -894,6 +913,9 @@ impl AbsoluteStage {
                     if kept.follow(blocks, &ids, &report.gain).is_none() {
                         self.map_cross = None;
                     }
+                }
+                for (&id, &support) in ids.iter().zip(&supports) {
+                    self.correction_shares.note_used(id, support);
                 }
                 self.stats.corrections += 1;
                 self.stats.nis_sum += report.nis;
