@@ -309,9 +309,7 @@ impl PositionFilter {
             gain,
         })
     }
-}
 
-impl PositionFilter {
     /// `P_pub` and the offset cross-covariances `D` after a correction
     /// with gain `gain` (`keep = A = I - K H`; arguments as for
     /// [`Self::correct`]).
