@@ -68,6 +68,13 @@ pub const DEFAULT_NODE_PASSES_PER_PLACE: usize = 3;
 /// the relative stage; docs/results/), confirmed on the held-apart ones.
 pub const DEFAULT_ORIENTATION_SIGMA_RAD_PER_SQRT_S: f64 = 5e-5;
 
+/// How fast the scale of the map over the relative stage's window may
+/// wander, per sqrt(s): off. On the monocular accuracy sets 3e-3 found a
+/// wander of about 1 % RMS and changed the ATE by about 1 % either way
+/// (worse on the held-apart starts in flight), the map-frame NEES by
+/// 5-20 % (docs/results/map-scale-2026-12-03.md).
+pub const DEFAULT_SCALE_SIGMA_PER_SQRT_S: f64 = 0.0;
+
 /// Configuration of the absolute stage.
 #[derive(Clone, Debug)]
 pub struct AbsoluteConfig {
@@ -137,6 +144,11 @@ pub struct AbsoluteConfig {
     /// this much, rad per sqrt(s) (0: the paper's filter, the orientation
     /// as the relative stage gives it).
     pub orientation_sigma_rad_per_sqrt_s: f64,
+    /// Estimate the scale of the map over the relative stage's window
+    /// with the position ([`super::position_filter`]), a random walk of
+    /// this much per sqrt(s) (0: the window's lengths taken as the
+    /// map's, the paper's filter).
+    pub scale_sigma_per_sqrt_s: f64,
     /// Leave a landmark out of a position correction when its own
     /// innovation exceeds this chi-square (3 dof), as the localiser does;
     /// None: every landmark in view corrects.
@@ -165,6 +177,7 @@ impl Default for AbsoluteConfig {
             frame_node_saturation: DEFAULT_FRAME_NODE_SATURATION,
             node_passes_per_place: DEFAULT_NODE_PASSES_PER_PLACE,
             orientation_sigma_rad_per_sqrt_s: DEFAULT_ORIENTATION_SIGMA_RAD_PER_SQRT_S,
+            scale_sigma_per_sqrt_s: DEFAULT_SCALE_SIGMA_PER_SQRT_S,
             correction_gate_chi2: None,
         }
     }

@@ -1,31 +1,32 @@
 //! The position filter's cross-covariance with the map's errors, kept
 //! from one correction to the next while the map stays the same.
 //!
-//! The filter's position error depends on the map errors of the
-//! landmarks it was corrected with, `e_x = a + Σ_k G_k ε_k`
+//! The filter's state error (position and scale) depends on the map
+//! errors of the landmarks it was corrected with, `e = a + Σ_k G_k ε_k`
 //! ([`PositionFilter::map_sensitivity`]), so a correction with the
-//! landmarks `V` needs `Cov(e_x, ε_V) = Σ_k G_k Σ_L(k, V)`. `Σ_L(k, V)`
-//! for every `k` ever used is a three-column solve with the map's factor.
+//! landmarks `V` needs `Cov(e, ε_V) = Σ_k G_k Σ_L(k, V)`. `Σ_L(k, V)`
+//! for every `k` ever used is a four-column solve with the map's factor.
 //! Between two solves, though, every correction uses landmarks of the
 //! solve's covariance blocks `S` only (the others are skipped), so the
 //! rows of `S` are all that is ever read: `W = Σ_k G_k Σ_L(k, S)` is
 //! solved once per map, and each correction then moves it the way it
 //! moves the sensitivities. A correction with gains `K_v` sets
-//! `G_k <- (I - Σ_v K_v) G_k` for every `k` and adds `K_v` to `G_v`, so
-//! `W <- (I - Σ_v K_v) W + Σ_v K_v Σ_L(v, S)`, where `Σ_L(v, S)` are rows
+//! `G_k <- A G_k` for every `k` (`A = I - Σ_v K_v H_v`) and adds `K_v` to
+//! `G_v`, so `W <- A W + Σ_v K_v Σ_L(v, S)`, where `Σ_L(v, S)` are rows
 //! of the blocks themselves: no solve.
 //!
 //! The filter drops sensitivities that have decayed below its floor
 //! ([`PositionFilter::correct`]); `W` keeps their share, which is below
 //! that floor times the map's variances, until the next map recomputes it.
 
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, Matrix4};
 
 use super::map_worker::{CovarianceBlocks, SolvedMap};
-use super::position_filter::PositionFilter;
+use super::position_filter::{PositionFilter, STATE};
 
-/// `Cov(e_x, ε_S)` for the landmarks `S` of one solved map's covariance
-/// blocks, 3 x 3|S|, columns in the blocks' slot order.
+/// `Cov(e, ε_S)` for the landmarks `S` of one solved map's covariance
+/// blocks, 4 x 3|S| (rows: the filter's state), columns in the blocks'
+/// slot order.
 #[derive(Clone, Debug)]
 pub struct MapCrossCovariance {
     /// The [`SolvedMap::version`] it belongs to.
@@ -53,44 +54,43 @@ impl MapCrossCovariance {
         self.version == map.version
     }
 
-    /// `Cov(e_x, ε_ids)`, 3 x 3|ids|, m^2; None if one of `ids` has no slot.
+    /// `Cov(e, ε_ids)`, 4 x 3|ids|; None if one of `ids` has no slot.
     pub fn select(&self, blocks: &CovarianceBlocks, ids: &[u32]) -> Option<DMatrix<f64>> {
-        let mut out = DMatrix::zeros(3, 3 * ids.len());
+        let mut out = DMatrix::zeros(STATE, 3 * ids.len());
         for (k, id) in ids.iter().enumerate() {
             let slot = *blocks.slot.get(id)?;
-            out.fixed_view_mut::<3, 3>(0, 3 * k)
-                .copy_from(&self.matrix.fixed_view::<3, 3>(0, 3 * slot));
+            out.fixed_view_mut::<STATE, 3>(0, 3 * k)
+                .copy_from(&self.matrix.fixed_view::<STATE, 3>(0, 3 * slot));
         }
         Some(out)
     }
 
     /// Follows a correction that used `ids` with the gain `gain`
-    /// (3 x 3|ids|, [`super::position_filter::CorrectionReport::gain`]):
-    /// `W <- (I - Σ_v K_v) W + Σ_v K_v Σ_L(v, S)`. Ids without a slot
-    /// leave it unchanged (None): the caller solves it again.
+    /// (4 x 3|ids|, [`super::position_filter::CorrectionReport::gain`])
+    /// and `keep` (`A = I - K H`, [`super::position_filter::CorrectionReport::keep`]):
+    /// `W <- A W + Σ_v K_v Σ_L(v, S)`. Ids without a slot leave it
+    /// unchanged (None): the caller solves it again.
     pub fn follow(
         &mut self,
         blocks: &CovarianceBlocks,
         ids: &[u32],
+        keep: &Matrix4<f64>,
         gain: &DMatrix<f64>,
     ) -> Option<()> {
-        if gain.nrows() != 3 || gain.ncols() != 3 * ids.len() {
+        if gain.nrows() != STATE || gain.ncols() != 3 * ids.len() {
             return None;
         }
         let slots: Vec<usize> = ids
             .iter()
             .map(|id| blocks.slot.get(id).copied())
             .collect::<Option<_>>()?;
-        let mut keep = DMatrix::identity(3, 3);
-        for k in 0..ids.len() {
-            keep -= gain.fixed_view::<3, 3>(0, 3 * k);
-        }
+        let keep = DMatrix::from_fn(STATE, STATE, |r, c| keep[(r, c)]);
         let mut next = keep * &self.matrix;
         // K_v Σ_L(v, S), straight from the blocks' rows.
         for (k, &slot) in slots.iter().enumerate() {
             next.gemm(
                 1.0,
-                &gain.fixed_view::<3, 3>(0, 3 * k),
+                &gain.fixed_view::<STATE, 3>(0, 3 * k),
                 &blocks.matrix.rows(3 * slot, 3),
                 1.0,
             );
@@ -105,8 +105,8 @@ impl MapCrossCovariance {
     }
 }
 
-/// `Σ_k G_k Σ_L(k, V)` (3 x 3m) for the map ids `ids`: the rows of `ids`
-/// in a three-column solve with the factor (`A^-1 G^T`). The solve runs
+/// `Σ_k G_k Σ_L(k, V)` (4 x 3m) for the map ids `ids`: the rows of `ids`
+/// in a four-column solve with the factor (`A^-1 G^T`). The solve runs
 /// over the factor's tail only
 /// ([`crate::edge_map::solve::CholeskyFactor::solve_rows`]): the landmarks
 /// recently used and those in view sit late in the ordering. The
@@ -115,10 +115,10 @@ impl MapCrossCovariance {
 fn cross_covariance(map: &SolvedMap, ids: &[u32], filter: &PositionFilter) -> DMatrix<f64> {
     let factor = map.factor.as_ref().expect("called with a factor");
     let dim = map.laplacian.dim();
-    let mut rhs = vec![0.0; dim * 3];
+    let mut rhs = vec![0.0; dim * STATE];
     for (&id, g) in filter.map_sensitivity() {
         if let Some(u) = map.unknown_of(id) {
-            for c in 0..3 {
+            for c in 0..STATE {
                 for r in 0..3 {
                     rhs[c * dim + 3 * u + r] = g[(c, r)];
                 }
@@ -132,15 +132,15 @@ fn cross_covariance(map: &SolvedMap, ids: &[u32], filter: &PositionFilter) -> DM
         .flat_map(|&u| (0..3).map(move |r| 3 * u + r))
         .collect();
     let solved = if dim > 0 {
-        factor.solve_rows(&rhs, 3, &rows)
+        factor.solve_rows(&rhs, STATE, &rows)
     } else {
-        DMatrix::zeros(rows.len(), 3)
+        DMatrix::zeros(rows.len(), STATE)
     };
-    let mut cross = DMatrix::zeros(3, 3 * ids.len());
+    let mut cross = DMatrix::zeros(STATE, 3 * ids.len());
     let mut next = 0;
     for (k, u) in unknowns.iter().enumerate() {
         if u.is_some() {
-            for r in 0..3 {
+            for r in 0..STATE {
                 for c in 0..3 {
                     cross[(r, 3 * k + c)] = solved[(next + c, r)];
                 }

@@ -1,6 +1,7 @@
 //! The robot position Kalman filter of the absolute stage (paper eq. 60-71).
 //!
-//! State: the robot position `x` in the world frame, covariance `P`.
+//! State: the robot position `x` in the world frame and the map's scale
+//! over the relative stage's (below), covariance `P`.
 //! Prediction (eq. 60-62): `x <- x + Δ`, `P <- P + Q` with the relative
 //! stage's incremental translation `Δ` and its covariance `Q`.
 //! Correction (eq. 63-71): each visible landmark `i` with map position
@@ -37,10 +38,22 @@
 //! world-frame error is taken to repeat, as it does while the robot's
 //! orientation changes little between keyframes). With every share 1,
 //! `P_pub = P`.
+//!
+//! The relative stage's lengths need not be the map's. A monocular window
+//! fixes its scale from the IMU, and it wanders by a percent or so from
+//! one stretch to the next while the map holds the average of all the
+//! windows that built it; the offsets of one frame then differ from the
+//! map by a common factor that no amount of landmarks averages out. The
+//! state therefore carries, beside the position, `σ`: the map's lengths
+//! over the window's, less one, `L_i = x + (1 + σ) R y_i`, and the
+//! increment predicts `x <- x + (1 + σ) Δ`. `σ` starts at 0 with no
+//! variance (the map is made of the windows' lengths) and wanders by the
+//! variance [`PositionFilter::predict_scale`] lets in; with none it stays
+//! at 0 and the filter is the position-only one above.
 
 use std::collections::HashMap;
 
-use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix3, Matrix3x4, Matrix4, Matrix4x3, Vector3, Vector4};
 
 /// One visible landmark as a position measurement of the robot.
 #[derive(Clone, Copy, Debug)]
@@ -69,9 +82,12 @@ pub struct CorrectionReport {
     /// Normalised innovation squared `r^T S^-1 r` (chi-square with
     /// `3 * landmarks` degrees of freedom when the filter is consistent).
     pub nis: f64,
-    /// The gain `K` (3 x 3 landmarks, in the order of the fixes): how the
-    /// map sensitivities moved (`G_k <- (I - Σ K_v) G_k`, `G_v += K_v`).
+    /// The gain `K` (4 x 3 landmarks, in the order of the fixes; rows:
+    /// position, then scale).
     pub gain: DMatrix<f64>,
+    /// `A = I - K H` (4 x 4): how the map sensitivities moved
+    /// (`G_k <- A G_k`, then `G_v += K_v`).
+    pub keep: Matrix4<f64>,
 }
 
 impl Default for CorrectionReport {
@@ -79,7 +95,8 @@ impl Default for CorrectionReport {
         Self {
             landmarks: 0,
             nis: 0.0,
-            gain: DMatrix::zeros(3, 0),
+            gain: DMatrix::zeros(STATE, 0),
+            keep: Matrix4::identity(),
         }
     }
 }
@@ -102,66 +119,129 @@ pub enum CorrectionError {
     },
 }
 
-/// The robot position filter (eq. 60-71).
+/// Rows of the filter's state: the position, then the scale.
+pub const STATE: usize = 4;
+
+/// The robot position filter (eq. 60-71), with the map-over-window scale.
 #[derive(Clone, Debug)]
 pub struct PositionFilter {
-    position_world_m: Vector3<f64>,
-    covariance_m2: Matrix3<f64>,
-    /// `G_k`: sensitivity of the position error to landmark k's map error.
-    map_sensitivity: HashMap<u32, Matrix3<f64>>,
-    /// `P_pub`: the covariance published, the body-frame estimates'
-    /// repetition counted (module docs), m^2.
-    published_m2: Matrix3<f64>,
-    /// `D_k = Cov(e_x, u_k)`: the position error's cross-covariance with
-    /// landmark k's last offset error, m^2.
-    offset_cross: HashMap<u32, Matrix3<f64>>,
+    /// `[x; σ]`: position in the world frame (m) and the scale of the map
+    /// over the relative stage's window (module docs).
+    state: Vector4<f64>,
+    covariance: Matrix4<f64>,
+    /// `G_k`: sensitivity of the state error to landmark k's map error.
+    map_sensitivity: HashMap<u32, Matrix4x3<f64>>,
+    /// The covariance published, the body-frame estimates' repetition
+    /// counted (module docs).
+    published: Matrix4<f64>,
+    /// `D_k = Cov(e, u_k)`: the state error's cross-covariance with
+    /// landmark k's last offset error.
+    offset_cross: HashMap<u32, Matrix4x3<f64>>,
 }
 
 /// Sensitivities below this (Frobenius norm) are dropped: their landmark's
 /// map error no longer moves the position error measurably.
 const SENSITIVITY_FLOOR: f64 = 1e-9;
 
+fn position_block(m: &Matrix4<f64>) -> Matrix3<f64> {
+    m.fixed_view::<3, 3>(0, 0).into_owned()
+}
+
+/// `H_k = [I | o_k]`: a fix's measurement Jacobian.
+fn jacobian(offset_world_m: &Vector3<f64>) -> Matrix3x4<f64> {
+    let mut h = Matrix3x4::zeros();
+    h.fixed_view_mut::<3, 3>(0, 0).fill_with_identity();
+    h.set_column(3, offset_world_m);
+    h
+}
+
 impl PositionFilter {
-    /// A filter at `position_world_m` (m) with covariance `covariance_m2` (m^2), no map sensitivity
-    /// yet.
+    /// A filter at `position_world_m` (m) with covariance `covariance_m2`
+    /// (m^2), no map sensitivity yet, the scale exactly the window's
+    /// (`σ = 0` with no variance: it stays so unless
+    /// [`Self::predict_scale`] lets it wander).
     pub fn new(position_world_m: Vector3<f64>, covariance_m2: Matrix3<f64>) -> Self {
+        let mut covariance = Matrix4::zeros();
+        covariance
+            .fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(&covariance_m2);
         Self {
-            position_world_m,
-            covariance_m2,
+            state: position_world_m.push(0.0),
+            covariance,
             map_sensitivity: HashMap::new(),
-            published_m2: covariance_m2,
+            published: covariance,
             offset_cross: HashMap::new(),
         }
     }
 
     /// Estimated body position in the world (map) frame, m.
     pub fn position_world_m(&self) -> Vector3<f64> {
-        self.position_world_m
+        self.state.fixed_rows::<3>(0).into_owned()
+    }
+
+    /// `σ`: the map's lengths over the relative stage's window's, less one.
+    pub fn scale(&self) -> f64 {
+        self.state[3]
+    }
+
+    /// The variance of [`Self::scale`] the gain works with.
+    pub fn scale_variance(&self) -> f64 {
+        self.covariance[(3, 3)]
     }
 
     /// Covariance of that position the gain works with (`P`), m^2.
     pub fn covariance_m2(&self) -> Matrix3<f64> {
-        self.covariance_m2
+        position_block(&self.covariance)
     }
 
     /// Covariance of that position to publish (`P_pub`, module docs):
     /// `P` with the repetition of the body-frame estimates counted, m^2.
     pub fn published_covariance_m2(&self) -> Matrix3<f64> {
-        self.published_m2
+        position_block(&self.published)
     }
 
-    /// `G_k` of every landmark whose map error the position error depends on.
-    pub fn map_sensitivity(&self) -> &HashMap<u32, Matrix3<f64>> {
+    /// `G_k` of every landmark whose map error the state error depends on
+    /// (rows: position, then scale).
+    pub fn map_sensitivity(&self) -> &HashMap<u32, Matrix4x3<f64>> {
         &self.map_sensitivity
     }
 
-    /// Prediction (eq. 60-62): `x <- x + Δ`, `P <- P + Q` (and
-    /// `P_pub <- P_pub + Q`). The map sensitivities do not change (the
-    /// increment's error is new).
+    /// Prediction (eq. 60-62): `x <- x + (1 + σ) Δ`, `P <- F P F^T + Q`
+    /// with `F = [I Δ; 0 1]` (and the same for `P_pub`, the map
+    /// sensitivities and the offset cross-covariances: the increment's
+    /// own error is new). With the scale held (no variance) this is the
+    /// paper's `x <- x + Δ`, `P <- P + Q`.
     pub fn predict(&mut self, delta_world_m: &Vector3<f64>, q_m2: &Matrix3<f64>) {
-        self.position_world_m += delta_world_m;
-        self.covariance_m2 += q_m2;
-        self.published_m2 += q_m2;
+        let scale = 1.0 + self.state[3];
+        let mut step = self.state.fixed_rows_mut::<3>(0);
+        step += delta_world_m * scale;
+        let mut f = Matrix4::identity();
+        f.fixed_view_mut::<3, 1>(0, 3).copy_from(delta_world_m);
+        let mut q = Matrix4::zeros();
+        q.fixed_view_mut::<3, 3>(0, 0).copy_from(q_m2);
+        self.covariance = f * self.covariance * f.transpose() + q;
+        self.published = f * self.published * f.transpose() + q;
+        if delta_world_m.iter().any(|v| *v != 0.0) {
+            for g in self.map_sensitivity.values_mut() {
+                *g = f * *g;
+            }
+            for d in self.offset_cross.values_mut() {
+                *d = f * *d;
+            }
+        }
+    }
+
+    /// The scale's random walk: `σ`'s variance grows by `variance`.
+    pub fn predict_scale(&mut self, variance: f64) {
+        if variance.is_finite() && variance > 0.0 {
+            self.covariance[(3, 3)] += variance;
+            self.published[(3, 3)] += variance;
+        }
+    }
+
+    /// `r_k = L_k - x - (1 + σ) o_k`.
+    fn residual(&self, fix: &LandmarkFix) -> Vector3<f64> {
+        fix.landmark_world_m - self.position_world_m() - fix.offset_world_m * (1.0 + self.state[3])
     }
 
     /// Each fix's own normalised innovation squared, `r_k^T S_kk^-1 r_k`
@@ -178,7 +258,7 @@ impl PositionFilter {
         let dim = 3 * fixes.len();
         let fits = map_covariance_m2.nrows() == dim
             && map_covariance_m2.ncols() == dim
-            && cross_covariance_m2.map_or(true, |c| c.nrows() == 3 && c.ncols() == dim);
+            && cross_covariance_m2.map_or(true, |c| cross_rows_fit(c) && c.ncols() == dim);
         fixes
             .iter()
             .enumerate()
@@ -186,15 +266,16 @@ impl PositionFilter {
                 if !fits {
                     return f64::NAN;
                 }
-                let r = fix.landmark_world_m - fix.offset_world_m - self.position_world_m;
+                let r = self.residual(fix);
+                let h = jacobian(&fix.offset_world_m);
                 let mut s: Matrix3<f64> = map_covariance_m2
                     .fixed_view::<3, 3>(3 * k, 3 * k)
                     .into_owned()
                     + fix.offset_covariance_m2
-                    + self.covariance_m2;
+                    + h * self.covariance * h.transpose();
                 if let Some(cross) = cross_covariance_m2 {
-                    let c: Matrix3<f64> = cross.fixed_view::<3, 3>(0, 3 * k).into_owned();
-                    s -= c + c.transpose();
+                    let hc = h * cross_block(cross, k);
+                    s -= hc + hc.transpose();
                 }
                 let s = 0.5 * (s + s.transpose());
                 s.cholesky().map_or(f64::NAN, |ch| r.dot(&ch.solve(&r)))
@@ -205,13 +286,16 @@ impl PositionFilter {
     /// Correction (eq. 63-71) with the visible landmarks `fixes`, their
     /// joint map covariance `map_covariance_m2` (3m x 3m, `Σ_L` over the
     /// fixes in order) and, optionally, the cross-covariance
-    /// `Cov(e_x, ε_V)` (3 x 3m) of the position error with their map
-    /// errors. Correlated measurement noise is handled by the textbook
-    /// gain `K = (P H^T - C_xw) S^-1`, `S = H P H^T + Cov(w) - H C_xw -
-    /// C_xw^T H^T`, `P <- P - K S K^T`. The published covariance follows
-    /// with the same gain: `P_pub <- A P_pub A^T + K W K^T + A C K^T +
-    /// K C^T A^T`, `A = I - K H`, `W = Cov(w)`, `C = Cov(e_x, w)`: the
-    /// given `C_xw` less each repeated offset error's `(1 - s_i) D_i`.
+    /// `Cov(e, ε_V)` (4 x 3m, or 3 x 3m for the position alone) of the
+    /// state error with their map errors. The measurement `z_k = L_k =
+    /// x + (1 + σ) o_k + w_k` is linear in the position and linearised in
+    /// the scale, `H_k = [I | o_k]`. Correlated measurement noise is
+    /// handled by the textbook gain `K = (P H^T - C_xw) S^-1`, `S = H P
+    /// H^T + Cov(w) - H C_xw - C_xw^T H^T`, `P <- P - K S K^T`. The
+    /// published covariance follows with the same gain: `P_pub <- A P_pub
+    /// A^T + K W K^T + A C K^T + K C^T A^T`, `A = I - K H`, `W = Cov(w)`,
+    /// `C = Cov(e, w)`: the given `C_xw` less each repeated offset
+    /// error's `(1 - s_i) D_i`.
     pub fn correct(
         &mut self,
         fixes: &[LandmarkFix],
@@ -223,83 +307,81 @@ impl PositionFilter {
             return Ok(CorrectionReport::default());
         }
         let dim = 3 * m;
-        let shape_error = |m: &DMatrix<f64>, rows: usize| {
-            (m.nrows() != rows || m.ncols() != dim).then_some(CorrectionError::Shape {
-                rows: m.nrows(),
-                cols: m.ncols(),
+        if map_covariance_m2.nrows() != dim || map_covariance_m2.ncols() != dim {
+            return Err(CorrectionError::Shape {
+                rows: map_covariance_m2.nrows(),
+                cols: map_covariance_m2.ncols(),
                 expected: dim,
-            })
+            });
+        }
+        let cross = match cross_covariance_m2 {
+            Some(c) if !cross_rows_fit(c) || c.ncols() != dim => {
+                return Err(CorrectionError::Shape {
+                    rows: c.nrows(),
+                    cols: c.ncols(),
+                    expected: dim,
+                })
+            }
+            Some(c) => state_rows(c),
+            None => DMatrix::zeros(STATE, dim),
         };
-        if let Some(e) = shape_error(map_covariance_m2, dim) {
-            return Err(e);
-        }
-        if let Some(e) = cross_covariance_m2.and_then(|c| shape_error(c, 3)) {
-            return Err(e);
-        }
-        // Innovation r = z - H x and its covariance S.
+        let jacobians: Vec<Matrix3x4<f64>> =
+            fixes.iter().map(|f| jacobian(&f.offset_world_m)).collect();
+        // Innovation r and its covariance S.
         let mut residual = DVector::zeros(dim);
         let mut noise = map_covariance_m2.clone();
         for (k, fix) in fixes.iter().enumerate() {
-            let z = fix.landmark_world_m - fix.offset_world_m;
             residual
                 .fixed_rows_mut::<3>(3 * k)
-                .copy_from(&(z - self.position_world_m));
+                .copy_from(&self.residual(fix));
             let mut block = noise.fixed_view_mut::<3, 3>(3 * k, 3 * k);
             block += fix.offset_covariance_m2;
         }
-        let p = self.covariance_m2;
-        // P H^T - C_xw (3 x 3m).
-        let mut gain_numerator = DMatrix::zeros(3, dim);
-        for k in 0..m {
-            gain_numerator
-                .fixed_view_mut::<3, 3>(0, 3 * k)
-                .copy_from(&p);
+        let p = self.covariance;
+        // P H^T - C (4 x 3m).
+        let mut gain_numerator = -&cross;
+        for (k, h) in jacobians.iter().enumerate() {
+            let mut block = gain_numerator.fixed_view_mut::<4, 3>(0, 3 * k);
+            block += p * h.transpose();
         }
-        if let Some(cross) = cross_covariance_m2 {
-            gain_numerator -= cross;
-        }
-        // S = H P H^T + Cov(w) - H C_xw - C_xw^T H^T.
+        // S = H P H^T + Cov(w) - H C - C^T H^T.
         let mut s = noise;
-        for a in 0..m {
-            for b in 0..m {
+        let blocks: Vec<Matrix4x3<f64>> = (0..m).map(|k| cross_block(&cross, k)).collect();
+        for (a, ha) in jacobians.iter().enumerate() {
+            for (b, hb) in jacobians.iter().enumerate() {
                 let mut block = s.fixed_view_mut::<3, 3>(3 * a, 3 * b);
-                block += p;
-                if let Some(cross) = cross_covariance_m2 {
-                    let c_b = cross.fixed_view::<3, 3>(0, 3 * b);
-                    let c_a = cross.fixed_view::<3, 3>(0, 3 * a);
-                    block -= c_b;
-                    block -= c_a.transpose();
-                }
+                block += ha * p * hb.transpose();
+                // (H C)_ab = H_a C_b; (C^T H^T)_ab = (H_b C_a)^T.
+                block -= ha * blocks[b];
+                block -= (hb * blocks[a]).transpose();
             }
         }
         let s = 0.5 * (&s + s.transpose());
         let cholesky = s.cholesky().ok_or(CorrectionError::SingularInnovation)?;
-        // K = (P H^T - C_xw) S^-1  <=>  S K^T = (P H^T - C_xw)^T.
+        // K = (P H^T - C) S^-1  <=>  S K^T = (P H^T - C)^T.
         let gain = cholesky.solve(&gain_numerator.transpose()).transpose();
         let nis = residual.dot(&cholesky.solve(&residual));
-        let mut k_sum = Matrix3::zeros();
-        for k in 0..m {
-            k_sum += gain.fixed_view::<3, 3>(0, 3 * k);
+        let mut keep = Matrix4::identity();
+        for (k, h) in jacobians.iter().enumerate() {
+            keep -= gain.fixed_view::<4, 3>(0, 3 * k) * h;
         }
-        let keep = Matrix3::identity() - k_sum;
-        self.follow_published(&keep, &gain, fixes, map_covariance_m2, cross_covariance_m2);
+        self.follow_published(&keep, &gain, fixes, map_covariance_m2, &cross);
         let update = &gain * &residual;
-        self.position_world_m += Vector3::new(update[0], update[1], update[2]);
-        // P <- P - K S K^T = P - K (P H^T - C_xw)^T.
+        self.state += Vector4::from_column_slice(update.as_slice());
+        // P <- P - K S K^T = P - K (P H^T - C)^T.
         let reduction = &gain * gain_numerator.transpose();
-        let reduction = Matrix3::from_fn(|r, c| reduction[(r, c)]);
-        self.covariance_m2 -= reduction;
-        self.covariance_m2 = 0.5 * (self.covariance_m2 + self.covariance_m2.transpose());
-        // e_x <- (I - K H) e_x + K ε_V - K R ν: the sensitivities.
+        self.covariance -= Matrix4::from_fn(|r, c| reduction[(r, c)]);
+        self.covariance = 0.5 * (self.covariance + self.covariance.transpose());
+        // e <- A e + K ε_V - K R ν: the sensitivities.
         for g in self.map_sensitivity.values_mut() {
             *g = keep * *g;
         }
         for (k, fix) in fixes.iter().enumerate() {
-            let block: Matrix3<f64> = gain.fixed_view::<3, 3>(0, 3 * k).into_owned();
+            let block: Matrix4x3<f64> = gain.fixed_view::<4, 3>(0, 3 * k).into_owned();
             *self
                 .map_sensitivity
                 .entry(fix.landmark)
-                .or_insert_with(Matrix3::zeros) += block;
+                .or_insert_with(Matrix4x3::zeros) += block;
         }
         self.map_sensitivity
             .retain(|_, g| g.norm() > SENSITIVITY_FLOOR);
@@ -307,21 +389,21 @@ impl PositionFilter {
             landmarks: m,
             nis,
             gain,
+            keep,
         })
     }
 
     /// `P_pub` and the offset cross-covariances `D` after a correction
-    /// with gain `gain` (`keep = A = I - K H`; arguments as for
-    /// [`Self::correct`]).
+    /// with gain `gain` (`keep = A = I - K H`; `cross` is `Cov(e, ε_V)`,
+    /// 4 x 3m; the rest as for [`Self::correct`]).
     fn follow_published(
         &mut self,
-        keep: &Matrix3<f64>,
+        keep: &Matrix4<f64>,
         gain: &DMatrix<f64>,
         fixes: &[LandmarkFix],
         map_covariance_m2: &DMatrix<f64>,
-        cross_covariance_m2: Option<&DMatrix<f64>>,
+        cross: &DMatrix<f64>,
     ) {
-        let dim = 3 * fixes.len();
         let kept_share = |fix: &LandmarkFix| {
             if (0.0..=1.0).contains(&fix.offset_new_share) {
                 1.0 - fix.offset_new_share
@@ -331,26 +413,24 @@ impl PositionFilter {
         };
         // W = Σ_L + blockdiag(R Σ_y R^T); C = C_xε - (1 - s) D.
         let mut noise = map_covariance_m2.clone();
-        let mut cross = cross_covariance_m2
-            .cloned()
-            .unwrap_or_else(|| DMatrix::zeros(3, dim));
+        let mut cross = cross.clone();
         for (k, fix) in fixes.iter().enumerate() {
             let mut block = noise.fixed_view_mut::<3, 3>(3 * k, 3 * k);
             block += fix.offset_covariance_m2;
             if let Some(d) = self.offset_cross.get(&fix.landmark) {
-                let mut block = cross.fixed_view_mut::<3, 3>(0, 3 * k);
+                let mut block = cross.fixed_view_mut::<4, 3>(0, 3 * k);
                 block -= d * kept_share(fix);
             }
         }
         let knk = gain * noise * gain.transpose();
         let ck = &cross * gain.transpose();
-        let ack = keep * Matrix3::from_fn(|r, c| ck[(r, c)]);
-        let p = keep * self.published_m2 * keep.transpose()
-            + Matrix3::from_fn(|r, c| knk[(r, c)])
+        let ack = keep * Matrix4::from_fn(|r, c| ck[(r, c)]);
+        let p = keep * self.published * keep.transpose()
+            + Matrix4::from_fn(|r, c| knk[(r, c)])
             + ack
             + ack.transpose();
-        self.published_m2 = 0.5 * (p + p.transpose());
-        // Cov(e_x', u_m) = A D_m for the landmarks not in this correction;
+        self.published = 0.5 * (p + p.transpose());
+        // Cov(e', u_m) = A D_m for the landmarks not in this correction;
         // A (1 - s_k) D_k - K_k Σ_uk for those in it.
         for fix in fixes {
             if let Some(d) = self.offset_cross.get_mut(&fix.landmark) {
@@ -361,15 +441,41 @@ impl PositionFilter {
             *d = keep * *d;
         }
         for (k, fix) in fixes.iter().enumerate() {
-            let k_block: Matrix3<f64> = gain.fixed_view::<3, 3>(0, 3 * k).into_owned();
+            let k_block: Matrix4x3<f64> = gain.fixed_view::<4, 3>(0, 3 * k).into_owned();
             *self
                 .offset_cross
                 .entry(fix.landmark)
-                .or_insert_with(Matrix3::zeros) -= k_block * fix.offset_covariance_m2;
+                .or_insert_with(Matrix4x3::zeros) -= k_block * fix.offset_covariance_m2;
         }
         self.offset_cross
             .retain(|_, d| d.norm() > SENSITIVITY_FLOOR);
     }
+}
+
+/// A cross-covariance has a row per state, or 3 for the position alone.
+fn cross_rows_fit(cross: &DMatrix<f64>) -> bool {
+    cross.nrows() == STATE || cross.nrows() == 3
+}
+
+/// `cross` with a row per state (a missing scale row is zero).
+fn state_rows(cross: &DMatrix<f64>) -> DMatrix<f64> {
+    if cross.nrows() == STATE {
+        cross.clone()
+    } else {
+        let mut full = DMatrix::zeros(STATE, cross.ncols());
+        full.rows_mut(0, cross.nrows()).copy_from(cross);
+        full
+    }
+}
+
+/// Block `k` (the state's rows, a fix's three columns) of a cross-covariance.
+fn cross_block(cross: &DMatrix<f64>, k: usize) -> Matrix4x3<f64> {
+    let mut block = Matrix4x3::zeros();
+    let rows = cross.nrows().min(STATE);
+    block
+        .rows_mut(0, rows)
+        .copy_from(&cross.view((0, 3 * k), (rows, 3)));
+    block
 }
 
 #[cfg(test)]
@@ -717,13 +823,13 @@ mod tests {
                     })
                     .collect();
                 let cross = with_cross.then(|| {
-                    let mut c = DMatrix::zeros(3, 9);
+                    let mut c = DMatrix::zeros(STATE, 9);
                     for (&k, g) in f.map_sensitivity() {
                         for v in 0..3 {
                             let block = g * map_cov
                                 .fixed_view::<3, 3>(3 * k as usize, 3 * v)
                                 .into_owned();
-                            let mut target = c.fixed_view_mut::<3, 3>(0, 3 * v);
+                            let mut target = c.fixed_view_mut::<STATE, 3>(0, 3 * v);
                             target += block;
                         }
                     }
@@ -845,5 +951,113 @@ mod tests {
         );
         let naive = static_robot_anees(false);
         assert!(naive > 3.0 * high, "paper update ANEES {naive}");
+    }
+
+    #[test]
+    fn the_scale_is_corrected_as_the_hand_computation_says() {
+        // Position exact (P = 0), scale variance v = 1e-4, a landmark at
+        // L = 2.02 seen 2 m ahead (o = 2) with r = 1e-4 per axis, exact
+        // map. On x: r = 2.02 - 2 = 0.02, S = o^2 v + r = 5e-4, K_σ = v o /
+        // S = 0.4, σ+ = 0.008, var σ+ = v - v^2 o^2 / S = 2e-5.
+        let mut f = PositionFilter::new(Vector3::zeros(), iso(0.0));
+        f.predict_scale(1e-4);
+        assert!((f.scale_variance() - 1e-4).abs() < 1e-18);
+        let fix = LandmarkFix {
+            landmark: 0,
+            landmark_world_m: Vector3::new(2.02, 0.0, 0.0),
+            offset_world_m: Vector3::new(2.0, 0.0, 0.0),
+            offset_covariance_m2: iso(1e-4),
+            offset_new_share: 1.0,
+        };
+        let report = f.correct(&[fix], &DMatrix::zeros(3, 3), None).unwrap();
+        assert!((f.scale() - 0.008).abs() < 1e-15, "{}", f.scale());
+        assert!((f.scale_variance() - 2e-5).abs() < 1e-18);
+        assert!(f.position_world_m().norm() < 1e-15);
+        assert!((report.nis - 0.02f64.powi(2) / 5e-4).abs() < 1e-12);
+        // The next step is scaled: x <- x + (1 + σ) Δ, and the position
+        // takes on the scale's uncertainty along Δ: P_xx += Δ^2 var σ.
+        f.predict(&Vector3::new(1.0, 0.0, 0.0), &iso(0.0));
+        assert!((f.position_world_m().x - 1.008).abs() < 1e-15);
+        assert!((f.covariance_m2()[(0, 0)] - 2e-5).abs() < 1e-18);
+        assert!(f.covariance_m2()[(1, 1)].abs() < 1e-18);
+        // A bad variance does not open it.
+        f.predict_scale(f64::NAN);
+        f.predict_scale(-1.0);
+        assert!((f.scale_variance() - 2e-5).abs() < 1e-18);
+    }
+
+    /// A robot moving along a line among landmarks around it, with a
+    /// relative stage whose lengths are off the map's by a scale that
+    /// wanders (`1 + σ_t`, σ a random walk): every frame an increment and
+    /// offsets divided by `1 + σ_t`, with their own noise; the map exact.
+    /// Returns the ANEES (3 dof) of the final position and the scale's
+    /// mean squared error over its variance, with the scale estimated
+    /// (`estimate`) or held at the window's.
+    fn wandering_scale_anees(estimate: bool) -> (f64, f64) {
+        let (runs, steps, dt, walk, sigma): (usize, usize, f64, f64, f64) =
+            (400, 200, 0.05, 0.004, 0.01);
+        let mut rng = ChaCha8Rng::seed_from_u64(13);
+        let landmarks: Vec<Vector3<f64>> = (0..8)
+            .map(|k| {
+                let a = k as f64 * std::f64::consts::TAU / 8.0;
+                Vector3::new(3.0 * a.cos(), 3.0 * a.sin(), 0.5 * (k % 3) as f64)
+            })
+            .collect();
+        let (mut position_nees, mut scale_nees) = (0.0, 0.0);
+        for _ in 0..runs {
+            let mut normal = |scale: f64| {
+                Vector3::from_fn(|_, _| {
+                    let z: f64 = StandardNormal.sample(&mut rng);
+                    scale * z
+                })
+            };
+            let mut truth = Vector3::zeros();
+            let mut scale = 0.0;
+            let mut f = PositionFilter::new(truth, iso(1e-8));
+            for _ in 0..steps {
+                scale += walk * dt.sqrt() * normal(1.0).x;
+                let delta = Vector3::new(0.02, 0.0, 0.0);
+                truth += delta;
+                let q: f64 = 1e-6;
+                f.predict(&(delta / (1.0 + scale) + normal(q.sqrt())), &iso(q));
+                if estimate {
+                    f.predict_scale(walk * walk * dt);
+                }
+                let fixes: Vec<LandmarkFix> = landmarks
+                    .iter()
+                    .enumerate()
+                    .map(|(k, l)| LandmarkFix {
+                        landmark: k as u32,
+                        landmark_world_m: *l,
+                        offset_world_m: (l - truth) / (1.0 + scale) + normal(sigma),
+                        offset_covariance_m2: iso(sigma * sigma),
+                        offset_new_share: 1.0,
+                    })
+                    .collect();
+                f.correct(&fixes, &DMatrix::zeros(24, 24), None).unwrap();
+            }
+            let e = f.position_world_m() - truth;
+            position_nees += e.dot(&(f.covariance_m2().try_inverse().unwrap() * e));
+            if estimate {
+                // The window's lengths are the map's over 1 + σ.
+                scale_nees += (f.scale() - scale).powi(2) / f.scale_variance();
+            }
+        }
+        (position_nees / runs as f64, scale_nees / runs as f64)
+    }
+
+    #[test]
+    fn a_wandering_window_scale_is_estimated_consistently() {
+        let (low, high) = crate::absolute::nees::anees_bounds_95(3, 400);
+        let (low1, high1) = crate::absolute::nees::anees_bounds_95(1, 400);
+        let (position, scale) = wandering_scale_anees(true);
+        assert!(
+            position > low && position < high,
+            "position ANEES {position}"
+        );
+        assert!(scale > low1 && scale < high1, "scale ANEES {scale}");
+        // Held at the window's, the scale's error is taken for none.
+        let (held, _) = wandering_scale_anees(false);
+        assert!(held > 3.0 * high, "held scale: ANEES {held}");
     }
 }

@@ -102,6 +102,10 @@ pub struct AbsoluteSettings {
     /// that wanders by this much, rad per sqrt(s) (0: the paper's filter,
     /// which takes the relative stage's orientation as exact).
     pub orientation_sigma_rad_per_sqrt_s: f64,
+    /// Estimate the scale of the map over the relative stage's window (a
+    /// monocular window's scale wanders), letting it wander by this much
+    /// per sqrt(s); 0: the window's lengths are the map's.
+    pub scale_sigma_per_sqrt_s: f64,
     /// Leave a landmark out of a position correction when its own
     /// innovation exceeds this chi-square with 3 dof (16.27: 99.9 %), as
     /// the localiser does with its recognised landmarks; 0: off, every
@@ -148,6 +152,7 @@ impl Default for AbsoluteSettings {
             frame_node_saturation: config.frame_node_saturation,
             node_passes_per_place: config.node_passes_per_place,
             orientation_sigma_rad_per_sqrt_s: config.orientation_sigma_rad_per_sqrt_s,
+            scale_sigma_per_sqrt_s: config.scale_sigma_per_sqrt_s,
             correction_gate_chi2: config.correction_gate_chi2.unwrap_or(0.0),
         }
     }
@@ -300,6 +305,14 @@ impl AbsoluteSettings {
                 "0 (off) to 0.1 rad per sqrt(s)",
             ));
         }
+        let scale_walk = self.scale_sigma_per_sqrt_s;
+        if !(scale_walk.is_finite() && (0.0..=0.1).contains(&scale_walk)) {
+            return Err(bad(
+                "absolute.scale_sigma_per_sqrt_s",
+                scale_walk.to_string(),
+                "0 (off) to 0.1 per sqrt(s)",
+            ));
+        }
         let correction_gate = self.correction_gate_chi2;
         if !(correction_gate.is_finite() && correction_gate >= 0.0) {
             return Err(bad(
@@ -323,6 +336,7 @@ impl AbsoluteSettings {
             frame_node_saturation: self.frame_node_saturation,
             node_passes_per_place: self.node_passes_per_place,
             orientation_sigma_rad_per_sqrt_s: orientation,
+            scale_sigma_per_sqrt_s: scale_walk,
             correction_gate_chi2: (correction_gate > 0.0).then_some(correction_gate),
             ..AbsoluteConfig::default()
         })
@@ -393,6 +407,7 @@ mod tests {
             config.orientation_sigma_rad_per_sqrt_s,
             stage.orientation_sigma_rad_per_sqrt_s
         );
+        assert_eq!(config.scale_sigma_per_sqrt_s, stage.scale_sigma_per_sqrt_s);
         // Except one on purpose: real frames' covariances are inflated.
         assert_eq!(stage.landmark_covariance_scale, 1.0);
         assert_eq!(config.landmark_covariance_scale, REAL_DATA_COVARIANCE_SCALE);
@@ -410,6 +425,7 @@ mod tests {
             recognition_gate_chi2: 9.5,
             landmark_covariance_scale: 3.5,
             orientation_sigma_rad_per_sqrt_s: 3e-4,
+            scale_sigma_per_sqrt_s: 2.5e-3,
             correction_gate_chi2: 16.27,
             max_correction_landmarks: 17,
             solve_every_frames: 7,
@@ -426,6 +442,7 @@ mod tests {
         assert_eq!(config.translation_sigma_per_sqrt_m, 0.07);
         assert_eq!(config.landmark_covariance_scale, 3.5);
         assert_eq!(config.orientation_sigma_rad_per_sqrt_s, 3e-4);
+        assert_eq!(config.scale_sigma_per_sqrt_s, 2.5e-3);
         assert_eq!(config.correction_gate_chi2, Some(16.27));
         assert_eq!(config.max_correction_landmarks, 17);
         assert_eq!(config.solve_every_frames, 7);
@@ -447,7 +464,21 @@ mod tests {
 
     #[test]
     fn each_bad_value_names_its_key() {
-        let cases: [(&str, AbsoluteSettings); 14] = [
+        let cases: [(&str, AbsoluteSettings); 16] = [
+            (
+                "absolute.scale_sigma_per_sqrt_s",
+                AbsoluteSettings {
+                    scale_sigma_per_sqrt_s: -1e-3,
+                    ..Default::default()
+                },
+            ),
+            (
+                "absolute.scale_sigma_per_sqrt_s",
+                AbsoluteSettings {
+                    scale_sigma_per_sqrt_s: f64::NAN,
+                    ..Default::default()
+                },
+            ),
             (
                 "absolute.correction_gate_chi2",
                 AbsoluteSettings {

@@ -77,6 +77,11 @@ pub struct RoomRunOptions {
     /// Body-frame landmark estimates as a sliding window hands them on
     /// (None: each frame's error drawn anew).
     pub window: Option<SimulatedWindow>,
+    /// The relative stage's lengths (increments and landmark offsets) are
+    /// the truth's over `1 + σ`, with `σ = amplitude · sin(2π d /
+    /// period_m)` at `d` metres travelled: a monocular window's wandering
+    /// scale. (0, _): none.
+    pub scale_wander: (f64, f64),
 }
 
 /// A sliding window's landmark estimates: a keyframe every
@@ -115,6 +120,7 @@ impl Default for RoomRunOptions {
             noise_seed: None,
             seed: 0,
             window: None,
+            scale_wander: (0.0, 1.0),
         }
     }
 }
@@ -234,7 +240,10 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
         let turned = (options.rotation_drift_rad_per_m != Vector3::zeros()).then(|| {
             UnitQuaternion::from_scaled_axis(options.rotation_drift_rad_per_m * travelled_m)
         });
-        let delta = turned.map_or(delta, |d| d * delta);
+        let (amplitude, period_m) = options.scale_wander;
+        let window_scale =
+            1.0 + amplitude * (std::f64::consts::TAU * travelled_m / period_m.max(1e-9)).sin();
+        let delta = turned.map_or(delta, |d| d * delta) / window_scale;
         relative_position += delta;
         let mut candidates: Vec<(f64, usize)> = landmarks_m
             .iter()
@@ -324,7 +333,7 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
                 let (track, descriptor) = live_tracks[&id];
                 BodyLandmark {
                     id: track,
-                    position_body_m: body + noise,
+                    position_body_m: body / window_scale + noise,
                     covariance_body_m2: covariance,
                     descriptor,
                     support,

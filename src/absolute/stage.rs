@@ -219,6 +219,15 @@ pub struct AbsoluteStats {
     /// corrections: about 1 when the covariances the filter is given are
     /// right, far above when they are overconfident.
     pub mean_nis_per_dof: f64,
+    /// The map's lengths over the relative stage's at the last frame,
+    /// less one, percent ([`AbsoluteConfig::scale_sigma_per_sqrt_s`]; 0
+    /// when it is not estimated).
+    pub map_scale_percent: f64,
+    /// Its root mean square over the frames corrected, percent: how much
+    /// the relative stage's scale wanders against the map's.
+    pub map_scale_rms_percent: f64,
+    #[serde(skip)]
+    scale_sum_sq: f64,
     #[serde(skip)]
     nis_sum: f64,
     #[serde(skip)]
@@ -286,6 +295,8 @@ pub struct AbsoluteStage {
     /// Map ids in view in the last tracking frame, the most precise
     /// first: the covariance blocks the next solve computes.
     in_view: Vec<u32>,
+    /// The last frame's stamp (the scale's random walk), ns.
+    last_t_ns: Option<i64>,
     stats: AbsoluteStats,
 }
 
@@ -314,6 +325,7 @@ impl AbsoluteStage {
             solve_late: false,
             next_version: 1,
             in_view: Vec::new(),
+            last_t_ns: None,
             stats: AbsoluteStats::default(),
         }
     }
@@ -496,6 +508,10 @@ impl AbsoluteStage {
                     * self.config.translation_sigma_per_sqrt_m.powi(2)
                     * delta_world_m.norm();
                 filter.predict(&delta_world_m, &q);
+                if let Some(last) = self.last_t_ns {
+                    let dt = output.t_ns.saturating_sub(last).max(0) as f64 * 1e-9;
+                    filter.predict_scale(self.config.scale_sigma_per_sqrt_s.powi(2) * dt);
+                }
                 if let Some(orientation) = self.orientation.as_mut() {
                     orientation.predict(output.t_ns);
                 }
@@ -507,6 +523,7 @@ impl AbsoluteStage {
             None if tracking && output.landmarks.len() >= 2 => self.anchor(output, &rotation),
             None => {}
         }
+        self.last_t_ns = Some(output.t_ns);
         if let Some(filter) = self.filter.as_ref().filter(|_| tracking) {
             let recogniser = self.recogniser.as_ref();
             let position_m = filter.position_world_m();
@@ -886,7 +903,9 @@ impl AbsoluteStage {
                 covariance[(3 * kept[r / 3] + r % 3, 3 * kept[c / 3] + c % 3)]
             });
             cross = cross.map(|x| {
-                DMatrix::from_fn(3, 3 * kept.len(), |r, c| x[(r, 3 * kept[c / 3] + c % 3)])
+                DMatrix::from_fn(x.nrows(), 3 * kept.len(), |r, c| {
+                    x[(r, 3 * kept[c / 3] + c % 3)]
+                })
             });
         }
         if let Some(orientation) = self.orientation.as_mut() {
@@ -910,7 +929,10 @@ impl AbsoluteStage {
         match filter.correct(&fixes, &covariance, cross.as_ref()) {
             Ok(report) => {
                 if let (Some(kept), Some(blocks)) = (self.map_cross.as_mut(), cached) {
-                    if kept.follow(blocks, &ids, &report.gain).is_none() {
+                    if kept
+                        .follow(blocks, &ids, &report.keep, &report.gain)
+                        .is_none()
+                    {
                         self.map_cross = None;
                     }
                 }
@@ -921,6 +943,11 @@ impl AbsoluteStage {
                 self.stats.nis_sum += report.nis;
                 self.stats.nis_dof += 3 * report.landmarks;
                 self.stats.mean_nis_per_dof = self.stats.nis_sum / self.stats.nis_dof.max(1) as f64;
+                let scale_percent = 100.0 * filter.scale();
+                self.stats.map_scale_percent = scale_percent;
+                self.stats.scale_sum_sq += scale_percent * scale_percent;
+                self.stats.map_scale_rms_percent =
+                    (self.stats.scale_sum_sq / self.stats.corrections as f64).sqrt();
                 Some(report)
             }
             Err(e) => {

@@ -237,6 +237,47 @@ fn repeated_window_estimates_keep_the_published_covariance_consistent() {
 }
 
 #[test]
+fn a_wandering_window_scale_is_estimated_against_the_map() {
+    // A monocular window's lengths wander against the map's: here by
+    // 2 % over a period of 15 m at 1 m/s. Held at the window's, the
+    // scale's error sits in every offset of a frame alike and the
+    // corrections take it for position; estimated (a random walk of
+    // 0.5 % per sqrt(s), about the wander's own rate), the map-frame
+    // position is closer to the truth and its covariance less
+    // overconfident. Measured: ANEES 45.4 held, 42.3 estimated, RMSE
+    // 0.097 and 0.094 m; without the wander 3.3 and 0.023 m. Most of
+    // what the wander costs is in the map itself, built from the same
+    // windows, which the filter's scale does not reach.
+    let options = RoomRunOptions {
+        scale_wander: (0.02, 15.0),
+        step_m: 0.05,
+        laps: 1.0,
+        ..RoomRunOptions::default()
+    };
+    let seeds = 10;
+    let (low, high) = anees_bounds_95(3, seeds as usize);
+    let run = |walk: f64| {
+        let config = inline(AbsoluteConfig {
+            translation_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
+            scale_sigma_per_sqrt_s: walk,
+            ..AbsoluteConfig::default()
+        });
+        let summary = run_nees(&config, &options, 0..seeds);
+        eprintln!(
+            "scale walk {walk}: mean ANEES {:.3} in [{low:.3}, {high:.3}], RMSE corrected {:.4} m vs relative {:.4} m",
+            summary.mean_anees(),
+            summary.rmse_corrected_m,
+            summary.rmse_relative_m
+        );
+        summary
+    };
+    let held = run(0.0);
+    let estimated = run(0.005);
+    assert!(estimated.rmse_corrected_m < held.rmse_corrected_m);
+    assert!(estimated.mean_anees() < held.mean_anees());
+}
+
+#[test]
 fn frame_nodes_give_the_map_of_the_exact_frame_marginal() {
     // Isotropic covariances (of different sizes) commute, so all pairs
     // with the frame-marginal weighting is then the exact marginal of each
