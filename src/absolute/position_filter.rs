@@ -485,6 +485,14 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
     use rand_distr::{Distribution, StandardNormal};
 
+    /// A vector of independent normal draws with standard deviation `scale`.
+    fn normal(rng: &mut ChaCha8Rng, scale: f64) -> Vector3<f64> {
+        Vector3::from_fn(|_, _| {
+            let z: f64 = StandardNormal.sample(rng);
+            scale * z
+        })
+    }
+
     fn iso(v: f64) -> Matrix3<f64> {
         Matrix3::identity() * v
     }
@@ -803,12 +811,7 @@ mod tests {
                     .iter()
                     .enumerate()
                     .map(|(k, l)| {
-                        let nu = Vector3::from_fn(|_, _| {
-                            0.1 * {
-                                let z: f64 = StandardNormal.sample(&mut rng);
-                                z
-                            }
-                        });
+                        let nu = normal(&mut rng, 0.1);
                         LandmarkFix {
                             landmark: k as u32,
                             landmark_world_m: l + Vector3::new(
@@ -862,24 +865,28 @@ mod tests {
         ];
         let (mut published, mut gain) = (0.0, 0.0);
         for _ in 0..runs {
-            let mut normal = |scale: f64| {
-                Vector3::from_fn(|_, _| {
-                    let z: f64 = StandardNormal.sample(&mut rng);
-                    scale * z
-                })
-            };
             // Each keyframe's own error per landmark: variance
             // window * sigma^2, so that the mean of `window` has sigma^2.
             let own = sigma * (window as f64).sqrt();
             let mut errors: Vec<[Vector3<f64>; 3]> = (0..window)
-                .map(|_| [normal(own), normal(own), normal(own)])
+                .map(|_| {
+                    [
+                        normal(&mut rng, own),
+                        normal(&mut rng, own),
+                        normal(&mut rng, own),
+                    ]
+                })
                 .collect();
-            let mut f = PositionFilter::new(normal(1.0), Matrix3::identity());
+            let mut f = PositionFilter::new(normal(&mut rng, 1.0), Matrix3::identity());
             let mut shares = WindowShares::default();
             for keyframe in 0..keyframes {
                 if keyframe > 0 {
                     errors.remove(0);
-                    errors.push([normal(own), normal(own), normal(own)]);
+                    errors.push([
+                        normal(&mut rng, own),
+                        normal(&mut rng, own),
+                        normal(&mut rng, own),
+                    ]);
                 }
                 let support = Some(WindowSupport {
                     keyframes: window as u16,
@@ -1005,21 +1012,18 @@ mod tests {
             .collect();
         let (mut position_nees, mut scale_nees) = (0.0, 0.0);
         for _ in 0..runs {
-            let mut normal = |scale: f64| {
-                Vector3::from_fn(|_, _| {
-                    let z: f64 = StandardNormal.sample(&mut rng);
-                    scale * z
-                })
-            };
             let mut truth = Vector3::zeros();
             let mut scale = 0.0;
             let mut f = PositionFilter::new(truth, iso(1e-8));
             for _ in 0..steps {
-                scale += walk * dt.sqrt() * normal(1.0).x;
+                scale += walk * dt.sqrt() * normal(&mut rng, 1.0).x;
                 let delta = Vector3::new(0.02, 0.0, 0.0);
                 truth += delta;
                 let q: f64 = 1e-6;
-                f.predict(&(delta / (1.0 + scale) + normal(q.sqrt())), &iso(q));
+                f.predict(
+                    &(delta / (1.0 + scale) + normal(&mut rng, q.sqrt())),
+                    &iso(q),
+                );
                 if estimate {
                     f.predict_scale(walk * walk * dt);
                 }
@@ -1029,7 +1033,7 @@ mod tests {
                     .map(|(k, l)| LandmarkFix {
                         landmark: k as u32,
                         landmark_world_m: *l,
-                        offset_world_m: (l - truth) / (1.0 + scale) + normal(sigma),
+                        offset_world_m: (l - truth) / (1.0 + scale) + normal(&mut rng, sigma),
                         offset_covariance_m2: iso(sigma * sigma),
                         offset_new_share: 1.0,
                     })
