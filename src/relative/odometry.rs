@@ -1164,6 +1164,18 @@ impl WindowOdometry {
             self.reset();
             return false;
         }
+        // With the camera-IMU calibration refined, the first boundary
+        // prior holds the gyroscope bias about as well as the alignment
+        // found it, not at the configured 0.01 rad/s: in flight the
+        // window's first seconds barely tell a bias from a turn of the
+        // camera-IMU rotation (at a steady turn rate both shift the
+        // gyroscope against the images alike), and a free bias lets the
+        // refinement carry the rotation away from the file.
+        if self.window.camera_imu().is_some() {
+            self.window.set_start_gyro_bias_sigma(
+                ALIGNMENT_GYRO_BIAS_SIGMA_INFLATION * a.gyro_bias_sigma_rad_s.max(),
+            );
+        }
         self.apply_resume();
         let window = &mut self.window;
         self.timings.time("window", || {
@@ -1172,6 +1184,13 @@ impl WindowOdometry {
         true
     }
 }
+
+/// Factor on the alignment's gyroscope bias sigma where it starts the
+/// window's boundary prior. The alignment counts the gyroscope's noise
+/// only (its vision rotations taken as exact); on starts in flight of the
+/// development renderings its bias errors were 1.8 times its sigma (rms
+/// over axes and runs).
+const ALIGNMENT_GYRO_BIAS_SIGMA_INFLATION: f64 = 2.0;
 
 /// Median distance of `frame`'s left features from where `anchor` saw
 /// them, px; `None` with fewer than 10 in common.

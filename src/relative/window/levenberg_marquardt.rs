@@ -167,7 +167,8 @@ impl Window {
                     &kf.state,
                     [
                         c.velocity_prior_sigma_m_s,
-                        c.gyro_bias_prior_sigma_rad_s,
+                        self.start_gyro_bias_sigma_rad_s
+                            .unwrap_or(c.gyro_bias_prior_sigma_rad_s),
                         c.accel_bias_prior_sigma_m_s2,
                     ],
                 )

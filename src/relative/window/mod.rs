@@ -437,6 +437,9 @@ pub struct Window {
     pending: HashMap<LandmarkId, PendingTrack>,
     gravity_dir: Vector3<f64>,
     velocity_prior: Option<OldestFreePrior>,
+    /// Gyroscope bias sigma of the first boundary prior when the states
+    /// came with one (the alignment's), rad/s; else the configured sigma.
+    start_gyro_bias_sigma_rad_s: Option<f64>,
     gravity_prior: GravityPrior,
     scale_anchor: Option<ScaleAnchor>,
     problem: Problem,
@@ -493,6 +496,7 @@ impl Window {
             pending: HashMap::new(),
             gravity_dir: down,
             velocity_prior: None,
+            start_gyro_bias_sigma_rad_s: None,
             scale_anchor: None,
             problem: Problem {
                 gravity_basis: tangent_basis(&down),
@@ -783,7 +787,19 @@ impl Window {
         }
         self.restart_covariance_chain();
         self.velocity_prior = None;
+        self.start_gyro_bias_sigma_rad_s = None;
         Ok(())
+    }
+
+    /// The gyroscope bias sigma of the boundary prior until a solve gives
+    /// its marginal (after [`Self::set_states`]; the configured
+    /// `gyro_bias_prior_sigma_rad_s` otherwise), rad/s: what the states'
+    /// source knows of the bias (the visual-inertial alignment's sigma).
+    /// Kept within [1e-4, the configured sigma]; not finite: ignored.
+    pub fn set_start_gyro_bias_sigma(&mut self, sigma_rad_s: f64) {
+        self.start_gyro_bias_sigma_rad_s = sigma_rad_s
+            .is_finite()
+            .then(|| sigma_rad_s.clamp(1e-4, self.config.gyro_bias_prior_sigma_rad_s.max(1e-4)));
     }
 
     /// Sets every keyframe's velocity and biases (the visual-inertial

@@ -1498,3 +1498,46 @@ fn held_pose_sensitivity_matches_finite_differences() {
     }
     assert!(worst < 0.05, "worst relative difference {worst:.3}");
 }
+
+#[test]
+fn the_start_gyro_bias_sigma_sets_the_first_boundary_prior_until_new_states() {
+    // After `set_states` (the alignment's answer) the boundary prior has
+    // no marginal to come from: it takes the configured sigmas, or the
+    // gyroscope bias sigma the states came with; the next `set_states`
+    // forgets it, and values outside [1e-4, configured] are held to it.
+    let cfg = config(true);
+    let configured = cfg.gyro_bias_prior_sigma_rad_s;
+    let mut r = rng(67);
+    let scene = Scene::new(&mut r, 800, keyframe_time(14) as f64 * 1e-9 + 1.0);
+    let mut w = Window::new(cfg, &scene.rig).expect("valid");
+    for k in 0..12 {
+        slide_keyframe(&mut w, &scene, k, |t| scene.truth(t), true, &mut r);
+    }
+    let gyro_sigma_after_new_states = |w: &mut Window, start: Option<f64>| {
+        let states: Vec<KeyframeState> = w.keyframes().copied().collect();
+        w.set_states(&states).expect("same count");
+        if let Some(s) = start {
+            w.set_start_gyro_bias_sigma(s);
+        }
+        w.optimize();
+        let prior = w.velocity_prior.expect("a boundary prior in a full window");
+        let d = prior.sqrt_info.diagonal();
+        (3..6).map(|k| 1.0 / d[k]).collect::<Vec<f64>>()
+    };
+    for (start, expected) in [
+        (None, configured),
+        (Some(1.5e-3), 1.5e-3),
+        (None, configured),
+        (Some(1e-7), 1e-4),
+        (Some(1.0), configured),
+        (Some(f64::NAN), configured),
+    ] {
+        let sigmas = gyro_sigma_after_new_states(&mut w, start);
+        for s in sigmas {
+            assert!(
+                (s - expected).abs() < 1e-12 * expected.max(1.0),
+                "start {start:?}: gyro bias sigma {s}, expected {expected}"
+            );
+        }
+    }
+}
