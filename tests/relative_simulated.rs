@@ -13,7 +13,8 @@ use rigslam::dataset::{
     SensorStream, StreamOptions,
 };
 use rigslam::relative::{
-    build_estimator, EstimatorKind, FrameInput, RelativeConfig, SensorMode, TrackingState,
+    build_estimator, EstimatorKind, FrameInput, FullWindowAlignment, RelativeConfig, SensorMode,
+    TrackingState,
 };
 use rigslam::run::dataset_run::{rig_of, run_dataset, DatasetRun};
 use rigslam::sensors::Image;
@@ -134,6 +135,66 @@ fn a_start_in_full_flight_is_not_taken_for_rest() {
         assert!(init <= init_bar_s, "{mode}: initialised at {init} s");
         assert_eq!(lost, 0, "{mode}");
         assert!(ate < ate_bar_m, "{mode}: ATE {ate} m (bar {ate_bar_m})");
+    }
+}
+
+#[test]
+fn a_start_in_flight_aligns_on_a_full_window_whatever_it_spans() {
+    // By default stereo-inertial waits for a full window before the
+    // alignment; switched off, it aligns as soon as `init_keyframes` span
+    // `init_min_span_s` (here 0: in this fast stretch 6 keyframes span less
+    // than the default 1 s, so only a full window would reach it). Then a span the window can
+    // never reach (10 keyframes in fast flight span 1-2 s), with every
+    // mode waiting for the full window: the stage used to wait for the
+    // span forever, tracking by vision alone and publishing nothing.
+    // Measured with the full window taken: 1.5 s stereo-inertial, 4.7 s
+    // mono-inertial (whose scale must also be certain).
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path().join("flight");
+    if render(&dir, 25.0, 8.0).is_none() {
+        return;
+    }
+    let window = rigslam::relative::RelativeConfig::default().window_keyframes as u64;
+    let run_with = |mode: SensorMode, full: FullWindowAlignment, span_s: Option<f64>| {
+        let mut run = DatasetRun {
+            mode: Some(mode),
+            ..DatasetRun::default()
+        };
+        run.settings.relative.init_full_window = full;
+        if let Some(span_s) = span_s {
+            run.settings.relative.init_min_span_s = span_s;
+        }
+        let result = run_dataset(&dir, &run, |_, _| {}).expect("run");
+        let report = serde_json::to_value(&result.report).expect("json");
+        let keyframes = report["counters"]["alignment_keyframes"].as_u64();
+        let tried = report["counters"]["alignments_tried"].as_u64();
+        let init = result.report.initialized_at_s;
+        let ate = result.report.eval.as_ref().map(|e| e.ate_rmse_m);
+        eprintln!(
+            "{mode} {full:?} span {span_s:?}: initialised at {init:?} s on {keyframes:?} \
+             keyframes after {tried:?} tries, ATE {ate:?} m"
+        );
+        (init, keyframes, ate, tried)
+    };
+    let stereo = SensorMode::StereoInertial;
+    let (_, keyframes, _, tried_full) = run_with(stereo, FullWindowAlignment::Auto, Some(0.0));
+    assert_eq!(keyframes, Some(window), "by default stereo-inertial waits");
+    // Switched off it tries from `init_keyframes` on (here those tries
+    // fail until the window is full, and the same alignment follows).
+    let (_, _, _, tried_early) = run_with(stereo, FullWindowAlignment::Off, Some(0.0));
+    let early = rigslam::relative::RelativeConfig::default().init_keyframes as u64;
+    assert!(
+        tried_early.unwrap_or(0) >= tried_full.unwrap_or(u64::MAX) + (window - early),
+        "switched off it tries before the window is full: {tried_early:?} against {tried_full:?}"
+    );
+    for mode in [SensorMode::StereoInertial, SensorMode::MonoInertial] {
+        let (init, keyframes, ate, _) = run_with(mode, FullWindowAlignment::On, Some(60.0));
+        assert!(
+            init.is_some_and(|s| s < 6.0),
+            "{mode}: initialised at {init:?} s"
+        );
+        assert_eq!(keyframes, Some(window), "{mode}");
+        assert!(ate.is_some_and(|a| a < 0.1), "{mode}: ATE {ate:?} m");
     }
 }
 

@@ -52,6 +52,35 @@ impl CameraImuRefinement {
     }
 }
 
+/// Where the visual-inertial alignment of a start in motion waits for a
+/// full window.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "kebab-case")]
+pub enum FullWindowAlignment {
+    /// Stereo-inertial only: there it improved the starts in flight of
+    /// both the development and the held-apart evaluation sets, in
+    /// mono-inertial it did not (docs/results/).
+    Auto,
+    /// Both inertial modes.
+    On,
+    /// Never: the alignment is tried once `init_keyframes` span
+    /// `init_min_span_s`.
+    Off,
+}
+
+impl FullWindowAlignment {
+    /// Whether a start in motion waits for a full window in `mode`.
+    pub fn enabled_in(self, mode: crate::relative::SensorMode) -> bool {
+        use crate::relative::SensorMode;
+        match self {
+            FullWindowAlignment::Off => false,
+            FullWindowAlignment::On => mode.uses_imu(),
+            FullWindowAlignment::Auto => mode == SensorMode::StereoInertial,
+        }
+    }
+}
+
 /// Settings of the relative stage. Every key has a default; unknown keys
 /// are refused so that a typo does not silently keep the default.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -68,8 +97,17 @@ pub struct RelativeConfig {
     /// Keyframes needed (and the time they must span, s) before the
     /// visual-inertial alignment is tried in the inertial modes.
     pub init_keyframes: usize,
-    /// Time the keyframes must span before the alignment is tried, s.
+    /// Time the keyframes must span before the alignment is tried, s; a
+    /// full window is tried whatever it spans (in fast motion it may span
+    /// less, and waiting would never start).
     pub init_min_span_s: f64,
+    /// A start in motion aligns the IMU with the images only once the
+    /// window is full (`window_keyframes`), not at `init_keyframes`: the
+    /// longest stretch of turns the window holds tells the gyroscope bias,
+    /// velocity and gravity best, and the first windows after the
+    /// alignment keep what it found [auto: stereo-inertial]. The first
+    /// pose of a start in motion comes 0.5-2 s later.
+    pub init_full_window: FullWindowAlignment,
     /// Largest relative standard deviation of the scale at which the
     /// mono-inertial stage switches from initialisation to hybrid.
     pub init_max_scale_rel_std: f64,
@@ -149,6 +187,7 @@ impl Default for RelativeConfig {
             pixel_sigma_px: 1.0,
             init_keyframes: 6,
             init_min_span_s: 1.0,
+            init_full_window: FullWindowAlignment::Auto,
             init_max_scale_rel_std: 0.03,
             lost_after_frames: 3,
             imu_only_max_s: 1.0,

@@ -26,7 +26,9 @@ pub mod tracker;
 pub mod types;
 pub mod window;
 
-pub use config::{CameraImuRefinement, ConfigError, EstimatorKind, RelativeConfig};
+pub use config::{
+    CameraImuRefinement, ConfigError, EstimatorKind, FullWindowAlignment, RelativeConfig,
+};
 pub use estimator::{FrameInput, FrameTimings, RelativeEstimator, RigError, RigModel, SensorMode};
 pub use factory::build_estimator;
 pub use odometry::WindowOdometry;

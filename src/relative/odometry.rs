@@ -85,6 +85,8 @@ struct Counters {
     static_frames: u64,
     imu_only_frames: u64,
     alignments_tried: u64,
+    /// Keyframes in the window at the last accepted alignment.
+    alignment_keyframes: u64,
     bootstraps_tried: u64,
     frames_without_imu: u64,
     /// Vision restarts placed where the trajectory before the loss went.
@@ -1096,11 +1098,20 @@ impl WindowOdometry {
     #[allow(non_snake_case)]
     fn try_alignment(&mut self) -> bool {
         let kfs: Vec<KeyframeState> = self.window.keyframes().copied().collect();
-        if kfs.len() < self.config.init_keyframes {
+        let full = self.config.window_keyframes;
+        let needed = if self.config.init_full_window.enabled_in(self.mode) {
+            full
+        } else {
+            self.config.init_keyframes
+        };
+        if kfs.len() < needed {
             return false;
         }
+        // A full window is all the alignment will ever get: in fast motion
+        // keyframes come close together, and a window of them may span
+        // less than the configured time; waiting longer would never start.
         let span_s = (kfs[kfs.len() - 1].t_ns - kfs[0].t_ns) as f64 * 1e-9;
-        if span_s < self.config.init_min_span_s {
+        if span_s < self.config.init_min_span_s && kfs.len() < full {
             return false;
         }
         self.counters.alignments_tried += 1;
@@ -1164,6 +1175,7 @@ impl WindowOdometry {
             self.reset();
             return false;
         }
+        self.counters.alignment_keyframes = kfs.len() as u64;
         // With the camera-IMU calibration refined, the first boundary
         // prior holds the gyroscope bias about as well as the alignment
         // found it, not at the configured 0.01 rad/s: in flight the
@@ -1337,6 +1349,7 @@ impl RelativeEstimator for WindowOdometry {
             ("static_frames", c.static_frames),
             ("imu_only_frames", c.imu_only_frames),
             ("alignments_tried", c.alignments_tried),
+            ("alignment_keyframes", c.alignment_keyframes),
             ("bootstraps_tried", c.bootstraps_tried),
             ("frames_without_imu", c.frames_without_imu),
             ("resumed", c.resumed),
