@@ -141,12 +141,12 @@ fn a_start_in_full_flight_is_not_taken_for_rest() {
 #[test]
 fn a_start_in_flight_aligns_on_a_full_window_whatever_it_spans() {
     // By default stereo-inertial waits for a full window before the
-    // alignment; switched off, it aligns as soon as `init_keyframes` span
-    // `init_min_span_s` (here 0: in this fast stretch 6 keyframes span less
-    // than the default 1 s, so only a full window would reach it). Then a span the window can
-    // never reach (10 keyframes in fast flight span 1-2 s), with every
-    // mode waiting for the full window: the stage used to wait for the
-    // span forever, tracking by vision alone and publishing nothing.
+    // alignment; switched off, it tries as soon as `init_keyframes` span
+    // `init_min_span_s` (0 here, so that the span does not decide). Then a
+    // span the window can never reach (10 keyframes in fast flight span
+    // 1-2 s), with every mode waiting for the full window: the stage used
+    // to wait for the span forever, tracking by vision alone and
+    // publishing nothing.
     // Measured with the full window taken: 1.5 s stereo-inertial, 4.7 s
     // mono-inertial (whose scale must also be certain).
     let tmp = tempfile::tempdir().expect("tempdir");
@@ -154,7 +154,7 @@ fn a_start_in_flight_aligns_on_a_full_window_whatever_it_spans() {
     if render(&dir, 25.0, 8.0).is_none() {
         return;
     }
-    let window = rigslam::relative::RelativeConfig::default().window_keyframes as u64;
+    let window = RelativeConfig::default().window_keyframes as u64;
     let run_with = |mode: SensorMode, full: FullWindowAlignment, span_s: Option<f64>| {
         let mut run = DatasetRun {
             mode: Some(mode),
@@ -182,7 +182,7 @@ fn a_start_in_flight_aligns_on_a_full_window_whatever_it_spans() {
     // Switched off it tries from `init_keyframes` on (here those tries
     // fail until the window is full, and the same alignment follows).
     let (_, _, _, tried_early) = run_with(stereo, FullWindowAlignment::Off, Some(0.0));
-    let early = rigslam::relative::RelativeConfig::default().init_keyframes as u64;
+    let early = RelativeConfig::default().init_keyframes as u64;
     assert!(
         tried_early.unwrap_or(0) >= tried_full.unwrap_or(u64::MAX) + (window - early),
         "switched off it tries before the window is full: {tried_early:?} against {tried_full:?}"

@@ -26,60 +26,41 @@ impl EstimatorKind {
     }
 }
 
-/// Where the window refines the camera-IMU calibration online.
+/// Which inertial modes a behaviour of the relative stage is on in; each
+/// key that takes it says why its "auto" is what it is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
-pub enum CameraImuRefinement {
-    /// Stereo-inertial only: there it improved the held-apart evaluation
-    /// set, in mono-inertial it did not (bench/README.md).
+pub enum InertialModes {
+    /// Stereo-inertial only.
     Auto,
     /// Both inertial modes.
     On,
-    /// Never: the calibration file's camera-IMU transformation and time shift are used as they are.
+    /// Neither.
     Off,
 }
 
-impl CameraImuRefinement {
-    /// Whether the window refines the calibration in `mode`.
+impl InertialModes {
+    /// Whether the behaviour is on in `mode`.
     pub fn enabled_in(self, mode: crate::relative::SensorMode) -> bool {
         use crate::relative::SensorMode;
         match self {
-            CameraImuRefinement::Off => false,
-            CameraImuRefinement::On => mode.uses_imu(),
-            CameraImuRefinement::Auto => mode == SensorMode::StereoInertial,
+            InertialModes::Off => false,
+            InertialModes::On => mode.uses_imu(),
+            InertialModes::Auto => mode == SensorMode::StereoInertial,
         }
     }
 }
+
+/// Where the window refines the camera-IMU calibration online ("off": the
+/// calibration file's camera-IMU transformation and time shift are used as
+/// they are).
+pub type CameraImuRefinement = InertialModes;
 
 /// Where the visual-inertial alignment of a start in motion waits for a
-/// full window.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
-#[serde(rename_all = "kebab-case")]
-pub enum FullWindowAlignment {
-    /// Stereo-inertial only: there it improved the starts in flight of
-    /// both the development and the held-apart evaluation sets, in
-    /// mono-inertial it did not (docs/results/).
-    Auto,
-    /// Both inertial modes.
-    On,
-    /// Never: the alignment is tried once `init_keyframes` span
-    /// `init_min_span_s`.
-    Off,
-}
-
-impl FullWindowAlignment {
-    /// Whether a start in motion waits for a full window in `mode`.
-    pub fn enabled_in(self, mode: crate::relative::SensorMode) -> bool {
-        use crate::relative::SensorMode;
-        match self {
-            FullWindowAlignment::Off => false,
-            FullWindowAlignment::On => mode.uses_imu(),
-            FullWindowAlignment::Auto => mode == SensorMode::StereoInertial,
-        }
-    }
-}
+/// full window ("off": it is tried once `init_keyframes` span
+/// `init_min_span_s`).
+pub type FullWindowAlignment = InertialModes;
 
 /// Settings of the relative stage. Every key has a default; unknown keys
 /// are refused so that a typo does not silently keep the default.
@@ -105,8 +86,10 @@ pub struct RelativeConfig {
     /// window is full (`window_keyframes`), not at `init_keyframes`: the
     /// longest stretch of turns the window holds tells the gyroscope bias,
     /// velocity and gravity best, and the first windows after the
-    /// alignment keep what it found [auto: stereo-inertial]. The first
-    /// pose of a start in motion comes 0.5-2 s later.
+    /// alignment keep what it found. The first pose of a start in motion
+    /// comes 0.5-2 s later. "auto" (stereo-inertial: there it improved the
+    /// starts in flight of both the development and the held-apart sets,
+    /// in mono-inertial it did not), "on" or "off".
     pub init_full_window: FullWindowAlignment,
     /// Largest relative standard deviation of the scale at which the
     /// mono-inertial stage switches from initialisation to hybrid.
@@ -146,8 +129,9 @@ pub struct RelativeConfig {
     /// calibration file (`relative/window/camera_imu.rs`): camera 0's
     /// rotation in the IMU frame, the frames' time offset, the stereo
     /// pair's rotation, and (only as far as its sigma lets it, see below)
-    /// camera 0's translation. "auto" (stereo-inertial), "on" (both
-    /// inertial modes) or "off".
+    /// camera 0's translation. "auto" (stereo-inertial: there it improved
+    /// the held-apart evaluation set, in mono-inertial it did not), "on"
+    /// (both inertial modes) or "off".
     pub camera_imu_refinement: CameraImuRefinement,
     /// How far the file may be off, one sigma: rotation (deg),
     /// translation (m), time offset (s). The translation's default, 0.5 mm,

@@ -27,7 +27,8 @@ pub mod types;
 pub mod window;
 
 pub use config::{
-    CameraImuRefinement, ConfigError, EstimatorKind, FullWindowAlignment, RelativeConfig,
+    CameraImuRefinement, ConfigError, EstimatorKind, FullWindowAlignment, InertialModes,
+    RelativeConfig,
 };
 pub use estimator::{FrameInput, FrameTimings, RelativeEstimator, RigError, RigModel, SensorMode};
 pub use factory::build_estimator;
