@@ -12,9 +12,17 @@ Score the online refinement with `run_sets.py OUT --modes stereo-inertial`
 against the same run on the sets themselves: the truth is the sets'
 calibration, 1 deg, 10 mm and -5 ms from the wrong one.
 
+The options scale the error. With a negligible one (`--angle-deg 0
+--move-mm 0 --shift-s 1e-6`: a microsecond, a millionth of a radian at
+1 rad/s) the copies are the same rig to any measurement, and how far
+their runs land from the originals' is the spread a run has anyway: the
+noise floor under which a difference between two builds or settings
+means nothing.
+
 usage: bench/accuracy/wrong_calibration.py SETS_DIR OUT_DIR
+           [--angle-deg 1] [--move-mm 10] [--shift-s 0.005]
 """
-import math, os, re, shutil, sys
+import argparse, math, os, re, shutil, sys
 
 AXIS = (0.6, -0.8, 0.0)
 ANGLE_DEG = 1.0
@@ -50,19 +58,32 @@ def turn(axis, angle):
     ]
 
 
-def write_yaml(text, t):
+def write_yaml(text, t, shift_s):
     data = ", ".join(repr(float(x)) for row in t for x in row)
     text = re.sub(r"(T_BS:.*?data:\s*)\[(.*?)\]", lambda m: m.group(1) + "[" + data + "]", text,
                   flags=re.S)
     if "timeshift_cam_imu" in text:
         sys.exit("the set's calibration already has a time shift")
-    return text.rstrip("\n") + f"\ntimeshift_cam_imu: {SHIFT_S}\n"
+    return text.rstrip("\n") + f"\ntimeshift_cam_imu: {shift_s!r}\n"
 
 
 def main():
-    if len(sys.argv) != 3:
-        sys.exit(__doc__)
-    src, dst = sys.argv[1:]
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("src", metavar="SETS_DIR", help="the folder render_sets.sh wrote")
+    ap.add_argument("dst", metavar="OUT_DIR", help="where the copies go")
+    ap.add_argument("--angle-deg", type=float, default=ANGLE_DEG,
+                    help="camera 0 turned about (0.6, -0.8, 0), deg [%(default)s]")
+    ap.add_argument("--move-mm", type=float, default=math.hypot(*MOVE_M) * 1e3,
+                    help="camera 0 moved along (0, 0.6, 0.8) in the IMU frame, mm [%(default)s]")
+    ap.add_argument("--shift-s", type=float, default=SHIFT_S,
+                    help="timeshift_cam_imu written to every camera, s [%(default)s]")
+    a = ap.parse_args()
+    src, dst = a.src, a.dst
+    if not os.path.isdir(src):
+        sys.exit(f"{src}: not a folder (the folder render_sets.sh wrote)")
+    n = math.hypot(*MOVE_M)
+    move = MOVE_M if a.move_mm == n * 1e3 else [m / n * a.move_mm * 1e-3 for m in MOVE_M]
     for name in sorted(os.listdir(src)):
         mav = os.path.join(src, name, "mav0")
         if not os.path.isfile(os.path.join(mav, "cam0", "sensor.yaml")):
@@ -73,9 +94,9 @@ def main():
             if os.path.exists(os.path.join(mav, d)) and not os.path.lexists(os.path.join(out, d)):
                 os.symlink(os.path.abspath(os.path.join(mav, d)), os.path.join(out, d))
         t0 = read_t_bs(open(os.path.join(mav, "cam0", "sensor.yaml")).read())
-        wrong = matmul(t0, turn(AXIS, math.radians(ANGLE_DEG)))
+        wrong = matmul(t0, turn(AXIS, math.radians(a.angle_deg)))
         for i in range(3):
-            wrong[i][3] += MOVE_M[i]
+            wrong[i][3] += move[i]
         for cam in sorted(c for c in os.listdir(mav) if re.fullmatch(r"cam\d+", c)):
             cd = os.path.join(out, cam)
             os.makedirs(cd, exist_ok=True)
@@ -86,7 +107,7 @@ def main():
             # Every camera keeps its pose in camera 0.
             t = matmul(matmul(wrong, inverse(t0)), read_t_bs(text))
             with open(os.path.join(cd, "sensor.yaml"), "w") as f:
-                f.write(write_yaml(text, t))
+                f.write(write_yaml(text, t, a.shift_s))
         print(name)
 
 
