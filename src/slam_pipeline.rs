@@ -136,7 +136,10 @@ impl SlamPipeline {
         let (absolute, localiser) = match second {
             SecondStage::None => (None, None),
             SecondStage::BuildMap => {
-                let config = settings.absolute.to_config().map_err(ConfigError::from)?;
+                let config = settings
+                    .absolute
+                    .to_config_in(mode)
+                    .map_err(ConfigError::from)?;
                 (Some(AbsoluteStage::new(config)), None)
             }
             SecondStage::Localise(map) => {

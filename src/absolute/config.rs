@@ -151,7 +151,8 @@ pub struct AbsoluteConfig {
     pub scale_sigma_per_sqrt_s: f64,
     /// Leave a landmark out of a position correction when its own
     /// innovation exceeds this chi-square (3 dof), as the localiser does;
-    /// None: every landmark in view corrects.
+    /// None: every landmark in view corrects. None here; the `[absolute]`
+    /// settings turn it on in stereo-inertial (`correction_gate`).
     pub correction_gate_chi2: Option<f64>,
 }
 

@@ -8,6 +8,39 @@ use super::map_worker::RobustWeights;
 use super::recognition::RecognitionConfig;
 use super::solve_schedule::SolveMode;
 use crate::edge_map::policy::EdgePolicy;
+use crate::relative::SensorMode;
+
+/// The landmark innovation gate's value by default, a chi-square with 3
+/// dof: 16.27 is its 99.9 % point.
+pub const DEFAULT_CORRECTION_GATE_CHI2: f64 = 16.27;
+
+/// Where the position correction leaves out a landmark the map disagrees
+/// with (`[absolute] correction_gate`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CorrectionGate {
+    /// Stereo-inertial only: with a stereo rig a landmark's offset is
+    /// metric, and one far from where the map has it is an outlier; with
+    /// one camera the window's lengths wander, and the landmarks that
+    /// disagree most are the ones that pull a drifting track back
+    /// (docs/results/run-spread-2026-12-04.md).
+    Auto,
+    /// Every mode.
+    On,
+    /// No mode: every landmark in view corrects.
+    Off,
+}
+
+impl CorrectionGate {
+    /// Whether the gate is on in `mode`.
+    pub fn enabled_in(self, mode: SensorMode) -> bool {
+        match self {
+            CorrectionGate::Off => false,
+            CorrectionGate::On => true,
+            CorrectionGate::Auto => mode == SensorMode::StereoInertial,
+        }
+    }
+}
 
 /// The `[absolute]` table.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -106,12 +139,15 @@ pub struct AbsoluteSettings {
     /// monocular window's scale wanders), letting it wander by this much
     /// per sqrt(s); 0: the window's lengths are the map's.
     pub scale_sigma_per_sqrt_s: f64,
-    /// Leave a landmark out of a position correction when its own
-    /// innovation exceeds this chi-square with 3 dof (16.27: 99.9 %), as
-    /// the localiser does with its recognised landmarks; 0: off, every
-    /// landmark in view corrects. Off by default: on the accuracy sets
-    /// it helped the development half and not the held-apart one
-    /// (docs/results/second-stage-settling-2026-12-02.md).
+    /// Where a landmark is left out of a position correction when its own
+    /// innovation exceeds `correction_gate_chi2`, as the localiser does
+    /// with its recognised landmarks: `auto` (stereo-inertial: there it
+    /// improved both stages on the development, held-apart and
+    /// consistent-IMU sets, on every copy of a negligibly perturbed rig;
+    /// in mono-inertial it made the held-apart half worse), `on` or `off`.
+    pub correction_gate: CorrectionGate,
+    /// The gate, a chi-square with 3 dof (16.27: 99.9 %); 0: off whatever
+    /// `correction_gate` says.
     pub correction_gate_chi2: f64,
 }
 
@@ -153,7 +189,8 @@ impl Default for AbsoluteSettings {
             node_passes_per_place: config.node_passes_per_place,
             orientation_sigma_rad_per_sqrt_s: config.orientation_sigma_rad_per_sqrt_s,
             scale_sigma_per_sqrt_s: config.scale_sigma_per_sqrt_s,
-            correction_gate_chi2: config.correction_gate_chi2.unwrap_or(0.0),
+            correction_gate: CorrectionGate::Auto,
+            correction_gate_chi2: DEFAULT_CORRECTION_GATE_CHI2,
         }
     }
 }
@@ -175,7 +212,9 @@ pub struct SettingError {
 }
 
 impl AbsoluteSettings {
-    /// The stage's configuration, or the first setting out of range.
+    /// The stage's configuration, or the first setting out of range; the
+    /// correction gate as in stereo-inertial where it is `auto` (a run
+    /// takes [`Self::to_config_in`] its mode).
     pub fn to_config(&self) -> Result<AbsoluteConfig, SettingError> {
         let bad = |key, value: String, allowed| SettingError {
             key,
@@ -337,9 +376,21 @@ impl AbsoluteSettings {
             node_passes_per_place: self.node_passes_per_place,
             orientation_sigma_rad_per_sqrt_s: orientation,
             scale_sigma_per_sqrt_s: scale_walk,
-            correction_gate_chi2: (correction_gate > 0.0).then_some(correction_gate),
+            correction_gate_chi2: (correction_gate > 0.0
+                && self.correction_gate != CorrectionGate::Off)
+                .then_some(correction_gate),
             ..AbsoluteConfig::default()
         })
+    }
+
+    /// [`Self::to_config`] for a run in `mode`: the settings that depend on
+    /// the sensors (`correction_gate`) applied.
+    pub fn to_config_in(&self, mode: SensorMode) -> Result<AbsoluteConfig, SettingError> {
+        let mut config = self.to_config()?;
+        if !self.correction_gate.enabled_in(mode) {
+            config.correction_gate_chi2 = None;
+        }
+        Ok(config)
     }
 
     /// The recognition gates of this table, for the absolute stage and the
@@ -394,7 +445,6 @@ mod tests {
         assert_eq!(config.count_window_once, stage.count_window_once);
         assert_eq!(config.frame_node_saturation, stage.frame_node_saturation);
         assert_eq!(config.node_passes_per_place, stage.node_passes_per_place);
-        assert_eq!(config.correction_gate_chi2, stage.correction_gate_chi2);
         assert_eq!(
             config.translation_sigma_per_sqrt_m,
             stage.translation_sigma_per_sqrt_m
@@ -408,9 +458,75 @@ mod tests {
             stage.orientation_sigma_rad_per_sqrt_s
         );
         assert_eq!(config.scale_sigma_per_sqrt_s, stage.scale_sigma_per_sqrt_s);
-        // Except one on purpose: real frames' covariances are inflated.
+        // Except two on purpose: real frames' covariances are inflated,
+        // and the correction gate is on where the mode wants it (the
+        // stage alone, as the simulations drive it, has none).
         assert_eq!(stage.landmark_covariance_scale, 1.0);
         assert_eq!(config.landmark_covariance_scale, REAL_DATA_COVARIANCE_SCALE);
+        assert_eq!(stage.correction_gate_chi2, None);
+        assert_eq!(
+            config.correction_gate_chi2,
+            Some(DEFAULT_CORRECTION_GATE_CHI2)
+        );
+    }
+
+    #[test]
+    fn the_correction_gate_follows_the_mode() {
+        let gate = |setting: CorrectionGate, chi2: f64, mode: SensorMode| {
+            AbsoluteSettings {
+                correction_gate: setting,
+                correction_gate_chi2: chi2,
+                ..Default::default()
+            }
+            .to_config_in(mode)
+            .expect("valid")
+            .correction_gate_chi2
+        };
+        use CorrectionGate::{Auto, Off, On};
+        use SensorMode::{Mono, MonoInertial, Stereo, StereoInertial};
+        let on = Some(DEFAULT_CORRECTION_GATE_CHI2);
+        // By default: stereo-inertial only.
+        let default = AbsoluteSettings::default();
+        assert_eq!(default.correction_gate, Auto);
+        for (mode, want) in [
+            (StereoInertial, on),
+            (MonoInertial, None),
+            (Stereo, None),
+            (Mono, None),
+        ] {
+            assert_eq!(
+                default
+                    .to_config_in(mode)
+                    .expect("valid")
+                    .correction_gate_chi2,
+                want,
+                "{mode:?}"
+            );
+        }
+        for mode in [StereoInertial, MonoInertial, Stereo, Mono] {
+            assert_eq!(gate(On, 9.0, mode), Some(9.0), "{mode:?}");
+            assert_eq!(gate(Off, 9.0, mode), None, "{mode:?}");
+            // 0 is off whatever the switch says.
+            assert_eq!(gate(On, 0.0, mode), None, "{mode:?}");
+        }
+        // As a user writes it.
+        let written: AbsoluteSettings =
+            toml::from_str("correction_gate = \"on\"\ncorrection_gate_chi2 = 11.3\n")
+                .expect("parses");
+        assert_eq!(
+            written
+                .to_config_in(MonoInertial)
+                .expect("valid")
+                .correction_gate_chi2,
+            Some(11.3)
+        );
+        let error = toml::from_str::<AbsoluteSettings>("correction_gate = \"sometimes\"\n")
+            .expect_err("not a choice")
+            .to_string();
+        assert!(
+            error.contains("sometimes") || error.contains("auto"),
+            "{error}"
+        );
     }
 
     #[test]
@@ -426,7 +542,8 @@ mod tests {
             landmark_covariance_scale: 3.5,
             orientation_sigma_rad_per_sqrt_s: 3e-4,
             scale_sigma_per_sqrt_s: 2.5e-3,
-            correction_gate_chi2: 16.27,
+            correction_gate: CorrectionGate::On,
+            correction_gate_chi2: 12.5,
             max_correction_landmarks: 17,
             solve_every_frames: 7,
             frame_node_saturation: 13,
@@ -443,7 +560,7 @@ mod tests {
         assert_eq!(config.landmark_covariance_scale, 3.5);
         assert_eq!(config.orientation_sigma_rad_per_sqrt_s, 3e-4);
         assert_eq!(config.scale_sigma_per_sqrt_s, 2.5e-3);
-        assert_eq!(config.correction_gate_chi2, Some(16.27));
+        assert_eq!(config.correction_gate_chi2, Some(12.5));
         assert_eq!(config.max_correction_landmarks, 17);
         assert_eq!(config.solve_every_frames, 7);
         assert_eq!(config.frame_node_saturation, 13);
