@@ -212,9 +212,9 @@ pub struct SettingError {
 }
 
 impl AbsoluteSettings {
-    /// The stage's configuration, or the first setting out of range; the
-    /// correction gate as in stereo-inertial where it is `auto` (a run
-    /// takes [`Self::to_config_in`] its mode).
+    /// The stage's configuration, or the first setting out of range. The
+    /// mode is not known here, so an `auto` correction gate is left on;
+    /// a run builds its stage with [`Self::to_config_in`].
     pub fn to_config(&self) -> Result<AbsoluteConfig, SettingError> {
         let bad = |key, value: String, allowed| SettingError {
             key,
