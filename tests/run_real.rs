@@ -117,6 +117,87 @@ fn euroc_at_rest_initialises_from_the_static_start_and_stays_within_a_centimetre
     }
 }
 
+/// `--landmarks` writes what the relative stage hands the absolute stage:
+/// one row per landmark and tracked frame, body-frame positions in front
+/// of the cameras and covariances that are symmetric positive definite.
+#[test]
+fn landmarks_are_written_per_frame() {
+    let Some(root) = shared("euroc/V1_01_micro") else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let csv = dir.path().join("lm.csv");
+    let trajectory = dir.path().join("t.csv");
+    succeeds(
+        rigslam_run()
+            .args(["--mode", "stereo-inertial", "--dataset"])
+            .arg(&root)
+            .arg("--landmarks")
+            .arg(&csv)
+            .arg("--trajectory")
+            .arg(&trajectory),
+    );
+    let text = std::fs::read_to_string(&csv).expect("written");
+    let mut lines = text.lines();
+    assert_eq!(
+        lines.next(),
+        Some("t_ns,id,x,y,z,c00,c01,c02,c11,c12,c22,keyframes")
+    );
+    let stamps: std::collections::HashSet<i64> = std::fs::read_to_string(&trajectory)
+        .expect("trajectory")
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .filter_map(|l| l.split(',').next()?.parse().ok())
+        .collect();
+    let mut rows = 0;
+    let mut frames = std::collections::HashSet::new();
+    for line in lines {
+        let v: Vec<f64> = line
+            .split(',')
+            .map(|f| f.parse().expect("number"))
+            .collect();
+        assert_eq!(v.len(), 12, "{line}");
+        let t_ns: i64 = line
+            .split(',')
+            .next()
+            .and_then(|f| f.parse().ok())
+            .expect("stamp");
+        assert!(
+            stamps.contains(&t_ns),
+            "{t_ns} is not a frame of the trajectory"
+        );
+        frames.insert(t_ns);
+        let (x, y, z) = (v[2], v[3], v[4]);
+        assert!(x.is_finite() && y.is_finite() && z.is_finite(), "{line}");
+        assert!((x * x + y * y + z * z).sqrt() < 100.0, "{line}");
+        let c = nalgebra::Matrix3::new(v[5], v[6], v[7], v[6], v[8], v[9], v[7], v[9], v[10]);
+        assert!(
+            c.cholesky().is_some(),
+            "covariance not positive definite: {line}"
+        );
+        assert!(
+            v[11] >= 1.0,
+            "a window estimate rests on a keyframe: {line}"
+        );
+        rows += 1;
+    }
+    // At rest few frames hand landmarks on (8 of these 95).
+    assert!(frames.len() >= 5, "{} frames with landmarks", frames.len());
+    assert!(
+        rows >= 20 * frames.len(),
+        "{rows} rows over {} frames",
+        frames.len()
+    );
+    let err = fails(
+        rigslam_run()
+            .args(["--mode", "stereo", "--max-frames", "2", "--dataset"])
+            .arg(&root)
+            .arg("--landmarks")
+            .arg(dir.path().join("missing/lm.csv")),
+    );
+    assert!(err.contains("landmarks file"), "{err}");
+}
+
 /// A camera whose clock runs 7 ms behind the IMU's (Kalibr's
 /// `timeshift_cam_imu: 0.007`, as a calibration of a real rig may say):
 /// every frame is preintegrated up to its instant on the IMU clock, 7 ms

@@ -107,6 +107,80 @@ pub struct RunArgs {
     /// estimated biases and velocity with the ground truth's.
     #[arg(long)]
     states: Option<PathBuf>,
+    /// Write every tracked frame's landmarks from the relative stage, what
+    /// the absolute stage builds its map from (CSV: t_ns, landmark id, position in the
+    /// frame's body frame, m, its covariance c00 c01 c02 c11 c12 c22, m^2,
+    /// and the number of window keyframes the estimate rests on, 0 when
+    /// the estimator keeps no window): to study the map offline.
+    #[arg(long)]
+    landmarks: Option<PathBuf>,
+}
+
+/// The `--landmarks` CSV, written as the frames come.
+struct LandmarksCsv {
+    path: PathBuf,
+    out: std::io::BufWriter<std::fs::File>,
+    error: Option<std::io::Error>,
+}
+
+impl LandmarksCsv {
+    const HEADER: &'static str = "t_ns,id,x,y,z,c00,c01,c02,c11,c12,c22,keyframes\n";
+
+    fn create(path: &std::path::Path) -> anyhow::Result<Self> {
+        use std::io::Write;
+        let file = std::fs::File::create(path)
+            .with_context(|| format!("creating the landmarks file {}", path.display()))?;
+        let mut out = std::io::BufWriter::new(file);
+        out.write_all(Self::HEADER.as_bytes())
+            .with_context(|| format!("writing {}", path.display()))?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            out,
+            error: None,
+        })
+    }
+
+    /// Appends a frame's landmarks; the first write error is kept for
+    /// [`Self::finish`] and later frames are skipped.
+    fn frame(&mut self, output: &rigslam::relative::RelativeOutput) {
+        use std::io::Write;
+        if self.error.is_some() {
+            return;
+        }
+        for l in &output.landmarks {
+            let p = l.position_body_m;
+            let c = l.covariance_body_m2;
+            let keyframes = l.support.map_or(0, |s| s.keyframes);
+            if let Err(e) = writeln!(
+                self.out,
+                "{},{},{},{},{},{},{},{},{},{},{},{}",
+                output.t_ns,
+                l.id,
+                p.x,
+                p.y,
+                p.z,
+                c[(0, 0)],
+                c[(0, 1)],
+                c[(0, 2)],
+                c[(1, 1)],
+                c[(1, 2)],
+                c[(2, 2)],
+                keyframes
+            ) {
+                self.error = Some(e);
+                return;
+            }
+        }
+    }
+
+    fn finish(mut self) -> anyhow::Result<()> {
+        use std::io::Write;
+        let flushed = match self.error.take() {
+            Some(e) => Err(e),
+            None => self.out.flush(),
+        };
+        flushed.with_context(|| format!("writing the landmarks file {}", self.path.display()))
+    }
 }
 
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
@@ -175,11 +249,18 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         load_map,
         rig,
     };
+    let mut landmarks_csv = match &args.landmarks {
+        Some(path) => Some(LandmarksCsv::create(path)?),
+        None => None,
+    };
     let mut states_csv = String::new();
     if args.states.is_some() {
         states_csv.push_str("t_ns,state,px,py,pz,qx,qy,qz,qw,vx,vy,vz,bgx,bgy,bgz,bax,bay,baz\n");
     }
     let result = run_dataset(&dataset, &run, |output, listed| {
+        if let Some(csv) = landmarks_csv.as_mut() {
+            csv.frame(output);
+        }
         if args.states.is_some() {
             let p = output.T_world_body.translation.vector;
             let q = output.T_world_body.rotation.coords;
@@ -222,6 +303,9 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             .trajectory_format
             .unwrap_or_else(|| TrajectoryFormat::of_path(path));
         write_trajectory(path, &result.outcome.trajectory, format)?;
+    }
+    if let Some(csv) = landmarks_csv {
+        csv.finish()?;
     }
     if let Some(path) = &args.states {
         std::fs::write(path, &states_csv)
