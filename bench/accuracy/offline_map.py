@@ -74,6 +74,7 @@ def main():
     ap.add_argument("--walks", type=float, nargs="+", default=[0.0], help="rotation random walks to try, rad per sqrt(s); 0: no rotation unknowns [0]")
     ap.add_argument("--offset-cov-scale", type=float, default=1.0, help="multiply the offsets' covariances [1]")
     ap.add_argument("--true-attitude", action="store_true", help="turn the offsets by the ground truth's attitude")
+    ap.add_argument("--show-turns", action="store_true", help="with --walks: print every 20th node's estimated turn beside the truth's attitude change since the first node (deg, aligned world)")
     args = ap.parse_args()
 
     gt_t, gt_p, gt_q = load_euroc(args.groundtruth)
@@ -111,6 +112,12 @@ def main():
         r, t = umeyama(f, truth_f)
         e = (r @ f.T).T + t - truth_f
         return np.sqrt((e ** 2).sum(1).mean())
+
+    def rotvec(m):
+        angle = np.arccos(np.clip((np.trace(m) - 1) / 2, -1, 1))
+        if angle < 1e-12:
+            return np.zeros(3)
+        return angle / (2 * np.sin(angle)) * np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]])
 
     print(f"{n_f} frame nodes, {n_l} landmarks; the relative stage's poses at the nodes: ATE {ate(rel_f) * 1000:.1f} mm")
     print("| map | nodes' ATE, mm |")
@@ -166,6 +173,18 @@ def main():
         if args.offset_cov_scale != 1.0:
             what += f", offsets' covariance x{args.offset_cov_scale:g}"
         print(f"| {what} | {ate(f_est) * 1000:.1f} |")
+        if turn and args.show_turns:
+            r_align, _ = umeyama(f_est, truth_f)
+            turns = x[3 * n_l + 3 * n_f:].reshape(-1, 3)
+            first = None
+            for f in range(0, n_f, 20):
+                t = nodes[f]
+                # The truth's attitude against the relative stage's, in the
+                # aligned world, and its change since the first node.
+                err = rotvec(truth(t)[1] @ (r_align @ rot(rq[rel_index[t]])).T)
+                first = err if first is None else first
+                est = np.degrees(r_align @ turns[f])
+                print(f"    node {f:4d}: estimated turn {np.round(est, 2)} deg, the truth's change {np.round(np.degrees(err - first), 2)} deg")
 
 
 if __name__ == "__main__":
