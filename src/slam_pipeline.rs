@@ -116,10 +116,14 @@ pub struct SlamPipeline {
     /// measured from it.
     last_taken: Option<(i64, Option<Vector3<f64>>)>,
     /// Frames whose landmarks the second stage did not get because the
-    /// relative stage was settling ([`RelativeEstimator::settling`]), and
-    /// whether the last frame taken was one of them.
+    /// relative stage was settling ([`RelativeEstimator::settling`], or
+    /// its accelerometer bias not yet known to
+    /// `wait_accel_bias_sigma_m_s2`), and whether the last frame taken
+    /// was one of them.
     held_back_frames: u64,
     holding_back: bool,
+    /// `[absolute] wait_accel_bias_sigma_m_s2` in this mode (0: no wait).
+    wait_accel_bias_sigma_m_s2: f64,
 }
 
 impl SlamPipeline {
@@ -172,6 +176,7 @@ impl SlamPipeline {
             last_taken: None,
             held_back_frames: 0,
             holding_back: false,
+            wait_accel_bias_sigma_m_s2: settings.absolute.wait_accel_bias_sigma_in(mode),
         })
     }
 
@@ -270,15 +275,16 @@ impl SlamPipeline {
         let start = Instant::now();
         let delta = self.measure_from_taken(&mut relative);
         // While the relative stage settles after a start in motion its
-        // landmarks carry the alignment's errors: the second stage gets
-        // the motion without them (no map anchor, no edges, no
+        // landmarks carry the alignment's errors, and until it knows its
+        // accelerometer bias its attitude may carry the bias: the second
+        // stage gets the motion without them (no map anchor, no edges, no
         // corrections from those frames; the pose passes through).
         let held_back;
-        let settling = self.relative.settling();
+        let settling = self.relative.settling() || self.bias_unknown();
         if self.holding_back && !settling {
             tracing::info!(
                 frames = self.held_back_frames,
-                "the relative stage has settled after its start in motion: the second stage takes its landmarks again"
+                "the relative stage has settled: the second stage takes its landmarks"
             );
         }
         self.holding_back = settling;
@@ -318,16 +324,25 @@ impl SlamPipeline {
     }
 
     /// Whether a second stage runs and waits for the relative stage to
-    /// settle after a start in motion (its last frame was held back).
+    /// settle (its last frame was held back).
     pub fn second_stage_waiting(&self) -> bool {
         self.holding_back && self.has_second_stage()
     }
 
     /// Frames whose landmarks the second stage was not given while the
-    /// relative stage settled after a start in motion (None without a
-    /// second stage).
+    /// relative stage settled (None without a second stage).
     pub fn held_back_frames(&self) -> Option<u64> {
         self.has_second_stage().then_some(self.held_back_frames)
+    }
+
+    /// The relative stage uses the IMU and knows its accelerometer bias
+    /// no better than `wait_accel_bias_sigma_m_s2`.
+    fn bias_unknown(&self) -> bool {
+        self.wait_accel_bias_sigma_m_s2 > 0.0
+            && self
+                .relative
+                .accel_bias_sigma_m_s2()
+                .is_some_and(|sigma| sigma > self.wait_accel_bias_sigma_m_s2)
     }
 
     fn has_second_stage(&self) -> bool {

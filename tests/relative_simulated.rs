@@ -632,8 +632,9 @@ fn the_map_waits_for_a_start_in_flight_to_settle() {
         SecondStage::BuildMap,
     )
     .expect("pipeline");
-    // (stamp, tracking, settling, map-frame pose == relative pose, filter covariance)
-    let mut frames: Vec<(i64, bool, bool, bool, bool)> = Vec::new();
+    // (stamp, tracking, settling, map-frame pose == relative pose, filter
+    // covariance, accelerometer bias sigma)
+    let mut frames: Vec<(i64, bool, bool, bool, bool, f64)> = Vec::new();
     for event in stereo_imu_stream(&dataset) {
         match event.expect("event") {
             SensorEvent::Imu(s) => pipeline.push_imu(&s),
@@ -656,6 +657,10 @@ fn the_map_waits_for_a_start_in_flight_to_settle() {
                     settling,
                     same,
                     corrected.position_covariance_m2.is_some(),
+                    pipeline
+                        .relative()
+                        .accel_bias_sigma_m_s2()
+                        .unwrap_or(f64::INFINITY),
                 ));
             }
         }
@@ -687,13 +692,164 @@ fn the_map_waits_for_a_start_in_flight_to_settle() {
     for f in &frames[..settled] {
         assert!(f.3 && !f.4, "the map started while settling: {f:?}");
     }
-    let anchored = frames[settled..]
+    // The map also waits for the accelerometer bias to be known (see the
+    // start from rest below): it starts promptly once both hold.
+    let wait = settings.absolute.wait_accel_bias_sigma_m_s2;
+    let ready = settled
+        + frames[settled..]
+            .iter()
+            .position(|f| f.5 <= wait)
+            .expect("the bias becomes known");
+    eprintln!(
+        "bias known to {wait} m/s^2 {:.2} s after settling",
+        (frames[ready].0 - frames[settled].0) as f64 * 1e-9
+    );
+    let anchored = frames[ready..]
         .iter()
         .position(|f| f.4)
         .expect("the map starts once settled");
     assert!(
         anchored < 20,
-        "the map started {anchored} frames after settling"
+        "the map started {anchored} frames after settling with the bias known"
+    );
+}
+
+/// After a start from rest the accelerometer bias is not told from tilt
+/// until the rig turns: the relative stage reports its bias sigma, and the
+/// pipeline's absolute stage takes no landmarks while it is above
+/// `wait_accel_bias_sigma_m_s2` (the map-frame pose is the relative pose,
+/// with no filter covariance), then starts its map. Without the wait the
+/// map starts earlier, on the first frames of the motion.
+#[test]
+fn the_map_waits_for_the_accelerometer_bias_after_a_start_from_rest() {
+    use rigslam::slam_config::SlamSettings;
+    use rigslam::slam_pipeline::{SecondStage, SlamPipeline};
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let dir = tmp.path().join("rest");
+    if render(&dir, 0.0, 12.0).is_none() {
+        return;
+    }
+    let dataset = open_dataset(&dir).expect("open");
+    let rig = rig_of(&dataset);
+    let mut settings = SlamSettings::default();
+    settings.absolute.enabled = true;
+    let wait = settings.absolute.wait_accel_bias_sigma_m_s2;
+    assert!(wait > 0.0, "the wait is on by default");
+    let mut no_wait = settings.clone();
+    no_wait.absolute.wait_accel_bias_sigma_m_s2 = 0.0;
+    let build = |settings: &SlamSettings| {
+        SlamPipeline::new(
+            EstimatorKind::Window,
+            SensorMode::StereoInertial,
+            &rig,
+            settings,
+            SecondStage::BuildMap,
+        )
+        .expect("pipeline")
+    };
+    let (mut waiting, mut eager) = (build(&settings), build(&no_wait));
+    // (tracking, bias sigma, waiting, map-frame pose == relative pose,
+    // filter covariance, traces of the relative and map-frame position
+    // covariances)
+    let mut frames: Vec<(bool, f64, bool, bool, bool, f64, f64)> = Vec::new();
+    let mut eager_anchored = None;
+    for event in stereo_imu_stream(&dataset) {
+        match event.expect("event") {
+            SensorEvent::Imu(s) => {
+                waiting.push_imu(&s);
+                eager.push_imu(&s);
+            }
+            SensorEvent::Frame { t_ns, left, right } => {
+                let input = FrameInput {
+                    t_ns,
+                    left: &left.image,
+                    right: right.as_ref().map(|r| &r.image),
+                };
+                let answer = waiting.push_frame(&input);
+                waiting.finish_frame();
+                let corrected = answer.corrected.expect("the absolute stage runs");
+                let same = (corrected.T_world_body.translation.vector
+                    - answer.relative.T_world_body.translation.vector)
+                    .norm()
+                    < 1e-12;
+                frames.push((
+                    answer.relative.state == TrackingState::Tracking,
+                    // None only before the first frame is placed.
+                    waiting
+                        .relative()
+                        .accel_bias_sigma_m_s2()
+                        .unwrap_or(f64::NAN),
+                    waiting.second_stage_waiting(),
+                    same,
+                    corrected.position_covariance_m2.is_some(),
+                    answer
+                        .relative
+                        .pose_covariance
+                        .map_or(0.0, |c| c.matrix.fixed_view::<3, 3>(0, 0).trace()),
+                    corrected.position_covariance_m2.map_or(0.0, |c| c.trace()),
+                ));
+                let other = eager.push_frame(&input);
+                eager.finish_frame();
+                if eager_anchored.is_none()
+                    && other
+                        .corrected
+                        .is_some_and(|c| c.position_covariance_m2.is_some())
+                {
+                    eager_anchored = Some(frames.len() - 1);
+                }
+            }
+        }
+    }
+    // At rest the pose is held and no sigma is reported; the first
+    // frames of the motion do not know the bias yet, and the map waits.
+    let moving = frames
+        .iter()
+        .position(|f| f.0 && !f.1.is_nan())
+        .expect("the rig moves");
+    assert!(
+        frames[moving].1 > wait && frames[moving].2,
+        "leaving rest the bias is not known and the map waits: {:?}",
+        frames[moving]
+    );
+    let known = frames
+        .iter()
+        .position(|f| f.1 <= wait)
+        .expect("the bias becomes known within the 12 s");
+    eprintln!(
+        "bias known to {wait} m/s^2 at frame {known} ({:.1} s); without the wait the map started at frame {eager_anchored:?}",
+        known as f64 / 20.0
+    );
+    for f in frames.iter().filter(|f| !(f.1 <= wait)) {
+        assert!(
+            (f.2 || f.1.is_nan()) && f.3 && !f.4,
+            "the map started before the bias was known: {f:?}"
+        );
+    }
+    let anchored = frames[known..]
+        .iter()
+        .position(|f| f.4)
+        .expect("the map starts once the bias is known")
+        + known;
+    assert!(
+        anchored - known < 20,
+        "the map started {} frames after the bias was known",
+        anchored - known
+    );
+    // The map is anchored where the relative stage had drifted to by
+    // then: the published map-frame covariance carries that uncertainty
+    // (the relative stage's own) instead of starting from nothing.
+    let (relative_trace, map_trace) = (frames[anchored].5, frames[anchored].6);
+    eprintln!(
+        "at the anchor: relative position variance {relative_trace:.2e} m^2, map-frame {map_trace:.2e} m^2"
+    );
+    assert!(
+        relative_trace > 1e-7 && map_trace >= 0.5 * relative_trace,
+        "anchored with {map_trace:.2e} m^2 where the relative stage had {relative_trace:.2e}"
+    );
+    let eager_anchored = eager_anchored.expect("the map starts without the wait");
+    assert!(
+        eager_anchored < known,
+        "without the wait the map starts at frame {eager_anchored}, before the bias is known at {known}"
     );
 }
 

@@ -376,6 +376,40 @@ fn the_ekf_baseline_runs_the_inertial_modes_and_refuses_the_others() {
     assert!(err.contains("propagates with the IMU"), "{err}");
 }
 
+/// A settings file that lets the second stage map the clip: V1_01_micro
+/// rests and then barely turns, so the relative stage never knows its
+/// accelerometer bias to the default wait's 0.02 m/s^2 and the map would
+/// never start (`a_clip_that_never_turns_is_not_mapped_and_says_why`).
+fn no_bias_wait(dir: &Path) -> PathBuf {
+    let path = dir.join("no_wait.toml");
+    std::fs::write(&path, "[absolute]\nwait_accel_bias = \"off\"\n").expect("write");
+    path
+}
+
+#[test]
+fn a_clip_that_never_turns_is_not_mapped_and_says_why() {
+    let Some(root) = shared("euroc/V1_01_micro") else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = rigslam_run()
+        .args(["--absolute", "--mode", "stereo-inertial", "--dataset"])
+        .arg(&root)
+        .arg("--save-map")
+        .arg(dir.path().join("v101.map"))
+        .output()
+        .expect("run rigslam");
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("no map to save")
+            && err.contains("wait_accel_bias = \"off\"")
+            && err.contains("turn the rig"),
+        "{err}"
+    );
+    assert!(!dir.path().join("v101.map").exists());
+}
+
 #[test]
 fn absolute_writes_both_trajectories_and_scores_both() {
     let Some(root) = shared("euroc/V1_01_micro") else {
@@ -396,7 +430,9 @@ fn absolute_writes_both_trajectories_and_scores_both() {
             .arg("--trajectory")
             .arg(&corrected)
             .arg("--trajectory-relative")
-            .arg(&relative),
+            .arg(&relative)
+            .arg("--config")
+            .arg(no_bias_wait(dir.path())),
     );
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
     assert_eq!(report["absolute"]["frames"], 95);
@@ -435,7 +471,9 @@ fn a_saved_map_is_localised_in_again() {
             .args(["--absolute", "--mode", "stereo-inertial", "--dataset"])
             .arg(&root)
             .arg("--save-map")
-            .arg(&map),
+            .arg(&map)
+            .arg("--config")
+            .arg(no_bias_wait(dir.path())),
     );
     let text = std::fs::read_to_string(&map).expect("map written");
     let header = text.lines().next().expect("header");
@@ -460,7 +498,9 @@ fn a_saved_map_is_localised_in_again() {
             .arg("--load-map")
             .arg(&map)
             .arg("--trajectory")
-            .arg(&localised),
+            .arg(&localised)
+            .arg("--config")
+            .arg(no_bias_wait(dir.path())),
     );
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
     let stats = &report["localise"];

@@ -14,30 +14,31 @@ use crate::relative::SensorMode;
 /// dof: 16.27 is its 99.9 % point.
 pub const DEFAULT_CORRECTION_GATE_CHI2: f64 = 16.27;
 
-/// Where the position correction leaves out a landmark the map disagrees
-/// with (`[absolute] correction_gate`).
+/// The accelerometer bias sigma the second stage waits for by default,
+/// m/s^2 ([`AbsoluteSettings::wait_accel_bias_sigma_m_s2`]).
+pub const DEFAULT_WAIT_ACCEL_BIAS_SIGMA_M_S2: f64 = 0.02;
+
+/// Which modes a behaviour of the second stage is on in
+/// (`[absolute] correction_gate`, `wait_accel_bias`); each key says why its
+/// `auto` is what it is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
-pub enum CorrectionGate {
-    /// Stereo-inertial only: with a stereo rig a landmark's offset is
-    /// metric, and one far from where the map has it is an outlier; with
-    /// one camera the window's lengths wander, and the landmarks that
-    /// disagree most are the ones that pull a drifting track back
-    /// (docs/results/run-spread-2026-12-04.md).
+pub enum ModeSwitch {
+    /// Stereo-inertial only.
     Auto,
-    /// Every mode.
+    /// Every mode it applies to.
     On,
-    /// No mode: every landmark in view corrects.
+    /// No mode.
     Off,
 }
 
-impl CorrectionGate {
-    /// Whether the gate is on in `mode`.
+impl ModeSwitch {
+    /// Whether it is on in `mode`.
     pub fn enabled_in(self, mode: SensorMode) -> bool {
         match self {
-            CorrectionGate::Off => false,
-            CorrectionGate::On => true,
-            CorrectionGate::Auto => mode == SensorMode::StereoInertial,
+            ModeSwitch::Off => false,
+            ModeSwitch::On => true,
+            ModeSwitch::Auto => mode == SensorMode::StereoInertial,
         }
     }
 }
@@ -144,11 +145,29 @@ pub struct AbsoluteSettings {
     /// with its recognised landmarks: `auto` (stereo-inertial: there it
     /// improved both stages on the development, held-apart and
     /// consistent-IMU sets, on every copy of a negligibly perturbed rig;
-    /// in mono-inertial it made the held-apart half worse), `on` or `off`.
-    pub correction_gate: CorrectionGate,
+    /// in mono-inertial it made the held-apart half worse: with one
+    /// camera the window's lengths wander, and the landmarks that
+    /// disagree most are the ones that pull a drifting track back), `on`
+    /// or `off`.
+    pub correction_gate: ModeSwitch,
     /// The gate, a chi-square with 3 dof (16.27: 99.9 %); 0: off whatever
     /// `correction_gate` says.
     pub correction_gate_chi2: f64,
+    /// Where the second stage (map or localiser) takes no landmarks while
+    /// the relative stage knows its accelerometer bias no better than
+    /// `wait_accel_bias_sigma_m_s2`: after a start from rest gravity and
+    /// the bias are told apart only once the rig turns, until then the
+    /// attitude may be off by about sigma / g, and landmarks mapped then
+    /// pull the robot later; the pose passes through meanwhile. `auto`
+    /// (stereo-inertial: there it improved the two stages on the
+    /// development, held-apart and consistent-IMU sets on every copy; in
+    /// mono-inertial, where the bias is known later, the map lost more
+    /// than it gained on both halves), `on` (both inertial modes) or
+    /// `off`.
+    pub wait_accel_bias: ModeSwitch,
+    /// The bias sigma waited for, m/s^2 (0.02: 0.12 deg of tilt, 9 mm at
+    /// 4.5 m; 0: no wait whatever `wait_accel_bias` says).
+    pub wait_accel_bias_sigma_m_s2: f64,
 }
 
 impl Default for AbsoluteSettings {
@@ -189,8 +208,10 @@ impl Default for AbsoluteSettings {
             node_passes_per_place: config.node_passes_per_place,
             orientation_sigma_rad_per_sqrt_s: config.orientation_sigma_rad_per_sqrt_s,
             scale_sigma_per_sqrt_s: config.scale_sigma_per_sqrt_s,
-            correction_gate: CorrectionGate::Auto,
+            correction_gate: ModeSwitch::Auto,
             correction_gate_chi2: DEFAULT_CORRECTION_GATE_CHI2,
+            wait_accel_bias: ModeSwitch::Auto,
+            wait_accel_bias_sigma_m_s2: DEFAULT_WAIT_ACCEL_BIAS_SIGMA_M_S2,
         }
     }
 }
@@ -360,6 +381,14 @@ impl AbsoluteSettings {
                 "0 (off) or a positive chi-square (3 dof; 16.27 is 99.9 %)",
             ));
         }
+        let wait = self.wait_accel_bias_sigma_m_s2;
+        if !(wait.is_finite() && wait >= 0.0) {
+            return Err(bad(
+                "absolute.wait_accel_bias_sigma_m_s2",
+                wait.to_string(),
+                "0 (no wait) or a positive number of m/s^2",
+            ));
+        }
         Ok(AbsoluteConfig {
             policy,
             solve_every_frames: self.solve_every_frames,
@@ -377,10 +406,20 @@ impl AbsoluteSettings {
             orientation_sigma_rad_per_sqrt_s: orientation,
             scale_sigma_per_sqrt_s: scale_walk,
             correction_gate_chi2: (correction_gate > 0.0
-                && self.correction_gate != CorrectionGate::Off)
+                && self.correction_gate != ModeSwitch::Off)
                 .then_some(correction_gate),
             ..AbsoluteConfig::default()
         })
+    }
+
+    /// The accelerometer bias sigma the second stage waits for in `mode`,
+    /// m/s^2 (0: it does not wait); see `wait_accel_bias`.
+    pub fn wait_accel_bias_sigma_in(&self, mode: SensorMode) -> f64 {
+        if self.wait_accel_bias.enabled_in(mode) {
+            self.wait_accel_bias_sigma_m_s2
+        } else {
+            0.0
+        }
     }
 
     /// [`Self::to_config`] for a run in `mode`: the settings that depend on
@@ -471,8 +510,37 @@ mod tests {
     }
 
     #[test]
+    fn the_accelerometer_bias_wait_follows_the_mode() {
+        use ModeSwitch::{Auto, Off, On};
+        use SensorMode::{MonoInertial, StereoInertial};
+        let default = AbsoluteSettings::default();
+        assert_eq!(default.wait_accel_bias, Auto);
+        let sigma = DEFAULT_WAIT_ACCEL_BIAS_SIGMA_M_S2;
+        assert_eq!(default.wait_accel_bias_sigma_in(StereoInertial), sigma);
+        assert_eq!(default.wait_accel_bias_sigma_in(MonoInertial), 0.0);
+        for (setting, si, mi) in [(On, sigma, sigma), (Off, 0.0, 0.0), (Auto, sigma, 0.0)] {
+            let s = AbsoluteSettings {
+                wait_accel_bias: setting,
+                ..Default::default()
+            };
+            assert_eq!(
+                s.wait_accel_bias_sigma_in(StereoInertial),
+                si,
+                "{setting:?}"
+            );
+            assert_eq!(s.wait_accel_bias_sigma_in(MonoInertial), mi, "{setting:?}");
+        }
+        let zero = AbsoluteSettings {
+            wait_accel_bias: On,
+            wait_accel_bias_sigma_m_s2: 0.0,
+            ..Default::default()
+        };
+        assert_eq!(zero.wait_accel_bias_sigma_in(StereoInertial), 0.0);
+    }
+
+    #[test]
     fn the_correction_gate_follows_the_mode() {
-        let gate = |setting: CorrectionGate, chi2: f64, mode: SensorMode| {
+        let gate = |setting: ModeSwitch, chi2: f64, mode: SensorMode| {
             AbsoluteSettings {
                 correction_gate: setting,
                 correction_gate_chi2: chi2,
@@ -482,7 +550,7 @@ mod tests {
             .expect("valid")
             .correction_gate_chi2
         };
-        use CorrectionGate::{Auto, Off, On};
+        use ModeSwitch::{Auto, Off, On};
         use SensorMode::{Mono, MonoInertial, Stereo, StereoInertial};
         let on = Some(DEFAULT_CORRECTION_GATE_CHI2);
         // By default: stereo-inertial only.
@@ -542,7 +610,7 @@ mod tests {
             landmark_covariance_scale: 3.5,
             orientation_sigma_rad_per_sqrt_s: 3e-4,
             scale_sigma_per_sqrt_s: 2.5e-3,
-            correction_gate: CorrectionGate::On,
+            correction_gate: ModeSwitch::On,
             correction_gate_chi2: 12.5,
             max_correction_landmarks: 17,
             solve_every_frames: 7,
@@ -581,7 +649,21 @@ mod tests {
 
     #[test]
     fn each_bad_value_names_its_key() {
-        let cases: [(&str, AbsoluteSettings); 16] = [
+        let cases: [(&str, AbsoluteSettings); 18] = [
+            (
+                "absolute.wait_accel_bias_sigma_m_s2",
+                AbsoluteSettings {
+                    wait_accel_bias_sigma_m_s2: -0.01,
+                    ..Default::default()
+                },
+            ),
+            (
+                "absolute.wait_accel_bias_sigma_m_s2",
+                AbsoluteSettings {
+                    wait_accel_bias_sigma_m_s2: f64::NAN,
+                    ..Default::default()
+                },
+            ),
             (
                 "absolute.scale_sigma_per_sqrt_s",
                 AbsoluteSettings {

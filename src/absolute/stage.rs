@@ -273,6 +273,12 @@ pub struct AbsoluteStage {
     /// None when recognition is off.
     recogniser: Option<Recogniser>,
     filter: Option<PositionFilter>,
+    /// The relative stage's position covariance at the anchoring frame,
+    /// m²: the filter's covariance is the robot's against the map's
+    /// anchor, and the anchor itself is where the relative stage had
+    /// drifted to by then, so the published map-frame covariance adds it
+    /// (zero for a map anchored at the relative stage's origin).
+    anchor_covariance_m2: Matrix3<f64>,
     /// None when the orientation is taken as the relative stage gives it.
     orientation: Option<OrientationFilter>,
     map: Option<SolvedMap>,
@@ -316,6 +322,7 @@ impl AbsoluteStage {
                 .then(|| OrientationFilter::new(config.orientation_sigma_rad_per_sqrt_s)),
             config,
             filter: None,
+            anchor_covariance_m2: Matrix3::zeros(),
             map: None,
             map_cross: None,
             correction_shares: WindowShares::default(),
@@ -382,7 +389,7 @@ impl AbsoluteStage {
                     * delta.norm();
                 (
                     f.position_world_m() + delta,
-                    Some(f.published_covariance_m2() + q),
+                    Some(f.published_covariance_m2() + self.anchor_covariance_m2 + q),
                 )
             }
             None => (output.T_world_body.translation.vector, None),
@@ -546,7 +553,10 @@ impl AbsoluteStage {
             self.request_solve();
         }
         let (translation, covariance) = match &self.filter {
-            Some(f) => (f.position_world_m(), Some(f.published_covariance_m2())),
+            Some(f) => (
+                f.position_world_m(),
+                Some(f.published_covariance_m2() + self.anchor_covariance_m2),
+            ),
             None => (output.T_world_body.translation.vector, None),
         };
         let offset = self.orientation_offset();
@@ -626,6 +636,11 @@ impl AbsoluteStage {
     /// measurement.
     fn anchor(&mut self, output: &RelativeOutput, rotation: &Matrix3<f64>) {
         self.map_cross = None;
+        self.anchor_covariance_m2 = output
+            .pose_covariance
+            .map(|c| c.matrix.fixed_view::<3, 3>(0, 0).into_owned())
+            .filter(|c| c.iter().all(|v| v.is_finite()))
+            .unwrap_or_else(Matrix3::zeros);
         let first = &output.landmarks[0];
         let position = output.T_world_body.translation.vector;
         if self.builder.has_frame_nodes() {

@@ -89,8 +89,9 @@ pub struct Health {
     /// the localisation dropped and not found again yet.
     pub map_carried_now: AtomicBool,
     /// The second stage (map or localiser) is waiting for the relative
-    /// stage to settle after a start in motion (the map-frame pose is the
-    /// odometry-frame pose meanwhile).
+    /// stage to settle after a start in motion, or to know its
+    /// accelerometer bias (the map-frame pose is the odometry-frame pose
+    /// meanwhile).
     pub second_stage_waiting: AtomicBool,
     /// How far the absolute stage has turned the relative stage's
     /// orientation to fit its map, degrees as f64 bits (0 until it has).
@@ -334,10 +335,10 @@ impl Health {
     }
 
     /// The status words while the second stage waits for the relative
-    /// stage to settle after a start in motion, None otherwise.
+    /// stage to settle, None otherwise.
     pub fn waiting_words(&self) -> Option<&'static str> {
         self.second_stage_waiting.load(Ordering::Relaxed).then_some(
-            "map: waiting for the odometry to settle after a start in motion; poses are in the odometry frame until then",
+            "map: waiting for the odometry to settle (a start in motion, or an accelerometer bias not yet told from tilt: move and turn the rig); poses are in the odometry frame until then",
         )
     }
 

@@ -78,4 +78,8 @@ impl RelativeEstimator for ShiftedFrames {
     fn settling(&self) -> bool {
         self.inner.settling()
     }
+
+    fn accel_bias_sigma_m_s2(&self) -> Option<f64> {
+        self.inner.accel_bias_sigma_m_s2()
+    }
 }

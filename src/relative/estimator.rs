@@ -225,6 +225,17 @@ pub trait RelativeEstimator {
     fn settling(&self) -> bool {
         false
     }
+
+    /// How well the accelerometer bias is known now: the largest one-sigma
+    /// of the newest solved keyframe's, m/s^2, once the window runs with
+    /// the IMU (infinite until its first solve; None without the IMU, at
+    /// rest, where the pose is held, and while a moving start runs
+    /// vision-only before its alignment). Until it is small,
+    /// gravity and the bias are not told apart and the attitude may be off
+    /// by about sigma / g.
+    fn accel_bias_sigma_m_s2(&self) -> Option<f64> {
+        None
+    }
 }
 
 #[cfg(test)]

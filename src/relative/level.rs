@@ -139,6 +139,10 @@ impl RelativeEstimator for Levelled {
         self.inner.settling()
     }
 
+    fn accel_bias_sigma_m_s2(&self) -> Option<f64> {
+        self.inner.accel_bias_sigma_m_s2()
+    }
+
     fn gravity_world_m_s2(&self) -> Option<Vector3<f64>> {
         self.inner
             .gravity_world_m_s2()

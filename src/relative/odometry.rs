@@ -1326,6 +1326,14 @@ impl RelativeEstimator for WindowOdometry {
         })
     }
 
+    fn accel_bias_sigma_m_s2(&self) -> Option<f64> {
+        (self.imu.is_some() && self.window.imu_enabled()).then(|| {
+            self.window
+                .newest_accel_bias_sigma_m_s2()
+                .unwrap_or(f64::INFINITY)
+        })
+    }
+
     fn gravity_world_m_s2(&self) -> Option<Vector3<f64>> {
         self.window
             .imu_enabled()

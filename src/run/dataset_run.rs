@@ -121,6 +121,9 @@ pub enum RunError {
     #[error("the map is saved at the end of the run: no map to save (the absolute stage never had two landmarks in view while tracking)")]
     /// The absolute stage never had a map to save.
     NoMapToSave,
+    #[error("the map is saved at the end of the run: no map to save: the absolute stage waited for the relative stage to settle on all {0} frames with landmarks (after a start from rest, until the accelerometer bias is known to [absolute] wait_accel_bias_sigma_m_s2: move and turn the rig, or set [absolute] wait_accel_bias = \"off\")")]
+    /// The absolute stage never started its map: it waited on every frame.
+    NoMapWhileWaiting(u64),
     #[error("--load-map and --absolute: pick one (localise in a saved map, or build a new one)")]
     /// `--load-map` and `--absolute` were both given.
     LoadMapAndAbsolute,
@@ -229,9 +232,14 @@ pub fn run_dataset(
     })?;
     pipeline.finish();
     let mut trajectory_relative = None;
+    let held_back = pipeline.held_back_frames().unwrap_or(0);
     if let Some(stage) = pipeline.absolute_mut() {
         if let Some(path) = &run.save_map {
-            let map = stage.finish_map().ok_or(RunError::NoMapToSave)?;
+            let map = stage.finish_map().ok_or(if held_back > 0 {
+                RunError::NoMapWhileWaiting(held_back)
+            } else {
+                RunError::NoMapToSave
+            })?;
             map.write(path)?;
             tracing::info!(
                 "saved {} landmarks to {}",

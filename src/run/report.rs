@@ -129,8 +129,8 @@ pub struct RunReport {
     /// The absolute stage's counters and times, when it ran.
     pub absolute: Option<AbsoluteStats>,
     /// Frames whose landmarks the absolute stage or the localiser did not
-    /// take while the relative stage settled after a start in motion
-    /// (None without either).
+    /// take while the relative stage settled (a start in motion, or its
+    /// accelerometer bias not yet known; None without either).
     pub second_stage_held_back_frames: Option<u64>,
     /// The absolute stage's recognitions checked against the ground truth,
     /// when it ran and recognised landmarks.

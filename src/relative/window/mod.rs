@@ -971,6 +971,17 @@ impl Window {
         };
     }
 
+    /// The largest one-sigma of the accelerometer bias of the newest
+    /// keyframe an inertial solve has estimated, m/s^2 (None before one).
+    pub fn newest_accel_bias_sigma_m_s2(&self) -> Option<f64> {
+        let m = self.keyframes.iter().rev().find_map(|k| k.state_marginal)?;
+        Some(
+            (12..15)
+                .map(|i| m[(i, i)].max(0.0).sqrt())
+                .fold(0.0, f64::max),
+        )
+    }
+
     /// The camera-IMU calibration as the window holds it now (None when
     /// its refinement is off).
     pub fn camera_imu(&self) -> Option<CameraImuEstimate> {
