@@ -124,6 +124,16 @@ pub struct SlamPipeline {
     holding_back: bool,
     /// `[absolute] wait_accel_bias_sigma_m_s2` in this mode (0: no wait).
     wait_accel_bias_sigma_m_s2: f64,
+    /// `[absolute] wait_accel_bias_max_s`.
+    wait_accel_bias_max_s: f64,
+    /// The wait for the accelerometer bias under way: the stamp of its
+    /// first frame, and whether it outlasted `wait_accel_bias_max_s`
+    /// (the second stage then takes the landmarks until the bias is
+    /// known, which ends the wait).
+    bias_wait_since_ns: Option<i64>,
+    bias_wait_gave_up: bool,
+    /// Waits that outlasted `wait_accel_bias_max_s`.
+    bias_waits_given_up: u64,
 }
 
 impl SlamPipeline {
@@ -177,6 +187,10 @@ impl SlamPipeline {
             held_back_frames: 0,
             holding_back: false,
             wait_accel_bias_sigma_m_s2: settings.absolute.wait_accel_bias_sigma_in(mode),
+            wait_accel_bias_max_s: settings.absolute.wait_accel_bias_max_s,
+            bias_wait_since_ns: None,
+            bias_wait_gave_up: false,
+            bias_waits_given_up: 0,
         })
     }
 
@@ -280,7 +294,9 @@ impl SlamPipeline {
         // stage gets the motion without them (no map anchor, no edges, no
         // corrections from those frames; the pose passes through).
         let held_back;
-        let settling = self.relative.settling() || self.bias_unknown();
+        // (The bias wait's clock runs while the stage settles too.)
+        let waits_for_bias = self.waits_for_bias(relative.t_ns);
+        let settling = self.relative.settling() || waits_for_bias;
         if self.holding_back && !settling {
             tracing::info!(
                 frames = self.held_back_frames,
@@ -335,14 +351,49 @@ impl SlamPipeline {
         self.has_second_stage().then_some(self.held_back_frames)
     }
 
-    /// The relative stage uses the IMU and knows its accelerometer bias
-    /// no better than `wait_accel_bias_sigma_m_s2`.
-    fn bias_unknown(&self) -> bool {
-        self.wait_accel_bias_sigma_m_s2 > 0.0
-            && self
-                .relative
-                .accel_bias_sigma_m_s2()
-                .is_some_and(|sigma| sigma > self.wait_accel_bias_sigma_m_s2)
+    /// Waits that outlasted `[absolute] wait_accel_bias_max_s`: the
+    /// second stage started without the accelerometer bias known.
+    pub fn bias_waits_given_up(&self) -> u64 {
+        self.bias_waits_given_up
+    }
+
+    /// Whether the second stage waits, at the frame stamped `t_ns`, for
+    /// the accelerometer bias: the relative stage uses the IMU, knows its
+    /// bias no better than `wait_accel_bias_sigma_m_s2`, and has not for
+    /// longer than `wait_accel_bias_max_s`. A rest (the pose held, no
+    /// sigma) neither waits nor ends the wait under way; a known bias
+    /// does.
+    fn waits_for_bias(&mut self, t_ns: i64) -> bool {
+        if self.wait_accel_bias_sigma_m_s2 <= 0.0 {
+            return false;
+        }
+        let Some(sigma) = self.relative.accel_bias_sigma_m_s2() else {
+            return false;
+        };
+        if sigma <= self.wait_accel_bias_sigma_m_s2 {
+            self.bias_wait_since_ns = None;
+            self.bias_wait_gave_up = false;
+            return false;
+        }
+        let since = *self.bias_wait_since_ns.get_or_insert(t_ns);
+        if self.bias_wait_gave_up {
+            return false;
+        }
+        let waited_s = (t_ns - since) as f64 * 1e-9;
+        if waited_s < self.wait_accel_bias_max_s {
+            return true;
+        }
+        self.bias_wait_gave_up = true;
+        self.bias_waits_given_up += 1;
+        tracing::warn!(
+            waited_s,
+            sigma_m_s2 = sigma,
+            wanted_m_s2 = self.wait_accel_bias_sigma_m_s2,
+            "the accelerometer bias is still not known after [absolute] wait_accel_bias_max_s: \
+             the second stage takes the landmarks anyway, and its attitude may be off by about \
+             sigma / 9.81 rad (turn the rig to tell the bias from gravity)"
+        );
+        false
     }
 
     fn has_second_stage(&self) -> bool {

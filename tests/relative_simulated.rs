@@ -747,7 +747,14 @@ fn the_map_waits_for_the_accelerometer_bias_after_a_start_from_rest() {
         )
         .expect("pipeline")
     };
+    // A wait limited to half a second (10 frames) ends before the bias
+    // is known.
+    let mut capped_settings = settings.clone();
+    capped_settings.absolute.wait_accel_bias_max_s = 0.5;
     let (mut waiting, mut eager) = (build(&settings), build(&no_wait));
+    let mut capped = build(&capped_settings);
+    // (waiting, map started) per frame of the capped pipeline.
+    let mut capped_frames: Vec<(bool, bool)> = Vec::new();
     // (tracking, bias sigma, waiting, map-frame pose == relative pose,
     // filter covariance, traces of the relative and map-frame position
     // covariances)
@@ -758,6 +765,7 @@ fn the_map_waits_for_the_accelerometer_bias_after_a_start_from_rest() {
             SensorEvent::Imu(s) => {
                 waiting.push_imu(&s);
                 eager.push_imu(&s);
+                capped.push_imu(&s);
             }
             SensorEvent::Frame { t_ns, left, right } => {
                 let input = FrameInput {
@@ -787,6 +795,14 @@ fn the_map_waits_for_the_accelerometer_bias_after_a_start_from_rest() {
                         .pose_covariance
                         .map_or(0.0, |c| c.matrix.fixed_view::<3, 3>(0, 0).trace()),
                     corrected.position_covariance_m2.map_or(0.0, |c| c.trace()),
+                ));
+                let short = capped.push_frame(&input);
+                capped.finish_frame();
+                capped_frames.push((
+                    capped.second_stage_waiting(),
+                    short
+                        .corrected
+                        .is_some_and(|c| c.position_covariance_m2.is_some()),
                 ));
                 let other = eager.push_frame(&input);
                 eager.finish_frame();
@@ -850,6 +866,31 @@ fn the_map_waits_for_the_accelerometer_bias_after_a_start_from_rest() {
     assert!(
         eager_anchored < known,
         "without the wait the map starts at frame {eager_anchored}, before the bias is known at {known}"
+    );
+    assert_eq!(
+        waiting.bias_waits_given_up(),
+        0,
+        "the default wait ended by itself"
+    );
+    // The limited wait gives up after its 0.5 s (10 frames at 20 Hz), says
+    // so, and the map starts then, before the bias is known.
+    let capped_wait = capped_frames
+        .iter()
+        .position(|f| f.0)
+        .expect("the capped pipeline waits too");
+    let capped_anchored = capped_frames
+        .iter()
+        .position(|f| f.1)
+        .expect("the capped map starts");
+    eprintln!("limited to 0.5 s: waited from frame {capped_wait}, mapped from {capped_anchored}");
+    assert_eq!(capped.bias_waits_given_up(), 1);
+    assert!(
+        (10..=13).contains(&(capped_anchored - capped_wait)) && capped_anchored < known,
+        "the limited wait started at frame {capped_wait} and the map at {capped_anchored} (bias known at {known})"
+    );
+    assert!(
+        capped_frames[capped_anchored..].iter().all(|f| !f.0),
+        "once given up, the wait does not come back while the bias is still unknown"
     );
 }
 

@@ -408,6 +408,37 @@ fn a_clip_that_never_turns_is_not_mapped_and_says_why() {
         "{err}"
     );
     assert!(!dir.path().join("v101.map").exists());
+    assert!(err.contains("wait_accel_bias_max_s"), "{err}");
+
+    // With the wait limited to a fifth of a second (on this clip it
+    // covers the last nine frames with landmarks) the same clip is mapped, the
+    // report counts the wait that ran out, and the log says what it did.
+    let limited = dir.path().join("limited.toml");
+    std::fs::write(&limited, "[absolute]\nwait_accel_bias_max_s = 0.2\n").expect("write");
+    let out = rigslam_run()
+        .args([
+            "--json",
+            "--absolute",
+            "--mode",
+            "stereo-inertial",
+            "--dataset",
+        ])
+        .arg(&root)
+        .arg("--save-map")
+        .arg(dir.path().join("v101.map"))
+        .arg("--config")
+        .arg(&limited)
+        .output()
+        .expect("run rigslam");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(dir.path().join("v101.map").exists());
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    assert_eq!(report["second_stage_bias_waits_given_up"], 1, "{report}");
+    assert!(
+        err.contains("the accelerometer bias is still not known"),
+        "{err}"
+    );
 }
 
 #[test]

@@ -18,6 +18,10 @@ pub const DEFAULT_CORRECTION_GATE_CHI2: f64 = 16.27;
 /// m/s^2 ([`AbsoluteSettings::wait_accel_bias_sigma_m_s2`]).
 pub const DEFAULT_WAIT_ACCEL_BIAS_SIGMA_M_S2: f64 = 0.02;
 
+/// The longest the second stage waits for the accelerometer bias, s
+/// ([`AbsoluteSettings::wait_accel_bias_max_s`]).
+pub const DEFAULT_WAIT_ACCEL_BIAS_MAX_S: f64 = 10.0;
+
 /// Which modes a behaviour of the second stage is on in
 /// (`[absolute] correction_gate`, `wait_accel_bias`); each key says why its
 /// `auto` is what it is.
@@ -168,6 +172,13 @@ pub struct AbsoluteSettings {
     /// The bias sigma waited for, m/s^2 (0.02: 0.12 deg of tilt, 9 mm at
     /// 4.5 m; 0: no wait whatever `wait_accel_bias` says).
     pub wait_accel_bias_sigma_m_s2: f64,
+    /// The longest the wait lasts, s of frame stamps from its first frame
+    /// (10: the sets' starts from rest know their bias within 2-4 s of
+    /// moving; a rig that moves without turning, a vehicle driving
+    /// straight, would otherwise never be mapped). Past it the map
+    /// starts anyway and the log says so; `inf` waits for as long as it
+    /// takes.
+    pub wait_accel_bias_max_s: f64,
 }
 
 impl Default for AbsoluteSettings {
@@ -212,6 +223,7 @@ impl Default for AbsoluteSettings {
             correction_gate_chi2: DEFAULT_CORRECTION_GATE_CHI2,
             wait_accel_bias: ModeSwitch::Auto,
             wait_accel_bias_sigma_m_s2: DEFAULT_WAIT_ACCEL_BIAS_SIGMA_M_S2,
+            wait_accel_bias_max_s: DEFAULT_WAIT_ACCEL_BIAS_MAX_S,
         }
     }
 }
@@ -389,6 +401,14 @@ impl AbsoluteSettings {
                 "0 (no wait) or a positive number of m/s^2",
             ));
         }
+        let wait_max = self.wait_accel_bias_max_s;
+        if wait_max.is_nan() || wait_max <= 0.0 {
+            return Err(bad(
+                "absolute.wait_accel_bias_max_s",
+                wait_max.to_string(),
+                "a positive number of seconds (inf: no limit; to not wait at all, set wait_accel_bias = \"off\")",
+            ));
+        }
         Ok(AbsoluteConfig {
             policy,
             solve_every_frames: self.solve_every_frames,
@@ -536,6 +556,12 @@ mod tests {
             ..Default::default()
         };
         assert_eq!(zero.wait_accel_bias_sigma_in(StereoInertial), 0.0);
+        // The wait's limit: 10 s by default, `inf` for none.
+        assert_eq!(default.wait_accel_bias_max_s, DEFAULT_WAIT_ACCEL_BIAS_MAX_S);
+        let unlimited: AbsoluteSettings =
+            toml::from_str("wait_accel_bias_max_s = inf\n").expect("inf is a TOML float");
+        assert_eq!(unlimited.wait_accel_bias_max_s, f64::INFINITY);
+        assert!(unlimited.to_config().is_ok());
     }
 
     #[test]
@@ -649,7 +675,21 @@ mod tests {
 
     #[test]
     fn each_bad_value_names_its_key() {
-        let cases: [(&str, AbsoluteSettings); 18] = [
+        let cases: [(&str, AbsoluteSettings); 20] = [
+            (
+                "absolute.wait_accel_bias_max_s",
+                AbsoluteSettings {
+                    wait_accel_bias_max_s: 0.0,
+                    ..Default::default()
+                },
+            ),
+            (
+                "absolute.wait_accel_bias_max_s",
+                AbsoluteSettings {
+                    wait_accel_bias_max_s: f64::NAN,
+                    ..Default::default()
+                },
+            ),
             (
                 "absolute.wait_accel_bias_sigma_m_s2",
                 AbsoluteSettings {

@@ -12,7 +12,9 @@ use crate::dataset::{
     groundtruth_trajectory, open_dataset, Dataset, DatasetError, SensorStream, StreamOptions,
 };
 use crate::eval::consistency::{pose_nees, CovariancePose};
-use crate::eval::map_consistency::{map_position_nees, MapPosition};
+use crate::eval::map_consistency::{
+    map_position_nees, map_position_nees_from_origin, MapOrigin, MapPosition,
+};
 use crate::eval::report::Evaluation;
 use crate::eval::{evaluate, Alignment, EvalOptions};
 use crate::relative::TrackingState;
@@ -121,7 +123,7 @@ pub enum RunError {
     #[error("the map is saved at the end of the run: no map to save (the absolute stage never had two landmarks in view while tracking)")]
     /// The absolute stage never had a map to save.
     NoMapToSave,
-    #[error("the map is saved at the end of the run: no map to save: the absolute stage waited for the relative stage to settle on all {0} frames with landmarks (after a start from rest, until the accelerometer bias is known to [absolute] wait_accel_bias_sigma_m_s2: move and turn the rig, or set [absolute] wait_accel_bias = \"off\")")]
+    #[error("the map is saved at the end of the run: no map to save: the absolute stage waited for the relative stage to settle on all {0} frames with landmarks (after a start from rest, until the accelerometer bias is known to [absolute] wait_accel_bias_sigma_m_s2, for at most wait_accel_bias_max_s: move and turn the rig, or set [absolute] wait_accel_bias = \"off\")")]
     /// The absolute stage never started its map: it waited on every frame.
     NoMapWhileWaiting(u64),
     #[error("--load-map and --absolute: pick one (localise in a saved map, or build a new one)")]
@@ -184,6 +186,9 @@ pub fn run_dataset(
     }
     let mut covariance_poses = Vec::new();
     let mut map_positions = Vec::new();
+    // The relative stage's origin when the map was anchored (its first
+    // published map-frame covariance): what pins the map frame.
+    let mut map_origin = None;
     let mut outcome = run_stream(&mut stream, &mut pipeline, run.options, |frame| {
         let o = &frame.relative;
         let mut map_position = None;
@@ -213,6 +218,12 @@ pub fn run_dataset(
             frame.map_position_covariance_m2(),
             ground_truth.as_ref(),
         ) {
+            if frame.corrected.is_some() && map_origin.is_none() {
+                map_origin = o.pose_covariance.map(|c| MapOrigin {
+                    t_ns: c.origin_t_ns,
+                    T_map_origin: c.T_world_origin,
+                });
+            }
             map_positions.push(MapPosition {
                 t_ns,
                 position_m,
@@ -344,6 +355,9 @@ pub fn run_dataset(
             .zip(evaluation.as_ref())
             .zip(ground_truth.as_ref())
             .and_then(|((_, e), gt)| map_position_nees(&map_positions, &e.alignment, gt)),
+        map_nees_from_origin: map_origin
+            .zip(ground_truth.as_ref())
+            .and_then(|(origin, gt)| map_position_nees_from_origin(&map_positions, &origin, gt)),
         tilt: ground_truth
             .as_ref()
             .filter(|_| mode.uses_imu())
@@ -360,6 +374,9 @@ pub fn run_dataset(
         eval_relative: evaluation_relative.as_ref().map(|e| e.report.clone()),
         absolute: pipeline.absolute().map(|s| s.stats().clone()),
         second_stage_held_back_frames: pipeline.held_back_frames(),
+        second_stage_bias_waits_given_up: pipeline
+            .held_back_frames()
+            .map(|_| pipeline.bias_waits_given_up()),
         recognition_check,
         localise: pipeline.localiser().map(|l| l.stats().clone()),
     };
@@ -501,6 +518,12 @@ pub fn summary_line(r: &RunReport) -> String {
             n.median_per_dof,
             100.0 * n.within_95
         );
+        if let Some(o) = &r.map_nees_from_origin {
+            line += &format!(
+                ", {:.2} from the odometry's origin (median {:.2})",
+                o.mean_per_dof, o.median_per_dof
+            );
+        }
     }
     if let Some(t) = &r.tilt {
         line += &format!(

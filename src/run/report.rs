@@ -109,6 +109,12 @@ pub struct RunReport {
     /// scored the trajectory (`crate::eval::map_consistency`). None
     /// without a second stage or ground truth.
     pub map_nees: Option<crate::eval::map_consistency::PositionNeesReport>,
+    /// The same positions scored in the covariance's own frame of
+    /// reference: from the relative stage's origin the map frame was
+    /// pinned by (`map_position_nees_from_origin`), which keeps what the
+    /// whole run shares. None without a map built in this run or ground
+    /// truth.
+    pub map_nees_from_origin: Option<crate::eval::map_consistency::PositionNeesReport>,
     /// Roll and pitch against the ground truth's, whatever the heading
     /// (`crate::eval::tilt`), of the relative stage's poses in the
     /// inertial modes. None without ground truth or an IMU.
@@ -132,6 +138,10 @@ pub struct RunReport {
     /// take while the relative stage settled (a start in motion, or its
     /// accelerometer bias not yet known; None without either).
     pub second_stage_held_back_frames: Option<u64>,
+    /// Waits for the accelerometer bias that outlasted `[absolute]
+    /// wait_accel_bias_max_s`: the second stage then started without it
+    /// (None without a second stage).
+    pub second_stage_bias_waits_given_up: Option<u64>,
     /// The absolute stage's recognitions checked against the ground truth,
     /// when it ran and recognised landmarks.
     pub recognition_check: Option<super::recognition_check::RecognitionCheck>,
