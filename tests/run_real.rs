@@ -20,6 +20,21 @@ fn rigslam_run() -> Command {
     cmd
 }
 
+/// `rigslam run` of both stages in stereo-inertial on `root`, the report
+/// as JSON on stdout.
+fn two_stages_json(root: &Path) -> Command {
+    let mut cmd = rigslam_run();
+    cmd.args([
+        "--json",
+        "--absolute",
+        "--mode",
+        "stereo-inertial",
+        "--dataset",
+    ])
+    .arg(root);
+    cmd
+}
+
 /// Runs `cmd`, which must succeed; its output.
 fn succeeds(cmd: &mut Command) -> Output {
     let out = cmd.output().expect("run rigslam");
@@ -415,15 +430,7 @@ fn a_clip_that_never_turns_is_not_mapped_and_says_why() {
     // report counts the wait that ran out, and the log says what it did.
     let limited = dir.path().join("limited.toml");
     std::fs::write(&limited, "[absolute]\nwait_accel_bias_max_s = 0.2\n").expect("write");
-    let out = rigslam_run()
-        .args([
-            "--json",
-            "--absolute",
-            "--mode",
-            "stereo-inertial",
-            "--dataset",
-        ])
-        .arg(&root)
+    let out = two_stages_json(&root)
         .arg("--save-map")
         .arg(dir.path().join("v101.map"))
         .arg("--config")
@@ -449,15 +456,7 @@ fn absolute_writes_both_trajectories_and_scores_both() {
     let dir = tempfile::tempdir().expect("tempdir");
     let (corrected, relative) = (dir.path().join("abs.tum"), dir.path().join("rel.tum"));
     let out = succeeds(
-        rigslam_run()
-            .args([
-                "--json",
-                "--absolute",
-                "--mode",
-                "stereo-inertial",
-                "--dataset",
-            ])
-            .arg(&root)
+        two_stages_json(&root)
             .arg("--trajectory")
             .arg(&corrected)
             .arg("--trajectory-relative")
