@@ -607,6 +607,30 @@ fn datasheet_noise_is_corrected_online() {
     );
 }
 
+/// Both stages in stereo-inertial on `rig` with `settings`.
+fn two_stages(
+    rig: &rigslam::rig::RigModel,
+    settings: &rigslam::slam_config::SlamSettings,
+) -> rigslam::slam_pipeline::SlamPipeline {
+    rigslam::slam_pipeline::SlamPipeline::new(
+        EstimatorKind::Window,
+        SensorMode::StereoInertial,
+        rig,
+        settings,
+        rigslam::slam_pipeline::SecondStage::BuildMap,
+    )
+    .expect("pipeline")
+}
+
+/// Whether the map-frame pose of `answer` is the relative pose (the
+/// second stage has not corrected it).
+fn passes_through(answer: &rigslam::slam_pipeline::PipelineFrame) -> bool {
+    let corrected = answer.corrected.as_ref().expect("the absolute stage runs");
+    (corrected.T_world_body.translation.vector - answer.relative.T_world_body.translation.vector)
+        .norm()
+        < 1e-12
+}
+
 /// After a start in flight the relative stage says it is settling until
 /// every keyframe the alignment placed has left its window, and the
 /// pipeline's absolute stage starts its map only then: until that frame
@@ -614,7 +638,6 @@ fn datasheet_noise_is_corrected_online() {
 #[test]
 fn the_map_waits_for_a_start_in_flight_to_settle() {
     use rigslam::slam_config::SlamSettings;
-    use rigslam::slam_pipeline::{SecondStage, SlamPipeline};
     let tmp = tempfile::tempdir().expect("tempdir");
     let dir = tmp.path().join("flight");
     if render(&dir, 25.0, 8.0).is_none() {
@@ -624,14 +647,7 @@ fn the_map_waits_for_a_start_in_flight_to_settle() {
     let rig = rig_of(&dataset);
     let mut settings = SlamSettings::default();
     settings.absolute.enabled = true;
-    let mut pipeline = SlamPipeline::new(
-        EstimatorKind::Window,
-        SensorMode::StereoInertial,
-        &rig,
-        &settings,
-        SecondStage::BuildMap,
-    )
-    .expect("pipeline");
+    let mut pipeline = two_stages(&rig, &settings);
     // (stamp, tracking, settling, map-frame pose == relative pose, filter
     // covariance, accelerometer bias sigma)
     let mut frames: Vec<(i64, bool, bool, bool, bool, f64)> = Vec::new();
@@ -646,11 +662,8 @@ fn the_map_waits_for_a_start_in_flight_to_settle() {
                 };
                 let answer = pipeline.push_frame(&input);
                 let settling = pipeline.relative().settling();
+                let same = passes_through(&answer);
                 let corrected = answer.corrected.expect("the absolute stage runs");
-                let same = (corrected.T_world_body.translation.vector
-                    - answer.relative.T_world_body.translation.vector)
-                    .norm()
-                    < 1e-12;
                 frames.push((
                     t_ns,
                     answer.relative.state == TrackingState::Tracking,
@@ -723,7 +736,6 @@ fn the_map_waits_for_a_start_in_flight_to_settle() {
 #[test]
 fn the_map_waits_for_the_accelerometer_bias_after_a_start_from_rest() {
     use rigslam::slam_config::SlamSettings;
-    use rigslam::slam_pipeline::{SecondStage, SlamPipeline};
     let tmp = tempfile::tempdir().expect("tempdir");
     let dir = tmp.path().join("rest");
     if render(&dir, 0.0, 12.0).is_none() {
@@ -737,16 +749,7 @@ fn the_map_waits_for_the_accelerometer_bias_after_a_start_from_rest() {
     assert!(wait > 0.0, "the wait is on by default");
     let mut no_wait = settings.clone();
     no_wait.absolute.wait_accel_bias_sigma_m_s2 = 0.0;
-    let build = |settings: &SlamSettings| {
-        SlamPipeline::new(
-            EstimatorKind::Window,
-            SensorMode::StereoInertial,
-            &rig,
-            settings,
-            SecondStage::BuildMap,
-        )
-        .expect("pipeline")
-    };
+    let build = |settings: &SlamSettings| two_stages(&rig, settings);
     // A wait limited to half a second (10 frames) ends before the bias
     // is known.
     let mut capped_settings = settings.clone();
@@ -775,11 +778,8 @@ fn the_map_waits_for_the_accelerometer_bias_after_a_start_from_rest() {
                 };
                 let answer = waiting.push_frame(&input);
                 waiting.finish_frame();
+                let same = passes_through(&answer);
                 let corrected = answer.corrected.expect("the absolute stage runs");
-                let same = (corrected.T_world_body.translation.vector
-                    - answer.relative.T_world_body.translation.vector)
-                    .norm()
-                    < 1e-12;
                 frames.push((
                     answer.relative.state == TrackingState::Tracking,
                     // None only before the first frame is placed.
