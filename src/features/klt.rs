@@ -111,6 +111,9 @@ pub struct KltTracker {
     forward_pass: bool,
     /// Standard deviation of the current template, grey levels.
     template_spread: f32,
+    /// The forward pass's residual ratio of each point of the last
+    /// [`KltTracker::track`] call (NaN where no level converged).
+    residual_ratios: Vec<f32>,
 }
 
 impl KltTracker {
@@ -141,12 +144,22 @@ impl KltTracker {
             last_residual_ratio: 0.0,
             forward_pass: true,
             template_spread: 1.0,
+            residual_ratios: Vec::new(),
         })
     }
 
     /// The settings it was built with.
     pub fn config(&self) -> &KltConfig {
         &self.config
+    }
+
+    /// How unlike its template each point of the last [`KltTracker::track`]
+    /// call ended, one value per point: std(I(x + d) - T(x)) / std(T) over
+    /// the window at the last level that converged, forward pass (NaN where no
+    /// level converged). What `max_residual` compares; a caller can also
+    /// judge a point against the others of its call.
+    pub fn residual_ratios(&self) -> &[f32] {
+        &self.residual_ratios
     }
 
     /// Tracks `prev_points` (level-0 pixels of `prev`) into `cur`, starting
@@ -163,6 +176,7 @@ impl KltTracker {
         status: &mut Vec<TrackStatus>,
     ) {
         self.forward_pass = true;
+        self.residual_ratios.clear();
         self.track_one_way(prev, cur, prev_points, predicted, cur_points, status);
         // The way back only checks consistency to within a pixel: the
         // translation fit is enough there.
@@ -251,9 +265,16 @@ impl KltTracker {
             if !same_size || !p.iter().chain(guess.iter()).all(|v| v.is_finite()) {
                 out.push(guess);
                 status.push(TrackStatus::BadInput);
+                if self.forward_pass {
+                    self.residual_ratios.push(f32::NAN);
+                }
                 continue;
             }
+            self.last_residual_ratio = f32::NAN;
             let (q, s) = self.track_point(from, to, levels, *p, guess);
+            if self.forward_pass {
+                self.residual_ratios.push(self.last_residual_ratio);
+            }
             out.push(q);
             status.push(s);
         }
