@@ -351,11 +351,12 @@ fn rendered_motion_matches_the_tracks_and_swapped_tracks_are_rejected() {
     assert!(keyframes > 4 && keyframes < 40, "{keyframes} keyframes");
 }
 
-/// Right-image matches of one stereo frame of a generated room and how far
-/// each lies from where the left pixel's true surface point projects,
-/// px, with the true depth step around the left pixel (the largest
-/// difference of the depths 4 px to either side, m).
-fn stereo_errors_in_a_room(config: TrackerConfig) -> Vec<(f64, f64)> {
+/// Right-image matches of stereo frames of a generated room, per tracker
+/// setting (each tracking the same rendered pairs), and how far each lies
+/// from where the left pixel's true surface point projects, px, with the
+/// true depth step around the left pixel (the largest difference of the
+/// depths 4 px to either side, m).
+fn stereo_errors_in_a_room(configs: &[TrackerConfig]) -> Vec<Vec<(f64, f64)>> {
     use crate::simulate::render::Renderer;
     use crate::simulate::scene::{Aabb, Scene, SceneConfig};
     use nalgebra::{Isometry3, Translation3, UnitQuaternion};
@@ -372,7 +373,7 @@ fn stereo_errors_in_a_room(config: TrackerConfig) -> Vec<(f64, f64)> {
         .iter()
         .map(|c| Renderer::new(&c.model, sim.render))
         .collect();
-    let mut errors = Vec::new();
+    let mut errors = vec![Vec::new(); configs.len()];
     for k in 0..8 {
         // Camera 0 at 1.2 m, looking level along the world's heading k * 45 deg,
         // its y axis down.
@@ -399,11 +400,9 @@ fn stereo_errors_in_a_room(config: TrackerConfig) -> Vec<(f64, f64)> {
                 Image::mono8(w, h, r.render(&scene, pose, 5 + k as u64)).expect("image")
             })
             .collect();
-        let mut tracker = Tracker::new(config.clone(), &cameras, true).expect("tracker");
-        let frame = tracker
-            .track(&input(1_000_000_000, &images[0], Some(&images[1])), None)
-            .expect("frame");
-        let depth_along = |px: &Vector2<f64>| -> Option<f64> {
+        // The surface a left pixel sees: its depth in camera 0 and the
+        // point in camera 1's frame.
+        let surface = |px: &Vector2<f64>| -> Option<(f64, Vector3<f64>)> {
             let ray = cameras[0].model.unproject(px)?.normalize();
             let d = poses[0].rotation * ray;
             let o = poses[0].translation.vector;
@@ -411,33 +410,34 @@ fn stereo_errors_in_a_room(config: TrackerConfig) -> Vec<(f64, f64)> {
                 [o.x as f32, o.y as f32, o.z as f32],
                 [1.0 / d.x as f32, 1.0 / d.y as f32, 1.0 / d.z as f32],
             );
-            Some(f64::from(hit.t_m) * ray.z)
+            let point_world = o + d * f64::from(hit.t_m);
+            let in_right = poses[1].inverse() * nalgebra::Point3::from(point_world);
+            Some((f64::from(hit.t_m) * ray.z, in_right.coords))
         };
-        let right: HashMap<LandmarkId, Vector2<f64>> =
-            frame.in_camera(1).map(|o| (o.landmark, o.pixel)).collect();
-        for o in frame.in_camera(0) {
-            let Some(q) = right.get(&o.landmark) else {
-                continue;
-            };
-            let Some(depth) = depth_along(&o.pixel) else {
-                continue;
-            };
-            let ray = cameras[0]
-                .model
-                .unproject(&o.pixel)
-                .expect("ray")
-                .normalize();
-            let point_world = poses[0] * nalgebra::Point3::from(ray * (depth / ray.z));
-            let in_right = poses[1].inverse() * point_world;
-            let Some(truth) = cameras[1].model.project(&in_right.coords) else {
-                continue;
-            };
-            let step = [(-4.0, 0.0), (4.0, 0.0), (0.0, -4.0), (0.0, 4.0)]
-                .iter()
-                .filter_map(|(du, dv)| depth_along(&(o.pixel + Vector2::new(*du, *dv))))
-                .map(|d| (d - depth).abs())
-                .fold(0.0, f64::max);
-            errors.push(((q - truth).norm(), step));
+        for (config, errors) in configs.iter().zip(&mut errors) {
+            let mut tracker = Tracker::new(config.clone(), &cameras, true).expect("tracker");
+            let frame = tracker
+                .track(&input(1_000_000_000, &images[0], Some(&images[1])), None)
+                .expect("frame");
+            let right: HashMap<LandmarkId, Vector2<f64>> =
+                frame.in_camera(1).map(|o| (o.landmark, o.pixel)).collect();
+            for o in frame.in_camera(0) {
+                let Some(q) = right.get(&o.landmark) else {
+                    continue;
+                };
+                let Some((depth, in_right)) = surface(&o.pixel) else {
+                    continue;
+                };
+                let Some(truth) = cameras[1].model.project(&in_right) else {
+                    continue;
+                };
+                let step = [(-4.0, 0.0), (4.0, 0.0), (0.0, -4.0), (0.0, 4.0)]
+                    .iter()
+                    .filter_map(|(du, dv)| surface(&(o.pixel + Vector2::new(*du, *dv))))
+                    .map(|(d, _)| (d - depth).abs())
+                    .fold(0.0, f64::max);
+                errors.push(((q - truth).norm(), step));
+            }
         }
     }
     errors
@@ -448,11 +448,15 @@ fn stereo_matches_across_an_occlusion_boundary_are_refused() {
     // Eight views of a rendered room with boxes; every stereo match
     // against where its left pixel's true surface point lands in the
     // right image.
-    let unchecked = stereo_errors_in_a_room(TrackerConfig {
-        stereo_residual_vs_median: None,
-        ..TrackerConfig::default()
-    });
-    let checked = stereo_errors_in_a_room(TrackerConfig::default());
+    let [unchecked, checked]: [Vec<(f64, f64)>; 2] = stereo_errors_in_a_room(&[
+        TrackerConfig {
+            stereo_residual_vs_median: None,
+            ..TrackerConfig::default()
+        },
+        TrackerConfig::default(),
+    ])
+    .try_into()
+    .expect("one list per setting");
     let off = |e: &[(f64, f64)]| e.iter().filter(|(err, _)| *err > 1.0).count();
     let rms_of_the_rest = |e: &[(f64, f64)]| {
         let rest: Vec<f64> = e
