@@ -95,6 +95,15 @@ struct Counters {
     /// or driver handing the last buffer again), not used to place the
     /// frame.
     frames_repeated: u64,
+    /// Landmarks the window took out with their tracks: their
+    /// observations together were inconsistent with one point.
+    inconsistent_landmarks: u64,
+}
+
+impl Counters {
+    fn note_solve(&mut self, report: &super::window::WindowReport) {
+        self.inconsistent_landmarks += report.inconsistent_landmarks as u64;
+    }
 }
 
 /// Median image motion between frames under which the images agree that
@@ -738,12 +747,13 @@ impl WindowOdometry {
     ) -> bool {
         let omega = self.angular_rate_at(frame.t_ns, &state);
         let window = &mut self.window;
+        let counters = &mut self.counters;
         let pushed = self.timings.time("window", || {
             window.push_keyframe(state, frame, pre)?;
             if let Some(omega) = omega {
                 window.set_newest_angular_rate(omega);
             }
-            window.optimize();
+            counters.note_solve(&window.optimize());
             Ok::<(), super::window::WindowError>(())
         });
         if let Err(e) = pushed {
@@ -1049,10 +1059,11 @@ impl WindowOdometry {
         };
         self.new_window();
         let window = &mut self.window;
+        let counters = &mut self.counters;
         let started = self.timings.time("window", || {
             window.push_keyframe(s0, &first, None)?;
             window.push_keyframe(s1, &frame, None)?;
-            window.optimize();
+            counters.note_solve(&window.optimize());
             Ok::<(), super::window::WindowError>(())
         });
         if started.is_err() || self.window.landmark_count() < 20 {
@@ -1190,8 +1201,9 @@ impl WindowOdometry {
         }
         self.apply_resume();
         let window = &mut self.window;
+        let counters = &mut self.counters;
         self.timings.time("window", || {
-            window.optimize();
+            counters.note_solve(&window.optimize());
         });
         true
     }
@@ -1361,6 +1373,7 @@ impl RelativeEstimator for WindowOdometry {
             ("bootstraps_tried", c.bootstraps_tried),
             ("frames_without_imu", c.frames_without_imu),
             ("resumed", c.resumed),
+            ("inconsistent_landmarks", c.inconsistent_landmarks),
             (
                 "imu_samples_dropped",
                 self.imu.as_ref().map_or(0, ImuBuffer::dropped),

@@ -55,6 +55,9 @@ pub struct WindowReport {
     pub observations: usize,
     /// Observations flagged as outliers by this call.
     pub new_outliers: usize,
+    /// Landmarks taken out with their tracks by this call: their inlier
+    /// observations together failed the landmark test.
+    pub inconsistent_landmarks: usize,
     /// True when the marginals came from the inverted reduced system (see
     /// [`Window::landmarks_in_body`]).
     pub exact_marginals: bool,
@@ -89,8 +92,7 @@ impl Window {
         report.initial_cost = initial;
         report.final_cost = last;
         report.iterations = iterations;
-        let flagged = self.flag_outliers();
-        report.new_outliers = flagged;
+        let flagged = self.flag_outliers(&mut report);
         if flagged > 0 || !converged {
             if flagged > 0 {
                 self.build_problem(n_fixed);
@@ -99,7 +101,7 @@ impl Window {
             let (iterations, _, last, _) = self.run_lm(rest);
             report.final_cost = last;
             report.iterations += iterations;
-            report.new_outliers += self.flag_outliers();
+            self.flag_outliers(&mut report);
         }
         if report.new_outliers > 0 {
             self.build_problem(n_fixed);
@@ -635,8 +637,10 @@ impl Window {
     }
 
     /// Flags observations above the chi-square threshold at the current
-    /// estimate; returns how many were newly flagged.
-    pub(super) fn flag_outliers(&mut self) -> usize {
+    /// estimate, then the landmarks that fail the landmark test
+    /// ([`super::landmark_consistency`]); adds them to the report and
+    /// returns how many observations were newly flagged.
+    pub(super) fn flag_outliers(&mut self, report: &mut WindowReport) -> usize {
         self.linearize(false);
         let chi2 = self.config.outlier_chi2;
         let mut flagged = 0;
@@ -650,7 +654,10 @@ impl Window {
                 flagged += 1;
             }
         }
-        flagged
+        let (more, landmarks) = self.flag_inconsistent_landmarks();
+        report.new_outliers += flagged + more;
+        report.inconsistent_landmarks += landmarks;
+        flagged + more
     }
 
     /// Linearises at the final estimate, inverts the reduced system and

@@ -29,6 +29,7 @@ pub mod camera_imu;
 pub mod frame_pose;
 pub mod inertial;
 pub mod inertial_link;
+pub mod landmark_consistency;
 pub mod levenberg_marquardt;
 mod marginalise;
 pub mod new_landmarks;
@@ -52,6 +53,7 @@ use nalgebra::{DMatrix, Isometry3, Matrix3x2, Matrix6, Vector3};
 
 pub use camera_imu::{CameraImuEstimate, CameraImuRefinementConfig};
 pub use frame_pose::FramePose;
+pub use landmark_consistency::LandmarkTest;
 pub use levenberg_marquardt::WindowReport;
 pub use noise_adaptation::{NoiseAdaptation, NoiseAdaptationConfig, NoiseScale};
 pub use reprojection::RobustKernel;
@@ -85,6 +87,10 @@ pub struct WindowConfig {
     /// Squared whitened error above which an observation is flagged an
     /// outlier after an optimisation [5.991, chi-square 2 DoF at 95%].
     pub outlier_chi2: f64,
+    /// A landmark whose inlier observations together fail a chi-square
+    /// test in the pixel noise the features show is taken out with its
+    /// track ([`LandmarkTest`]); None: no such test.
+    pub landmark_test: Option<LandmarkTest>,
     /// LM iterations per optimisation \[10\].
     pub max_iterations: usize,
     /// Inertial terms on [false]; see [`Window::enable_imu`].
@@ -164,6 +170,7 @@ impl Default for WindowConfig {
             robust_kernel: RobustKernel::Huber,
             huber_px: 1.5,
             outlier_chi2: 5.991,
+            landmark_test: Some(LandmarkTest::default()),
             max_iterations: 10,
             use_imu: false,
             min_parallax_deg: 1.0,
@@ -204,6 +211,9 @@ pub enum WindowError {
     #[error("IMU noise adaptation: {0}")]
     /// The IMU noise adaptation settings are invalid (the message says which).
     InvalidNoiseAdaptation(String),
+    #[error("landmark test: {0}")]
+    /// The landmark test's settings are invalid (the message says which).
+    InvalidLandmarkTest(String),
     #[error("camera-IMU refinement: {0}")]
     /// The camera-IMU refinement settings are invalid (the message says which).
     InvalidCameraImu(String),
@@ -328,6 +338,9 @@ impl WindowConfig {
                 "a number > 0 (inf: no flagging)",
             );
         }
+        if let Some(Err(message)) = self.landmark_test.map(|t| t.validate()) {
+            return Err(WindowError::InvalidLandmarkTest(message));
+        }
         if let Err(message) = self.noise_adaptation.validate() {
             return Err(WindowError::InvalidNoiseAdaptation(message));
         }
@@ -435,6 +448,9 @@ pub struct Window {
     next_seq: u64,
     landmarks: HashMap<LandmarkId, Landmark>,
     pending: HashMap<LandmarkId, PendingTrack>,
+    /// Tracks whose landmark failed the landmark test, while a keyframe
+    /// in the window still sees them: never triangulated again.
+    rejected: HashSet<LandmarkId>,
     gravity_dir: Vector3<f64>,
     velocity_prior: Option<OldestFreePrior>,
     /// Gyroscope bias sigma of the first boundary prior when the states
@@ -494,6 +510,7 @@ impl Window {
             next_seq: 0,
             landmarks: HashMap::new(),
             pending: HashMap::new(),
+            rejected: HashSet::new(),
             gravity_dir: down,
             velocity_prior: None,
             start_gyro_bias_sigma_rad_s: None,
@@ -618,20 +635,23 @@ impl Window {
         Ok(())
     }
 
-    /// Drops landmarks and pending tracks no keyframe in the window sees.
+    /// Drops the landmarks, refused tracks and pending tracks no keyframe
+    /// in the window sees.
     fn forget_unobserved(&mut self) {
         let oldest = self.keyframes.front().map_or(u64::MAX, |k| k.seq);
         self.pending.retain(|_, p| p.seq >= oldest);
         self.scratch_seen.clear();
         for kf in &self.keyframes {
             for o in &kf.observations {
-                if self.landmarks.contains_key(&o.landmark) {
-                    self.scratch_seen.insert(o.landmark);
+                let id = o.landmark;
+                if self.landmarks.contains_key(&id) || self.rejected.contains(&id) {
+                    self.scratch_seen.insert(id);
                 }
             }
         }
         let seen = &self.scratch_seen;
         self.landmarks.retain(|id, _| seen.contains(id));
+        self.rejected.retain(|id| seen.contains(id));
     }
 
     /// Number of keyframes held fixed now: the oldest L-M, and at least

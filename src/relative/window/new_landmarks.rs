@@ -104,7 +104,7 @@ impl Window {
             );
             self.scratch_pairs.sort_unstable();
             for o in newest.observations.iter().filter(|o| o.camera == 0) {
-                if self.landmarks.contains_key(&o.landmark) {
+                if self.landmarks.contains_key(&o.landmark) || self.rejected.contains(&o.landmark) {
                     continue;
                 }
                 let Ok(k) = self
@@ -136,7 +136,7 @@ impl Window {
         }
 
         for (i, o) in newest.observations.iter().enumerate() {
-            if self.landmarks.contains_key(&o.landmark) {
+            if self.landmarks.contains_key(&o.landmark) || self.rejected.contains(&o.landmark) {
                 continue;
             }
             match self.pending.get(&o.landmark).copied() {
