@@ -3,8 +3,9 @@
 //! Schur complement ([`super::schur`]), keep the step if the cost falls
 //! (and lower the damping), else undo it and raise the damping. After
 //! convergence, observations whose squared whitened error exceeds
-//! `outlier_chi2` are flagged and the problem is solved again without
-//! them; then the marginals that feed the eq. 34 prior and the absolute
+//! `outlier_chi2` are flagged, as are all those of a landmark that fails
+//! the landmark test ([`super::landmark_consistency`]), and the problem
+//! is solved again without them; then the marginals that feed the eq. 34 prior and the absolute
 //! stage are read from the inverse of the reduced system.
 
 use std::time::Instant;
