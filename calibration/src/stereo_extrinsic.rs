@@ -190,15 +190,15 @@ mod tests {
         let truth = cal0.T_body_cam.inverse() * cal1.T_body_cam;
         let (cam0, cam1) = (model(cal0), model(cal1));
         // Kalibr's 6 x 6 grid: 88 mm tags, 26.4 mm gaps, four corners each.
-        let mut points = Vec::new();
-        for row in 0..6 {
-            for col in 0..6 {
-                let (x, y) = (col as f64 * 0.1144, row as f64 * 0.1144);
-                for (dx, dy) in [(0.0, 0.0), (0.088, 0.0), (0.088, 0.088), (0.0, 0.088)] {
-                    points.push(Vector3::new(x + dx, y + dy, 0.0));
-                }
-            }
-        }
+        let grid = crate::aprilgrid::AprilGridTarget {
+            tag_rows: 6,
+            tag_cols: 6,
+            tag_size_m: 0.088,
+            tag_spacing_ratio: 0.3,
+        };
+        let points: Vec<Vector3<f64>> = (0..grid.tag_count())
+            .flat_map(|tag| (0..4).filter_map(move |corner| grid.corner_m(tag, corner)))
+            .collect();
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         let mut detections = Vec::new();
         let mut poses = Vec::new();

@@ -234,7 +234,7 @@ struct Scratch {
     pending: Vec<usize>,
     still: Vec<usize>,
     sub_points: Vec<[f32; 2]>,
-    /// Residual ratio of each matched left feature, and their sorted copy.
+    /// Residual ratio of each matched left feature, and the scratch their median is found in.
     ratios: Vec<f32>,
     sorted_ratios: Vec<f32>,
     described: Vec<Option<Descriptor>>,
@@ -833,8 +833,8 @@ fn refuse_far_above_median(
     if sorted.len() < MIN_MATCHES_FOR_MEDIAN {
         return 0;
     }
-    sorted.sort_unstable_by(f32::total_cmp);
-    let limit = k * sorted[sorted.len() / 2];
+    let mid = sorted.len() / 2;
+    let limit = k * *sorted.select_nth_unstable_by(mid, f32::total_cmp).1;
     let mut dropped = 0;
     for (m, r) in matched.iter_mut().zip(ratios) {
         if m.is_some() && !(*r <= limit) {
