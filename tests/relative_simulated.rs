@@ -167,13 +167,22 @@ fn a_start_in_flight_aligns_on_a_full_window_whatever_it_spans() {
         let result = run_dataset(&dir, &run, |_, _| {}).expect("run");
         let report = serde_json::to_value(&result.report).expect("json");
         let keyframes = report["counters"]["alignment_keyframes"].as_u64();
+        let links = report["counters"]["alignment_links"].as_u64();
         let tried = report["counters"]["alignments_tried"].as_u64();
         let init = result.report.initialized_at_s;
         let ate = result.report.eval.as_ref().map(|e| e.ate_rmse_m);
         eprintln!(
             "{mode} {full:?} span {span_s:?}: initialised at {init:?} s on {keyframes:?} \
-             keyframes after {tried:?} tries, ATE {ate:?} m"
+             keyframes ({links:?} inertial links) after {tried:?} tries, ATE {ate:?} m"
         );
+        // With one camera the keyframes gathered by vision alone are
+        // linked by the IMU as soon as the alignment switches the inertial
+        // terms on; a stereo window links them as it replaces them.
+        let expected = match mode {
+            SensorMode::MonoInertial => keyframes.map(|k| k - 1),
+            _ => keyframes.map(|_| 0),
+        };
+        assert_eq!(links, expected, "{mode}: intervals linked at the alignment");
         (init, keyframes, ate, tried)
     };
     let stereo = SensorMode::StereoInertial;

@@ -75,7 +75,12 @@ impl Window {
         self.state_covariance = None;
         self.body_landmarks.clear();
         let n = self.keyframes.len();
-        let n_fixed = self.fixed_count();
+        // Once, when asked: the oldest alone (`hold_oldest_only_next_solve`).
+        let n_fixed = if std::mem::take(&mut self.hold_oldest_only_once) {
+            1.min(n)
+        } else {
+            self.fixed_count()
+        };
         report.keyframes = n;
         if n < 2 || n_fixed >= n {
             report.ms = start.elapsed().as_secs_f64() * 1e3;

@@ -456,6 +456,9 @@ pub struct Window {
     /// Gyroscope bias sigma of the first boundary prior when the states
     /// came with one (the alignment's), rad/s; else the configured sigma.
     start_gyro_bias_sigma_rad_s: Option<f64>,
+    /// The next solve holds the oldest keyframe alone
+    /// ([`Self::hold_oldest_only_next_solve`]).
+    hold_oldest_only_once: bool,
     gravity_prior: GravityPrior,
     scale_anchor: Option<ScaleAnchor>,
     problem: Problem,
@@ -514,6 +517,7 @@ impl Window {
             gravity_dir: down,
             velocity_prior: None,
             start_gyro_bias_sigma_rad_s: None,
+            hold_oldest_only_once: false,
             scale_anchor: None,
             problem: Problem {
                 gravity_basis: tangent_basis(&down),
@@ -786,6 +790,15 @@ impl Window {
         }
         self.state_covariance = None;
         Ok(())
+    }
+
+    /// The next solve holds the oldest keyframe alone (the gauge) instead
+    /// of the usual count, once: after states that came from elsewhere
+    /// (the visual-inertial alignment of a vision-only start), whose
+    /// attitudes carry the images' drift; held keyframes would keep their
+    /// errors and push them into the biases the solve estimates.
+    pub fn hold_oldest_only_next_solve(&mut self) {
+        self.hold_oldest_only_once = true;
     }
 
     /// Replaces the keyframes' states (same count and order as

@@ -1541,3 +1541,56 @@ fn the_start_gyro_bias_sigma_sets_the_first_boundary_prior_until_new_states() {
         }
     }
 }
+
+#[test]
+fn after_new_states_one_solve_may_hold_the_oldest_keyframe_alone() {
+    // The alignment of a vision-only start hands over attitudes that carry
+    // the images' drift. Asked to, the next solve holds the oldest keyframe
+    // alone, so the IMU and the landmarks correct the others; the solve
+    // after holds the usual count again. (Held, keyframes 1 and 2 would keep their
+    // turns to the last digit; free, one solve takes back about half.)
+    let mut r = rng(71);
+    let scene = Scene::new(&mut r, 800, keyframe_time(14) as f64 * 1e-9 + 1.0);
+    let mut w = Window::new(config(true), &scene.rig).expect("valid");
+    for k in 0..12 {
+        slide_keyframe(&mut w, &scene, k, |t| scene.truth(t), true, &mut r);
+    }
+    let n = w.keyframe_count();
+    let held = w.fixed_count();
+    assert!(held >= 3 && held < n, "held {held} of {n}");
+    // Against the window's own estimate (itself some 0.1 deg from the
+    // truth), which the images and the IMU agree on.
+    let before: Vec<KeyframeState> = w.keyframes().copied().collect();
+    let axis = Vector3::new(0.3, -0.5, 0.8).normalize();
+    let drift_deg = 0.05;
+    let states: Vec<KeyframeState> = w
+        .keyframes()
+        .enumerate()
+        .map(|(i, s)| {
+            let mut s = *s;
+            let turn = UnitQuaternion::from_scaled_axis(axis * (drift_deg * i as f64).to_radians());
+            s.T_world_body.rotation = turn * s.T_world_body.rotation;
+            s
+        })
+        .collect();
+    w.set_states(&states).expect("same count");
+    w.hold_oldest_only_next_solve();
+    let first = w.optimize();
+    assert_eq!(first.free_keyframes, n - 1, "{first:?}");
+    let errors: Vec<f64> = w
+        .keyframes()
+        .zip(&before)
+        .map(|(s, b)| pose_error(s, b).1)
+        .collect();
+    assert!(errors[0] < 1e-9, "the oldest keyframe is held: {errors:?}");
+    for i in 1..held {
+        assert!(
+            errors[i] < 0.6 * drift_deg * i as f64,
+            "keyframe {i} turned {:.4} deg and still {:.4} deg off: {errors:?}",
+            drift_deg * i as f64,
+            errors[i]
+        );
+    }
+    let second = w.optimize();
+    assert_eq!(second.free_keyframes, n - held, "{second:?}");
+}
