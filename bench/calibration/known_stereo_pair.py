@@ -148,7 +148,7 @@ def main():
         "stereo_yaw_error_deg": float(yaw_deg(err)),
         "baseline_error_mm": float(1e3 * np.linalg.norm(est_c1_c0[:3, 3] - t_c1_c0[:3, 3])),
         "camera_imu_json": json.loads(p.stdout) if p.stdout.strip().startswith("{") else None,
-        "folder": out,
+        "folder": out if args.keep else None,
     }
     print(json.dumps(result, indent=1))
     if not args.keep:

@@ -1547,8 +1547,9 @@ fn after_new_states_one_solve_may_hold_the_oldest_keyframe_alone() {
     // The alignment of a vision-only start hands over attitudes that carry
     // the images' drift. Asked to, the next solve holds the oldest keyframe
     // alone, so the IMU and the landmarks correct the others; the solve
-    // after holds the usual count again. (Held, keyframes 1 and 2 would keep their
-    // turns to the last digit; free, one solve takes back about half.)
+    // after holds the usual count again. (Held, keyframes 1 and 2 would
+    // keep their turns to the last digit; free, one solve takes back about
+    // half.)
     let mut r = rng(71);
     let scene = Scene::new(&mut r, 800, keyframe_time(14) as f64 * 1e-9 + 1.0);
     let mut w = Window::new(config(true), &scene.rig).expect("valid");
