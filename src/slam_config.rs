@@ -121,6 +121,8 @@ mod tests {
             ("imu_noise_scale_accel = -2.0\n", "noise_scale_accel"),
             ("imu_noise_scale_accel = 1000.0\n", "noise_scale_accel"),
             ("imu_noise_adaptation_memory_s = nan\n", "memory_s"),
+            ("imu_noise_adaptation_joined_links = 0\n", "joined_links"),
+            ("imu_noise_adaptation_joined_links = 40\n", "joined_links"),
             ("level_time_constant_s = -1.0\n", "level_time_constant_s"),
         ] {
             let e = err(&format!("[relative]\n{text}"));

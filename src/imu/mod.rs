@@ -8,6 +8,7 @@
 //! integrator used as a reference and by the simulator.
 
 pub mod agreement;
+pub mod chain;
 pub mod interval;
 pub mod noise;
 pub mod preintegration;

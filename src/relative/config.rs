@@ -125,6 +125,12 @@ pub struct RelativeConfig {
     /// Estimate the bias random walks' scales too (off: measured worse
     /// in mono-inertial, see the adaptation's module doc).
     pub imu_walk_adaptation: bool,
+    /// How many consecutive inertial links the adaptation tests together
+    /// (1, the default: each link alone; 2-6: the oldest links of each
+    /// solve joined, where an error slow against one link shows; measured
+    /// better in mono-inertial on real IMUs and worse in stereo-inertial,
+    /// see the adaptation's module doc).
+    pub imu_noise_adaptation_joined_links: usize,
     /// Refine the camera-IMU calibration online, starting from the
     /// calibration file (`relative/window/camera_imu.rs`): camera 0's
     /// rotation in the IMU frame, the frames' time offset, the stereo
@@ -179,6 +185,7 @@ impl Default for RelativeConfig {
             imu_noise_adaptation: true,
             imu_noise_scale_gyro: 1.0,
             imu_noise_scale_accel: 1.0,
+            imu_noise_adaptation_joined_links: 1,
             imu_noise_adaptation_memory_s: 20.0,
             imu_noise_scale_min: 0.1,
             imu_noise_scale_max: 100.0,
@@ -352,6 +359,7 @@ impl RelativeConfig {
             min_scale: self.imu_noise_scale_min,
             max_scale: self.imu_noise_scale_max,
             adapt_walk: self.imu_walk_adaptation,
+            joined_links: self.imu_noise_adaptation_joined_links,
             ..NoiseAdaptationConfig::default()
         }
     }

@@ -29,6 +29,7 @@ pub mod camera_imu;
 pub mod frame_pose;
 pub mod inertial;
 pub mod inertial_link;
+mod joined_links;
 pub mod landmark_consistency;
 pub mod levenberg_marquardt;
 mod marginalise;
@@ -1212,7 +1213,7 @@ impl Window {
             }
             None => ([0.0; 2], [0.0; 2]),
         };
-        let evidence = noise_adaptation::LinkEvidence {
+        let mut evidence = noise_adaptation::LinkEvidence {
             chi2_rotation: r.fixed_rows::<3>(0).norm_squared(),
             redundancy_rotation: 3.0 - hat_diag[..3].iter().sum::<f64>(),
             chi2_translation: r.fixed_rows::<6>(3).norm_squared(),
@@ -1223,9 +1224,33 @@ impl Window {
             redundancy_accel_walk: walk_redundancy[1],
             dt_s: link.pre.dt_s,
         };
+        // With more than one link joined, the rotation and translation
+        // rows are the joined interval's, counted once per link they
+        // span (consecutive measurements overlap by all but one link).
+        let wanted = self.noise.config().joined_links;
+        if let Some((k, joined)) = (2..=wanted).rev().find_map(|k| {
+            self.joined_inertial_evidence(cov, og, ob, k)
+                .map(|j| (k, j))
+        }) {
+            let k = k as f64;
+            evidence.chi2_rotation = joined.chi2_rotation / k;
+            evidence.redundancy_rotation = joined.redundancy_rotation / k;
+            evidence.chi2_translation = joined.chi2_translation / k;
+            evidence.redundancy_translation = joined.redundancy_translation / k;
+        }
         self.last_measured_link = Some(kj.seq);
         let before = self.noise.scale();
         let after = self.noise.add(&evidence);
+        tracing::trace!(
+            t_s = kj.state.t_ns as f64 * 1e-9,
+            gyro = after.gyro,
+            accel = after.accel,
+            chi2_rotation = evidence.chi2_rotation,
+            redundancy_rotation = evidence.redundancy_rotation,
+            chi2_translation = evidence.chi2_translation,
+            redundancy_translation = evidence.redundancy_translation,
+            "IMU noise scale"
+        );
         if after != before {
             for kf in self.keyframes.iter_mut() {
                 if let Some(link) = kf.imu.as_mut() {
