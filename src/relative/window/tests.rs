@@ -1268,10 +1268,11 @@ struct SlidingNees {
     given_held: f64,
 }
 
-fn sliding_nees(seed: u64, keyframes: usize, cfg: WindowConfig, stereo: bool) -> SlidingNees {
-    let mut r = rng(200 + seed);
+/// A scene for `keyframes` keyframes (1500 points) whose IMU has the
+/// declared EuRoC noise and bias walk, drawn with `imu_seed`.
+fn scene_with_declared_imu_noise(r: &mut ChaCha8Rng, keyframes: usize, imu_seed: u64) -> Scene {
     let duration_s = keyframe_time(keyframes) as f64 * 1e-9 + 1.0;
-    let mut scene = Scene::new(&mut r, 1500, duration_s);
+    let mut scene = Scene::new(r, 1500, duration_s);
     scene.imu = crate::simulate::imu_synth::synthesize(
         &scene.motion,
         0,
@@ -1280,9 +1281,15 @@ fn sliding_nees(seed: u64, keyframes: usize, cfg: WindowConfig, stereo: bool) ->
             rate_hz: 200.0,
             noise: Some(crate::rig::ImuNoise::EUROC_ADIS16448),
             initial_biases: scene.biases,
-            seed: 300 + seed,
+            seed: imu_seed,
         },
     );
+    scene
+}
+
+fn sliding_nees(seed: u64, keyframes: usize, cfg: WindowConfig, stereo: bool) -> SlidingNees {
+    let mut r = rng(200 + seed);
+    let scene = scene_with_declared_imu_noise(&mut r, keyframes, 300 + seed);
     let mut w = Window::new(cfg, &scene.rig).expect("valid");
     // [dphi (body), dp (world)] of `est` against `truth`, the window's
     // perturbation convention.
@@ -1607,19 +1614,7 @@ fn after_new_states_one_solve_may_hold_the_oldest_keyframe_alone() {
 fn link_evidence_ratios(seed: u64, slow_rad_s: f64) -> [f64; 4] {
     let mut r = rng(500 + seed);
     let keyframes = 40;
-    let duration_s = keyframe_time(keyframes) as f64 * 1e-9 + 1.0;
-    let mut scene = Scene::new(&mut r, 1500, duration_s);
-    scene.imu = crate::simulate::imu_synth::synthesize(
-        &scene.motion,
-        0,
-        scene.motion.end_ns(),
-        &crate::simulate::imu_synth::ImuSynthConfig {
-            rate_hz: 200.0,
-            noise: Some(crate::rig::ImuNoise::EUROC_ADIS16448),
-            initial_biases: scene.biases,
-            seed: 600 + seed,
-        },
-    );
+    let mut scene = scene_with_declared_imu_noise(&mut r, keyframes, 600 + seed);
     for s in scene.imu.samples.iter_mut() {
         let phase = s.t_ns as f64 * 1e-9 * std::f64::consts::TAU / 3.0;
         s.gyro_rad_s[0] += slow_rad_s * phase.sin();
