@@ -14,10 +14,9 @@
 
 use nalgebra::Matrix3;
 
-use super::preintegration::Preintegrated;
+use super::preintegration::{Matrix9, Preintegrated};
 use super::so3::hat;
 use super::strapdown::ImuBiases;
-use crate::imu::preintegration::Matrix9;
 
 /// `first` followed by `second` (which must start where `first` ends),
 /// both corrected to `biases` first (to first order, by their bias
@@ -48,16 +47,14 @@ pub fn join_with_transport(
     let b = second.corrected(biases);
     let (ra, rb) = (a.delta_R, b.delta_R);
     let dt_b = second.dt_s;
-    let transition = |phi_v: Matrix3<f64>, phi_p: Matrix3<f64>| {
-        let mut f = Matrix9::identity();
-        f.fixed_view_mut::<3, 3>(0, 0).copy_from(&rb.transpose());
-        f.fixed_view_mut::<3, 3>(3, 0).copy_from(&phi_v);
-        f.fixed_view_mut::<3, 3>(6, 0).copy_from(&phi_p);
-        f.fixed_view_mut::<3, 3>(6, 3)
-            .copy_from(&(Matrix3::identity() * dt_b));
-        f
-    };
-    let f = transition(-(ra * hat(&b.delta_v_m_s)), -(ra * hat(&b.delta_p_m)));
+    let mut f = Matrix9::identity();
+    f.fixed_view_mut::<3, 3>(0, 0).copy_from(&rb.transpose());
+    f.fixed_view_mut::<3, 3>(3, 0)
+        .copy_from(&-(ra * hat(&b.delta_v_m_s)));
+    f.fixed_view_mut::<3, 3>(6, 0)
+        .copy_from(&-(ra * hat(&b.delta_p_m)));
+    f.fixed_view_mut::<3, 3>(6, 3)
+        .copy_from(&(Matrix3::identity() * dt_b));
     let mut g = Matrix9::identity();
     g.fixed_view_mut::<3, 3>(3, 3).copy_from(&ra);
     g.fixed_view_mut::<3, 3>(6, 6).copy_from(&ra);

@@ -38,7 +38,7 @@
 //! redundancy left under the datasheet's walk and never move.
 //!
 //! A link can also be tested together with the next ones
-//! (`joined_links`, the module `joined_links`): their intervals joined
+//! (`joined_links`, in the window's module of that name): their intervals joined
 //! into one, its residual the transported sum of theirs, its redundancy
 //! exact for the solve. An error that is slow against one link adds up
 //! there. On the real-IMU renderings the joined test asks for more than
