@@ -243,6 +243,9 @@ fn parse_doc(text: &str, path: &Path) -> Result<Value, DatasetError> {
     Ok(doc)
 }
 
+/// What a sensor.yaml without one of the IMU's noise figures is told.
+const MISSING_NOISE: &str = "missing: the IMU's noise figures (continuous time, SI units per sqrt(Hz), Kalibr's convention) come from its datasheet, or from `rigslam-calibrate noise` on a log recorded at rest; the estimator refines the weighting online from there";
+
 /// Typed access to a parsed YAML mapping, each error naming the field.
 struct Fields<'a> {
     path: &'a Path,
@@ -290,6 +293,9 @@ impl Fields<'_> {
     /// IMU by it would throw the IMU away. `typical` is a consumer MEMS
     /// part's value, for the message.
     fn plausible_noise(&self, field: &str, max: f64, typical: f64) -> Result<f64, DatasetError> {
+        if self.doc.get(field).is_none() {
+            return Err(self.bad(field, MISSING_NOISE));
+        }
         let v = self.positive(field)?;
         plausible_noise(v, max, typical).map_err(|m| self.bad(field, m))
     }
@@ -603,7 +609,10 @@ distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
             let err = read_imu_yaml(&write(dir.path(), &text))
                 .unwrap_err()
                 .to_string();
-            assert!(err.contains(key), "{key} missing: {err}");
+            assert!(
+                err.contains(key) && err.contains("rigslam-calibrate noise"),
+                "{key} missing: {err}"
+            );
         }
     }
 
