@@ -35,6 +35,31 @@ pub(crate) struct JoinedEvidence {
     pub redundancy_translation: f64,
 }
 
+/// The solve's covariance column of column `c` of an inertial factor
+/// ([`inertial::inertial_factor`]: `[state i | state j | gravity]`) on
+/// link `m` counted from the boundary, which runs from keyframe `nf - 1 +
+/// m` to `nf + m`: the boundary's pose is held (None), its `[v, b_g,
+/// b_a]` at `ob`; free keyframe `s` starts at `s * state_dim`; gravity at
+/// `og`.
+pub(super) fn link_column(
+    state_dim: usize,
+    og: usize,
+    ob: usize,
+    m: usize,
+    c: usize,
+) -> Option<usize> {
+    if c < FULL_DIM {
+        match m {
+            0 => (c >= VEL).then(|| ob + c - VEL),
+            _ => Some((m - 1) * state_dim + c),
+        }
+    } else if c < 2 * FULL_DIM {
+        Some(m * state_dim + c - FULL_DIM)
+    } else {
+        Some(og + c - 2 * FULL_DIM)
+    }
+}
+
 impl Window {
     /// The oldest `k` inertial links of the last solve joined into one:
     /// its evidence on the noise. `cov` is the solve's covariance, `og`
@@ -61,21 +86,7 @@ impl Window {
                 return None;
             }
         }
-        // Link m runs from keyframe nf - 1 + m to nf + m; the boundary's
-        // pose is held (no column), free keyframe s starts at s * sd.
-        let sd = p.state_dim;
-        let column = |m: usize, c: usize| -> Option<usize> {
-            if c < FULL_DIM {
-                match m {
-                    0 => (c >= VEL).then(|| ob + c - VEL),
-                    _ => Some((m - 1) * sd + c),
-                }
-            } else if c < 2 * FULL_DIM {
-                Some(m * sd + c - FULL_DIM)
-            } else {
-                Some(og + c - 2 * FULL_DIM)
-            }
-        };
+        let column = |m: usize, c: usize| link_column(p.state_dim, og, ob, m, c);
         let mut columns: Vec<usize> = Vec::new();
         let mut residual = SVector::<f64, 9>::zeros();
         let mut jacobian: Vec<SVector<f64, 9>> = Vec::new();

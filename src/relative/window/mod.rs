@@ -1166,18 +1166,9 @@ impl Window {
             &self.gravity_dir,
             &p.gravity_basis,
         );
-        // The link's columns in the solve's covariance: the boundary's
-        // pose is held (no column), its [v, b_g, b_a] at `ob`; the oldest
-        // free keyframe is slot 0; gravity at `og`.
-        let column = |c: usize| -> Option<usize> {
-            if c < state::FULL_DIM {
-                (c >= state::VEL).then(|| ob + c - state::VEL)
-            } else if c < 2 * state::FULL_DIM {
-                Some(c - state::FULL_DIM)
-            } else {
-                Some(og + c - 2 * state::FULL_DIM)
-            }
-        };
+        // The link's columns in the solve's covariance (the first link
+        // from the boundary).
+        let column = |c: usize| joined_links::link_column(p.state_dim, og, ob, 0, c);
         let cols: Vec<(usize, usize)> = (0..inertial::INERTIAL_COLS)
             .filter_map(|c| column(c).map(|k| (c, k)))
             .collect();
