@@ -796,6 +796,7 @@ mod tests {
             time_offset_sigma_s: 0.0001,
             far_from_file: false,
             solves: 10,
+            held_at_file: false,
         };
         health.record_camera_imu(Some(estimate));
         let m = health.status(&rules, &mut base, &[], (0, 0));

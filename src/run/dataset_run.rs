@@ -491,7 +491,12 @@ pub fn summary_line(r: &RunReport) -> String {
             s.gyro, s.accel, s.pixel
         );
     }
-    if let Some(c) = &r.camera_imu {
+    if let Some(c) = r.camera_imu.as_ref().filter(|c| c.held_at_file) {
+        line += &format!(
+            "; camera-IMU calibration held at the file (no solve's data tested it wrong; stereo rotation {:.3} deg)",
+            c.stereo_rotation_from_file_deg
+        );
+    } else if let Some(c) = &r.camera_imu {
         line += &format!(
             "; camera-IMU refined to {:.3} deg, {:.1} mm and {:+.2} ms from the file (stereo rotation {:.3} deg){}",
             c.rotation_from_file_deg,

@@ -220,6 +220,8 @@ pub struct CameraImuReport {
     pub time_offset_sigma_ms: f64,
     /// Farther from the file than the warning distance.
     pub far_from_file: bool,
+    /// Still held at the file: no solve's data tested it wrong.
+    pub held_at_file: bool,
 }
 
 impl From<crate::relative::window::CameraImuEstimate> for CameraImuReport {
@@ -241,6 +243,7 @@ impl From<crate::relative::window::CameraImuEstimate> for CameraImuReport {
             translation_sigma_mm: e.translation_sigma_m * 1e3,
             time_offset_sigma_ms: e.time_offset_sigma_s * 1e3,
             far_from_file: e.far_from_file,
+            held_at_file: e.held_at_file,
         }
     }
 }
