@@ -493,7 +493,7 @@ pub fn summary_line(r: &RunReport) -> String {
     }
     if let Some(c) = r.camera_imu.as_ref().filter(|c| c.held_at_file) {
         line += &format!(
-            "; camera-IMU calibration held at the file (no solve's data tested it wrong; stereo rotation {:.3} deg)",
+            "; camera-IMU calibration held at the file (no solve's data disagreed with it beyond chance; stereo rotation {:.3} deg)",
             c.stereo_rotation_from_file_deg
         );
     } else if let Some(c) = &r.camera_imu {

@@ -220,7 +220,7 @@ pub struct CameraImuReport {
     pub time_offset_sigma_ms: f64,
     /// Farther from the file than the warning distance.
     pub far_from_file: bool,
-    /// Still held at the file: no solve's data tested it wrong.
+    /// Still held at the file: no solve's data disagreed with it beyond chance.
     pub held_at_file: bool,
 }
 

@@ -512,7 +512,7 @@ impl CameraImuState {
         if self.over_threshold >= TEST_SOLVES {
             let t = test.expect("over the threshold implies a test");
             tracing::info!(
-                "camera-IMU calibration: the data test the file wrong (score {:.0} over {:.0}, {} directions, {} solves in a row at solve {}); refined online from now on",
+                "camera-IMU calibration: the data disagree with the file beyond chance (score {:.0} over {:.0} in {} directions, {} solves in a row, solve {}): refining it online from now on",
                 t.statistic,
                 t.threshold,
                 t.rank,
