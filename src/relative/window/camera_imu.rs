@@ -256,10 +256,8 @@ pub fn score_test(
     held_info: &VectorCalib,
     step: &VectorCalib,
 ) -> Option<ScoreTest> {
-    let data = info - MatrixCalib::from_diagonal(held_info);
-    let data = (data + data.transpose()) * 0.5;
     let g = info * step;
-    let eig = data.symmetric_eigen();
+    let eig = data_information(info, held_info);
     let largest = eig.eigenvalues.max();
     if !(largest > 0.0 && largest.is_finite() && g.iter().all(|v| v.is_finite())) {
         return None;
@@ -278,6 +276,17 @@ pub fn score_test(
         rank,
         threshold: chi_square_quantile(rank as f64, TEST_Z),
     })
+}
+
+/// The data's share of a solve's information on the block: `info` less
+/// the diagonal `prior_info` of the file's prior, symmetrised, in its
+/// eigenvectors (it may be singular: unobserved directions).
+fn data_information(
+    info: &MatrixCalib,
+    prior_info: &VectorCalib,
+) -> nalgebra::SymmetricEigen<f64, nalgebra::Const<CALIB_DIM>> {
+    let data = info - MatrixCalib::from_diagonal(prior_info);
+    ((data + data.transpose()) * 0.5).symmetric_eigen()
 }
 
 /// Solves before the estimate may raise the warning: the first windows'
@@ -448,6 +457,11 @@ impl CameraImuState {
             * held
     }
 
+    /// The file prior's information, a diagonal (squared `file_sqrt_info`).
+    fn file_information(&self) -> VectorCalib {
+        self.file_sqrt_info().map(|v| v * v)
+    }
+
     /// The whitened prior factors at the current estimate: the file's and
     /// (after a first solve) the carried one.
     pub fn prior_factors(&self) -> Vec<(VectorCalib, MatrixCalib)> {
@@ -486,10 +500,8 @@ impl CameraImuState {
             self.test_file(&info);
             return;
         }
-        let file = self.file_sqrt_info();
-        let data = info - MatrixCalib::from_diagonal(&file.component_mul(&file));
         // The data's share, kept positive semi-definite.
-        let eig = ((data + data.transpose()) * 0.5).symmetric_eigen();
+        let eig = data_information(&info, &self.file_information());
         let clamped = eig
             .eigenvalues
             .map(|l| l.max(0.0) * self.config.carry_weight);
@@ -504,9 +516,8 @@ impl CameraImuState {
     /// One held solve's test; releases the block after [`TEST_SOLVES`]
     /// over the threshold in a row.
     fn test_file(&mut self, info: &MatrixCalib) {
-        let file = self.file_sqrt_info();
         let (step, _) = difference(&self.values(), &self.file_values());
-        let test = score_test(info, &file.component_mul(&file), &step);
+        let test = score_test(info, &self.file_information(), &step);
         let over = test.is_some_and(|t| t.statistic > t.threshold);
         self.over_threshold = if over { self.over_threshold + 1 } else { 0 };
         if self.over_threshold >= TEST_SOLVES {
@@ -746,13 +757,11 @@ mod tests {
         let cams = [RigCamera::new(euroc_cam0()), RigCamera::new(euroc_cam1())];
         let mut state = CameraImuState::new(CameraImuRefinementConfig::default(), &cams);
         assert!(state.estimate().held_at_file);
-        let held = state
-            .file_sqrt_info()
-            .component_mul(&state.file_sqrt_info());
+        let held = state.file_information();
         let released = {
             let mut s = state.clone();
             s.held = false;
-            s.file_sqrt_info().component_mul(&s.file_sqrt_info())
+            s.file_information()
         };
         assert!((held[0] / released[0] - HOLD_FACTOR * HOLD_FACTOR).abs() < 1e-3);
         let data = information(&[1e8, 1e8, 1e8, 1e4, 1e4, 1e4, 1e9, 1e9, 1e9, 1e9]);
@@ -760,7 +769,7 @@ mod tests {
         let solve = |s: &mut CameraImuState, truth: &VectorCalib| {
             let file_values = s.file_values();
             s.restore(&file_values);
-            let prior = s.file_sqrt_info().component_mul(&s.file_sqrt_info());
+            let prior = s.file_information();
             let info = data + MatrixCalib::from_diagonal(&prior);
             let step = info.lu().solve(&(data * truth)).expect("invertible");
             s.apply(step.as_slice());
@@ -787,11 +796,9 @@ mod tests {
             state.carried.is_none(),
             "the held solves' information is dropped"
         );
-        let now = state
-            .file_sqrt_info()
-            .component_mul(&state.file_sqrt_info());
+        let now = state.file_information();
         assert!((now - released).norm() < 1e-9 * released.norm());
-        assert!(solve(&mut state, &wrong) == false && state.carried.is_some());
+        assert!(!solve(&mut state, &wrong) && state.carried.is_some());
     }
 
     #[allow(non_snake_case)]
