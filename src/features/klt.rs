@@ -47,6 +47,9 @@ pub struct KltConfig {
     /// (0.06 px mean at 1 degree of roll; < 0.01 px with it, klt tests).
     /// Off by default, as in OpenCV: it runs on the forward pass only but
     /// still doubles its cost, and on KITTI it keeps slightly fewer tracks.
+    /// The relative stage's tracker can turn it on for the frame-to-frame
+    /// tracks, whose per-frame bias otherwise adds up along a track
+    /// (`[relative] klt_affine`).
     pub affine_refinement: bool,
     /// Largest accepted std(I(x + d) - T(x)) / std(T) over the window at
     /// level 0 after convergence (a brightness offset does not count);
@@ -435,11 +438,21 @@ impl KltTracker {
         let data = &image.data;
         for j in 0..n {
             let v = j as f32 - h;
-            let mut x = p[0] + a[(0, 0)] * -h + a[(0, 1)] * v + t[0];
-            let mut y = p[1] + a[(1, 0)] * -h + a[(1, 1)] * v + t[1];
             for i in 0..n {
-                // x, y >= 0 (the window corners were checked): truncation is floor.
+                let u = i as f32 - h;
+                // Each sample's own position, checked on its own: a window
+                // whose corners lie just inside the image can still round
+                // a sample on its edge past the last pixel.
+                let x = p[0] + a[(0, 0)] * u + a[(0, 1)] * v + t[0];
+                let y = p[1] + a[(1, 0)] * u + a[(1, 1)] * v + t[1];
+                if !(x >= 0.0 && y >= 0.0 && x < w - 1.0 && y < hh - 1.0) {
+                    return None;
+                }
+                // x, y >= 0: truncation is floor.
                 let (ix, iy) = (x as usize, y as usize);
+                if ix + 1 >= image.width || iy + 1 >= image.height {
+                    return None;
+                }
                 let (ax, ay) = (x - ix as f32, y - iy as f32);
                 let o = iy * stride + ix;
                 let value = (1.0 - ay)
@@ -451,15 +464,12 @@ impl KltTracker {
                 e_sum += e;
                 e2_sum += e * e;
                 let (ex, ey) = (e * self.grad_x[k], e * self.grad_y[k]);
-                let u = i as f32 - h;
                 acc[0] += ex * u;
                 acc[1] += ey * u;
                 acc[2] += ex * v;
                 acc[3] += ey * v;
                 acc[4] += ex;
                 acc[5] += ey;
-                x += a[(0, 0)];
-                y += a[(1, 0)];
             }
         }
         Some((Vector6::from(acc), spread(e_sum, e2_sum, (n * n) as f32)))

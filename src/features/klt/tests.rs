@@ -403,3 +403,64 @@ fn a_window_over_two_layers_that_move_apart_ends_with_a_large_residual_ratio() {
     tracker.track(&prev, &cur, &points[..3], None, &mut out, &mut status);
     assert_eq!(tracker.residual_ratios().len(), 3);
 }
+
+#[test]
+fn an_affine_window_ending_on_the_image_edge_is_refused_not_read_past() {
+    // The window's corners are checked against the image before sampling;
+    // a sample on the window's edge between two corners, computed as a
+    // running sum, could round past the last row and read beyond the
+    // image (a panic on a rendered sequence). Windows are placed with a
+    // corner a rounding error inside the bottom or right edge, turned and
+    // scaled: every one must be sampled in bounds or refused.
+    let (w, h) = (64usize, 48usize);
+    let pyramid = render(w, h, texture);
+    let image = pyramid.level(0);
+    let tracker = KltTracker::new(KltConfig {
+        affine_refinement: true,
+        ..KltConfig::default()
+    })
+    .unwrap();
+    let half = tracker.config().half_window_px as f32;
+    let mut z = 0x2545_F491_4F6C_DD1Du64;
+    let mut next = || {
+        z ^= z << 13;
+        z ^= z >> 7;
+        z ^= z << 17;
+        (z >> 40) as f32 / (1u64 << 24) as f32
+    };
+    let (mut sampled, mut refused) = (0, 0);
+    for k in 0..20_000 {
+        let a = Matrix2::new(
+            0.8 + 0.4 * next(),
+            0.3 * (next() - 0.5),
+            0.3 * (next() - 0.5),
+            0.8 + 0.4 * next(),
+        );
+        // The corner (u, v) = (h, h) or (-h, h) or (h, -h) a hair inside.
+        let corner = match k % 3 {
+            0 => Vector2::new(half, half),
+            1 => Vector2::new(-half, half),
+            _ => Vector2::new(half, -half),
+        };
+        let hair = 1e-4 * next();
+        let target = match k % 3 {
+            0 => Vector2::new(w as f32 - 1.0 - hair, h as f32 - 1.0 - hair),
+            1 => Vector2::new(20.0 + 10.0 * next(), h as f32 - 1.0 - hair),
+            _ => Vector2::new(w as f32 - 1.0 - hair, 20.0 + 10.0 * next()),
+        };
+        let p = [30.0f32, 24.0];
+        let t = target - Vector2::new(p[0], p[1]) - a * corner;
+        match tracker.affine_residual_products(image, p, &a, &t) {
+            Some((b, _)) => {
+                assert!(b.iter().all(|v| v.is_finite()));
+                sampled += 1;
+            }
+            None => refused += 1,
+        }
+    }
+    println!("{sampled} windows sampled, {refused} refused");
+    assert!(
+        sampled > 0 && refused > 0,
+        "{sampled} sampled, {refused} refused"
+    );
+}
