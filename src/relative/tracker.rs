@@ -52,6 +52,13 @@ pub struct TrackerConfig {
     pub min_distance_px: f32,
     /// Half side of the KLT window, px [7: 15x15].
     pub klt_half_window_px: usize,
+    /// Refine an affine warp of each window after its shift converges
+    /// when following features from frame to frame \[false\]
+    /// ([`KltConfig::affine_refinement`]): a shift alone leaves a bias of
+    /// a few hundredths of a pixel per frame under turning and scaling,
+    /// which a track adds up. Not used for the stereo match, made afresh
+    /// every frame.
+    pub klt_affine: bool,
     /// Pyramid levels including the image \[3\].
     pub pyramid_levels: usize,
     /// Forward-backward agreement, px [1.0].
@@ -92,6 +99,7 @@ impl Default for TrackerConfig {
             bucket_px: 48,
             min_distance_px: 15.0,
             klt_half_window_px: 7,
+            klt_affine: false,
             pyramid_levels: 3,
             fb_threshold_px: 1.0,
             ransac_threshold_px: 1.0,
@@ -322,6 +330,7 @@ impl Tracker {
         let klt = KltTracker::new(KltConfig {
             half_window_px: config.klt_half_window_px,
             fb_threshold_px: Some(config.fb_threshold_px),
+            affine_refinement: config.klt_affine,
             ..KltConfig::default()
         })
         .map_err(|e| bad("klt", e.to_string(), "a valid KLT configuration"))?;
