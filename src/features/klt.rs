@@ -425,13 +425,6 @@ impl KltTracker {
         let h = self.config.half_window_px as f32;
         let n = self.config.half_window_px * 2 + 1;
         let (w, hh) = (image.width as f32, image.height as f32);
-        for (u, v) in [(-h, -h), (h, -h), (-h, h), (h, h)] {
-            let x = p[0] + a[(0, 0)] * u + a[(0, 1)] * v + t[0];
-            let y = p[1] + a[(1, 0)] * u + a[(1, 1)] * v + t[1];
-            if !(x >= 0.0 && y >= 0.0 && x < w - 1.0 && y < hh - 1.0) {
-                return None;
-            }
-        }
         let mut acc = [0f32; 6];
         let (mut e_sum, mut e2_sum) = (0f32, 0f32);
         let stride = image.width;
@@ -440,19 +433,16 @@ impl KltTracker {
             let v = j as f32 - h;
             for i in 0..n {
                 let u = i as f32 - h;
-                // Each sample's own position, checked on its own: a window
-                // whose corners lie just inside the image can still round
-                // a sample on its edge past the last pixel.
+                // Each sample placed and checked on its own: checking only
+                // the window's corners let a sample on an edge between two
+                // of them round past the last pixel.
                 let x = p[0] + a[(0, 0)] * u + a[(0, 1)] * v + t[0];
                 let y = p[1] + a[(1, 0)] * u + a[(1, 1)] * v + t[1];
                 if !(x >= 0.0 && y >= 0.0 && x < w - 1.0 && y < hh - 1.0) {
                     return None;
                 }
-                // x, y >= 0: truncation is floor.
+                // 0 <= x < w - 1: truncation is floor, and ix + 1 is in the row.
                 let (ix, iy) = (x as usize, y as usize);
-                if ix + 1 >= image.width || iy + 1 >= image.height {
-                    return None;
-                }
                 let (ax, ay) = (x - ix as f32, y - iy as f32);
                 let o = iy * stride + ix;
                 let value = (1.0 - ay)

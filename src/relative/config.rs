@@ -76,7 +76,7 @@ pub struct RelativeConfig {
     /// (median) after 21-40 frames, against 0.31 px with the warp, and the
     /// inertial modes' ATE falls by about a third on the accuracy sets (see
     /// docs/results/klt-affine-2026-12-05.md). Off by default until the
-    /// levelling and a gentle start from rest are measured with it (the
+    /// levelling's test and a gentle start from rest pass with it (the
     /// same page says why).
     pub klt_affine: bool,
     /// Keyframes kept in the window (L).

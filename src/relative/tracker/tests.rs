@@ -351,6 +351,40 @@ fn rendered_motion_matches_the_tracks_and_swapped_tracks_are_rejected() {
     assert!(keyframes > 4 && keyframes < 40, "{keyframes} keyframes");
 }
 
+/// The room the ray-cast tests look into (seed 11, 7 x 6 x 2.8 m, 14
+/// boxes), its boxes kept `clear_m` from the vertical axis through the
+/// origin, where the cameras are.
+fn test_room(clear_m: f32, texel_m: f32) -> crate::simulate::scene::Scene {
+    use crate::simulate::scene::{Aabb, Scene, SceneConfig};
+    Scene::generate(&SceneConfig {
+        seed: 11,
+        room: Aabb::new([-3.5, -3.0, 0.0], [3.5, 3.0, 2.8]),
+        keep_clear: Aabb::new([-clear_m, -clear_m, 0.0], [clear_m, clear_m, 2.8]),
+        box_count: 14,
+        texel_m,
+    })
+}
+
+/// Where the ray through pixel `px` of a camera at `pose` meets the
+/// scene: the distance along the ray, m, the ray's unit direction in the
+/// camera, and the point in the world.
+fn ray_hit(
+    scene: &crate::simulate::scene::Scene,
+    model: &crate::camera::CameraModel,
+    pose: &nalgebra::Isometry3<f64>,
+    px: &Vector2<f64>,
+) -> Option<(f64, Vector3<f64>, Vector3<f64>)> {
+    let ray = model.unproject(px)?.normalize();
+    let d = pose.rotation * ray;
+    let o = pose.translation.vector;
+    let hit = scene.intersect(
+        [o.x as f32, o.y as f32, o.z as f32],
+        [1.0 / d.x as f32, 1.0 / d.y as f32, 1.0 / d.z as f32],
+    );
+    let t = f64::from(hit.t_m);
+    Some((t, ray, o + d * t))
+}
+
 /// Right-image matches of stereo frames of a generated room, per tracker
 /// setting (each tracking the same rendered pairs), and how far each lies
 /// from where the left pixel's true surface point projects, px, with the
@@ -358,17 +392,10 @@ fn rendered_motion_matches_the_tracks_and_swapped_tracks_are_rejected() {
 /// depths 4 px to either side, m).
 fn stereo_errors_in_a_room(configs: &[TrackerConfig]) -> Vec<Vec<(f64, f64)>> {
     use crate::simulate::render::Renderer;
-    use crate::simulate::scene::{Aabb, Scene, SceneConfig};
     use nalgebra::{Isometry3, Translation3, UnitQuaternion};
     let sim = crate::simulate::SimConfig::default();
     let cameras = [sim.cam0.clone(), sim.cam1.clone()];
-    let scene = Scene::generate(&SceneConfig {
-        seed: 11,
-        room: Aabb::new([-3.5, -3.0, 0.0], [3.5, 3.0, 2.8]),
-        keep_clear: Aabb::new([-0.6, -0.6, 0.0], [0.6, 0.6, 2.8]),
-        box_count: 14,
-        texel_m: sim.texel_m,
-    });
+    let scene = test_room(0.6, sim.texel_m);
     let renderers: Vec<Renderer> = cameras
         .iter()
         .map(|c| Renderer::new(&c.model, sim.render))
@@ -403,16 +430,9 @@ fn stereo_errors_in_a_room(configs: &[TrackerConfig]) -> Vec<Vec<(f64, f64)>> {
         // The surface a left pixel sees: its depth in camera 0 and the
         // point in camera 1's frame.
         let surface = |px: &Vector2<f64>| -> Option<(f64, Vector3<f64>)> {
-            let ray = cameras[0].model.unproject(px)?.normalize();
-            let d = poses[0].rotation * ray;
-            let o = poses[0].translation.vector;
-            let hit = scene.intersect(
-                [o.x as f32, o.y as f32, o.z as f32],
-                [1.0 / d.x as f32, 1.0 / d.y as f32, 1.0 / d.z as f32],
-            );
-            let point_world = o + d * f64::from(hit.t_m);
+            let (t, ray, point_world) = ray_hit(&scene, &cameras[0].model, &poses[0], px)?;
             let in_right = poses[1].inverse() * nalgebra::Point3::from(point_world);
-            Some((f64::from(hit.t_m) * ray.z, in_right.coords))
+            Some((t * ray.z, in_right.coords))
         };
         for (config, errors) in configs.iter().zip(&mut errors) {
             let mut tracker = Tracker::new(config.clone(), &cameras, true).expect("tracker");
@@ -529,17 +549,10 @@ fn the_residual_check_keeps_every_match_of_a_frame_with_few_and_refuses_only_out
 /// 0.6 rad/s for 4 s, for each setting (the same rendered frames).
 fn drift_by_age(configs: &[TrackerConfig]) -> Vec<[f64; 3]> {
     use crate::simulate::render::Renderer;
-    use crate::simulate::scene::{Aabb, Scene, SceneConfig};
     use nalgebra::{Isometry3, Translation3, UnitQuaternion};
     let sim = crate::simulate::SimConfig::default();
     let cam = sim.cam0.clone();
-    let scene = Scene::generate(&SceneConfig {
-        seed: 11,
-        room: Aabb::new([-3.5, -3.0, 0.0], [3.5, 3.0, 2.8]),
-        keep_clear: Aabb::new([-1.0, -1.0, 0.0], [1.0, 1.0, 2.8]),
-        box_count: 14,
-        texel_m: sim.texel_m,
-    });
+    let scene = test_room(1.0, sim.texel_m);
     let renderer = Renderer::new(&cam.model, sim.render);
     // Turning at 0.6 rad/s while pitching and rolling a little, moving
     // at about 0.5 m/s: V1_02's pace.
@@ -572,14 +585,8 @@ fn drift_by_age(configs: &[TrackerConfig]) -> Vec<[f64; 3]> {
         })
         .collect();
     // The surface point a pixel sees and its distance from the camera.
-    let surface = |pose: &Isometry3<f64>, px: &Vector2<f64>| -> Option<(f64, Vector3<f64>)> {
-        let d = pose.rotation * cam.model.unproject(px)?.normalize();
-        let o = pose.translation.vector;
-        let hit = scene.intersect(
-            [o.x as f32, o.y as f32, o.z as f32],
-            [1.0 / d.x as f32, 1.0 / d.y as f32, 1.0 / d.z as f32],
-        );
-        Some((f64::from(hit.t_m), o + d * f64::from(hit.t_m)))
+    let surface = |pose: &Isometry3<f64>, px: &Vector2<f64>| {
+        ray_hit(&scene, &cam.model, pose, px).map(|(t, _, point)| (t, point))
     };
     let median = |v: &mut Vec<f64>| {
         assert!(v.len() > 100, "{} samples", v.len());
