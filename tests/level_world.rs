@@ -8,9 +8,16 @@
 //! Without it the poses stay in the world the first guess of gravity
 //! levelled, made at rest before the accelerometer biases are known:
 //! measured 0.95 deg rms. Levelled (20 s time constant): 0.68 deg, and the
-//! ATE 0.0109 -> 0.0097 m (2026-11-29). Asserted: levelled below 0.8 of
-//! unlevelled and below 0.85 deg, the ATE no worse than 5 % above.
+//! ATE 0.0109 -> 0.0097 m (2026-11-29, shift-only KLT, se3 alignment).
+//! With the affine KLT warp (2026-12-05): tilt 0.92 -> 0.65 deg, ATE
+//! aligned in position and heading 0.0190 -> 0.0147 m. The ATE is aligned
+//! so (as VIO is scored: roll and pitch are observable): a full-rotation
+//! alignment takes the unlevelled run's tilt out for free and scores only
+//! the path's shape, which the levelling's slow turn bends a little
+//! (there 0.0040 -> 0.0060 m). Asserted: levelled below 0.8 of unlevelled
+//! and below 0.85 deg, the ATE no worse than 5 % above.
 
+use rigslam::eval::Alignment;
 use rigslam::relative::{RelativeConfig, SensorMode};
 use rigslam::run::dataset_run::{run_dataset, DatasetRun};
 
@@ -29,6 +36,10 @@ fn run(sequence: &std::path::Path, level: bool) -> (f64, f64) {
             },
             ..Default::default()
         },
+        // Aligned in position and heading only: roll and pitch are what is
+        // scored, and a full rotation would take an unlevelled run's tilt
+        // out of its ATE for free.
+        align: Some(Alignment::Posyaw),
         ..DatasetRun::default()
     };
     let result = run_dataset(sequence, &run, |_, _| {}).expect("the run");

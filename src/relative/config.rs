@@ -75,9 +75,8 @@ pub struct RelativeConfig {
     /// always the same way, so a track drifts: on a rendered room 0.86 px
     /// (median) after 21-40 frames, against 0.31 px with the warp, and the
     /// inertial modes' ATE falls by about a third on the accuracy sets (see
-    /// docs/results/klt-affine-2026-12-05.md). Off by default until the
-    /// levelling's test and a gentle start from rest pass with it (the
-    /// same page says why).
+    /// docs/results/klt-affine-2026-12-05.md), for about 15 % more time a
+    /// frame. Off: the shift-only fit.
     pub klt_affine: bool,
     /// Keyframes kept in the window (L).
     pub window_keyframes: usize,
@@ -116,6 +115,14 @@ pub struct RelativeConfig {
     /// parallax, which a gentle start (a robot leaving its dock) takes a few
     /// seconds to give.
     pub imu_only_after_rest_max_s: f64,
+    /// Largest speed, m/s, at which a keyframe solve's correction of the
+    /// position reaches the published pose (`relative/published_position.rs`);
+    /// 0 publishes it at once. A keyframe's pose goes out before its solve,
+    /// and a solve that moves it (a monocular window's scale settling after
+    /// a gentle start moved one by 3.5 cm) would otherwise reach the next
+    /// frame as one step. At 0.2 m/s and 20 Hz a correction of up to 1 cm
+    /// is out by the next frame.
+    pub published_correction_m_s: f64,
     /// Estimate online how much noisier (or quieter) the IMU is than its
     /// calibration declares, from the window's inertial residuals, and
     /// weigh it by that (`relative/window/noise_adaptation.rs`).
@@ -188,7 +195,7 @@ impl Default for RelativeConfig {
     fn default() -> Self {
         Self {
             features: 150,
-            klt_affine: false,
+            klt_affine: true,
             window_keyframes: 10,
             window_free: 7,
             pixel_sigma_px: 1.0,
@@ -199,6 +206,7 @@ impl Default for RelativeConfig {
             lost_after_frames: 3,
             imu_only_max_s: 1.0,
             imu_only_after_rest_max_s: 3.0,
+            published_correction_m_s: 0.2,
             imu_noise_adaptation: true,
             imu_noise_scale_gyro: 1.0,
             imu_noise_scale_accel: 1.0,
@@ -327,6 +335,13 @@ impl RelativeConfig {
             self.imu_only_after_rest_max_s.is_finite() && self.imu_only_after_rest_max_s >= 0.0,
             self.imu_only_after_rest_max_s.to_string(),
             "a number >= 0",
+        )?;
+        range(
+            "published_correction_m_s",
+            self.published_correction_m_s.is_finite()
+                && (0.0..=100.0).contains(&self.published_correction_m_s),
+            self.published_correction_m_s.to_string(),
+            "0 to 100",
         )?;
         range(
             "level_time_constant_s",

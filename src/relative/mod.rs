@@ -21,6 +21,7 @@ pub mod imu_buffer;
 pub mod initializer;
 pub mod level;
 pub mod odometry;
+mod published_position;
 pub mod setup;
 pub mod tracker;
 pub mod types;

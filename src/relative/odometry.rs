@@ -30,6 +30,11 @@
 //! images have placed a frame (a monocular window has no landmarks until
 //! the motion gives parallax), the IMU carries the rest's state for up to
 //! `imu_only_after_rest_max_s`.
+//!
+//! A keyframe's pose goes out as tracked, before the window's solve; a
+//! solve that moves it reaches the published poses at a bounded speed
+//! (`published_correction_m_s`, [`super::published_position`]), not as a
+//! step on the next frame.
 
 use std::collections::HashMap;
 
@@ -41,6 +46,7 @@ use crate::sensors::ImuSample;
 use super::config::RelativeConfig;
 use super::estimator::{FrameInput, FrameTimings, RelativeEstimator, RigModel, SensorMode};
 use super::imu_buffer::ImuBuffer;
+use super::published_position::PublishedPosition;
 use super::initializer::{
     align_with_reintegration, bootstrap_two_view, AlignmentConfig, BootstrapConfig,
     BootstrapRefusal, ScaleMode, StaticStartConfig, VisionKeyframe,
@@ -180,6 +186,9 @@ pub struct WindowOdometry {
     /// A keyframe whose pose went out before the window optimised it:
     /// the optimisation waits for [`RelativeEstimator::finish_frame`].
     deferred: Option<DeferredKeyframe>,
+    /// The published position: the estimate, with a solve's correction
+    /// of a pose already out spread over the following frames.
+    published: PublishedPosition,
     timings: FrameTimings,
     counters: Counters,
 }
@@ -192,6 +201,8 @@ struct DeferredKeyframe {
     tracking: TrackingState,
     /// The frame's own marginal, for its answer if the window refuses it.
     frame_marginal: Option<Matrix6<f64>>,
+    /// The position its pose went out with.
+    published_m: Vector3<f64>,
 }
 
 /// A 64-bit digest of an image's bytes, to notice a frame handed over
@@ -267,6 +278,7 @@ impl WindowOdometry {
             previous_left_digest: None,
             repeated_frame: false,
             deferred: None,
+            published: PublishedPosition::new(config.published_correction_m_s),
             timings: FrameTimings::default(),
             counters: Counters::default(),
         })
@@ -330,7 +342,10 @@ impl WindowOdometry {
         frame: Option<&TrackedFrame>,
     ) -> RelativeOutput {
         let given = self.frame_marginal.take();
-        let out = self.answer(state, tracking, frame, given);
+        let position_m = self
+            .published
+            .at(state.t_ns, &state.T_world_body.translation.vector);
+        let out = self.answer(state, tracking, frame, given, position_m);
         if let Some(c) = out.pose_covariance {
             self.last_covariance = Some((state.T_world_body, c));
         }
@@ -338,14 +353,16 @@ impl WindowOdometry {
         out
     }
 
-    /// The answer for `state` (the frame's own marginal `given`), without
-    /// recording it as the last one.
+    /// The answer for `state` (the frame's own marginal `given`), published
+    /// at `position_m` ([`PublishedPosition`]), without recording it as the
+    /// last one.
     fn answer(
         &self,
         state: &KeyframeState,
         tracking: TrackingState,
         frame: Option<&TrackedFrame>,
         given: Option<Matrix6<f64>>,
+        position_m: Vector3<f64>,
     ) -> RelativeOutput {
         let previous = self
             .last_output
@@ -360,7 +377,9 @@ impl WindowOdometry {
             TrackingState::Tracking => self.pose_covariance(state, given),
             _ => None,
         };
-        RelativeOutput::from_state(state, tracking, previous, landmarks, pose_covariance)
+        let mut published = *state;
+        published.T_world_body.translation.vector = position_m;
+        RelativeOutput::from_state(&published, tracking, previous, landmarks, pose_covariance)
     }
 
     /// The covariance of `state`'s pose: the newest keyframe's, carried
@@ -456,6 +475,7 @@ impl WindowOdometry {
         self.leaving_rest = false;
         self.bad_frames = 0;
         self.previous_pixels.clear();
+        self.published.clear();
     }
 
     fn trust(&mut self, state: KeyframeState) {
@@ -673,13 +693,23 @@ impl WindowOdometry {
             // frame). The state the next frame starts from, and the
             // answer the second stage gets, are the optimised ones.
             // (While initialising, the alignment needs the keyframe now.)
-            let early = self.answer(&state, tracking, Some(&frame), self.frame_marginal);
+            let position_m = self
+                .published
+                .at(t_ns, &state.T_world_body.translation.vector);
+            let early = self.answer(
+                &state,
+                tracking,
+                Some(&frame),
+                self.frame_marginal,
+                position_m,
+            );
             self.deferred = Some(DeferredKeyframe {
                 state,
                 frame,
                 pre,
                 tracking,
                 frame_marginal: self.frame_marginal.take(),
+                published_m: position_m,
             });
             return early;
         }
@@ -718,9 +748,13 @@ impl WindowOdometry {
             pre,
             tracking,
             frame_marginal,
+            published_m,
         } = self.deferred.take()?;
         self.frame_marginal = frame_marginal;
         let state = self.optimise_keyframe(state, &frame, pre);
+        // The pose went out before the solve: go on from where it went.
+        self.published
+            .hold(&published_m, &state.T_world_body.translation.vector);
         Some(self.settle(state, tracking, &frame))
     }
 
