@@ -160,6 +160,8 @@ pub const HEALTH_STAGE_STUCK: u32 = 1 << 5;
 /// [`StatusMessage::sensor_health`]: the estimated noise sits at a bound
 /// of its range: the noise in the rig's sensor file is far from what the
 /// sensors show (a unit mistake, or a much noisier IMU than declared).
+/// Features more precise than a tenth of the declared pixel sigma (the
+/// pixel scale at its floor) do not raise it.
 pub const HEALTH_NOISE_AT_BOUND: u32 = 1 << 6;
 /// [`StatusMessage::sensor_health`]: the camera-IMU calibration the
 /// estimator refines online has wandered far from the calibration file

@@ -75,8 +75,9 @@ pub struct RelativeConfig {
     /// always the same way, so a track drifts: on a rendered room 0.86 px
     /// (median) after 21-40 frames, against 0.31 px with the warp, and the
     /// inertial modes' ATE falls by about a third on the accuracy sets (see
-    /// docs/results/klt-affine-2026-12-05.md), for about 15 % more time a
-    /// frame. Off: the shift-only fit.
+    /// docs/results/klt-affine-2026-12-05.md), for about 1.6 ms more a
+    /// frame on one core (docs/results/klt-affine-default-2026-12-05.md).
+    /// Off: the shift-only fit.
     pub klt_affine: bool,
     /// Keyframes kept in the window (L).
     pub window_keyframes: usize,

@@ -201,7 +201,8 @@ pub trait RelativeEstimator {
         None
     }
 
-    /// True while an estimated noise scale sits at a bound of its range.
+    /// True while an estimated noise scale sits at a bound of its range
+    /// that says the declared noise is wrong (not the pixel scale's floor).
     fn noise_at_bound(&self) -> bool {
         false
     }

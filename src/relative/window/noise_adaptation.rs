@@ -234,6 +234,9 @@ pub struct NoiseAdaptation {
     links: u64,
     /// Consecutive links with a scale at a bound (warned at the first).
     links_at_bound: u64,
+    /// The pixel scale reached its floor since it was last above it
+    /// (said once each time).
+    pixel_at_floor: bool,
 }
 
 /// A redundancy below this share of the rows' count says the link is not
@@ -267,6 +270,7 @@ impl NoiseAdaptation {
             accel_walk_sums: (w * 3.0 * s.accel_walk * s.accel_walk, w * 3.0),
             links: 0,
             links_at_bound: 0,
+            pixel_at_floor: false,
         }
     }
 
@@ -285,14 +289,66 @@ impl NoiseAdaptation {
         self.links
     }
 
-    /// Whether either scale sits at a bound (the IMU is far noisier, or
-    /// far quieter, than the adaptation may follow).
+    /// Whether a scale sits at a bound that says the declared noise is
+    /// wrong: an IMU scale at either bound (the IMU far noisier, or far
+    /// quieter, than the adaptation may follow), or the pixel scale at
+    /// its ceiling (features far worse than declared). The pixel scale at
+    /// its floor is not a fault: features more precise than a tenth of the
+    /// declared sigma (sharp rendered images with the warped KLT reach
+    /// it) are weighed at that tenth.
     pub fn at_bound(&self) -> bool {
+        !self.bounds_reached().is_empty()
+    }
+
+    /// The scales at a bound that [`Self::at_bound`] counts: name, value,
+    /// and whether it is the upper bound.
+    fn bounds_reached(&self) -> Vec<(&'static str, f64, bool)> {
         let c = &self.config;
         let s = &self.scale;
-        [s.gyro, s.accel, s.pixel, s.gyro_walk, s.accel_walk]
-            .iter()
-            .any(|&s| s <= c.min_scale * (1.0 + 1e-9) || s >= c.max_scale * (1.0 - 1e-9))
+        let low = |v: f64| v <= c.min_scale * (1.0 + 1e-9);
+        let high = |v: f64| v >= c.max_scale * (1.0 - 1e-9);
+        let mut out: Vec<(&'static str, f64, bool)> = [
+            ("gyroscope noise", s.gyro),
+            ("accelerometer noise", s.accel),
+            ("gyroscope bias walk", s.gyro_walk),
+            ("accelerometer bias walk", s.accel_walk),
+        ]
+        .into_iter()
+        .filter(|&(_, v)| low(v) || high(v))
+        .map(|(name, v)| (name, v, high(v)))
+        .collect();
+        if high(s.pixel) {
+            out.push(("pixel sigma", s.pixel, true));
+        }
+        out
+    }
+
+    /// The warning for the scales at a bound, each with what it means.
+    fn bound_warning(&self) -> String {
+        let said: Vec<String> = self
+            .bounds_reached()
+            .into_iter()
+            .map(|(name, v, high)| {
+                let why = match (name, high) {
+                    ("pixel sigma", _) => {
+                        "the features are far worse than pixel_sigma_px says; check the camera calibration"
+                    }
+                    (_, true) => {
+                        "the IMU disagrees with the images far more than its calibration declares; check the noise figures and the camera-IMU calibration"
+                    }
+                    (_, false) => {
+                        "the IMU agrees with the images far better than its calibration declares; check the noise figures (units: per sqrt(Hz))"
+                    }
+                };
+                format!("{name} at {v}x the declared: {why}")
+            })
+            .collect();
+        format!(
+            "IMU noise adaptation: a scale reached its bound [{}, {}]: {}",
+            self.config.min_scale,
+            self.config.max_scale,
+            said.join("; ")
+        )
     }
 
     /// Adds one solve's reprojection evidence: the squared whitened
@@ -313,6 +369,14 @@ impl NoiseAdaptation {
         self.scale.pixel = (sums.0 / sums.1)
             .sqrt()
             .clamp(self.config.min_scale, self.config.max_scale);
+        let at_floor = self.scale.pixel <= self.config.min_scale * (1.0 + 1e-9);
+        if at_floor && !self.pixel_at_floor {
+            tracing::info!(
+                "noise adaptation: the features are more precise than {} of the declared pixel sigma and are weighed at that (set pixel_sigma_px lower to weigh them fully)",
+                self.config.min_scale
+            );
+        }
+        self.pixel_at_floor = at_floor;
         self.scale
     }
 
@@ -399,12 +463,7 @@ impl NoiseAdaptation {
         self.links += 1;
         if self.at_bound() {
             if self.links_at_bound == 0 {
-                tracing::warn!(
-                    "IMU noise adaptation: a scale reached its bound [{}, {}] ({:?}): the IMU disagrees with the images far more (or less) than its calibration declares; check the noise figures and the camera-IMU calibration",
-                    self.config.min_scale,
-                    self.config.max_scale,
-                    self.scale
-                );
+                tracing::warn!("{}", self.bound_warning());
             }
             self.links_at_bound += 1;
         } else {
@@ -616,6 +675,34 @@ mod tests {
         }
         assert_eq!(a.scale().gyro, 100.0);
         assert!(a.at_bound());
+        let warning = a.bound_warning();
+        assert!(
+            warning.contains("gyroscope noise at 100x") && warning.contains("far more"),
+            "{warning}"
+        );
+        assert!(!warning.contains("accelerometer"), "{warning}");
+    }
+
+    #[test]
+    fn features_sharper_than_the_floor_are_not_a_fault_but_far_worse_ones_are() {
+        let mut a = NoiseAdaptation::new(NoiseAdaptationConfig::default());
+        // Reprojection errors a twentieth of the declared sigma: the
+        // scale stops at its floor, 0.1, and nothing is flagged.
+        for _ in 0..50 {
+            let s = a.scale().pixel;
+            a.add_images(100.0 * (0.05 / s).powi(2), 100.0, 0.5);
+        }
+        assert_eq!(a.scale().pixel, 0.1);
+        assert!(!a.at_bound(), "{:?}", a.scale());
+        // Errors 300 times the declared sigma: flagged, and said so.
+        for _ in 0..200 {
+            let s = a.scale().pixel;
+            a.add_images(100.0 * (300.0 / s).powi(2), 100.0, 0.5);
+        }
+        assert_eq!(a.scale().pixel, 100.0);
+        assert!(a.at_bound());
+        let warning = a.bound_warning();
+        assert!(warning.contains("pixel sigma at 100x"), "{warning}");
     }
 
     #[test]
