@@ -46,11 +46,11 @@ use crate::sensors::ImuSample;
 use super::config::RelativeConfig;
 use super::estimator::{FrameInput, FrameTimings, RelativeEstimator, RigModel, SensorMode};
 use super::imu_buffer::ImuBuffer;
-use super::published_position::PublishedPosition;
 use super::initializer::{
     align_with_reintegration, bootstrap_two_view, AlignmentConfig, BootstrapConfig,
     BootstrapRefusal, ScaleMode, StaticStartConfig, VisionKeyframe,
 };
+use super::published_position::PublishedPosition;
 use super::setup::{front_end, OdometryError};
 use super::tracker::Tracker;
 use super::types::{

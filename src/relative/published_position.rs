@@ -89,14 +89,21 @@ mod tests {
         for i in 1..20 {
             let p = published.at(i * FRAME_NS, &estimate);
             // 0.2 m/s at 20 Hz: 1 cm a frame, the rig standing still.
-            assert!((p - last).norm() <= 0.01 + 1e-12, "frame {i}: {}", (p - last).norm());
+            assert!(
+                (p - last).norm() <= 0.01 + 1e-12,
+                "frame {i}: {}",
+                (p - last).norm()
+            );
             if p != estimate {
                 frames = i;
             }
             last = p;
         }
         assert_eq!(last, estimate, "the correction reaches the published pose");
-        assert_eq!(frames, 4, "5 cm at 1 cm a frame: the fifth frame is the estimate");
+        assert_eq!(
+            frames, 4,
+            "5 cm at 1 cm a frame: the fifth frame is the estimate"
+        );
     }
 
     #[test]
