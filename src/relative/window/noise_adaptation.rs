@@ -297,51 +297,54 @@ impl NoiseAdaptation {
     /// declared sigma (sharp rendered images with the warped KLT reach
     /// it) are weighed at that tenth.
     pub fn at_bound(&self) -> bool {
-        !self.bounds_reached().is_empty()
+        self.bounds_reached().next().is_some()
     }
 
-    /// The scales at a bound that [`Self::at_bound`] counts: name, value,
-    /// and whether it is the upper bound.
-    fn bounds_reached(&self) -> Vec<(&'static str, f64, bool)> {
-        let c = &self.config;
+    /// `v` at the lower bound of the scales.
+    fn at_floor(&self, v: f64) -> bool {
+        v <= self.config.min_scale * (1.0 + 1e-9)
+    }
+
+    /// `v` at the upper bound of the scales.
+    fn at_ceiling(&self, v: f64) -> bool {
+        v >= self.config.max_scale * (1.0 - 1e-9)
+    }
+
+    /// The scales at a bound that [`Self::at_bound`] counts: name, value
+    /// and what it means.
+    fn bounds_reached(&self) -> impl Iterator<Item = (&'static str, f64, &'static str)> + '_ {
+        const NOISIER: &str = "the IMU disagrees with the images far more than its calibration declares; check the noise figures and the camera-IMU calibration";
+        const QUIETER: &str = "the IMU agrees with the images far better than its calibration declares; check the noise figures (units: per sqrt(Hz))";
+        const BLURRED: &str =
+            "the features are far worse than pixel_sigma_px says; check the camera calibration";
         let s = &self.scale;
-        let low = |v: f64| v <= c.min_scale * (1.0 + 1e-9);
-        let high = |v: f64| v >= c.max_scale * (1.0 - 1e-9);
-        let mut out: Vec<(&'static str, f64, bool)> = [
+        [
             ("gyroscope noise", s.gyro),
             ("accelerometer noise", s.accel),
             ("gyroscope bias walk", s.gyro_walk),
             ("accelerometer bias walk", s.accel_walk),
         ]
         .into_iter()
-        .filter(|&(_, v)| low(v) || high(v))
-        .map(|(name, v)| (name, v, high(v)))
-        .collect();
-        if high(s.pixel) {
-            out.push(("pixel sigma", s.pixel, true));
-        }
-        out
+        .filter_map(|(name, v)| {
+            if self.at_ceiling(v) {
+                Some((name, v, NOISIER))
+            } else if self.at_floor(v) {
+                Some((name, v, QUIETER))
+            } else {
+                None
+            }
+        })
+        .chain(
+            self.at_ceiling(s.pixel)
+                .then_some(("pixel sigma", s.pixel, BLURRED)),
+        )
     }
 
     /// The warning for the scales at a bound, each with what it means.
     fn bound_warning(&self) -> String {
         let said: Vec<String> = self
             .bounds_reached()
-            .into_iter()
-            .map(|(name, v, high)| {
-                let why = match (name, high) {
-                    ("pixel sigma", _) => {
-                        "the features are far worse than pixel_sigma_px says; check the camera calibration"
-                    }
-                    (_, true) => {
-                        "the IMU disagrees with the images far more than its calibration declares; check the noise figures and the camera-IMU calibration"
-                    }
-                    (_, false) => {
-                        "the IMU agrees with the images far better than its calibration declares; check the noise figures (units: per sqrt(Hz))"
-                    }
-                };
-                format!("{name} at {v}x the declared: {why}")
-            })
+            .map(|(name, v, why)| format!("{name} at {v}x the declared: {why}"))
             .collect();
         format!(
             "IMU noise adaptation: a scale reached its bound [{}, {}]: {}",
@@ -369,7 +372,7 @@ impl NoiseAdaptation {
         self.scale.pixel = (sums.0 / sums.1)
             .sqrt()
             .clamp(self.config.min_scale, self.config.max_scale);
-        let at_floor = self.scale.pixel <= self.config.min_scale * (1.0 + 1e-9);
+        let at_floor = self.at_floor(self.scale.pixel);
         if at_floor && !self.pixel_at_floor {
             tracing::info!(
                 "noise adaptation: the features are more precise than {} of the declared pixel sigma and are weighed at that (set pixel_sigma_px lower to weigh them fully)",
