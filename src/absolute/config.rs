@@ -75,6 +75,18 @@ pub const DEFAULT_ORIENTATION_SIGMA_RAD_PER_SQRT_S: f64 = 5e-5;
 /// 5-20 % (docs/results/map-scale-2026-12-03.md).
 pub const DEFAULT_SCALE_SIGMA_PER_SQRT_S: f64 = 0.0;
 
+/// How much the relative stage's motion between two frame nodes is
+/// trusted in the map, m per sqrt(m): its error over the few frames
+/// between two nodes (a quarter of a second at 20 Hz) is millimetres,
+/// while the position filter's prediction noise
+/// ([`AbsoluteConfig::translation_sigma_per_sqrt_m`], 0.02) stands for
+/// everything the filter does not know over a whole run. Weighed at
+/// that, the map's frame nodes followed their landmarks' window
+/// estimates rather than the motion between them. Chosen on the
+/// development renderings, confirmed on the held-apart ones
+/// (docs/results/).
+pub const DEFAULT_ODOMETRY_SIGMA_PER_SQRT_M: f64 = 0.003;
+
 /// Configuration of the absolute stage.
 #[derive(Clone, Debug)]
 pub struct AbsoluteConfig {
@@ -113,6 +125,9 @@ pub struct AbsoluteConfig {
     /// between them ([`EdgePolicy::FrameNodes`] only): a frame whose
     /// landmarks are all new stays connected to the map.
     pub odometry_edges: bool,
+    /// Those edges' noise: `sigma^2 * |Δ| * I` over the way `Δ` between
+    /// the two nodes, sigma in m per sqrt(m).
+    pub odometry_sigma_per_sqrt_m: f64,
     /// Give a frame node's edge to a landmark only the share of the
     /// landmark's window estimate that is new since the landmark's last
     /// node ([`crate::relative::types::WindowSupport`]): the window's
@@ -174,6 +189,7 @@ impl Default for AbsoluteConfig {
             recognition: Some(RecognitionConfig::default()),
             robust: Some(RobustWeights::default()),
             odometry_edges: true,
+            odometry_sigma_per_sqrt_m: DEFAULT_ODOMETRY_SIGMA_PER_SQRT_M,
             count_window_once: true,
             frame_node_saturation: DEFAULT_FRAME_NODE_SATURATION,
             node_passes_per_place: DEFAULT_NODE_PASSES_PER_PLACE,

@@ -103,7 +103,7 @@ impl MapBuilder {
             policy: config.policy,
             weighting: config.weighting,
             odometry_sigma_per_sqrt_m: (frame_nodes && config.odometry_edges)
-                .then_some(config.translation_sigma_per_sqrt_m),
+                .then_some(config.odometry_sigma_per_sqrt_m),
             frame_nodes: 0,
             frames_saturated: 0,
             nodes_per_landmark: Vec::new(),

@@ -118,6 +118,10 @@ pub struct AbsoluteSettings {
     /// (frame policies only), so a frame that sees only new landmarks
     /// stays connected to the map.
     pub odometry_edges: bool,
+    /// How far those edges trust the relative stage's motion between two
+    /// nodes, m per sqrt(m) travelled (the position filter's own
+    /// prediction noise is translation_sigma_per_sqrt_m).
+    pub odometry_sigma_per_sqrt_m: f64,
     /// A frame node gives the map only what a landmark's window estimate
     /// gained since the landmark's last node (the share of its window
     /// keyframes that are new), not the whole estimate again: frames
@@ -214,6 +218,7 @@ impl Default for AbsoluteSettings {
             },
             robust_map: config.robust.is_some(),
             odometry_edges: config.odometry_edges,
+            odometry_sigma_per_sqrt_m: config.odometry_sigma_per_sqrt_m,
             count_window_once: config.count_window_once,
             frame_node_saturation: config.frame_node_saturation,
             node_passes_per_place: config.node_passes_per_place,
@@ -300,6 +305,14 @@ impl AbsoluteSettings {
             return Err(bad(
                 "absolute.translation_sigma_per_sqrt_m",
                 translation_sigma.to_string(),
+                "a positive number",
+            ));
+        }
+        let odometry_sigma = self.odometry_sigma_per_sqrt_m;
+        if !(odometry_sigma.is_finite() && odometry_sigma > 0.0) {
+            return Err(bad(
+                "absolute.odometry_sigma_per_sqrt_m",
+                odometry_sigma.to_string(),
                 "a positive number",
             ));
         }
@@ -420,6 +433,7 @@ impl AbsoluteSettings {
             recognition: self.recognition.then(|| self.recognition_config()),
             robust: self.robust_map.then(RobustWeights::default),
             odometry_edges: self.odometry_edges,
+            odometry_sigma_per_sqrt_m: odometry_sigma,
             count_window_once: self.count_window_once,
             frame_node_saturation: self.frame_node_saturation,
             node_passes_per_place: self.node_passes_per_place,
@@ -501,6 +515,10 @@ mod tests {
         assert_eq!(config.solve_mode, stage.solve_mode);
         assert_eq!(config.robust, stage.robust);
         assert_eq!(config.odometry_edges, stage.odometry_edges);
+        assert_eq!(
+            config.odometry_sigma_per_sqrt_m,
+            stage.odometry_sigma_per_sqrt_m
+        );
         assert_eq!(config.count_window_once, stage.count_window_once);
         assert_eq!(config.frame_node_saturation, stage.frame_node_saturation);
         assert_eq!(config.node_passes_per_place, stage.node_passes_per_place);
@@ -629,6 +647,7 @@ mod tests {
         // setting read into the wrong field shows.
         let settings = AbsoluteSettings {
             translation_sigma_per_sqrt_m: 0.07,
+            odometry_sigma_per_sqrt_m: 0.009,
             recognition_max_sigma_m: 0.3,
             recognition_consensus_gate_m: 0.45,
             recognition_confirm_max_sigma_m: 0.11,
@@ -651,6 +670,7 @@ mod tests {
         let config = settings.to_config().expect("valid");
         assert!(!config.count_window_once);
         assert_eq!(config.translation_sigma_per_sqrt_m, 0.07);
+        assert_eq!(config.odometry_sigma_per_sqrt_m, 0.009);
         assert_eq!(config.landmark_covariance_scale, 3.5);
         assert_eq!(config.orientation_sigma_rad_per_sqrt_s, 3e-4);
         assert_eq!(config.scale_sigma_per_sqrt_s, 2.5e-3);
@@ -675,7 +695,7 @@ mod tests {
 
     #[test]
     fn each_bad_value_names_its_key() {
-        let cases: [(&str, AbsoluteSettings); 20] = [
+        let cases: [(&str, AbsoluteSettings); 21] = [
             (
                 "absolute.wait_accel_bias_max_s",
                 AbsoluteSettings {
@@ -813,6 +833,13 @@ mod tests {
                 "absolute.translation_sigma_per_sqrt_m",
                 AbsoluteSettings {
                     translation_sigma_per_sqrt_m: f64::NAN,
+                    ..Default::default()
+                },
+            ),
+            (
+                "absolute.odometry_sigma_per_sqrt_m",
+                AbsoluteSettings {
+                    odometry_sigma_per_sqrt_m: 0.0,
                     ..Default::default()
                 },
             ),

@@ -18,7 +18,10 @@ fn room(noise_seed: Option<u64>, laps: f64) -> RoomRunOptions {
 /// its first landmark as first measured, so it is off the truth by that
 /// measurement's error) fitted to all its landmarks.
 fn saved_map(run: &RoomRun) -> (SavedMap, Isometry3<f64>) {
+    // The simulated odometry drifts by its own sigma; the map is told so.
+    let drift = RoomRunOptions::default().sigma_translation_per_sqrt_m;
     let mut stage = AbsoluteStage::new(AbsoluteConfig {
+        odometry_sigma_per_sqrt_m: drift,
         recognition: Some(RecognitionConfig::default()),
         solve_mode: crate::absolute::stage::SolveMode::Inline,
         ..Default::default()

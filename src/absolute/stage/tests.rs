@@ -121,6 +121,7 @@ fn corrected_position_is_consistent_over_many_seeds() {
     let config = inline(AbsoluteConfig {
         policy: EdgePolicy::AllPairs,
         translation_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
+        odometry_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
         ..AbsoluteConfig::default()
     });
     let summary = run_nees(&config, &options, 0..SEEDS);
@@ -151,6 +152,7 @@ fn stereo_like_covariances_keep_the_filter_consistent() {
     let config = inline(AbsoluteConfig {
         policy: EdgePolicy::AllPairs,
         translation_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
+        odometry_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
         ..AbsoluteConfig::default()
     });
     let summary = run_nees(&config, &options, 0..SEEDS);
@@ -173,6 +175,7 @@ fn frame_nodes_keep_the_filter_consistent() {
         let config = inline(AbsoluteConfig {
             policy: EdgePolicy::FrameNodes { every },
             translation_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
+            odometry_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
             ..AbsoluteConfig::default()
         });
         let summary = run_nees(&config, &options, 0..SEEDS);
@@ -214,6 +217,7 @@ fn repeated_window_estimates_keep_the_published_covariance_consistent() {
     for once in [true, false] {
         let config = inline(AbsoluteConfig {
             translation_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
+            odometry_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
             count_window_once: once,
             ..AbsoluteConfig::default()
         });
@@ -259,6 +263,7 @@ fn a_wandering_window_scale_is_estimated_against_the_map() {
     let run = |walk: f64| {
         let config = inline(AbsoluteConfig {
             translation_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
+            odometry_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
             scale_sigma_per_sqrt_s: walk,
             ..AbsoluteConfig::default()
         });
@@ -353,6 +358,7 @@ fn the_papers_filter_is_overconfident() {
     let options = RoomRunOptions::default();
     let config = inline(AbsoluteConfig {
         translation_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
+        odometry_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
         policy: EdgePolicy::AllPairs,
         weighting: EdgeWeighting::Paper,
         covariance: LandmarkCovariance::SubMatrix { hops: 0 },
@@ -656,6 +662,7 @@ fn print_nees_table() {
             ] {
                 let config = inline(AbsoluteConfig {
                     translation_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
+                    odometry_sigma_per_sqrt_m: options.sigma_translation_per_sqrt_m,
                     weighting,
                     covariance,
                     ..AbsoluteConfig::default()
@@ -813,6 +820,7 @@ fn the_orientation_filter_takes_out_a_drifting_heading() {
     };
     let corrected = inline(AbsoluteConfig {
         translation_sigma_per_sqrt_m: drifting.sigma_translation_per_sqrt_m,
+        odometry_sigma_per_sqrt_m: drifting.sigma_translation_per_sqrt_m,
         ..AbsoluteConfig::default()
     });
     assert!(corrected.orientation_sigma_rad_per_sqrt_s > 0.0);
@@ -966,6 +974,73 @@ fn odometry_joins_frame_nodes_that_share_no_landmark() {
         let placed = stage.landmark_world_m(id).expect("joined by odometry");
         assert!((placed - truth).norm() < 1e-9, "{id}: {placed}");
     }
+}
+
+#[test]
+fn the_odometry_edges_weigh_the_motion_by_their_own_sigma_not_the_filters() {
+    // Two frame nodes see the same five landmarks; the relative stage says
+    // the robot moved 1.0 m, the landmarks' window estimates say 1.1 m.
+    // The map places the second node between the two by their weights:
+    // an odometry edge trusted to a micrometre puts it at 1.0 m, a loose
+    // one at 1.1 m (the landmarks where the first node saw them). A third
+    // frame at rest there (the solve is installed a frame later) is a
+    // node too, so the landmarks are seen twice from 1.1 m's view and
+    // once from the first: with tight odometry they sit two thirds of the
+    // 0.1 m back in x.
+    // The filter's prediction noise is not the map's: changing it changes
+    // nothing here.
+    let seen = |id: u64| Vector3::new(2.0, id as f64 * 0.3 - 0.6, 0.5);
+    let frame = |t_ns: i64, at_m: f64, moved_m: f64, shift_m: f64| RelativeOutput {
+        t_ns,
+        state: TrackingState::Tracking,
+        T_world_body: Isometry3::translation(at_m, 0.0, 0.0),
+        velocity_world_m_s: Vector3::zeros(),
+        biases: Default::default(),
+        delta_translation_world_m: Vector3::new(moved_m, 0.0, 0.0),
+        landmarks: (0..5)
+            .map(|id| BodyLandmark {
+                id,
+                position_body_m: seen(id) - Vector3::new(shift_m, 0.0, 0.0),
+                covariance_body_m2: Matrix3::identity() * 1e-4,
+                descriptor: None,
+                support: None,
+            })
+            .collect(),
+        pose_covariance: None,
+    };
+    let placed_x = |odometry_sigma: f64, filter_sigma: f64| {
+        let mut stage = AbsoluteStage::new(inline(AbsoluteConfig {
+            policy: EdgePolicy::FrameNodes { every: 1 },
+            solve_every_frames: 1,
+            recognition: None,
+            robust: None,
+            odometry_sigma_per_sqrt_m: odometry_sigma,
+            translation_sigma_per_sqrt_m: filter_sigma,
+            ..AbsoluteConfig::default()
+        }));
+        stage.push(&frame(0, 0.0, 0.0, 0.0));
+        stage.push(&frame(1, 1.0, 1.0, 1.1));
+        stage.push(&frame(2, 1.0, 0.0, 1.1));
+        (0..5u64)
+            .map(|id| stage.landmark_world_m(id).expect("mapped").x - seen(id).x)
+            .collect::<Vec<_>>()
+    };
+    for x in placed_x(1e-6, 0.02) {
+        assert!((x + 0.1 * 2.0 / 3.0).abs() < 1e-4, "tight odometry: {x}");
+    }
+    for x in placed_x(1e3, 0.02) {
+        assert!(x.abs() < 1e-4, "loose odometry: {x}");
+    }
+    let between = placed_x(0.005, 0.02);
+    assert!(
+        between.iter().all(|&x| x < -1e-3 && x > -0.066),
+        "{between:?}"
+    );
+    assert_eq!(
+        between,
+        placed_x(0.005, 0.5),
+        "the filter's sigma moved the map"
+    );
 }
 
 /// Ten landmarks with their own descriptors, seen from a robot at rest at
