@@ -259,6 +259,13 @@ impl AbsoluteSettings {
             value,
             allowed,
         };
+        let positive = |key, value: f64, allowed| {
+            if value.is_finite() && value > 0.0 {
+                Ok(value)
+            } else {
+                Err(bad(key, value.to_string(), allowed))
+            }
+        };
         let policy: EdgePolicy = self.policy.parse().map_err(|_| {
             bad(
                 "absolute.policy",
@@ -300,22 +307,16 @@ impl AbsoluteSettings {
                 "1 to 500",
             ));
         }
-        let translation_sigma = self.translation_sigma_per_sqrt_m;
-        if !(translation_sigma.is_finite() && translation_sigma > 0.0) {
-            return Err(bad(
-                "absolute.translation_sigma_per_sqrt_m",
-                translation_sigma.to_string(),
-                "a positive number",
-            ));
-        }
-        let odometry_sigma = self.odometry_sigma_per_sqrt_m;
-        if !(odometry_sigma.is_finite() && odometry_sigma > 0.0) {
-            return Err(bad(
-                "absolute.odometry_sigma_per_sqrt_m",
-                odometry_sigma.to_string(),
-                "a positive number",
-            ));
-        }
+        let translation_sigma = positive(
+            "absolute.translation_sigma_per_sqrt_m",
+            self.translation_sigma_per_sqrt_m,
+            "a positive number",
+        )?;
+        let odometry_sigma = positive(
+            "absolute.odometry_sigma_per_sqrt_m",
+            self.odometry_sigma_per_sqrt_m,
+            "a positive number",
+        )?;
         let scale = self.landmark_covariance_scale;
         if !(scale.is_finite() && (0.01..=1000.0).contains(&scale)) {
             return Err(bad(
@@ -343,14 +344,11 @@ impl AbsoluteSettings {
                 "0 to 128 (unrelated descriptors differ by about 128 bits)",
             ));
         }
-        let sigma = self.recognition_max_sigma_m;
-        if !(sigma.is_finite() && sigma > 0.0) {
-            return Err(bad(
-                "absolute.recognition_max_sigma_m",
-                sigma.to_string(),
-                "a positive number of metres",
-            ));
-        }
+        positive(
+            "absolute.recognition_max_sigma_m",
+            self.recognition_max_sigma_m,
+            "a positive number of metres",
+        )?;
         if !(1..=100).contains(&self.recognition_confirm_frames) {
             return Err(bad(
                 "absolute.recognition_confirm_frames",
@@ -374,14 +372,11 @@ impl AbsoluteSettings {
                 "a number of metres, 0 for no limit",
             ));
         }
-        let gate = self.recognition_gate_chi2;
-        if !(gate.is_finite() && gate > 0.0) {
-            return Err(bad(
-                "absolute.recognition_gate_chi2",
-                gate.to_string(),
-                "a positive number",
-            ));
-        }
+        positive(
+            "absolute.recognition_gate_chi2",
+            self.recognition_gate_chi2,
+            "a positive number",
+        )?;
         let orientation = self.orientation_sigma_rad_per_sqrt_s;
         if !(orientation.is_finite() && (0.0..=0.1).contains(&orientation)) {
             return Err(bad(
