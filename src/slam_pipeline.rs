@@ -16,13 +16,17 @@ use crate::absolute::localise::{LocalisedPose, MapLocaliser};
 use crate::absolute::map_file::SavedMap;
 use crate::absolute::{AbsoluteStage, CorrectedPose};
 use crate::relative::config::ConfigError;
+use crate::relative::level::LevelFollower;
 use crate::relative::{
     build_estimator, EstimatorKind, FrameInput, OdometryError, RelativeEstimator, RelativeOutput,
     RigModel, SensorMode, TrackingState,
 };
 use crate::sensors::ImuSample;
 use crate::slam_config::SlamSettings;
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Vector3};
+
+mod map_world;
+use map_world::{into_map_world, into_published_world, map_into_published_world};
 
 /// Relocalising an inertial run in a map made by one: the transform
 /// between their gravity-aligned worlds may tilt z by at most this. On
@@ -112,9 +116,9 @@ pub struct SlamPipeline {
     absolute: Option<AbsoluteStage>,
     localiser: Option<MapLocaliser>,
     /// The stamp of the last relative answer the second stage took, and
-    /// where it was if it was tracking: the motion of the next one is
-    /// measured from it.
-    last_taken: Option<(i64, Option<Vector3<f64>>)>,
+    /// where it was if it was tracking (as published, and in the absolute
+    /// stage's world): the motion of the next one is measured from it.
+    last_taken: Option<(i64, Option<(Vector3<f64>, Vector3<f64>)>)>,
     /// Frames whose landmarks the second stage did not get because the
     /// relative stage was settling ([`RelativeEstimator::settling`], or
     /// its accelerometer bias not yet known to
@@ -134,6 +138,13 @@ pub struct SlamPipeline {
     bias_wait_gave_up: bool,
     /// Waits that outlasted `wait_accel_bias_max_s`.
     bias_waits_given_up: u64,
+    /// The relative stage's levelling of its last output
+    /// ([`RelativeEstimator::levelling`]) ...
+    levelling: Isometry3<f64>,
+    /// ... and the map's slower one (`[absolute] level_time_constant_s`):
+    /// the absolute stage is given the outputs in its world and its
+    /// answers are turned back into the relative stage's ([`map_world`]).
+    map_level: LevelFollower,
 }
 
 impl SlamPipeline {
@@ -191,6 +202,8 @@ impl SlamPipeline {
             bias_wait_since_ns: None,
             bias_wait_gave_up: false,
             bias_waits_given_up: 0,
+            levelling: Isometry3::identity(),
+            map_level: LevelFollower::new(settings.absolute.level_time_constant_s),
         })
     }
 
@@ -216,6 +229,7 @@ impl SlamPipeline {
     pub fn push_frame(&mut self, input: &FrameInput<'_>) -> PipelineFrame {
         self.finish_frame();
         let relative = self.relative.push_frame(input);
+        self.note_levelling(&relative);
         if !self.relative.work_pending() {
             return self.second_stage(relative);
         }
@@ -227,7 +241,10 @@ impl SlamPipeline {
     fn carried(&self, mut relative: RelativeOutput) -> PipelineFrame {
         let start = Instant::now();
         let delta = self.measure_from_taken(&mut relative);
-        let corrected = self.absolute.as_ref().map(|stage| stage.carry(&relative));
+        let corrected = self.absolute.as_ref().map(|stage| {
+            let in_map_world = self.into_map_world(&relative);
+            into_published_world(stage.carry(&in_map_world), &self.map_to_published())
+        });
         let localised = self
             .localiser
             .as_ref()
@@ -248,6 +265,7 @@ impl SlamPipeline {
     /// was left).
     pub fn finish_frame(&mut self) -> Option<PipelineFrame> {
         let refined = self.relative.finish_frame()?;
+        self.note_levelling(&refined);
         Some(self.second_stage(refined))
     }
 
@@ -258,12 +276,49 @@ impl SlamPipeline {
     /// back once the second stage has used it.
     fn measure_from_taken(&self, output: &mut RelativeOutput) -> Vector3<f64> {
         let delta = match self.last_taken {
-            Some((_, Some(last))) if output.state == TrackingState::Tracking => {
+            Some((_, Some((last, _)))) if output.state == TrackingState::Tracking => {
                 output.T_world_body.translation.vector - last
             }
             _ => Vector3::zeros(),
         };
         std::mem::replace(&mut output.delta_translation_world_m, delta)
+    }
+
+    /// Notes the relative stage's levelling of `output`, which it just
+    /// gave, and lets the map's level follow its gravity estimate.
+    fn note_levelling(&mut self, output: &RelativeOutput) {
+        self.levelling = self.relative.levelling();
+        if output.state != TrackingState::Tracking {
+            return;
+        }
+        if let Some(gravity) = self.relative.gravity_world_m_s2() {
+            let back = self.levelling.inverse();
+            let position = back
+                .transform_point(&output.T_world_body.translation.vector.into())
+                .coords;
+            self.map_level
+                .follow(&(back.rotation * gravity), output.t_ns, &position);
+        }
+    }
+
+    /// Takes the absolute stage's world into the one the relative stage
+    /// publishes in now.
+    fn map_to_published(&self) -> Isometry3<f64> {
+        self.levelling * self.map_level.level().inverse()
+    }
+
+    /// `output` (as published, its motion measured from the last answer
+    /// taken) in the absolute stage's world, its motion measured there
+    /// (the levels may have turned since: turning the published motion
+    /// back would leave the turn's share in it).
+    fn into_map_world(&self, output: &RelativeOutput) -> RelativeOutput {
+        let mut own = into_map_world(output, &self.map_to_published());
+        if let Some((_, Some((_, last)))) = self.last_taken {
+            if own.state == TrackingState::Tracking {
+                own.delta_translation_world_m = own.T_world_body.translation.vector - last;
+            }
+        }
+        own
     }
 
     /// The second stage on a relative-stage output.
@@ -314,7 +369,13 @@ impl SlamPipeline {
         } else {
             &relative
         };
-        let corrected = self.absolute.as_mut().map(|stage| stage.push(input));
+        let in_map_world = self.absolute.is_some().then(|| self.into_map_world(input));
+        let back = self.map_to_published();
+        let corrected = self
+            .absolute
+            .as_mut()
+            .zip(in_map_world.as_ref())
+            .map(|(stage, input)| into_published_world(stage.push(input), &back));
         let localised = self
             .localiser
             .as_mut()
@@ -322,8 +383,11 @@ impl SlamPipeline {
         relative.delta_translation_world_m = delta;
         self.last_taken = Some((
             relative.t_ns,
-            (relative.state == TrackingState::Tracking)
-                .then_some(relative.T_world_body.translation.vector),
+            (relative.state == TrackingState::Tracking).then(|| {
+                let p = relative.T_world_body.translation.vector;
+                let in_map_world = self.map_to_published().inverse_transform_point(&p.into());
+                (p, in_map_world.coords)
+            }),
         ));
         PipelineFrame {
             relative,
@@ -408,6 +472,21 @@ impl SlamPipeline {
     /// The absolute stage, when it runs (to finish or save its map).
     pub fn absolute_mut(&mut self) -> Option<&mut AbsoluteStage> {
         self.absolute.as_mut()
+    }
+
+    /// The absolute stage's last solved map for saving, in the world the
+    /// poses are published in ([`AbsoluteStage::solved_map`]).
+    pub fn solved_map(&self) -> Option<SavedMap> {
+        let map = self.absolute.as_ref()?.solved_map()?;
+        Some(map_into_published_world(map, &self.map_to_published()))
+    }
+
+    /// The absolute stage's map solved with every edge so far, for saving,
+    /// in the world the poses are published in
+    /// ([`AbsoluteStage::finish_map`]).
+    pub fn finish_map(&mut self) -> Option<SavedMap> {
+        let map = self.absolute.as_mut()?.finish_map()?;
+        Some(map_into_published_world(map, &self.map_to_published()))
     }
 
     /// The localiser, when localising in a saved map.

@@ -22,6 +22,10 @@ pub const DEFAULT_WAIT_ACCEL_BIAS_SIGMA_M_S2: f64 = 0.02;
 /// ([`AbsoluteSettings::wait_accel_bias_max_s`]).
 pub const DEFAULT_WAIT_ACCEL_BIAS_MAX_S: f64 = 10.0;
 
+/// How slowly the map's world follows the relative stage's gravity
+/// estimate by default, s ([`AbsoluteSettings::level_time_constant_s`]).
+pub const DEFAULT_LEVEL_TIME_CONSTANT_S: f64 = 40.0;
+
 /// Which modes a behaviour of the second stage is on in
 /// (`[absolute] correction_gate`, `wait_accel_bias`); each key says why its
 /// `auto` is what it is.
@@ -183,6 +187,17 @@ pub struct AbsoluteSettings {
     /// starts anyway and the log says so; `inf` waits for as long as it
     /// takes.
     pub wait_accel_bias_max_s: f64,
+    /// The map is built in the relative stage's own world levelled by its
+    /// gravity estimate through a filter of this time constant, s; what
+    /// the stage answers is turned into the level the relative stage
+    /// publishes in (`[relative] level_time_constant_s`, 20 s). Each turn
+    /// of the map's world bends the map (the landmarks a frame node gave
+    /// were turned by the level of its time), so it turns more slowly
+    /// than the published poses: a start in flight's first degree of tilt
+    /// no longer stays in the map; followed at all, the estimator's own
+    /// roll and pitch drift does not either. `inf`: never turns (the
+    /// estimator's own world); 0: at once.
+    pub level_time_constant_s: f64,
 }
 
 impl Default for AbsoluteSettings {
@@ -229,6 +244,7 @@ impl Default for AbsoluteSettings {
             wait_accel_bias: ModeSwitch::Auto,
             wait_accel_bias_sigma_m_s2: DEFAULT_WAIT_ACCEL_BIAS_SIGMA_M_S2,
             wait_accel_bias_max_s: DEFAULT_WAIT_ACCEL_BIAS_MAX_S,
+            level_time_constant_s: DEFAULT_LEVEL_TIME_CONSTANT_S,
         }
     }
 }
@@ -417,6 +433,14 @@ impl AbsoluteSettings {
                 "a positive number of seconds (inf: no limit; to not wait at all, set wait_accel_bias = \"off\")",
             ));
         }
+        let level = self.level_time_constant_s;
+        if level.is_nan() || level < 0.0 {
+            return Err(bad(
+                "absolute.level_time_constant_s",
+                level.to_string(),
+                "0 (at once) or a positive number of seconds (inf: the map's world never turns)",
+            ));
+        }
         Ok(AbsoluteConfig {
             policy,
             solve_every_frames: self.solve_every_frames,
@@ -575,6 +599,17 @@ mod tests {
             toml::from_str("wait_accel_bias_max_s = inf\n").expect("inf is a TOML float");
         assert_eq!(unlimited.wait_accel_bias_max_s, f64::INFINITY);
         assert!(unlimited.to_config().is_ok());
+        // The map's level: 40 s by default, `inf` and 0 both allowed.
+        assert_eq!(default.level_time_constant_s, DEFAULT_LEVEL_TIME_CONSTANT_S);
+        let never: AbsoluteSettings =
+            toml::from_str("level_time_constant_s = inf\n").expect("inf is a TOML float");
+        assert_eq!(never.level_time_constant_s, f64::INFINITY);
+        assert!(never.to_config().is_ok());
+        let at_once = AbsoluteSettings {
+            level_time_constant_s: 0.0,
+            ..Default::default()
+        };
+        assert!(at_once.to_config().is_ok());
     }
 
     #[test]
@@ -690,7 +725,21 @@ mod tests {
 
     #[test]
     fn each_bad_value_names_its_key() {
-        let cases: [(&str, AbsoluteSettings); 21] = [
+        let cases: [(&str, AbsoluteSettings); 23] = [
+            (
+                "absolute.level_time_constant_s",
+                AbsoluteSettings {
+                    level_time_constant_s: -1.0,
+                    ..Default::default()
+                },
+            ),
+            (
+                "absolute.level_time_constant_s",
+                AbsoluteSettings {
+                    level_time_constant_s: f64::NAN,
+                    ..Default::default()
+                },
+            ),
             (
                 "absolute.wait_accel_bias_max_s",
                 AbsoluteSettings {

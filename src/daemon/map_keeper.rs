@@ -91,7 +91,7 @@ impl MapKeeper {
         if self.writer.as_ref().is_some_and(|w| !w.is_finished()) {
             return;
         }
-        let Some(map) = pipeline.absolute().and_then(|stage| stage.solved_map()) else {
+        let Some(map) = pipeline.solved_map() else {
             return;
         };
         self.last_save_ns = Some(t_ns);
@@ -117,7 +117,7 @@ impl MapKeeper {
         if !self.saving {
             return;
         }
-        let Some(map) = pipeline.absolute_mut().and_then(|stage| stage.finish_map()) else {
+        let Some(map) = pipeline.finish_map() else {
             return;
         };
         save(&self.path, &map, &self.health);

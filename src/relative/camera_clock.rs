@@ -79,6 +79,10 @@ impl RelativeEstimator for ShiftedFrames {
         self.inner.settling()
     }
 
+    fn levelling(&self) -> nalgebra::Isometry3<f64> {
+        self.inner.levelling()
+    }
+
     fn accel_bias_sigma_m_s2(&self) -> Option<f64> {
         self.inner.accel_bias_sigma_m_s2()
     }

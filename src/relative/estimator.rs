@@ -227,6 +227,15 @@ pub trait RelativeEstimator {
         false
     }
 
+    /// The turn that took the last output (of `push_frame` or
+    /// `finish_frame`) from the estimator's own world, which its first
+    /// keyframe fixes and which never turns, into the level world it was
+    /// given in ([`super::level`]): `T_world_body` is this times the
+    /// estimator's own pose. Identity where nothing levels the outputs.
+    fn levelling(&self) -> nalgebra::Isometry3<f64> {
+        nalgebra::Isometry3::identity()
+    }
+
     /// How well the accelerometer bias is known now: the largest one-sigma
     /// of the newest solved keyframe's, m/s^2, once the window runs with
     /// the IMU (infinite until its first solve; None without the IMU, at

@@ -18,7 +18,9 @@
 //! time the turn changes it is changed about the current position:
 //! positions do not jump, and the motion after it is level. Velocity, the translation since the
 //! last output and the covariance (with its origin) turn with the pose;
-//! body-frame landmarks and biases do not change.
+//! body-frame landmarks and biases do not change. The absolute stage's
+//! map turns more slowly ([`LevelFollower`] with its own time constant,
+//! `crate::slam_pipeline` and its `map_world`).
 
 use nalgebra::{Isometry3, Matrix3, Matrix6, Translation3, UnitQuaternion, Vector3};
 
@@ -31,19 +33,66 @@ use crate::sensors::ImuSample;
 pub fn levelled(estimator: Box<dyn RelativeEstimator>, tau_s: f64) -> Box<dyn RelativeEstimator> {
     Box::new(Levelled {
         inner: estimator,
-        tau_s,
-        level: Isometry3::identity(),
-        last_ns: None,
+        level: LevelFollower::new(tau_s),
     })
 }
 
 struct Levelled {
     inner: Box<dyn RelativeEstimator>,
+    level: LevelFollower,
+}
+
+/// A turn of a world that does not turn into a level one, following a
+/// gravity estimate given in the first through a first-order filter of
+/// time constant `tau_s` (0: at once; infinite: never turns), each change
+/// made about the body's position so that positions do not jump.
+#[derive(Clone, Copy, Debug)]
+pub struct LevelFollower {
     tau_s: f64,
-    /// Maps the estimator's world into the level one.
+    /// Maps the world that does not turn into the level one.
     level: Isometry3<f64>,
-    /// The last tracked output the level was updated at.
+    /// The last stamp the level was updated at.
     last_ns: Option<i64>,
+}
+
+impl LevelFollower {
+    /// The identity, following gravity with the time constant `tau_s`.
+    pub fn new(tau_s: f64) -> Self {
+        Self {
+            tau_s,
+            level: Isometry3::identity(),
+            last_ns: None,
+        }
+    }
+
+    /// The turn now.
+    pub fn level(&self) -> Isometry3<f64> {
+        self.level
+    }
+
+    /// Follows `gravity` (m/s^2, in the world that does not turn) at
+    /// `t_ns`, with the body at `position_m` (same world); a gravity that
+    /// gives no direction is ignored.
+    pub fn follow(&mut self, gravity: &Vector3<f64>, t_ns: i64, position_m: &Vector3<f64>) {
+        let Some(target) = turn_to_down(gravity) else {
+            return;
+        };
+        let dt_s = self
+            .last_ns
+            .map_or(0.0, |t| (t_ns - t).max(0) as f64 * 1e-9);
+        self.last_ns = Some(t_ns);
+        let share = if self.tau_s > 0.0 {
+            1.0 - (-dt_s / self.tau_s).exp()
+        } else {
+            1.0
+        };
+        let turn = self.level.rotation.slerp(&target, share);
+        if turn.angle_to(&self.level.rotation) > 0.0 {
+            let p_level = self.level.transform_point(&(*position_m).into()).coords;
+            self.level =
+                Isometry3::from_parts(Translation3::from(p_level - turn * position_m), turn);
+        }
+    }
 }
 
 /// The smallest rotation taking `gravity` onto -z; None for a zero or
@@ -58,31 +107,14 @@ fn turn_to_down(gravity: &Vector3<f64>) -> Option<UnitQuaternion<f64>> {
 impl Levelled {
     fn level(&mut self, mut out: RelativeOutput) -> RelativeOutput {
         if out.state == super::types::TrackingState::Tracking {
-            if let Some(turn) = self
-                .inner
-                .gravity_world_m_s2()
-                .and_then(|g| turn_to_down(&g))
-            {
-                let dt_s = self
-                    .last_ns
-                    .map_or(0.0, |t| (out.t_ns - t).max(0) as f64 * 1e-9);
-                self.last_ns = Some(out.t_ns);
-                let share = if self.tau_s > 0.0 {
-                    1.0 - (-dt_s / self.tau_s).exp()
-                } else {
-                    1.0
-                };
-                let turn = self.level.rotation.slerp(&turn, share);
-                if turn.angle_to(&self.level.rotation) > 0.0 {
-                    let p = out.T_world_body.translation.vector;
-                    let p_level = self.level.transform_point(&p.into()).coords;
-                    self.level =
-                        Isometry3::from_parts(Translation3::from(p_level - turn * p), turn);
-                }
+            if let Some(g) = self.inner.gravity_world_m_s2() {
+                self.level
+                    .follow(&g, out.t_ns, &out.T_world_body.translation.vector);
             }
         }
-        let r: Matrix3<f64> = self.level.rotation.to_rotation_matrix().into_inner();
-        out.T_world_body = self.level * out.T_world_body;
+        let level = self.level.level();
+        let r: Matrix3<f64> = level.rotation.to_rotation_matrix().into_inner();
+        out.T_world_body = level * out.T_world_body;
         out.velocity_world_m_s = r * out.velocity_world_m_s;
         out.delta_translation_world_m = r * out.delta_translation_world_m;
         if let Some(c) = out.pose_covariance.as_mut() {
@@ -90,7 +122,7 @@ impl Levelled {
             d.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
             d.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
             c.matrix = d * c.matrix * d.transpose();
-            c.T_world_origin = self.level * c.T_world_origin;
+            c.T_world_origin = level * c.T_world_origin;
         }
         out
     }
@@ -139,6 +171,10 @@ impl RelativeEstimator for Levelled {
         self.inner.settling()
     }
 
+    fn levelling(&self) -> Isometry3<f64> {
+        self.level.level()
+    }
+
     fn accel_bias_sigma_m_s2(&self) -> Option<f64> {
         self.inner.accel_bias_sigma_m_s2()
     }
@@ -146,7 +182,7 @@ impl RelativeEstimator for Levelled {
     fn gravity_world_m_s2(&self) -> Option<Vector3<f64>> {
         self.inner
             .gravity_world_m_s2()
-            .map(|g| self.level.rotation * g)
+            .map(|g| self.level.level().rotation * g)
     }
 }
 

@@ -244,9 +244,9 @@ pub fn run_dataset(
     pipeline.finish();
     let mut trajectory_relative = None;
     let held_back = pipeline.held_back_frames().unwrap_or(0);
-    if let Some(stage) = pipeline.absolute_mut() {
+    if pipeline.absolute().is_some() {
         if let Some(path) = &run.save_map {
-            let map = stage.finish_map().ok_or(if held_back > 0 {
+            let map = pipeline.finish_map().ok_or(if held_back > 0 {
                 RunError::NoMapWhileWaiting(held_back)
             } else {
                 RunError::NoMapToSave

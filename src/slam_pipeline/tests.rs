@@ -376,3 +376,192 @@ fn the_second_stage_takes_frames_in_time_order_and_measures_motion_from_the_last
         "moved {moved:?}, way {way:?}"
     );
 }
+
+/// The relative stage's level turns by about a degree as its gravity
+/// estimate settles (a start in flight), about the current position as
+/// [`crate::relative::level`] turns it. The map is built in the relative
+/// stage's own world, which does not turn: the map-frame poses are those
+/// of the same run without the turn, turned with it. A map built from the
+/// levelled poses as they come keeps the first seconds' tilt and is
+/// centimetres worse against the truth.
+#[test]
+fn a_level_that_turns_as_gravity_settles_does_not_bend_the_map() {
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion};
+    let run = simulate_room_run(&RoomRunOptions {
+        laps: 2.0,
+        fresh_track_ids: true,
+        descriptor_bit_flips: Some(20),
+        sigma_translation_per_sqrt_m: 0.002,
+        seed: 3,
+        ..RoomRunOptions::default()
+    });
+    let n = run.outputs.len() as f64;
+    let settled = UnitQuaternion::from_scaled_axis(Vector3::new(0.015, -0.01, 0.0));
+    let mut settings = SlamSettings::default();
+    settings.absolute.enabled = true;
+    let mut unturned = pipeline(&settings, SecondStage::BuildMap);
+    let mut own_world = pipeline(&settings, SecondStage::BuildMap);
+    let mut as_they_come = pipeline(&settings, SecondStage::BuildMap);
+    let mut level = Isometry3::<f64>::identity();
+    let (mut same_m, mut own_m, mut bent_m) = (Vec::new(), Vec::new(), Vec::new());
+    for (k, output) in run.outputs.iter().enumerate() {
+        // The level follows the settled one, turned about where the body is.
+        let p = output.T_world_body.translation.vector;
+        let turn =
+            UnitQuaternion::identity().slerp(&settled, 1.0 - (-(k as f64) / (0.2 * n)).exp());
+        let p_level = level.transform_point(&p.into()).coords;
+        level = Isometry3::from_parts(Translation3::from(p_level - turn * p), turn);
+        let mut levelled = output.clone();
+        levelled.T_world_body = level * output.T_world_body;
+        levelled.velocity_world_m_s = level.rotation * output.velocity_world_m_s;
+        levelled.delta_translation_world_m = level.rotation * output.delta_translation_world_m;
+        let reference = unturned.second_stage(output.clone());
+        own_world.levelling = level;
+        let a = own_world.second_stage(levelled.clone());
+        let b = as_they_come.second_stage(levelled.clone());
+        assert_eq!(a.relative, levelled, "the odometry goes out as it came");
+        if k as f64 >= 0.5 * n && output.state == TrackingState::Tracking {
+            let position = |pose: Option<CorrectedPose>| {
+                pose.expect("answers").T_world_body.translation.vector
+            };
+            let truth = level
+                .transform_point(&run.truth_position_m[k].into())
+                .coords;
+            let unturned_m = level
+                .transform_point(&position(reference.corrected).into())
+                .coords;
+            let a = position(a.corrected);
+            same_m.push((a - unturned_m).norm());
+            own_m.push((a - truth).norm());
+            bent_m.push((position(b.corrected) - truth).norm());
+        }
+    }
+    let (same, own, bent) = (rms(&same_m), rms(&own_m), rms(&bent_m));
+    let stats = own_world.absolute().expect("runs").stats();
+    assert!(stats.solves > 10 && stats.corrections > 40, "{stats:?}");
+    assert!(
+        same < 1e-4,
+        "the map-frame poses are {same:.2e} m rms from the same run's without the turn"
+    );
+    assert!(
+        bent > 2.0 * own,
+        "the levelled poses as they come bend the map: {bent:.4} m from the truth, {own:.4} m in the own world"
+    );
+    // The map saved goes out in the world the poses are published in:
+    // where the same run's without the turn puts its landmarks, levelled.
+    own_world.finish();
+    unturned.finish();
+    let map = own_world.finish_map().expect("a map");
+    let reference = unturned.finish_map().expect("a map");
+    assert_eq!(map.landmarks.len(), reference.landmarks.len());
+    let worst = map
+        .landmarks
+        .iter()
+        .zip(&reference.landmarks)
+        .map(|(l, r)| {
+            assert_eq!(l.id, r.id);
+            (l.position_m - level.transform_point(&r.position_m.into()).coords).norm()
+        })
+        .fold(0.0, f64::max);
+    assert!(map.landmarks.len() > 50 && worst < 1e-4, "{worst:.2e} m");
+}
+
+/// A relative stage whose gravity estimate, in its own world, is tilted
+/// by about a degree from its first guess (the own world's -z), moving
+/// along x at 1 m/s with a frame every 50 ms.
+struct TiltedGravity {
+    frames: i64,
+    timings: crate::relative::FrameTimings,
+}
+
+impl RelativeEstimator for TiltedGravity {
+    fn push_imu(&mut self, _: &ImuSample) {}
+
+    fn push_frame(&mut self, frame: &FrameInput<'_>) -> RelativeOutput {
+        self.frames += 1;
+        let mut out = RelativeOutput::tracking_at_origin(frame.t_ns, Vec::new());
+        out.T_world_body.translation.vector = Vector3::new(0.05 * self.frames as f64, 0.0, 0.0);
+        out
+    }
+
+    fn last_timings(&self) -> &crate::relative::FrameTimings {
+        &self.timings
+    }
+
+    fn counters(&self) -> Vec<(&'static str, u64)> {
+        Vec::new()
+    }
+
+    fn gravity_world_m_s2(&self) -> Option<Vector3<f64>> {
+        Some(tilted_gravity())
+    }
+}
+
+fn tilted_gravity() -> Vector3<f64> {
+    nalgebra::UnitQuaternion::from_scaled_axis(Vector3::new(0.015, -0.01, 0.0))
+        * Vector3::new(0.0, 0.0, -9.81)
+}
+
+/// The map's world follows the relative stage's gravity estimate, taken
+/// back into the estimator's own world, with `[absolute]
+/// level_time_constant_s`: with the relative stage's own 20 s it turns
+/// exactly as the published poses do (the stage is then given them as
+/// they are), with `inf` never, with 60 s a third as fast as 20 s early on.
+#[test]
+fn the_maps_world_follows_gravity_with_its_own_time_constant() {
+    use crate::relative::level::levelled;
+    use std::sync::Arc;
+    let image = crate::sensors::Image::new(
+        2,
+        2,
+        2,
+        crate::sensors::PixelFormat::Mono8,
+        Arc::from(vec![0u8; 4]),
+    )
+    .expect("image");
+    let tilt = UnitQuaternion::rotation_between(&tilted_gravity(), &-Vector3::z())
+        .expect("a turn")
+        .angle();
+    let run = |map_tau_s: f64| {
+        let mut settings = SlamSettings::default();
+        settings.absolute.enabled = true;
+        settings.absolute.level_time_constant_s = map_tau_s;
+        let mut p = pipeline(&settings, SecondStage::BuildMap);
+        p.relative = levelled(
+            Box::new(TiltedGravity {
+                frames: 0,
+                timings: Default::default(),
+            }),
+            20.0,
+        );
+        for k in 1..=100 {
+            let frame = p.push_frame(&FrameInput {
+                t_ns: k * 50_000_000,
+                left: &image,
+                right: None,
+            });
+            // The published pose is the relative stage's, whatever the map's
+            // world.
+            let own = nalgebra::Isometry3::translation(0.05 * k as f64, 0.0, 0.0);
+            let expected = p.levelling * own;
+            assert!(
+                (frame.relative.T_world_body.translation.vector - expected.translation.vector)
+                    .norm()
+                    < 1e-12
+            );
+        }
+        (p.levelling, p.map_level.level(), p.map_to_published())
+    };
+    use nalgebra::UnitQuaternion;
+    let (published, map, between) = run(20.0);
+    assert!(published.rotation.angle() > 0.2 * tilt, "the level turns");
+    assert!(map.rotation.angle_to(&published.rotation) < 1e-12);
+    assert!(between.rotation.angle() < 1e-12 && between.translation.vector.norm() < 1e-12);
+    let (published, map, between) = run(f64::INFINITY);
+    assert_eq!(map, nalgebra::Isometry3::identity());
+    assert_eq!(between, published);
+    let (published, map, _) = run(60.0);
+    let ratio = map.rotation.angle() / published.rotation.angle();
+    // 5 s in: (1 - exp(-5/60)) / (1 - exp(-5/20)) = 0.361.
+    assert!((ratio - 0.361).abs() < 0.01, "{ratio}");
+}
