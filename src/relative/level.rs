@@ -22,7 +22,7 @@
 //! map turns more slowly ([`LevelFollower`] with its own time constant,
 //! `crate::slam_pipeline` and its `map_world`).
 
-use nalgebra::{Isometry3, Matrix3, Matrix6, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 use super::estimator::{FrameInput, FrameTimings, RelativeEstimator};
 use super::types::RelativeOutput;
@@ -112,18 +112,7 @@ impl Levelled {
                     .follow(&g, out.t_ns, &out.T_world_body.translation.vector);
             }
         }
-        let level = self.level.level();
-        let r: Matrix3<f64> = level.rotation.to_rotation_matrix().into_inner();
-        out.T_world_body = level * out.T_world_body;
-        out.velocity_world_m_s = r * out.velocity_world_m_s;
-        out.delta_translation_world_m = r * out.delta_translation_world_m;
-        if let Some(c) = out.pose_covariance.as_mut() {
-            let mut d = Matrix6::zeros();
-            d.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
-            d.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
-            c.matrix = d * c.matrix * d.transpose();
-            c.T_world_origin = level * c.T_world_origin;
-        }
+        out.move_to_world(&self.level.level());
         out
     }
 }

@@ -145,6 +145,24 @@ pub struct RelativeOutput {
 }
 
 impl RelativeOutput {
+    /// The same output in another world, `by` taking this one into it:
+    /// the pose, velocity, motion since the last output and covariance
+    /// (with its origin) turn; the body-frame landmarks and the biases do
+    /// not change.
+    pub fn move_to_world(&mut self, by: &Isometry3<f64>) {
+        let r: Matrix3<f64> = by.rotation.to_rotation_matrix().into_inner();
+        self.T_world_body = by * self.T_world_body;
+        self.velocity_world_m_s = r * self.velocity_world_m_s;
+        self.delta_translation_world_m = r * self.delta_translation_world_m;
+        if let Some(c) = self.pose_covariance.as_mut() {
+            let mut d = Matrix6::zeros();
+            d.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
+            d.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
+            c.matrix = d * c.matrix * d.transpose();
+            c.T_world_origin = by * c.T_world_origin;
+        }
+    }
+
     /// The output for `state` with its `tracking` state: the translation
     /// since `previous_position_world_m` (the last tracked position, as the
     /// estimator keeps it) while tracking, zero otherwise or without one.

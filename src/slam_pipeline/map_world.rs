@@ -12,7 +12,7 @@
 //! the stage answers (poses, covariances, maps to save) is turned into
 //! the world the relative stage publishes in now.
 
-use nalgebra::{Isometry3, Matrix3, Matrix6};
+use nalgebra::{Isometry3, Matrix3};
 
 use crate::absolute::map_file::SavedMap;
 use crate::absolute::CorrectedPose;
@@ -25,19 +25,8 @@ pub(super) fn into_map_world(
     output: &RelativeOutput,
     map_to_published: &Isometry3<f64>,
 ) -> RelativeOutput {
-    let back = map_to_published.inverse();
     let mut in_map = output.clone();
-    in_map.T_world_body = back * output.T_world_body;
-    in_map.velocity_world_m_s = back.rotation * output.velocity_world_m_s;
-    in_map.delta_translation_world_m = back.rotation * output.delta_translation_world_m;
-    if let Some(c) = in_map.pose_covariance.as_mut() {
-        let r = rotation(&back);
-        let mut d = Matrix6::zeros();
-        d.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
-        d.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
-        c.matrix = d * c.matrix * d.transpose();
-        c.T_world_origin = back * c.T_world_origin;
-    }
+    in_map.move_to_world(&map_to_published.inverse());
     in_map
 }
 
@@ -77,7 +66,7 @@ mod tests {
     use super::*;
     use crate::absolute::map_file::MapLandmark;
     use crate::relative::types::PoseCovariance;
-    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+    use nalgebra::{Matrix6, Translation3, UnitQuaternion, Vector3};
 
     /// A turn of about a degree, about a point away from the origin.
     fn levelling() -> Isometry3<f64> {
