@@ -24,7 +24,7 @@
 //! step on the next frame.
 //!
 //! How the stage starts (at rest, or moving with a visual-inertial
-//! alignment) is in [`start`].
+//! alignment) is in the `start` module.
 
 use std::collections::HashMap;
 
