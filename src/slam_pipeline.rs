@@ -242,8 +242,9 @@ impl SlamPipeline {
         let start = Instant::now();
         let delta = self.measure_from_taken(&mut relative);
         let corrected = self.absolute.as_ref().map(|stage| {
-            let in_map_world = self.into_map_world(&relative);
-            into_published_world(stage.carry(&in_map_world), &self.map_to_published())
+            let back = self.map_to_published();
+            let in_map_world = self.into_map_world(&relative, &back);
+            into_published_world(stage.carry(&in_map_world), &back)
         });
         let localised = self
             .localiser
@@ -311,8 +312,13 @@ impl SlamPipeline {
     /// taken) in the absolute stage's world, its motion measured there
     /// (the levels may have turned since: turning the published motion
     /// back would leave the turn's share in it).
-    fn into_map_world(&self, output: &RelativeOutput) -> RelativeOutput {
-        let mut own = into_map_world(output, &self.map_to_published());
+    /// `map_to_published` is [`Self::map_to_published`].
+    fn into_map_world(
+        &self,
+        output: &RelativeOutput,
+        map_to_published: &Isometry3<f64>,
+    ) -> RelativeOutput {
+        let mut own = into_map_world(output, map_to_published);
         if let Some((_, Some((_, last)))) = self.last_taken {
             if own.state == TrackingState::Tracking {
                 own.delta_translation_world_m = own.T_world_body.translation.vector - last;
@@ -369,8 +375,11 @@ impl SlamPipeline {
         } else {
             &relative
         };
-        let in_map_world = self.absolute.is_some().then(|| self.into_map_world(input));
         let back = self.map_to_published();
+        let in_map_world = self
+            .absolute
+            .is_some()
+            .then(|| self.into_map_world(input, &back));
         let corrected = self
             .absolute
             .as_mut()
@@ -385,7 +394,7 @@ impl SlamPipeline {
             relative.t_ns,
             (relative.state == TrackingState::Tracking).then(|| {
                 let p = relative.T_world_body.translation.vector;
-                let in_map_world = self.map_to_published().inverse_transform_point(&p.into());
+                let in_map_world = back.inverse_transform_point(&p.into());
                 (p, in_map_world.coords)
             }),
         ));
