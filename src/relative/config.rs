@@ -178,6 +178,16 @@ pub struct RelativeConfig {
     /// file refined at once swung by up to 1.6 deg in the first seconds
     /// and cost 7-12 % of the ATE (`relative/window/camera_imu.rs`).
     pub camera_imu_hold_until_tested: bool,
+    /// Let the held keyframes' body poses follow the refined calibration,
+    /// their cameras staying where their images put them
+    /// (`relative/window/held_cameras.rs`). Held body poses tie the
+    /// calibration to the value they were held at: after a start in
+    /// flight with a wrong file the rotation and time offset stalled
+    /// short of the truth. On, they converge (and a freed lever arm with
+    /// them), but on renderings whose IMU disagrees with the images'
+    /// ground truth the calibration absorbs that disagreement and starts
+    /// from rest lose accuracy (docs/results/held-cameras-2026-12-06.md).
+    pub camera_imu_held_keyframes_follow: bool,
     /// Turn the poses so that the estimated gravity points along -z
     /// (`relative/level.rs`): an odometry frame with z up. The window's
     /// own world is levelled by the first guess of gravity, made before
@@ -223,6 +233,7 @@ impl Default for RelativeConfig {
             camera_imu_stereo_rotation_sigma_deg: 0.2,
             camera_imu_carry_weight: 0.9,
             camera_imu_hold_until_tested: true,
+            camera_imu_held_keyframes_follow: false,
             level_poses: true,
             level_time_constant_s: 20.0,
         }
@@ -375,6 +386,7 @@ impl RelativeConfig {
             stereo_rotation_sigma_deg: self.camera_imu_stereo_rotation_sigma_deg,
             carry_weight: self.camera_imu_carry_weight,
             hold_until_tested: self.camera_imu_hold_until_tested,
+            held_keyframes_follow: self.camera_imu_held_keyframes_follow,
             ..CameraImuRefinementConfig::default()
         }
     }

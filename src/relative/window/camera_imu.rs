@@ -114,6 +114,11 @@ pub struct CameraImuRefinementConfig {
     /// shows the file wrong (module doc) [true]; false refines from the
     /// first solve.
     pub hold_until_tested: bool,
+    /// Held keyframes keep their cameras and their body states follow
+    /// the calibration ([`super::held_cameras`]) [false]; false holds
+    /// their body states, which ties the calibration to the value they
+    /// were held at.
+    pub held_keyframes_follow: bool,
     /// The estimate is reported as far from the file (status warning)
     /// beyond: rotation deg [0.5], translation m [0.01], time offset s
     /// [0.003]; a Kalibr calibration of a rigid rig is good to a tenth of
@@ -135,6 +140,7 @@ impl Default for CameraImuRefinementConfig {
             stereo_rotation_sigma_deg: 0.2,
             carry_weight: 0.9,
             hold_until_tested: true,
+            held_keyframes_follow: false,
             warn_rotation_deg: 0.5,
             warn_translation_m: 0.01,
             warn_time_offset_s: 0.003,

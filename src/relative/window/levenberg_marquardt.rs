@@ -12,16 +12,18 @@ use std::time::Instant;
 
 use nalgebra::{DMatrix, Matrix2, SMatrix, SVector, Vector2, Vector3};
 
-use super::camera_imu::{reproject_refined, reprojection_error_refined, BodyMotion, CALIB_DIM};
+use super::camera_imu::{
+    reproject_refined, reprojection_error_refined, BodyMotion, CALIB_DIM, CALIB_STEREO,
+};
 use super::inertial::{
-    bias_walk_factor, inertial_factor, tangent_basis, update_direction, GRAVITY_COL,
+    bias_walk_factor, inertial_factor, tangent_basis, update_direction, GRAVITY_COL, INERTIAL_COLS,
 };
 use super::marginalise::{marginalise_boundary, LinkEnd};
 use super::prior::{GravityPrior, OldestFreePrior};
 use super::reprojection::{reproject, reprojection_error, GATE_SQ};
 use super::schur::{self, Chunk, LandmarkBlock, ObservationRow};
 use super::state::{apply_update, BG, FULL_DIM, POSE_DIM, VEL};
-use super::{covariance_pixel_scale, Window};
+use super::{covariance_pixel_scale, held_cameras, Window};
 use crate::imu::so3::hat;
 use crate::relative::types::{BodyLandmark, WindowSupport};
 
@@ -346,6 +348,7 @@ impl Window {
         }
         let mut cost = 0.0;
         let calib = p.calib_offset.and(self.camera_imu.as_ref());
+        let follow = calib.is_some_and(|c| c.config().held_keyframes_follow);
         for row in p.rows.iter_mut() {
             let kf = &keyframes[row.kf];
             let obs = &kf.observations[row.obs_index];
@@ -369,7 +372,12 @@ impl Window {
                         &obs.pixel,
                     )
                     .filter(|(r, _)| r.depth_m > 0.0)
-                    .map(|(r, d_calib)| {
+                    .map(|(r, mut d_calib)| {
+                        if follow && row.kf < p.n_fixed {
+                            // A held keyframe's camera stays where its
+                            // images put it (`held_cameras`).
+                            d_calib.columns_mut(0, CALIB_STEREO).fill(0.0);
+                        }
                         row.d_pose = r.d_pose * inv_sigma;
                         row.d_point = r.d_point * inv_sigma;
                         row.d_calib = d_calib * inv_sigma;
@@ -469,7 +477,52 @@ impl Window {
                         &p.gravity_basis,
                     );
                     cost += 0.5 * r.norm_squared();
-                    if build {
+                    let boundary_calibration = match (follow && pos == nf, calib, p.calib_offset) {
+                        (true, Some(c), Some(oc)) => Some((c, oc)),
+                        _ => None,
+                    };
+                    if let (true, Some((c, oc))) = (build, boundary_calibration) {
+                        // The boundary's body state follows the
+                        // calibration: the link reaches it through it.
+                        let mut joined = SMatrix::<f64, 9, { INERTIAL_COLS + CALIB_DIM }>::zeros();
+                        joined
+                            .fixed_view_mut::<9, INERTIAL_COLS>(0, 0)
+                            .copy_from(&j);
+                        joined
+                            .fixed_view_mut::<9, CALIB_DIM>(0, INERTIAL_COLS)
+                            .copy_from(&held_cameras::boundary_link_columns(
+                                &j,
+                                &ki.state,
+                                &ki.omega_body_rad_s,
+                                &held_cameras::Mount::of(c),
+                            ));
+                        p.eq.add_factor(
+                            &r,
+                            &joined,
+                            &[
+                                Chunk {
+                                    col: VEL,
+                                    len: BOUNDARY_DIM,
+                                    offset: rest(pos - 1),
+                                },
+                                Chunk {
+                                    col: FULL_DIM,
+                                    len: FULL_DIM,
+                                    offset: offset(pos),
+                                },
+                                Chunk {
+                                    col: GRAVITY_COL,
+                                    len: 2,
+                                    offset: p.gravity_offset,
+                                },
+                                Chunk {
+                                    col: INERTIAL_COLS,
+                                    len: CALIB_DIM,
+                                    offset: Some(oc),
+                                },
+                            ],
+                        );
+                    } else if build {
                         p.eq.add_factor(
                             &r,
                             &j,
@@ -594,6 +647,7 @@ impl Window {
             .extend(p.landmarks.iter().map(|l| l.position_world_m));
         p.backup_gravity = self.gravity_dir;
         p.backup_calibration = self.camera_imu.as_ref().map(|c| c.values());
+        p.backup_velocity_prior = self.velocity_prior;
     }
 
     pub(super) fn restore_backup(&mut self) {
@@ -605,6 +659,7 @@ impl Window {
             l.position_world_m = *b;
         }
         self.gravity_dir = p.backup_gravity;
+        self.velocity_prior = p.backup_velocity_prior;
         if let (Some(c), Some(v)) = (self.camera_imu.as_mut(), &p.backup_calibration) {
             c.restore(v);
             c.place(&mut self.cameras);
@@ -628,9 +683,14 @@ impl Window {
             let d = Vector2::new(delta[og], delta[og + 1]);
             self.gravity_dir = update_direction(&self.gravity_dir, &p.gravity_basis, &d);
         }
+        let mut mounts = None;
         if let (Some(oc), Some(c)) = (p.calib_offset, self.camera_imu.as_mut()) {
+            let from = held_cameras::Mount::of(c);
             c.apply(&delta[oc..oc + CALIB_DIM]);
             c.place(&mut self.cameras);
+            if c.config().held_keyframes_follow {
+                mounts = Some((from, held_cameras::Mount::of(c)));
+            }
         }
         if let (Some(ob), Some(kf)) = (p.boundary_offset, p.n_fixed.checked_sub(1)) {
             let s = &mut self.keyframes[kf].state;
@@ -639,7 +699,24 @@ impl Window {
             s.biases.gyro_rad_s += v3(ob + 3);
             s.biases.accel_m_s2 += v3(ob + 6);
         }
+        if let Some((from, to)) = mounts {
+            self.held_follow_calibration(&from, &to);
+        }
         largest
+    }
+
+    /// The held keyframes keep their cameras when the calibration moved
+    /// from `from` to `to` ([`held_cameras`]): their body states follow,
+    /// and the boundary's velocity prior with its velocity.
+    fn held_follow_calibration(&mut self, from: &held_cameras::Mount, to: &held_cameras::Mount) {
+        let n_fixed = self.problem.n_fixed;
+        for kf in self.keyframes.iter_mut().take(n_fixed) {
+            let change = held_cameras::follow(&mut kf.state, &kf.omega_body_rad_s, from, to);
+            if let Some(prior) = self.velocity_prior.as_mut().filter(|p| p.seq == kf.seq) {
+                let mut mean = prior.mean.fixed_rows_mut::<3>(0);
+                mean += change;
+            }
+        }
     }
 
     /// Flags observations above the chi-square threshold at the current

@@ -28,6 +28,7 @@
 pub mod camera_imu;
 mod config;
 pub mod frame_pose;
+mod held_cameras;
 pub mod inertial;
 pub mod inertial_link;
 mod joined_links;
@@ -134,6 +135,7 @@ pub(crate) struct Problem {
     pub backup_landmarks: Vec<Vector3<f64>>,
     pub backup_gravity: Vector3<f64>,
     pub backup_calibration: Option<camera_imu::Values>,
+    pub backup_velocity_prior: Option<OldestFreePrior>,
     /// `S^-1 Y` of one landmark (body-frame covariances).
     pub z_buffer: DMatrix<f64>,
     /// Linearise with the pixel sigma the published covariance takes
@@ -884,11 +886,40 @@ impl Window {
         // The link's columns in the solve's covariance (the first link
         // from the boundary).
         let column = |c: usize| joined_links::link_column(p.state_dim, og, ob, 0, c);
-        let cols: Vec<(usize, usize)> = (0..inertial::INERTIAL_COLS)
+        let mut cols: Vec<(usize, usize)> = (0..inertial::INERTIAL_COLS)
             .filter_map(|c| column(c).map(|k| (c, k)))
             .collect();
+        // With the held keyframes following the calibration, the link
+        // reaches it through the boundary's body state (`held_cameras`):
+        // the solve's covariance of the two together is what the link's
+        // redundancy needs.
+        let following = self
+            .camera_imu
+            .as_ref()
+            .filter(|c| c.config().held_keyframes_follow);
+        let calibration = match (following, p.calib_offset) {
+            (Some(c), Some(oc)) => {
+                cols.extend(
+                    (0..camera_imu::CALIB_DIM).map(|k| (inertial::INERTIAL_COLS + k, oc + k)),
+                );
+                held_cameras::boundary_link_columns(
+                    &j,
+                    &ki.state,
+                    &ki.omega_body_rad_s,
+                    &held_cameras::Mount::of(c),
+                )
+            }
+            _ => nalgebra::SMatrix::zeros(),
+        };
+        let entry = |r: usize, c: usize| {
+            if c < inertial::INERTIAL_COLS {
+                j[(r, c)]
+            } else {
+                calibration[(r, c - inertial::INERTIAL_COLS)]
+            }
+        };
         // tr(J Sigma J^T) of the rotation rows and of the rest.
-        let hat_diag: [f64; 9] = hat_diagonal(|r, c| j[(r, c)], &cols, cov);
+        let hat_diag: [f64; 9] = hat_diagonal(entry, &cols, cov);
         // The bias walk between the same keyframes: columns [i: b_g b_a |
         // j: b_g b_a], whitened with the current walk scale.
         let (walk_chi2, walk_redundancy) = match kj.bias_walk_sqrt_info.as_ref() {

@@ -286,17 +286,26 @@ fn schur_solve_equals_dense_solve() {
 
 #[test]
 fn normal_equations_hold_the_cost_gradient() {
-    gradient_check(false);
+    gradient_check(false, false);
 }
 
 #[test]
 fn normal_equations_hold_the_cost_gradient_with_the_calibration_refined() {
     // Three held keyframes: the calibration columns reach their rows too,
     // which hold the body pose and move with the calibration's camera.
-    gradient_check(true);
+    gradient_check(true, false);
 }
 
-fn gradient_check(refine: bool) {
+#[test]
+fn normal_equations_hold_the_cost_gradient_with_held_keyframes_following() {
+    // The held keyframes keep their cameras and their body states follow
+    // the calibration (each step moves them): their rows leave the
+    // calibration out, and the first inertial link reaches it through the
+    // boundary's body state.
+    gradient_check(true, true);
+}
+
+fn gradient_check(refine: bool, follow: bool) {
     // b = -J^T W r must be minus the gradient of the robust cost for every
     // free unknown: checks the assembly of all terms (reprojection,
     // inertial, bias walk, velocity and gravity priors, the calibration)
@@ -305,6 +314,7 @@ fn gradient_check(refine: bool) {
     let scene = Scene::new(&mut r, 200, 4.0);
     let mut cfg = config(true);
     cfg.camera_imu.enabled = refine;
+    cfg.camera_imu.held_keyframes_follow = follow;
     let held = if refine { 3 } else { 1 };
     cfg.keyframes_free = 4;
     let mut w = filled_window(&scene, cfg, 4 + held, 1, true, 0.5, 0.0, &mut r);
