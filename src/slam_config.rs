@@ -106,6 +106,27 @@ mod tests {
     }
 
     #[test]
+    fn held_keyframes_follow_takes_its_three_values() {
+        use crate::relative::window::HeldKeyframesFollow;
+        for (value, want) in [
+            ("in-flight", HeldKeyframesFollow::InFlight),
+            ("on", HeldKeyframesFollow::On),
+            ("off", HeldKeyframesFollow::Off),
+        ] {
+            let text = format!("[relative]\ncamera_imu_held_keyframes_follow = \"{value}\"\n");
+            let s = SlamSettings::from_toml_str(&text, "t.toml").expect(value);
+            assert_eq!(s.relative.camera_imu_held_keyframes_follow, want);
+        }
+        let e = SlamSettings::from_toml_str(
+            "[relative]\ncamera_imu_held_keyframes_follow = \"sometimes\"\n",
+            "t.toml",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("sometimes") && e.contains("in-flight"), "{e}");
+    }
+
+    #[test]
     fn each_table_names_its_bad_key_and_old_layouts_are_told_where_to_go() {
         let err = |text: &str| {
             SlamSettings::from_toml_str(text, "test.toml")

@@ -85,7 +85,8 @@ fn run(
     }
     if refine == Refine::Follow {
         config.camera_imu_translation_sigma_m = 0.02;
-        config.camera_imu_held_keyframes_follow = true;
+        config.camera_imu_held_keyframes_follow =
+            rigslam::relative::window::HeldKeyframesFollow::On;
     }
     let run = DatasetRun {
         mode: Some(SensorMode::StereoInertial),

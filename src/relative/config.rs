@@ -3,7 +3,9 @@
 //! the file itself is [`crate::slam_config`]): TOML with defaults for
 //! every key, checked once into the typed configs of the parts.
 
-use crate::relative::window::{CameraImuRefinementConfig, NoiseAdaptationConfig, NoiseScale};
+use crate::relative::window::{
+    CameraImuRefinementConfig, HeldKeyframesFollow, NoiseAdaptationConfig, NoiseScale,
+};
 
 /// Which estimator runs the relative stage.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -178,16 +180,16 @@ pub struct RelativeConfig {
     /// file refined at once swung by up to 1.6 deg in the first seconds
     /// and cost 7-12 % of the ATE (`relative/window/camera_imu.rs`).
     pub camera_imu_hold_until_tested: bool,
-    /// Let the held keyframes' body poses follow the refined calibration,
-    /// their cameras staying where their images put them
-    /// (`relative/window/held_cameras.rs`). Held body poses tie the
-    /// calibration to the value they were held at: after a start in
-    /// flight with a wrong file the rotation and time offset stalled
-    /// short of the truth. On, they converge (and a freed lever arm with
-    /// them), but on renderings whose IMU disagrees with the images'
-    /// ground truth the calibration absorbs that disagreement and starts
-    /// from rest lose accuracy (docs/results/held-cameras-2026-12-06.md).
-    pub camera_imu_held_keyframes_follow: bool,
+    /// When the held keyframes' body poses follow the refined
+    /// calibration, their cameras staying where their images put them
+    /// (`relative/window/held_cameras.rs`): "in-flight" (after a start in
+    /// motion; the default), "on" or "off". Held body poses tie the calibration to the
+    /// value they were held at: after a start in flight with a wrong file
+    /// the rotation and time offset stalled short of the truth. From
+    /// rest the calibration converges before the held keyframes turn,
+    /// and following there lets it take up the renderings' disagreement
+    /// between truth and IMU (docs/results/held-cameras-2026-12-06.md).
+    pub camera_imu_held_keyframes_follow: HeldKeyframesFollow,
     /// Turn the poses so that the estimated gravity points along -z
     /// (`relative/level.rs`): an odometry frame with z up. The window's
     /// own world is levelled by the first guess of gravity, made before
@@ -233,7 +235,7 @@ impl Default for RelativeConfig {
             camera_imu_stereo_rotation_sigma_deg: 0.2,
             camera_imu_carry_weight: 0.9,
             camera_imu_hold_until_tested: true,
-            camera_imu_held_keyframes_follow: false,
+            camera_imu_held_keyframes_follow: HeldKeyframesFollow::InFlight,
             level_poses: true,
             level_time_constant_s: 20.0,
         }

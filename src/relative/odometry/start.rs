@@ -485,6 +485,7 @@ impl WindowOdometry {
                 ALIGNMENT_GYRO_BIAS_SIGMA_INFLATION * a.gyro_bias_sigma_rad_s.max(),
             );
         }
+        self.window.start_in_motion();
         self.apply_resume();
         let window = &mut self.window;
         let counters = &mut self.counters;

@@ -114,11 +114,11 @@ pub struct CameraImuRefinementConfig {
     /// shows the file wrong (module doc) [true]; false refines from the
     /// first solve.
     pub hold_until_tested: bool,
-    /// Held keyframes keep their cameras and their body states follow
-    /// the calibration ([`super::held_cameras`]) [false]; false holds
-    /// their body states, which ties the calibration to the value they
-    /// were held at.
-    pub held_keyframes_follow: bool,
+    /// When held keyframes keep their cameras and their body states
+    /// follow the calibration ([`super::held_cameras`]) [after a start in
+    /// flight]; otherwise their body states are held, which ties the
+    /// calibration to the value they were held at.
+    pub held_keyframes_follow: HeldKeyframesFollow,
     /// The estimate is reported as far from the file (status warning)
     /// beyond: rotation deg [0.5], translation m [0.01], time offset s
     /// [0.003]; a Kalibr calibration of a rigid rig is good to a tenth of
@@ -140,7 +140,7 @@ impl Default for CameraImuRefinementConfig {
             stereo_rotation_sigma_deg: 0.2,
             carry_weight: 0.9,
             hold_until_tested: true,
-            held_keyframes_follow: false,
+            held_keyframes_follow: HeldKeyframesFollow::InFlight,
             warn_rotation_deg: 0.5,
             warn_translation_m: 0.01,
             warn_time_offset_s: 0.003,
@@ -209,6 +209,24 @@ pub struct CameraImuEstimate {
     pub solves: u64,
     /// Still held at the file: no solve's data have shown it wrong yet.
     pub held_at_file: bool,
+}
+
+/// When the window's held keyframes follow the refined calibration
+/// ([`super::held_cameras`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum HeldKeyframesFollow {
+    /// After a start in flight (a visual-inertial alignment in motion):
+    /// there the held keyframes were fixed with a calibration the data had
+    /// not yet tested, and they hold it back. After a start from rest the
+    /// block is released while the held keyframes are still at rest,
+    /// where a held body pose moves every camera alike and ties nothing,
+    /// and it converges before they turn.
+    InFlight,
+    /// Always.
+    On,
+    /// Never: held keyframes keep their body poses.
+    Off,
 }
 
 /// How much tighter than the configured sigmas the file's prior holds the
@@ -334,6 +352,8 @@ pub struct CameraImuState {
     held: bool,
     /// Solves in a row, up to the last, whose test exceeded its threshold.
     over_threshold: u32,
+    /// Held keyframes follow the calibration now.
+    held_follow: bool,
 }
 
 /// The calibration's values: camera 0 in the body, the time offset,
@@ -391,6 +411,7 @@ impl CameraImuState {
             beyond_solves: 0,
             held: config.hold_until_tested,
             over_threshold: 0,
+            held_follow: config.held_keyframes_follow == HeldKeyframesFollow::On,
         }
     }
 
@@ -437,6 +458,21 @@ impl CameraImuState {
         if let Some(t) = self.T_cam0_cam.get_mut(1) {
             t.rotation = v.R_cam0_cam1;
         }
+    }
+
+    /// The window started in flight (a visual-inertial alignment in
+    /// motion): held keyframes follow the calibration from now on unless
+    /// the configuration says never.
+    pub fn start_in_motion(&mut self) {
+        if self.config.held_keyframes_follow != HeldKeyframesFollow::Off {
+            self.held_follow = true;
+        }
+    }
+
+    /// Whether held keyframes follow the calibration now
+    /// ([`super::held_cameras`]).
+    pub fn held_keyframes_follow(&self) -> bool {
+        self.held_follow
     }
 
     /// Gives `cameras` (the rig's, in order) the current estimate.
@@ -757,6 +793,31 @@ mod tests {
                 "{dof} dof: {q} against {table}"
             );
         }
+    }
+
+    /// "in-flight": held keyframes follow the calibration once the
+    /// window says it started in motion; "on" from the start; "off" never.
+    #[test]
+    fn held_keyframes_follow_after_a_start_in_flight_by_default() {
+        let cams = [RigCamera::new(euroc_cam0()), RigCamera::new(euroc_cam1())];
+        for (setting, before, after) in [
+            (HeldKeyframesFollow::InFlight, false, true),
+            (HeldKeyframesFollow::On, true, true),
+            (HeldKeyframesFollow::Off, false, false),
+        ] {
+            let config = CameraImuRefinementConfig {
+                held_keyframes_follow: setting,
+                ..CameraImuRefinementConfig::default()
+            };
+            let mut state = CameraImuState::new(config, &cams);
+            assert_eq!(state.held_keyframes_follow(), before, "{setting:?}");
+            state.start_in_motion();
+            assert_eq!(state.held_keyframes_follow(), after, "{setting:?}");
+        }
+        assert_eq!(
+            CameraImuRefinementConfig::default().held_keyframes_follow,
+            HeldKeyframesFollow::InFlight
+        );
     }
 
     /// Held at the file until TEST_SOLVES solves in a row test it wrong;

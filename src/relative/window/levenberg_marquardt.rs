@@ -348,7 +348,7 @@ impl Window {
         }
         let mut cost = 0.0;
         let calib = p.calib_offset.and(self.camera_imu.as_ref());
-        let follow = calib.is_some_and(|c| c.config().held_keyframes_follow);
+        let follow = calib.is_some_and(|c| c.held_keyframes_follow());
         for row in p.rows.iter_mut() {
             let kf = &keyframes[row.kf];
             let obs = &kf.observations[row.obs_index];
@@ -688,7 +688,7 @@ impl Window {
             let from = held_cameras::Mount::of(c);
             c.apply(&delta[oc..oc + CALIB_DIM]);
             c.place(&mut self.cameras);
-            if c.config().held_keyframes_follow {
+            if c.held_keyframes_follow() {
                 mounts = Some((from, held_cameras::Mount::of(c)));
             }
         }

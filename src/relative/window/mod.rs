@@ -54,7 +54,7 @@ use std::collections::{HashMap, HashSet, VecDeque};
 
 use nalgebra::{DMatrix, Isometry3, Matrix3x2, Matrix6, Vector3};
 
-pub use camera_imu::{CameraImuEstimate, CameraImuRefinementConfig};
+pub use camera_imu::{CameraImuEstimate, CameraImuRefinementConfig, HeldKeyframesFollow};
 pub use config::{WindowConfig, WindowError};
 pub use frame_pose::FramePose;
 pub use landmark_consistency::LandmarkTest;
@@ -542,6 +542,14 @@ impl Window {
         Ok(())
     }
 
+    /// The window starts in flight (a visual-inertial alignment in
+    /// motion): see [`HeldKeyframesFollow::InFlight`].
+    pub fn start_in_motion(&mut self) {
+        if let Some(c) = self.camera_imu.as_mut() {
+            c.start_in_motion();
+        }
+    }
+
     /// The gyroscope bias sigma of the boundary prior until a solve gives
     /// its marginal (after [`Self::set_states`]; the configured
     /// `gyro_bias_prior_sigma_rad_s` otherwise), rad/s: what the states'
@@ -896,7 +904,7 @@ impl Window {
         let following = self
             .camera_imu
             .as_ref()
-            .filter(|c| c.config().held_keyframes_follow);
+            .filter(|c| c.held_keyframes_follow());
         let calibration = match (following, p.calib_offset) {
             (Some(c), Some(oc)) => {
                 cols.extend(

@@ -314,7 +314,11 @@ fn gradient_check(refine: bool, follow: bool) {
     let scene = Scene::new(&mut r, 200, 4.0);
     let mut cfg = config(true);
     cfg.camera_imu.enabled = refine;
-    cfg.camera_imu.held_keyframes_follow = follow;
+    cfg.camera_imu.held_keyframes_follow = if follow {
+        HeldKeyframesFollow::On
+    } else {
+        HeldKeyframesFollow::Off
+    };
     let held = if refine { 3 } else { 1 };
     cfg.keyframes_free = 4;
     let mut w = filled_window(&scene, cfg, 4 + held, 1, true, 0.5, 0.0, &mut r);
