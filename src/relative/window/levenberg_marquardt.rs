@@ -477,6 +477,28 @@ impl Window {
                         &p.gravity_basis,
                     );
                     cost += 0.5 * r.norm_squared();
+                    let chunks = [
+                        Chunk {
+                            col: 0,
+                            len: VEL,
+                            offset: offset(pos - 1),
+                        },
+                        Chunk {
+                            col: VEL,
+                            len: BOUNDARY_DIM,
+                            offset: rest(pos - 1),
+                        },
+                        Chunk {
+                            col: FULL_DIM,
+                            len: FULL_DIM,
+                            offset: offset(pos),
+                        },
+                        Chunk {
+                            col: GRAVITY_COL,
+                            len: 2,
+                            offset: p.gravity_offset,
+                        },
+                    ];
                     let boundary_calibration = match (follow && pos == nf, calib, p.calib_offset) {
                         (true, Some(c), Some(oc)) => Some((c, oc)),
                         _ => None,
@@ -496,59 +518,19 @@ impl Window {
                                 &ki.omega_body_rad_s,
                                 &held_cameras::Mount::of(c),
                             ));
+                        let calibration = Chunk {
+                            col: INERTIAL_COLS,
+                            len: CALIB_DIM,
+                            offset: Some(oc),
+                        };
+                        let [first, boundary, second, gravity] = chunks;
                         p.eq.add_factor(
                             &r,
                             &joined,
-                            &[
-                                Chunk {
-                                    col: VEL,
-                                    len: BOUNDARY_DIM,
-                                    offset: rest(pos - 1),
-                                },
-                                Chunk {
-                                    col: FULL_DIM,
-                                    len: FULL_DIM,
-                                    offset: offset(pos),
-                                },
-                                Chunk {
-                                    col: GRAVITY_COL,
-                                    len: 2,
-                                    offset: p.gravity_offset,
-                                },
-                                Chunk {
-                                    col: INERTIAL_COLS,
-                                    len: CALIB_DIM,
-                                    offset: Some(oc),
-                                },
-                            ],
+                            &[first, boundary, second, gravity, calibration],
                         );
                     } else if build {
-                        p.eq.add_factor(
-                            &r,
-                            &j,
-                            &[
-                                Chunk {
-                                    col: 0,
-                                    len: VEL,
-                                    offset: offset(pos - 1),
-                                },
-                                Chunk {
-                                    col: VEL,
-                                    len: BOUNDARY_DIM,
-                                    offset: rest(pos - 1),
-                                },
-                                Chunk {
-                                    col: FULL_DIM,
-                                    len: FULL_DIM,
-                                    offset: offset(pos),
-                                },
-                                Chunk {
-                                    col: GRAVITY_COL,
-                                    len: 2,
-                                    offset: p.gravity_offset,
-                                },
-                            ],
-                        );
+                        p.eq.add_factor(&r, &j, &chunks);
                     }
                 }
                 if let Some(declared) = &kj.bias_walk_sqrt_info {
