@@ -32,7 +32,8 @@ use rand_chacha::ChaCha8Rng;
 use super::map_file::SavedMap;
 use super::position_filter::{LandmarkFix, PositionFilter};
 use super::recognition::{
-    consistent_recognitions, recognise_tracks, FramePlacement, LandmarkIndex, RecognitionConfig,
+    consistent_recognitions, recognise_tracks, ConsensusGate, FramePlacement, LandmarkIndex,
+    RecognitionConfig,
 };
 use super::window_share::WindowShares;
 use crate::eval::align::umeyama;
@@ -689,6 +690,7 @@ impl MapLocaliser {
             found,
             &self.config.recognition,
             self.config.landmark_covariance_scale,
+            ConsensusGate::LargestSigma,
         );
         self.stats.inconsistent_recognitions += inconsistent;
         self.stats.recognised += found.len();

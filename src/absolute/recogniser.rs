@@ -12,7 +12,8 @@ use nalgebra::Vector3;
 
 use super::landmark_registry::LandmarkRegistry;
 use super::recognition::{
-    consistent_recognitions, recognise_tracks, FramePlacement, LandmarkIndex, RecognitionConfig,
+    consistent_recognitions, recognise_tracks, ConsensusGate, FramePlacement, LandmarkIndex,
+    RecognitionConfig,
 };
 use crate::features::matching::hamming;
 use crate::relative::types::{LandmarkId, RelativeOutput};
@@ -110,6 +111,7 @@ impl Recogniser {
             found,
             config,
             1.0,
+            ConsensusGate::TrackAxes,
         );
         counts.inconsistent = inconsistent;
         let mut pending = HashMap::with_capacity(found.len());

@@ -107,8 +107,9 @@ pub struct AbsoluteSettings {
     /// standard deviation, m, after landmark_covariance_scale; 0: any).
     pub recognition_confirm_max_sigma_m: f64,
     /// A recognition must put the robot within this distance (m, plus
-    /// three of the track's standard deviations) of where the frame's
-    /// landmarks already in the map put it.
+    /// three of the track's standard deviations: along each of its axes
+    /// for the map's recognitions, its largest for the localiser's) of
+    /// where the frame's landmarks already in the map put it.
     pub recognition_consensus_gate_m: f64,
     /// A new track that looks like a map landmark near where it is waits
     /// this many frames for its recognition before it becomes a new
