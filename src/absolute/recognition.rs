@@ -660,16 +660,19 @@ mod tests {
         let config = RecognitionConfig::default();
         let largest_gate = (config.consensus_gate_m.powi(2) + 9.0 * 0.1f64.powi(2)).sqrt();
         assert!(0.2 < largest_gate, "the old gate would have kept both");
-        let (kept, dropped) = consistent_recognitions(
-            &index,
-            &landmarks,
-            &Matrix3::identity(),
-            known,
-            vec![(20, 7), (21, 8)],
-            &config,
-            1.0,
-            ConsensusGate::TrackAxes,
-        );
+        let judge = |landmarks: &[BodyLandmark], rotation: &Matrix3<f64>, gate| {
+            consistent_recognitions(
+                &index,
+                landmarks,
+                rotation,
+                known,
+                vec![(20, 7), (21, 8)],
+                &config,
+                1.0,
+                gate,
+            )
+        };
+        let (kept, dropped) = judge(&landmarks, &Matrix3::identity(), ConsensusGate::TrackAxes);
         assert_eq!((kept, dropped), (vec![(20, 7)], 1));
         // The body covariance is turned into the map: the same robot turned
         // a quarter turn about z sees the ray along the map's x, so the
@@ -686,28 +689,10 @@ mod tests {
             turn.transpose() * (at(7) + Vector3::new(0.2, 0.0, 0.0) - robot);
         landmarks[7].position_body_m =
             turn.transpose() * (at(8) + Vector3::new(0.0, 0.2, 0.0) - robot);
-        let (kept, dropped) = consistent_recognitions(
-            &index,
-            &landmarks,
-            &turn,
-            known,
-            vec![(20, 7), (21, 8)],
-            &config,
-            1.0,
-            ConsensusGate::TrackAxes,
-        );
+        let (kept, dropped) = judge(&landmarks, &turn, ConsensusGate::TrackAxes);
         assert_eq!((kept, dropped), (vec![(20, 7)], 1));
         // The largest sigma in any direction (the localiser's gate) keeps both.
-        let (kept, dropped) = consistent_recognitions(
-            &index,
-            &landmarks,
-            &turn,
-            known,
-            vec![(20, 7), (21, 8)],
-            &config,
-            1.0,
-            ConsensusGate::LargestSigma,
-        );
+        let (kept, dropped) = judge(&landmarks, &turn, ConsensusGate::LargestSigma);
         assert_eq!((kept.len(), dropped), (2, 0));
     }
 
