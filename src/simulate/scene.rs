@@ -8,7 +8,7 @@ use rand_chacha::ChaCha8Rng;
 use super::texture::Texture;
 
 /// An axis-aligned box, world frame, metres.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Aabb {
     /// Lower corner, m.
     pub min_m: [f32; 3],
@@ -36,6 +36,18 @@ impl Aabb {
     pub fn contains(&self, p: [f32; 3]) -> bool {
         (0..3).all(|a| self.min_m[a] < p[a] && p[a] < self.max_m[a])
     }
+}
+
+/// The surfaces of a scene without their textures: what `scene.json` of
+/// a rendered dataset holds, so that an evaluation can check estimated
+/// landmarks and maps against the surfaces they lie on (world frame of the
+/// ground truth, m).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SceneGeometry {
+    /// The room; its inside faces are surfaces.
+    pub room: Aabb,
+    /// The boxes standing in it; their outside faces are surfaces.
+    pub boxes: Vec<Aabb>,
 }
 
 /// How to build a scene.
@@ -156,6 +168,14 @@ impl Scene {
             room,
             boxes,
             surfaces,
+        }
+    }
+
+    /// Its surfaces without the textures.
+    pub fn geometry(&self) -> SceneGeometry {
+        SceneGeometry {
+            room: self.room,
+            boxes: self.boxes.clone(),
         }
     }
 

@@ -420,6 +420,20 @@ fn imu_stream(
     }
 }
 
+/// The file beside `mav0/` that holds the rendered scene's surfaces.
+pub const SCENE_FILE: &str = "scene.json";
+
+/// Writes `scene`'s surfaces to [`SCENE_FILE`] under `out`, atomically.
+fn write_scene_geometry(scene: &Scene, out: &Path) -> Result<(), SimError> {
+    let path = out.join(SCENE_FILE);
+    let mut text = serde_json::to_string_pretty(&scene.geometry())
+        .map_err(|e| DatasetError::io(&path, std::io::Error::other(e)))?;
+    text.push('\n');
+    crate::text_file::write_atomically(&path, text.as_bytes())
+        .map_err(|e| DatasetError::io(&path, e))?;
+    Ok(())
+}
+
 /// CPU time of the calling thread, s, from `/proc/thread-self/schedstat`
 /// (its first field is ns on CPU); `None` where that file does not exist.
 fn thread_cpu_s() -> Option<f64> {
@@ -547,6 +561,7 @@ pub fn simulate(config: &SimConfig, out: &Path) -> Result<SimReport, SimError> {
     writer.write_imu(&imu_calib, &samples)?;
     writer.write_groundtruth(&groundtruth)?;
     writer.finish()?;
+    write_scene_geometry(&scene, out)?;
 
     let images = frames * cams.len();
     let size = |a: usize| (room.max_m[a] - room.min_m[a]) as f64;
@@ -635,6 +650,23 @@ mod tests {
         assert_eq!(imu.calibration.noise, ImuNoise::EUROC_ADIS16448);
         let gt = ds.groundtruth.expect("ground truth written");
         assert_eq!(gt.len(), 401);
+        // The scene's surfaces, in the ground truth's frame: the rig flies
+        // inside the room and at least the keep-clear margin from every box.
+        let text = std::fs::read_to_string(dir.path().join(SCENE_FILE)).unwrap();
+        let geometry: super::super::scene::SceneGeometry = serde_json::from_str(&text).unwrap();
+        assert_eq!(geometry.boxes.len(), report.boxes);
+        for a in 0..3 {
+            let size = (geometry.room.max_m[a] - geometry.room.min_m[a]) as f64;
+            assert!((size - report.room_size_m[a]).abs() < 1e-6);
+        }
+        for g in &gt {
+            let p = g.T_world_body.translation.vector;
+            let p = [p.x as f32, p.y as f32, p.z as f32];
+            assert!(geometry.room.contains(p), "{p:?} outside the room");
+            for b in &geometry.boxes {
+                assert!(!b.expanded(0.4).contains(p), "{p:?} within 0.4 m of {b:?}");
+            }
+        }
         // Ground truth is the motion the images were rendered along.
         let motion = Motion::Builtin(BuiltinMotion::standard(BUILTIN_START_NS, 2.0));
         for g in gt.iter().step_by(37) {

@@ -8,7 +8,10 @@ use rigslam::simulate::{simulate, ImuSource, SimConfig, SplineConfig};
 
 #[derive(clap::Args)]
 pub struct SimulateArgs {
-    /// Output folder; `mav0/` is written inside it.
+    /// Output folder; `mav0/` is written inside it, and `scene.json` beside
+    /// it (the room and boxes in the ground truth's frame, for checking
+    /// landmarks and maps against their surfaces:
+    /// `bench/accuracy/landmark_truth.py`).
     #[arg(long)]
     out: PathBuf,
     /// Ground truth to follow (EuRoC state_groundtruth csv or TUM); the
