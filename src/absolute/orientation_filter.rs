@@ -29,6 +29,8 @@
 
 use nalgebra::{DMatrix, Matrix3, UnitQuaternion, Vector3};
 
+use super::position_filter::LandmarkFix;
+
 /// Fewer landmarks than this do not correct the orientation: a few
 /// directions pin a rotation poorly, and one wrong recognition among them
 /// would turn the robot.
@@ -88,6 +90,15 @@ impl OrientationFilter {
         }
     }
 
+    /// An offset of identity known to `covariance_rad2` (a fit's
+    /// uncertainty) that wanders by `sigma_rad_per_sqrt_s` rad per √s.
+    pub fn starting_at(sigma_rad_per_sqrt_s: f64, covariance_rad2: Matrix3<f64>) -> Self {
+        Self {
+            covariance_rad2,
+            ..Self::new(sigma_rad_per_sqrt_s)
+        }
+    }
+
     /// `R_o`: turns the relative stage's world frame into the map's.
     pub fn offset(&self) -> UnitQuaternion<f64> {
         self.offset
@@ -143,6 +154,45 @@ impl OrientationFilter {
         self.offset = UnitQuaternion::from_scaled_axis(step) * self.offset;
         self.covariance_rad2 = posterior;
         OrientationUpdate::Applied(step)
+    }
+}
+
+impl OrientationFilter {
+    /// The correction with the landmarks of a position correction
+    /// (`fixes`, the robot at `position_m`): their residual covariance is
+    /// each offset's covariance plus `map_covariance_m2`, the map's joint
+    /// covariance of the landmarks (3m x 3m). When applied, the fixes'
+    /// offsets and their covariances are turned with the offset, ready for
+    /// the position's correction.
+    pub fn correct_with(
+        &mut self,
+        fixes: &mut [LandmarkFix],
+        map_covariance_m2: &DMatrix<f64>,
+        position_m: &Vector3<f64>,
+    ) -> OrientationUpdate {
+        let directions: Vec<DirectionFix> = fixes
+            .iter()
+            .map(|f| DirectionFix {
+                landmark_from_robot_m: f.landmark_world_m - position_m,
+                offset_world_m: f.offset_world_m,
+            })
+            .collect();
+        let mut noise = map_covariance_m2.clone();
+        for (k, fix) in fixes.iter().enumerate() {
+            let mut block = noise.fixed_view_mut::<3, 3>(3 * k, 3 * k);
+            block += fix.offset_covariance_m2;
+        }
+        let update = self.correct(&directions, &noise);
+        if let OrientationUpdate::Applied(step) = update {
+            let turn = *UnitQuaternion::from_scaled_axis(step)
+                .to_rotation_matrix()
+                .matrix();
+            for fix in fixes.iter_mut() {
+                fix.offset_world_m = turn * fix.offset_world_m;
+                fix.offset_covariance_m2 = turn * fix.offset_covariance_m2 * turn.transpose();
+            }
+        }
+        update
     }
 }
 

@@ -147,7 +147,8 @@ pub struct AbsoluteSettings {
     /// Correct the orientation as well as the position: the map's
     /// landmarks estimate an offset of the relative stage's orientation
     /// that wanders by this much, rad per sqrt(s) (0: the paper's filter,
-    /// which takes the relative stage's orientation as exact).
+    /// which takes the relative stage's orientation as exact). Localising
+    /// in a saved map (`--load-map`) corrects its heading the same way.
     pub orientation_sigma_rad_per_sqrt_s: f64,
     /// Estimate the scale of the map over the relative stage's window (a
     /// monocular window's scale wanders), letting it wander by this much
@@ -515,6 +516,7 @@ impl AbsoluteSettings {
             translation_sigma_per_sqrt_m: stage.translation_sigma_per_sqrt_m,
             max_correction_landmarks: stage.max_correction_landmarks,
             landmark_covariance_scale: stage.landmark_covariance_scale,
+            orientation_sigma_rad_per_sqrt_s: stage.orientation_sigma_rad_per_sqrt_s,
             ..LocaliseConfig::default()
         })
     }

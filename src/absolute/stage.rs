@@ -71,7 +71,7 @@ pub use super::solve_schedule::SolveMode;
 use super::map_builder::MapBuilder;
 use super::map_cross_covariance::MapCrossCovariance;
 use super::map_worker::{MapSolveRequest, MapSolveWorker, SolvedMap};
-use super::orientation_filter::{DirectionFix, OrientationFilter, OrientationUpdate};
+use super::orientation_filter::{OrientationFilter, OrientationUpdate};
 use super::position_filter::{LandmarkFix, PositionFilter};
 use super::recogniser::Recogniser;
 use super::recognition::FramePlacement;
@@ -924,16 +924,12 @@ impl AbsoluteStage {
             });
         }
         if let Some(orientation) = self.orientation.as_mut() {
-            match correct_orientation(orientation, &fixes, &covariance, filter) {
+            let position = filter.position_world_m();
+            match orientation.correct_with(&mut fixes, &covariance, &position) {
                 OrientationUpdate::Applied(step) => {
                     let turn = *UnitQuaternion::from_scaled_axis(step)
                         .to_rotation_matrix()
                         .matrix();
-                    for fix in &mut fixes {
-                        fix.offset_world_m = turn * fix.offset_world_m;
-                        fix.offset_covariance_m2 =
-                            turn * fix.offset_covariance_m2 * turn.transpose();
-                    }
                     *rotation = turn * *rotation;
                     self.stats.orientation_corrections += 1;
                 }
@@ -971,31 +967,6 @@ impl AbsoluteStage {
             }
         }
     }
-}
-
-/// The orientation offset's correction with the position correction's
-/// landmarks: their residual covariance is each offset's covariance plus
-/// the map's joint covariance of the landmarks.
-fn correct_orientation(
-    orientation: &mut OrientationFilter,
-    fixes: &[LandmarkFix],
-    map_covariance_m2: &DMatrix<f64>,
-    filter: &PositionFilter,
-) -> OrientationUpdate {
-    let x = filter.position_world_m();
-    let directions: Vec<DirectionFix> = fixes
-        .iter()
-        .map(|f| DirectionFix {
-            landmark_from_robot_m: f.landmark_world_m - x,
-            offset_world_m: f.offset_world_m,
-        })
-        .collect();
-    let mut noise = map_covariance_m2.clone();
-    for (k, fix) in fixes.iter().enumerate() {
-        let mut block = noise.fixed_view_mut::<3, 3>(3 * k, 3 * k);
-        block += fix.offset_covariance_m2;
-    }
-    orientation.correct(&directions, &noise)
 }
 
 /// The solve computes covariance blocks for this many times the landmarks
