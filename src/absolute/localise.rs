@@ -227,7 +227,10 @@ pub struct LocalisedPose {
     pub t_ns: i64,
     /// Body (IMU) pose in the map frame: maps body coordinates into the map frame.
     pub T_map_body: Isometry3<f64>,
-    /// Covariance of the body position in the map frame, m^2.
+    /// Covariance of the body position in the map frame, m^2: the
+    /// filter's (how well the robot is placed among the landmarks it
+    /// re-uses every frame) plus the map's own error at those landmarks
+    /// (see `Localised::map_error_m2`).
     pub position_covariance_m2: Matrix3<f64>,
     /// Map landmarks used by this frame's correction.
     pub landmarks_used: usize,
@@ -272,6 +275,16 @@ struct Localised {
     /// refit) until a new fit is confirmed, so the map-frame pose does
     /// not fall back to the relative stage's frame and jump.
     held: bool,
+    /// The map's own error where the robot is: the mean saved covariance
+    /// of the landmarks of the last correction (or of the fit). The filter
+    /// corrects with the same landmarks frame after frame as if their
+    /// errors were new each time, so its covariance says how well the
+    /// robot is placed among them, not where they are; and neighbouring
+    /// landmarks of a map err together (its drift), so their mean
+    /// covariance, not its share among them, is added to what is
+    /// published. Measured on the lap rooms: map-frame NEES per dof
+    /// 100-2 700 without it, median 0.5-1.4 with it (inertial modes).
+    map_error_m2: Matrix3<f64>,
 }
 
 /// Localises the relative stage's output in a saved map.
@@ -354,7 +367,7 @@ impl MapLocaliser {
                 Translation3::from(state.filter.position_world_m() + delta),
                 state.T_map_world.rotation * output.T_world_body.rotation,
             ),
-            position_covariance_m2: state.filter.published_covariance_m2() + q,
+            position_covariance_m2: state.filter.published_covariance_m2() + q + state.map_error_m2,
             landmarks_used: 0,
             carried: state.held,
         })
@@ -424,7 +437,7 @@ impl MapLocaliser {
                 Translation3::from(state.filter.position_world_m()),
                 rotation,
             ),
-            position_covariance_m2: state.filter.published_covariance_m2(),
+            position_covariance_m2: state.filter.published_covariance_m2() + state.map_error_m2,
             landmarks_used: used,
             carried: state.held,
         })
@@ -510,6 +523,11 @@ impl MapLocaliser {
                 )
             }),
             held: false,
+            map_error_m2: mean_of(
+                fit.inliers
+                    .iter()
+                    .map(|&(_, m)| self.covariances_m2[m as usize]),
+            ),
         });
         self.stats.relocalisations += 1;
     }
@@ -901,6 +919,11 @@ impl MapLocaliser {
                 );
             }
         }
+        state.map_error_m2 = mean_of(
+            fixes
+                .iter()
+                .map(|f| self.covariances_m2[f.landmark as usize]),
+        );
         match state.filter.correct(&fixes, &covariance, None) {
             Ok(report) => {
                 for (fix, &support) in fixes.iter().zip(&supports) {
@@ -914,6 +937,16 @@ impl MapLocaliser {
                 0
             }
         }
+    }
+}
+
+/// The mean of `covariances` (zero when there are none).
+fn mean_of(covariances: impl Iterator<Item = Matrix3<f64>>) -> Matrix3<f64> {
+    let (sum, n) = covariances.fold((Matrix3::zeros(), 0usize), |(s, n), c| (s + c, n + 1));
+    if n == 0 {
+        sum
+    } else {
+        sum / n as f64
     }
 }
 

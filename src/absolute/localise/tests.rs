@@ -659,3 +659,47 @@ fn a_heading_fitted_to_wandering_depths_is_corrected_by_the_landmarks_directions
         "heading corrected {corrected:.3} m against fitted only {fitted:.3} m"
     );
 }
+
+#[test]
+fn the_published_covariance_carries_the_maps_own_error() {
+    // Localised frame after frame with the same map landmarks, the filter
+    // alone grows ever surer of a position whose error is the map's own
+    // error there, which no re-use averages away. The published
+    // covariance adds the landmarks' mean saved covariance: the errors
+    // against the truth are then about as large as it says.
+    let first = simulate_room_run(&room(None, 2.0));
+    let (map, map_to_truth) = saved_map(&first);
+    let second = simulate_room_run(&room(Some(99), 1.0));
+    let outputs = moved(&second, &offset());
+    let mut localiser = MapLocaliser::new(&map, LocaliseConfig::default());
+    let turn = *map_to_truth.rotation.to_rotation_matrix().matrix();
+    let (mut nees, mut frames) = (0.0, 0usize);
+    let mut smallest_trace_ratio = f64::INFINITY;
+    for (k, (output, truth)) in outputs.iter().zip(&second.truth_position_m).enumerate() {
+        let Some(pose) = localiser.push(output) else {
+            continue;
+        };
+        if k < 20 {
+            continue;
+        }
+        let error = (map_to_truth * nalgebra::Point3::from(pose.T_map_body.translation.vector))
+            .coords
+            - truth;
+        let covariance = turn * pose.position_covariance_m2 * turn.transpose();
+        let inverse = covariance.try_inverse().expect("a positive covariance");
+        nees += error.dot(&(inverse * error)) / 3.0;
+        frames += 1;
+        let state = localiser.state.as_ref().expect("localised");
+        smallest_trace_ratio = smallest_trace_ratio.min(
+            pose.position_covariance_m2.trace() / state.filter.published_covariance_m2().trace(),
+        );
+    }
+    let nees = nees / frames.max(1) as f64;
+    eprintln!("map-frame NEES per dof {nees:.2} over {frames} frames; published / filter trace at least {smallest_trace_ratio:.2}");
+    assert!(frames > outputs.len() / 2, "{frames} frames");
+    assert!(smallest_trace_ratio > 1.0, "{smallest_trace_ratio}");
+    assert!(
+        (0.1..3.0).contains(&nees),
+        "map-frame NEES per dof {nees:.2}"
+    );
+}
