@@ -653,7 +653,7 @@ mod tests {
         // The scene's surfaces, in the ground truth's frame: the rig flies
         // inside the room and at least the keep-clear margin from every box.
         let text = std::fs::read_to_string(dir.path().join(SCENE_FILE)).unwrap();
-        let geometry: super::super::scene::SceneGeometry = serde_json::from_str(&text).unwrap();
+        let geometry: crate::simulate::scene::SceneGeometry = serde_json::from_str(&text).unwrap();
         assert_eq!(geometry.boxes.len(), report.boxes);
         for a in 0..3 {
             let size = (geometry.room.max_m[a] - geometry.room.min_m[a]) as f64;

@@ -45,6 +45,14 @@ fn saved_map(run: &RoomRun) -> (SavedMap, Isometry3<f64>) {
     (SavedMap::read(&path).expect("read back"), map_to_truth)
 }
 
+/// The map of a two-lap first drive through the room and its transform
+/// to the truth ([`saved_map`]), made once and shared by the tests.
+fn two_lap_map() -> (SavedMap, Isometry3<f64>) {
+    static MAP: std::sync::OnceLock<(SavedMap, Isometry3<f64>)> = std::sync::OnceLock::new();
+    MAP.get_or_init(|| saved_map(&simulate_room_run(&room(None, 2.0))))
+        .clone()
+}
+
 /// The drive with its relative-world frame moved by `offset`, as a second
 /// session's relative stage would start in a frame of its own.
 fn moved(run: &RoomRun, offset: &Isometry3<f64>) -> Vec<RelativeOutput> {
@@ -123,8 +131,7 @@ fn rigid_fit_recovers_a_known_transform() {
 
 #[test]
 fn a_second_drive_localises_in_the_first_drives_map() {
-    let first = simulate_room_run(&room(None, 2.0));
-    let (map, map_to_truth) = saved_map(&first);
+    let (map, map_to_truth) = two_lap_map();
     assert!(
         map.landmarks.len() > 150,
         "{} landmarks",
@@ -238,8 +245,7 @@ fn the_tilt_gate_keeps_turns_about_gravity_and_rejects_tilts() {
     // The same drive with its world turned 40 deg about z localises with
     // the gate on; turned 40 deg about x (a tilted hypothesis) it must
     // not, and does without the gate.
-    let first = simulate_room_run(&room(None, 2.0));
-    let (map, _) = saved_map(&first);
+    let (map, _) = two_lap_map();
     let second = simulate_room_run(&room(Some(99), 0.5));
     let tilted = Isometry3::from_parts(
         Translation3::new(3.0, -2.0, 0.5),
@@ -327,8 +333,7 @@ fn a_second_drive_with_its_own_scale_localises_with_a_similarity() {
     // scale. Rigid, the transform leaves that to the corrections and the
     // refits; with `fit_scale` the localiser finds the scale and the
     // track is as good as an unscaled drive's.
-    let first = simulate_room_run(&room(None, 2.0));
-    let (map, map_to_truth) = saved_map(&first);
+    let (map, map_to_truth) = two_lap_map();
     let second = simulate_room_run(&room(Some(99), 1.0));
     let outputs = scaled(&second, 1.04, &offset());
     let run = |config: LocaliseConfig| {
@@ -394,8 +399,7 @@ fn a_track_the_map_disagrees_with_everywhere_is_relocalised() {
     // from then on every recognised landmark fails the gate, the
     // localisation is dropped after `drop_after_rejected_frames`, and the
     // next relocalisation places the robot right again.
-    let first = simulate_room_run(&room(None, 2.0));
-    let (map, map_to_truth) = saved_map(&first);
+    let (map, map_to_truth) = two_lap_map();
     let second = simulate_room_run(&room(Some(99), 1.0));
     let before = moved(&second, &offset());
     let jump = Isometry3::from_parts(
@@ -493,8 +497,7 @@ fn a_second_opinion_replaces_a_transform_the_matches_no_longer_support() {
     // here: what must notice is the second opinion, a fit from descriptor
     // matches alone that explains many more of them than the transform in
     // use.
-    let first = simulate_room_run(&room(None, 2.0));
-    let (map, map_to_truth) = saved_map(&first);
+    let (map, map_to_truth) = two_lap_map();
     let second = simulate_room_run(&room(Some(99), 1.0));
     let jump = Isometry3::from_parts(
         Translation3::new(1.5, 0.0, 0.0),
@@ -544,8 +547,7 @@ fn a_fit_later_frames_do_not_confirm_is_not_taken() {
     // transform stays (the drop and the second opinion are off here);
     // waiting for a fit from a later frame to confirm it, the localiser
     // takes the right one.
-    let first = simulate_room_run(&room(None, 2.0));
-    let (map, map_to_truth) = saved_map(&first);
+    let (map, map_to_truth) = two_lap_map();
     let second = simulate_room_run(&room(Some(99), 1.0));
     let wrong = Isometry3::from_parts(
         Translation3::new(0.6, 0.0, 0.0),
@@ -617,8 +619,7 @@ fn a_heading_fitted_to_wandering_depths_is_corrected_by_the_landmarks_directions
     // the landmarks' positions takes a heading from their depths, and a
     // refit follows the wander; the landmarks' directions from one
     // another do not wander.
-    let first = simulate_room_run(&room(None, 2.0));
-    let (map, map_to_truth) = saved_map(&first);
+    let (map, map_to_truth) = two_lap_map();
     // 3 % over 20 m: the development lap room's mono-inertial window
     // wandered -5.6 to +2.2 % in its landmarks' depths (docs/results/).
     let second = simulate_room_run(&RoomRunOptions {
@@ -667,8 +668,7 @@ fn the_published_covariance_carries_the_maps_own_error() {
     // error there, which no re-use averages away. The published
     // covariance adds the landmarks' mean saved covariance: the errors
     // against the truth are then about as large as it says.
-    let first = simulate_room_run(&room(None, 2.0));
-    let (map, map_to_truth) = saved_map(&first);
+    let (map, map_to_truth) = two_lap_map();
     let second = simulate_room_run(&room(Some(99), 1.0));
     let outputs = moved(&second, &offset());
     let mut localiser = MapLocaliser::new(&map, LocaliseConfig::default());
