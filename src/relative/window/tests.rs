@@ -1449,7 +1449,22 @@ fn held_pose_sensitivity_matches_finite_differences() {
     // free keyframes by -H^-1 H_ax: check that against re-solving with a
     // held pose moved by +-h (central differences), for every number of
     // every held pose, on the newest keyframe's pose.
-    let cfg = WindowConfig {
+    held_pose_sensitivity_check(None);
+}
+
+#[test]
+fn held_pose_sensitivity_matches_finite_differences_with_held_keyframes_following() {
+    // The same with the camera-IMU calibration refined and the held
+    // keyframes following it (`held_cameras`): the first inertial link
+    // then reaches the calibration through the boundary's body state, and
+    // the boundary pose's coupling must hold that term too (without it
+    // the sensitivity was off by orders of magnitude and the carried
+    // covariance grew without bound after a start in flight).
+    held_pose_sensitivity_check(Some(HeldKeyframesFollow::On));
+}
+
+fn held_pose_sensitivity_check(refine: Option<HeldKeyframesFollow>) {
+    let mut cfg = WindowConfig {
         noise_adaptation: NoiseAdaptationConfig {
             enabled: false,
             ..NoiseAdaptationConfig::default()
@@ -1464,6 +1479,11 @@ fn held_pose_sensitivity_matches_finite_differences() {
         outlier_chi2: 1e6,
         ..config(true)
     };
+    if let Some(follow) = refine {
+        cfg.camera_imu.enabled = true;
+        cfg.camera_imu.hold_until_tested = false;
+        cfg.camera_imu.held_keyframes_follow = follow;
+    }
     let mut r = rng(77);
     let scene = Scene::new(&mut r, 1500, 6.0);
     let mut w = Window::new(cfg, &scene.rig).expect("valid");
@@ -1485,6 +1505,11 @@ fn held_pose_sensitivity_matches_finite_differences() {
     solved.optimize();
     let nf = solved.problem.n_fixed;
     assert!(nf >= 2, "held keyframes: {nf}");
+    assert_eq!(solved.problem.calib_offset.is_some(), refine.is_some());
+    if refine.is_some() {
+        let c = solved.camera_imu.as_ref().expect("refined");
+        assert!(c.held_keyframes_follow());
+    }
     let cov = solved.state_covariance.clone().expect("marginals");
     let s = -(&cov * solved.held_pose_coupling());
     let newest = solved.keyframes.len() - 1;
