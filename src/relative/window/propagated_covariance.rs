@@ -315,9 +315,21 @@ impl Window {
             .map(|k| Block::Pose(k.seq))
             .collect();
         let mut outputs: Vec<(Block, usize)> = Vec::with_capacity(2 * (n - nf) + 2);
-        for (slot, kf) in keyframes.iter().skip(nf).enumerate() {
+        // A keyframe's velocity and biases are an estimate only where an
+        // inertial link reaches it: a stereo start in flight keeps the
+        // keyframes the window had on the images alone unlinked until
+        // they leave, and there the solve's inverse holds only its
+        // damping (1e15). Carried, that came back as the boundary prior's
+        // mean's covariance and made every pose after a start in flight
+        // uncertain by metres; left out, the prior's own covariance (what
+        // the alignment declared) stands in for it.
+        let linked = |i: usize| {
+            keyframes[i].imu.is_some() || keyframes.get(i + 1).is_some_and(|k| k.imu.is_some())
+        };
+        for (i, kf) in keyframes.iter().enumerate().skip(nf) {
+            let slot = i - nf;
             outputs.push((Block::Pose(kf.seq), slot * sd));
-            if self.use_imu {
+            if self.use_imu && linked(i) {
                 outputs.push((Block::Rest(kf.seq), slot * sd + VEL));
             }
         }
@@ -336,7 +348,9 @@ impl Window {
                 });
                 carried.push(block);
             }
-            outputs.push((Block::Rest(boundary.seq), ob));
+            if keyframes[nf].imu.is_some() {
+                outputs.push((Block::Rest(boundary.seq), ob));
+            }
         }
         if let Some(og) = p.gravity_offset {
             let (_, j) = self

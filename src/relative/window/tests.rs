@@ -1444,6 +1444,86 @@ fn held_keyframes_make_the_pose_marginal_overconfident() {
 }
 
 #[test]
+fn keyframes_no_inertial_link_reaches_carry_no_velocity_covariance() {
+    // A stereo start in flight: the window runs on the images alone, the
+    // alignment hands over velocities and biases, and the keyframes it
+    // had stay unlinked until they leave. Their velocity columns hold
+    // only the solver's damping (variance 1e15); carried into the joint
+    // covariance that came back as the boundary prior's mean's
+    // covariance, and every pose after the start was uncertain by
+    // decimetres to metres. Unlinked keyframes must carry no `Rest`
+    // block, and nothing carried may be that large.
+    use super::propagated_covariance::Block;
+    let cfg = WindowConfig {
+        noise_adaptation: NoiseAdaptationConfig {
+            enabled: false,
+            ..NoiseAdaptationConfig::default()
+        },
+        ..config(true)
+    };
+    let mut r = rng(83);
+    let scene = Scene::new(&mut r, 1500, keyframe_time(24) as f64 * 1e-9 + 1.0);
+    let mut w = Window::new(cfg, &scene.rig).expect("valid");
+    w.enable_imu(false).expect("valid");
+    let unlinked = 10;
+    for k in 0..unlinked {
+        let t = keyframe_time(k);
+        let frame = scene.frame(t, true, 1.0, 0.0, &mut r);
+        w.push_keyframe(scene.truth(t), &frame, None)
+            .expect("valid");
+        w.optimize();
+    }
+    let states: Vec<KeyframeState> = w.keyframes().map(|s| scene.truth(s.t_ns)).collect();
+    w.set_states(&states).expect("same count");
+    w.set_gravity(Vector3::new(0.0, 0.0, -GRAVITY_M_S2), 0.01)
+        .expect("valid");
+    w.enable_imu(true).expect("valid");
+    let unlinked_seqs: Vec<u64> = w.keyframes.iter().map(|k| k.seq).collect();
+    let mut solves = 0;
+    for k in unlinked..24 {
+        slide_keyframe(&mut w, &scene, k, |t| scene.truth(t), true, &mut r);
+        let j = w.joint_covariance.as_ref().expect("joint covariance");
+        for kf in w.keyframes.iter() {
+            let linked = kf.imu.is_some();
+            // (A boundary prior's mean may carry any covariance where the
+            // prior itself says as little: its weight is then nil.)
+            for block in [Block::Pose(kf.seq), Block::Rest(kf.seq)] {
+                if let Some(c) = j.get(block) {
+                    let worst = c.diagonal().amax();
+                    assert!(
+                        worst < 1e2,
+                        "keyframe {k}: {block:?} carries a variance of {worst:e}"
+                    );
+                }
+            }
+            if unlinked_seqs.contains(&kf.seq) && !linked {
+                let next_linked = w
+                    .keyframes
+                    .iter()
+                    .find(|o| o.seq == kf.seq + 1)
+                    .is_some_and(|o| o.imu.is_some());
+                if !next_linked {
+                    assert!(
+                        !j.contains(Block::Rest(kf.seq)),
+                        "keyframe {k}: unlinked keyframe {} carries a Rest block",
+                        kf.seq
+                    );
+                }
+            }
+        }
+        let newest = w.keyframes.back().expect("keyframes");
+        let c = newest.pose_covariance.expect("a pose covariance");
+        let position = c.fixed_view::<3, 3>(3, 3).diagonal().amax();
+        assert!(
+            position < 1e-2,
+            "keyframe {k}: position variance {position:e} m^2 after a start in flight"
+        );
+        solves += 1;
+    }
+    assert!(solves > 10);
+}
+
+#[test]
 fn held_pose_sensitivity_matches_finite_differences() {
     // The propagated covariance moves each held pose's error into the
     // free keyframes by -H^-1 H_ax: check that against re-solving with a
