@@ -149,6 +149,35 @@ pub(crate) fn boundary_link_columns(
     j.fixed_view::<9, 9>(0, 0) * state_jacobian(boundary, omega_body, mount)
 }
 
+impl super::Window {
+    /// The first inertial link's columns on the calibration step and the
+    /// calibration's first column in the solve, when the link reaches it
+    /// (held keyframes following a calibration the solve refines): `j`
+    /// is the link's Jacobian, `boundary` its first keyframe. The solve,
+    /// the covariance's held-pose coupling and the noise test of the link
+    /// all need the same term.
+    pub(super) fn following_link_calibration(
+        &self,
+        j: &SMatrix<f64, 9, INERTIAL_COLS>,
+        boundary: &super::state::Keyframe,
+    ) -> Option<(SMatrix<f64, 9, CALIB_DIM>, usize)> {
+        let c = self
+            .camera_imu
+            .as_ref()
+            .filter(|c| c.held_keyframes_follow())?;
+        let oc = self.problem.calib_offset?;
+        Some((
+            boundary_link_columns(
+                j,
+                &boundary.state,
+                &boundary.omega_body_rad_s,
+                &Mount::of(c),
+            ),
+            oc,
+        ))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

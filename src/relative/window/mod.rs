@@ -901,23 +901,14 @@ impl Window {
         // reaches it through the boundary's body state (`held_cameras`):
         // the solve's covariance of the two together is what the link's
         // redundancy needs.
-        let following = self
-            .camera_imu
-            .as_ref()
-            .filter(|c| c.held_keyframes_follow());
-        let calibration = match (following, p.calib_offset) {
-            (Some(c), Some(oc)) => {
+        let calibration = match self.following_link_calibration(&j, ki) {
+            Some((columns, oc)) => {
                 cols.extend(
                     (0..camera_imu::CALIB_DIM).map(|k| (inertial::INERTIAL_COLS + k, oc + k)),
                 );
-                held_cameras::boundary_link_columns(
-                    &j,
-                    &ki.state,
-                    &ki.omega_body_rad_s,
-                    &held_cameras::Mount::of(c),
-                )
+                columns
             }
-            _ => nalgebra::SMatrix::zeros(),
+            None => nalgebra::SMatrix::zeros(),
         };
         let entry = |r: usize, c: usize| {
             if c < inertial::INERTIAL_COLS {

@@ -39,7 +39,6 @@
 use nalgebra::{DMatrix, Matrix6};
 
 use super::camera_imu::CALIB_DIM;
-use super::held_cameras;
 use super::inertial::{inertial_factor, GRAVITY_COL};
 use super::schur::Matrix6x3;
 use super::state::{FULL_DIM, VEL};
@@ -453,17 +452,7 @@ impl Window {
                 // answer to a held pose's error lost a term it balances
                 // against: after a start in flight the carried covariance
                 // grew by 1e3-1e4 a solve, to 1e115 m^2.
-                let following = self
-                    .camera_imu
-                    .as_ref()
-                    .filter(|c| c.held_keyframes_follow());
-                if let (Some(c), Some(oc)) = (following, p.calib_offset) {
-                    let calibration = held_cameras::boundary_link_columns(
-                        &j,
-                        &ki.state,
-                        &ki.omega_body_rad_s,
-                        &held_cameras::Mount::of(c),
-                    );
+                if let Some((calibration, oc)) = self.following_link_calibration(&j, ki) {
                     let mut block = h.fixed_view_mut::<CALIB_DIM, 6>(oc, col);
                     block += calibration.transpose() * jx;
                 }
