@@ -196,6 +196,16 @@ pub struct RelativeConfig {
     /// the accelerometer biases are known, and stays tilted by up to a
     /// degree. Inertial modes only; vision-only poses are untouched.
     pub level_poses: bool,
+    /// Carry the published pose covariance with the measurements that
+    /// consecutive window solves share (a prior centred on the last
+    /// solve's estimate is wrong the way this solve's own measurements
+    /// are), and the gravity prior's sensitivity from the prior the solve
+    /// weighed. Consistent on data with exactly the declared noise, but
+    /// on the renderings, whose features are better than the declared
+    /// pixel sigma, the published covariance is then too cautious and
+    /// the map frame's too sure, so off by default
+    /// (docs/results/pose-covariance-shared-measurements-2026-12-06.md).
+    pub covariance_shared_measurements: bool,
     /// How quickly the level follows the gravity estimate, s (a
     /// first-order filter; 0 follows at once). Slow enough that the
     /// estimate's jitter between solves (tenths of a degree) does not bend
@@ -237,6 +247,7 @@ impl Default for RelativeConfig {
             camera_imu_hold_until_tested: true,
             camera_imu_held_keyframes_follow: HeldKeyframesFollow::InFlight,
             level_poses: true,
+            covariance_shared_measurements: false,
             level_time_constant_s: 20.0,
         }
     }

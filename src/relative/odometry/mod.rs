@@ -225,6 +225,7 @@ impl WindowOdometry {
             use_imu: false,
             noise_adaptation: config.noise_adaptation(),
             camera_imu: config.camera_imu_refinement(mode),
+            covariance_shared_measurements: config.covariance_shared_measurements,
             ..WindowConfig::default()
         };
         let window = Window::new(window_config.clone(), &used)

@@ -82,6 +82,13 @@ pub struct WindowConfig {
     /// ATE): 0.3: 0.0222 / 0.0459 m, 0.5: 0.0211 / 0.0408, 0.7: 0.0209 /
     /// 0.0440 (bench/accuracy/README.md).
     pub gravity_prior_weight: f64,
+    /// Carry the published covariance with the measurements consecutive
+    /// solves share ([`super::propagated_covariance`]) and the gravity
+    /// prior's sensitivity read from the prior the solve weighed \[false\].
+    /// Off, the sensitivity is read from the next, tighter prior, which
+    /// inflates the carried gravity covariance about as much as counting
+    /// shared measurements as new shrinks it.
+    pub covariance_shared_measurements: bool,
     /// Inliers for [`super::Window::track_frame`] to call a pose good \[12\].
     pub min_track_inliers: usize,
     /// LM iterations of [`super::Window::track_frame`] \[8\].
@@ -121,6 +128,7 @@ impl Default for WindowConfig {
             boundary_pose_covariance_scale: 4.0,
             boundary_prior_memory_s: 10.0,
             gravity_prior_weight: 0.5,
+            covariance_shared_measurements: false,
             min_track_inliers: 12,
             track_max_iterations: 8,
             noise_adaptation: NoiseAdaptationConfig::default(),

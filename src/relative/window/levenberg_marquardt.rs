@@ -764,6 +764,7 @@ impl Window {
                 "camera-IMU estimate"
             );
         }
+        let weighed_gravity_prior = self.gravity_prior;
         if let Some(cov) = &cov {
             let p = &self.problem;
             for (slot, kf) in self.keyframes.iter_mut().skip(p.n_fixed).enumerate() {
@@ -791,14 +792,16 @@ impl Window {
         }
         self.update_pose_covariances(self.problem.n_fixed);
         match (published, &cov) {
-            (Some(Some((c, coupling))), _) => self.propagate_pose_covariances(&c, &coupling),
+            (Some(Some((c, coupling))), _) => {
+                self.propagate_pose_covariances(&c, &coupling, &weighed_gravity_prior)
+            }
             // Without the IMU the chain stays: carried by the
             // propagation, the vision-only covariance in the estimated
             // pixel noise scored 11.5 on the development set (the chain
             // 1.3); see docs/results/pose-covariance-2026-12-02.md.
             (None, Some(c)) if self.use_imu => {
                 let coupling = self.held_pose_coupling();
-                self.propagate_pose_covariances(c, &coupling);
+                self.propagate_pose_covariances(c, &coupling, &weighed_gravity_prior);
             }
             _ => {}
         }
