@@ -102,6 +102,18 @@ impl NoiseLink {
     }
 }
 
+/// What [`JointCovariance::after_solve`] needs to count the measurements
+/// a solve shares with the last one.
+#[derive(Clone, Copy)]
+pub struct SharedMeasurements<'a> {
+    /// The free columns' `H^-1`.
+    pub inverse: &'a DMatrix<f64>,
+    /// `H N`: the measurements' information times `H^-1`.
+    pub info_noise: &'a DMatrix<f64>,
+    /// The share of the last solve's measurements still in this one.
+    pub kept: f64,
+}
+
 /// One input of a solve: its block, the solve's sensitivity to it (one
 /// column per number of the block, one row per free column), and the
 /// covariance to use when no earlier solve estimated it.
@@ -219,15 +231,14 @@ impl JointCovariance {
     /// alone (`N`), `outputs` the free estimates kept (block and first
     /// free column), `carried` the blocks that stay as they were (the
     /// held poses, the prior's mean). `shared`, to count the measurements
-    /// this solve shares with the last: the free columns' `H^-1`, `H N`
-    /// and the share of the last solve's measurements still here.
+    /// this solve shares with the last.
     pub fn after_solve(
         &self,
         inputs: &[Input],
         noise: &DMatrix<f64>,
         outputs: &[(Block, usize)],
         carried: &[Block],
-        shared: Option<(&DMatrix<f64>, &DMatrix<f64>, f64)>,
+        shared: Option<SharedMeasurements>,
     ) -> Self {
         let mut previous = self.clone();
         for input in inputs {
@@ -259,12 +270,14 @@ impl JointCovariance {
         // gradient's covariance with what the last solve's measurements
         // went into (`D`, carried) is taken as the same: the measurements
         // are, but for the newest keyframe's.
-        let (d_in, d_carried) = match (previous.noise.as_ref(), shared) {
-            (Some(link), Some((_, _, kept))) => {
+        // `D` rows of the free columns, then `C = H^-1 D` (the solve's
+        // noise against its inputs and the carried blocks).
+        let terms = shared.map(|sh| {
+            let mut d_in = DMatrix::zeros(free, n_in);
+            let mut d_carried = DMatrix::zeros(free, nc);
+            if let Some(link) = previous.noise.as_ref() {
                 let g_in = previous.noise_columns(link, &in_blocks);
                 let g_carried = previous.noise_columns(link, &carried);
-                let mut d_in = DMatrix::zeros(free, n_in);
-                let mut d_carried = DMatrix::zeros(free, nc);
                 for &(b, o) in outputs {
                     let Some(r) = link.row(b) else { continue };
                     let len = b.size();
@@ -273,17 +286,20 @@ impl JointCovariance {
                         .rows_mut(o, len)
                         .copy_from(&g_carried.rows(r, len));
                 }
-                (d_in * kept, d_carried * kept)
+                d_in *= sh.kept;
+                d_carried *= sh.kept;
             }
-            _ => (DMatrix::zeros(free, n_in), DMatrix::zeros(free, nc)),
-        };
-        let (shared_in, shared_carried) = match shared {
-            Some((inverse, _, _)) => (inverse * &d_in, inverse * &d_carried),
-            None => (DMatrix::zeros(free, n_in), DMatrix::zeros(free, nc)),
-        };
-        let sc = &s * shared_in.transpose();
-        let all = &s * sigma_in * s.transpose() + noise + &sc + sc.transpose();
-        let cross = &s * sigma_in_carried + &shared_carried;
+            let c_in = sh.inverse * &d_in;
+            let c_carried = sh.inverse * &d_carried;
+            (d_in, d_carried, c_in, c_carried)
+        });
+        let mut all = &s * sigma_in * s.transpose() + noise;
+        let mut cross = &s * sigma_in_carried;
+        if let Some((_, _, c_in, c_carried)) = &terms {
+            let sc = &s * c_in.transpose();
+            all += &sc + sc.transpose();
+            cross += c_carried;
+        }
         let no: usize = outputs.iter().map(|(b, _)| b.size()).sum();
         let mut m = DMatrix::zeros(nc + no, nc + no);
         m.view_mut((0, 0), (nc, nc))
@@ -314,39 +330,36 @@ impl JointCovariance {
         // the carried ones as the last solve's, the free ones through
         // `Cov(b, S e + H^-1 b) = D S^T + I H^-1` (`I H^-1 = H N`, the
         // measurements' information).
-        let (rows, cross_rows) = match shared {
-            Some((_, info_noise, _)) => {
-                let with_free = &d_in * s.transpose() + info_noise;
-                let mut rows = Vec::with_capacity(outputs.len());
-                let mut cross_rows = DMatrix::zeros(no, nc + no);
-                let mut r = 0;
-                for &(ob, oa) in outputs {
-                    let lo = ob.size();
+        let link = shared.zip(terms).map(|(sh, (d_in, d_carried, _, _))| {
+            let with_free = &d_in * s.transpose() + sh.info_noise;
+            let mut rows = Vec::with_capacity(outputs.len());
+            let mut cross_rows = DMatrix::zeros(no, nc + no);
+            let mut r = 0;
+            for &(ob, oa) in outputs {
+                let lo = ob.size();
+                cross_rows
+                    .view_mut((r, 0), (lo, nc))
+                    .copy_from(&d_carried.rows(oa, lo));
+                let mut at2 = nc;
+                for &(pb, pa) in outputs {
+                    let lp = pb.size();
                     cross_rows
-                        .view_mut((r, 0), (lo, nc))
-                        .copy_from(&d_carried.rows(oa, lo));
-                    let mut at2 = nc;
-                    for &(pb, pa) in outputs {
-                        let lp = pb.size();
-                        cross_rows
-                            .view_mut((r, at2), (lo, lp))
-                            .copy_from(&with_free.view((oa, pa), (lo, lp)));
-                        at2 += lp;
-                    }
-                    rows.push((ob, r));
-                    r += lo;
+                        .view_mut((r, at2), (lo, lp))
+                        .copy_from(&with_free.view((oa, pa), (lo, lp)));
+                    at2 += lp;
                 }
-                (rows, cross_rows)
+                rows.push((ob, r));
+                r += lo;
             }
-            None => (Vec::new(), DMatrix::zeros(0, nc + no)),
-        };
+            NoiseLink {
+                rows,
+                cross: cross_rows,
+            }
+        });
         Self {
             blocks,
             matrix: m,
-            noise: shared.is_some().then_some(NoiseLink {
-                rows,
-                cross: cross_rows,
-            }),
+            noise: link,
         }
     }
 }
@@ -502,9 +515,11 @@ impl Window {
             .covariance_shared_measurements
             .then(|| cov.clone().cholesky().map(|c| c.solve(&noise)))
             .flatten();
-        let shared = info_noise
-            .as_ref()
-            .map(|i| (cov, i, (n - 1) as f64 / n as f64));
+        let shared = info_noise.as_ref().map(|info_noise| SharedMeasurements {
+            inverse: cov,
+            info_noise,
+            kept: (n - 1) as f64 / n as f64,
+        });
         let joint = previous.after_solve(&inputs, &noise, &outputs, &carried, shared);
         if !joint.matrix.iter().all(|v| v.is_finite()) {
             // Keep what was carried; the free keyframes keep the chain's
@@ -742,7 +757,11 @@ mod tests {
                     &noise,
                     &[(Block::Gravity, 0)],
                     &[],
-                    shared.then_some((&inverse, &info_noise, kept)),
+                    shared.then_some(SharedMeasurements {
+                        inverse: &inverse,
+                        info_noise: &info_noise,
+                        kept,
+                    }),
                 );
                 h_prev = Some(h);
             }
