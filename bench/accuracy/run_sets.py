@@ -75,6 +75,9 @@ def run(binary, root, seq, mode, config):
         # ... the same taken from the relative stage's origin that pins
         # the map frame (what the run shares is kept, not fitted away).
         "map_nees_origin": (r.get("map_nees_from_origin") or {}).get("mean_per_dof"),
+        # ... and each of its axes alone against its own variance (what a
+        # controller reading the sigmas sees; 1 when they are right).
+        "map_nees_origin_axes": (r.get("map_nees_from_origin") or {}).get("marginal_per_dof"),
         # ... and the frames whose landmarks it did not take while the
         # relative stage settled or its accelerometer bias was unknown,
         # and the bias waits that ran out ([absolute] wait_accel_bias_max_s).
@@ -84,6 +87,11 @@ def run(binary, root, seq, mode, config):
         "nees": nees.get("mean_per_dof"),
         "nees_position": nees.get("position_per_dof"),
         "nees_rotation": nees.get("rotation_per_dof"),
+        # Each axis alone against its own variance: the mean above can be
+        # 1 for a covariance too sure in a few directions and far too
+        # cautious in the rest; these cannot.
+        "nees_position_axes": nees.get("position_marginal_per_dof"),
+        "nees_rotation_axes": nees.get("rotation_marginal_per_dof"),
         # Roll and pitch against the ground truth's, rms (inertial modes).
         "tilt_deg": (r.get("tilt") or {}).get("rms_deg"),
         "lost": r.get("lost_count"),

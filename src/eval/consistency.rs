@@ -16,6 +16,16 @@
 //! covariance wants it between about 0.5 and 2: below, the covariance is
 //! too pessimistic; above, too confident). Position (3 dof) and rotation
 //! (3 dof) are also reported alone, with their own blocks.
+//!
+//! A mean of 1 says little about the covariance's shape: one too sure in
+//! a few thin directions and far too cautious in the others can average
+//! 1 (the thin directions dominate the mean). A controller that reads
+//! the standard deviations of x, y, z, roll, pitch and yaw sees the
+//! marginals, so each axis is also scored alone, `e_i^2 / C_ii`
+//! ([`NeesReport::position_marginal_per_dof`],
+//! [`NeesReport::rotation_marginal_per_dof`]): 1 when every axis's
+//! variance is right whatever the correlations, far below 1 when the
+//! published sigmas are far wider than the errors.
 
 use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector6};
 use serde::Serialize;
@@ -48,6 +58,13 @@ pub struct NeesReport {
     pub position_per_dof: f64,
     /// The rotation block alone: mean of `NEES_r / 3`.
     pub rotation_per_dof: f64,
+    /// Median of `NEES / 6` (0.89 when consistent): the mean's tail apart.
+    pub median_per_dof: f64,
+    /// Each position axis alone, its error against its own variance:
+    /// mean of `(e_x^2 / C_xx + e_y^2 / C_yy + e_z^2 / C_zz) / 3`.
+    pub position_marginal_per_dof: f64,
+    /// The same over the three rotation axes.
+    pub rotation_marginal_per_dof: f64,
     /// Distinct origins met (1 + re-initialisations that restarted the
     /// covariance).
     pub origins: usize,
@@ -76,6 +93,8 @@ pub fn relative_pose_error(
 /// NEES of every pose the ground truth covers; None when none is.
 pub fn pose_nees(poses: &[CovariancePose], ground_truth: &Trajectory) -> Option<NeesReport> {
     let (mut full, mut position, mut rotation) = (0.0, 0.0, 0.0);
+    let (mut position_marginal, mut rotation_marginal) = (0.0, 0.0);
+    let mut per_pose = Vec::new();
     let mut n = 0usize;
     let mut origins: Vec<i64> = Vec::new();
     for pose in poses {
@@ -95,8 +114,12 @@ pub fn pose_nees(poses: &[CovariancePose], ground_truth: &Trajectory) -> Option<
             continue;
         };
         full += f / 6.0;
+        per_pose.push(f / 6.0);
         position += e_p.dot(&lp.solve(&e_p)) / 3.0;
         rotation += e_r.dot(&lr.solve(&e_r)) / 3.0;
+        // Positive diagonals: the blocks' Cholesky factors exist.
+        position_marginal += marginal_per_dof(&e_p, &c_p);
+        rotation_marginal += marginal_per_dof(&e_r, &c_r);
         n += 1;
         if origins.last() != Some(&pose.covariance.origin_t_ns) {
             origins.push(pose.covariance.origin_t_ns);
@@ -109,8 +132,32 @@ pub fn pose_nees(poses: &[CovariancePose], ground_truth: &Trajectory) -> Option<
         mean_per_dof: full / n as f64,
         position_per_dof: position / n as f64,
         rotation_per_dof: rotation / n as f64,
+        median_per_dof: median(&mut per_pose),
+        position_marginal_per_dof: position_marginal / n as f64,
+        rotation_marginal_per_dof: rotation_marginal / n as f64,
         origins: origins.len(),
     })
+}
+
+/// `(e_1^2 / C_11 + e_2^2 / C_22 + e_3^2 / C_33) / 3`: each axis against
+/// its own variance, the correlations ignored. `C`'s diagonal must be
+/// positive (it is wherever `C` is positive definite).
+pub fn marginal_per_dof(e: &nalgebra::Vector3<f64>, c: &Matrix3<f64>) -> f64 {
+    (0..3).map(|i| e[i] * e[i] / c[(i, i)]).sum::<f64>() / 3.0
+}
+
+/// The median of `values` (sorted in place); NaN when empty.
+pub fn median(values: &mut [f64]) -> f64 {
+    let n = values.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    values.sort_by(f64::total_cmp);
+    if n % 2 == 1 {
+        values[n / 2]
+    } else {
+        0.5 * (values[n / 2 - 1] + values[n / 2])
+    }
 }
 
 /// How far outside the ground truth's span an instant may be and still
@@ -251,13 +298,82 @@ mod tests {
         let r = pose_nees(&poses, &gt).unwrap();
         assert_eq!(r.poses, poses.len());
         assert_eq!(r.origins, 1);
-        for v in [r.mean_per_dof, r.position_per_dof, r.rotation_per_dof] {
+        for v in [
+            r.mean_per_dof,
+            r.position_per_dof,
+            r.rotation_per_dof,
+            r.position_marginal_per_dof,
+            r.rotation_marginal_per_dof,
+        ] {
             assert!((v - 1.0).abs() < 0.15, "{r:?}");
         }
+        // The median of chi-square with 6 dof, over 6.
+        assert!((r.median_per_dof - 0.891).abs() < 0.1, "{r:?}");
         for p in poses.iter_mut() {
             p.covariance.matrix = covariance / 4.0;
         }
         let over = pose_nees(&poses, &gt).unwrap();
         assert!((over.mean_per_dof - 4.0).abs() < 0.6, "{over:?}");
+    }
+
+    /// A covariance of the wrong shape can average 1 per dof: too sure in
+    /// position (half the variance), far too cautious in rotation (10 000
+    /// times, sigmas 100x the errors). The mean reads 1; the axes alone
+    /// read 2 and 1e-4.
+    #[allow(non_snake_case)]
+    #[test]
+    fn the_axes_alone_see_a_shape_the_mean_hides() {
+        let gt = truth();
+        let T_world_origin = gt.poses[0].T_world_body;
+        let sigma = 0.01;
+        let published = Matrix6::from_diagonal(&Vector6::from_fn(|i, _| {
+            sigma * sigma * if i < 3 { 0.5 } else { 1e4 }
+        }));
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let poses: Vec<CovariancePose> = (1..1000)
+            .step_by(2)
+            .map(|k| {
+                let e = Vector6::from_fn(|_, _| {
+                    let z: f64 = StandardNormal.sample(&mut rng);
+                    sigma * z
+                });
+                let truth = gt.poses[k].T_world_body;
+                let r_est = exp(&(-e.fixed_rows::<3>(3).into_owned()))
+                    * truth.rotation.to_rotation_matrix().into_inner();
+                CovariancePose {
+                    t_ns: gt.poses[k].t_ns,
+                    T_world_body: Isometry3::from_parts(
+                        Translation3::from(truth.translation.vector - e.fixed_rows::<3>(0)),
+                        UnitQuaternion::from_matrix(&r_est),
+                    ),
+                    covariance: PoseCovariance {
+                        matrix: published,
+                        origin_t_ns: gt.poses[0].t_ns,
+                        T_world_origin,
+                    },
+                }
+            })
+            .collect();
+        let r = pose_nees(&poses, &gt).unwrap();
+        assert!((r.mean_per_dof - 1.0).abs() < 0.15, "{r:?}");
+        assert!((r.position_marginal_per_dof - 2.0).abs() < 0.3, "{r:?}");
+        assert!(r.rotation_marginal_per_dof < 1e-3, "{r:?}");
+        // With no correlation the axes alone and the blocks agree.
+        assert!((r.position_marginal_per_dof - r.position_per_dof).abs() < 1e-9);
+    }
+
+    /// Strong correlations with the right variances: the axes alone read
+    /// 1, the whole matrix does not.
+    #[test]
+    fn the_axes_alone_ignore_the_correlations() {
+        let e = nalgebra::Vector3::new(0.3, -0.2, 0.1);
+        let c = Matrix3::new(1.0, 0.99, 0.0, 0.99, 1.0, 0.0, 0.0, 0.0, 1.0);
+        let by_axes = marginal_per_dof(&e, &c);
+        assert!((by_axes - (0.09 + 0.04 + 0.01) / 3.0).abs() < 1e-12);
+        let whole = e.dot(&c.cholesky().unwrap().solve(&e)) / 3.0;
+        assert!(whole > 10.0 * by_axes, "{whole} {by_axes}");
+        let mut v = [3.0, 1.0, 2.0, 10.0];
+        assert_eq!(median(&mut v), 2.5);
+        assert!(median(&mut []).is_nan());
     }
 }

@@ -34,7 +34,7 @@ use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 use serde::Serialize;
 
 use super::align::Sim3;
-use super::consistency::interpolate;
+use super::consistency::{interpolate, marginal_per_dof, median};
 use crate::trajectory::Trajectory;
 
 /// The 95 % quantile of chi-square with 3 degrees of freedom.
@@ -64,6 +64,11 @@ pub struct PositionNeesReport {
     /// Share of positions under the 95 % bound of 3 dof (0.95 when
     /// consistent).
     pub within_95: f64,
+    /// Each axis of the map frame alone, its error against its own
+    /// variance (`e_i^2 / C_ii`, the mean over axes and positions): 1 when
+    /// the published sigmas of x, y and z are right whatever their
+    /// correlations (see [`super::consistency`]).
+    pub marginal_per_dof: f64,
 }
 
 /// NEES of every position the ground truth covers, after `alignment` (the
@@ -111,32 +116,31 @@ pub fn map_position_nees_from_origin(
     }))
 }
 
-/// `e^T C^-1 e / 3`, when `C` is positive definite and the result finite.
-fn per_dof(e: &Vector3<f64>, c: &Matrix3<f64>) -> Option<f64> {
+/// `e^T C^-1 e / 3` and the axes alone (`marginal_per_dof`), when `C` is
+/// positive definite and the result finite.
+fn per_dof(e: &Vector3<f64>, c: &Matrix3<f64>) -> Option<(f64, f64)> {
     let c = 0.5 * (c + c.transpose());
     let nees = c.cholesky()?.solve(e).dot(e);
-    nees.is_finite().then_some(nees / 3.0)
+    let marginal = marginal_per_dof(e, &c);
+    (nees.is_finite() && marginal.is_finite()).then_some((nees / 3.0, marginal))
 }
 
-fn summarise(per_dof: impl Iterator<Item = f64>) -> Option<PositionNeesReport> {
-    let mut per_dof: Vec<f64> = per_dof.collect();
+fn summarise(scores: impl Iterator<Item = (f64, f64)>) -> Option<PositionNeesReport> {
+    let (mut per_dof, marginal): (Vec<f64>, Vec<f64>) = scores.unzip();
     if per_dof.is_empty() {
         return None;
     }
     let n = per_dof.len();
     let mean_per_dof = per_dof.iter().sum::<f64>() / n as f64;
     let within_95 = per_dof.iter().filter(|v| **v * 3.0 <= CHI2_3DOF_95).count() as f64 / n as f64;
-    per_dof.sort_by(f64::total_cmp);
-    let median_per_dof = if n % 2 == 1 {
-        per_dof[n / 2]
-    } else {
-        0.5 * (per_dof[n / 2 - 1] + per_dof[n / 2])
-    };
+    let median_per_dof = median(&mut per_dof);
+    let marginal_per_dof = marginal.iter().sum::<f64>() / n as f64;
     Some(PositionNeesReport {
         positions: n,
         mean_per_dof,
         median_per_dof,
         within_95,
+        marginal_per_dof,
     })
 }
 
@@ -209,12 +213,14 @@ mod tests {
         assert!((r.mean_per_dof - 1.0).abs() < 0.12, "{r:?}");
         assert!((r.median_per_dof - 0.79).abs() < 0.1, "{r:?}");
         assert!((r.within_95 - 0.95).abs() < 0.03, "{r:?}");
+        assert!((r.marginal_per_dof - 1.0).abs() < 0.12, "{r:?}");
 
         for p in positions.iter_mut() {
             p.covariance_m2 /= 4.0;
         }
         let over = map_position_nees(&positions, &alignment, &gt).unwrap();
         assert!((over.mean_per_dof / r.mean_per_dof - 4.0).abs() < 1e-9);
+        assert!((over.marginal_per_dof / r.marginal_per_dof - 4.0).abs() < 1e-9);
         assert!(over.within_95 < 0.6, "{over:?}");
 
         // Without the alignment the same positions are far off.

@@ -512,8 +512,12 @@ pub fn summary_line(r: &RunReport) -> String {
     }
     if let Some(n) = &r.nees {
         line += &format!(
-            "; covariance NEES per dof {:.2} (position {:.2}, rotation {:.2})",
-            n.mean_per_dof, n.position_per_dof, n.rotation_per_dof
+            "; covariance NEES per dof {:.2} (position {:.2}, rotation {:.2}; each axis alone: position {:.2}, rotation {:.2})",
+            n.mean_per_dof,
+            n.position_per_dof,
+            n.rotation_per_dof,
+            n.position_marginal_per_dof,
+            n.rotation_marginal_per_dof
         );
     }
     if let Some(n) = &r.map_nees {
@@ -525,8 +529,8 @@ pub fn summary_line(r: &RunReport) -> String {
         );
         if let Some(o) = &r.map_nees_from_origin {
             line += &format!(
-                ", {:.2} from the odometry's origin (median {:.2})",
-                o.mean_per_dof, o.median_per_dof
+                ", {:.2} from the odometry's origin (median {:.2}, each axis alone {:.2})",
+                o.mean_per_dof, o.median_per_dof, o.marginal_per_dof
             );
         }
     }
