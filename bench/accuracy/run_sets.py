@@ -155,8 +155,9 @@ def main():
     for r in short:
         print(f"warning: {r['sequence']} {r['mode']}: {r['frames_without_imu']} frames without the IMU")
     print()
-    print("| set | mode | mean ATE m (from rest) | mean ATE m (all) | max scale err % | mean NEES/dof | mean tilt deg |")
-    print("|---|---|---|---|---|---|---|")
+    print("| set | mode | mean ATE m (from rest) | mean ATE m (all) | max scale err % | mean NEES/dof | "
+          "NEES/dof, each axis alone: position / rotation | map frame from origin, whole / axes | mean tilt deg |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for s in a.sets:
         for mode in a.modes:
             rs = [r for r in rows if r["set"] == s and r["mode"] == mode and r.get("ate_m") is not None]
@@ -167,8 +168,12 @@ def main():
             nees = [r["nees"] for r in rs if r["nees"] is not None]
             tilt = [r["tilt_deg"] for r in rs if r.get("tilt_deg") is not None]
             mean = lambda v: sum(v) / len(v) if v else None
+            of = lambda key: mean([r[key] for r in rs if r.get(key) is not None])
             print(f"| {s} | {mode} | {fmt(mean(rest), '.4f')} | {fmt(mean([r['ate_m'] for r in rs]), '.4f')} | "
-                  f"{fmt(max(scale) if scale else None, '.2f')} | {fmt(mean(nees), '.2f')} | {fmt(mean(tilt), '.2f')} |")
+                  f"{fmt(max(scale) if scale else None, '.2f')} | {fmt(mean(nees), '.2f')} | "
+                  f"{fmt(of('nees_position_axes'), '.2f')} / {fmt(of('nees_rotation_axes'), '.3f')} | "
+                  f"{fmt(of('map_nees_origin'), '.2f')} / {fmt(of('map_nees_origin_axes'), '.2f')} | "
+                  f"{fmt(mean(tilt), '.2f')} |")
 
 
 if __name__ == "__main__":
