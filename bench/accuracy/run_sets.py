@@ -165,15 +165,14 @@ def main():
                 continue
             rest = [r["ate_m"] for r in rs if "flight" not in r["sequence"]]
             scale = [r["scale_error_pct"] for r in rs if r["scale_error_pct"] is not None]
-            nees = [r["nees"] for r in rs if r["nees"] is not None]
-            tilt = [r["tilt_deg"] for r in rs if r.get("tilt_deg") is not None]
             mean = lambda v: sum(v) / len(v) if v else None
+            # The mean over the runs that have `key`.
             of = lambda key: mean([r[key] for r in rs if r.get(key) is not None])
             print(f"| {s} | {mode} | {fmt(mean(rest), '.4f')} | {fmt(mean([r['ate_m'] for r in rs]), '.4f')} | "
-                  f"{fmt(max(scale) if scale else None, '.2f')} | {fmt(mean(nees), '.2f')} | "
+                  f"{fmt(max(scale) if scale else None, '.2f')} | {fmt(of('nees'), '.2f')} | "
                   f"{fmt(of('nees_position_axes'), '.2f')} / {fmt(of('nees_rotation_axes'), '.3f')} | "
                   f"{fmt(of('map_nees_origin'), '.2f')} / {fmt(of('map_nees_origin_axes'), '.2f')} | "
-                  f"{fmt(mean(tilt), '.2f')} |")
+                  f"{fmt(of('tilt_deg'), '.2f')} |")
 
 
 if __name__ == "__main__":

@@ -251,6 +251,17 @@ mod tests {
         assert!(interpolate(&Trajectory::new(Vec::new()), 0).is_none());
     }
 
+    /// The estimate whose error against `truth` is `e = [p_true - p_est,
+    /// Log(R_true R_est^T)]` (the module's convention).
+    fn with_error(truth: &Isometry3<f64>, e: &Vector6<f64>) -> Isometry3<f64> {
+        let r_est = exp(&(-e.fixed_rows::<3>(3).into_owned()))
+            * truth.rotation.to_rotation_matrix().into_inner();
+        Isometry3::from_parts(
+            Translation3::from(truth.translation.vector - e.fixed_rows::<3>(0)),
+            UnitQuaternion::from_matrix(&r_est),
+        )
+    }
+
     /// Poses drawn from their covariance around the truth score a NEES
     /// per dof near 1; the same errors with the covariance 4x too small
     /// score near 4.
@@ -277,17 +288,9 @@ mod tests {
         for k in (120..1000).step_by(3) {
             let z = Vector6::from_fn(|_, _| StandardNormal.sample(&mut rng));
             let e = l * z;
-            let truth = T_est_gt * gt.poses[k].T_world_body;
-            // e = [p_true - p_est, Log(R_true R_est^T)]
-            let r_est = exp(&(-e.fixed_rows::<3>(3).into_owned()))
-                * truth.rotation.to_rotation_matrix().into_inner();
-            let est = Isometry3::from_parts(
-                Translation3::from(truth.translation.vector - e.fixed_rows::<3>(0)),
-                UnitQuaternion::from_matrix(&r_est),
-            );
             poses.push(CovariancePose {
                 t_ns: gt.poses[k].t_ns,
-                T_world_body: est,
+                T_world_body: with_error(&(T_est_gt * gt.poses[k].T_world_body), &e),
                 covariance: PoseCovariance {
                     matrix: covariance,
                     origin_t_ns: gt.poses[100].t_ns,
@@ -337,15 +340,9 @@ mod tests {
                     let z: f64 = StandardNormal.sample(&mut rng);
                     sigma * z
                 });
-                let truth = gt.poses[k].T_world_body;
-                let r_est = exp(&(-e.fixed_rows::<3>(3).into_owned()))
-                    * truth.rotation.to_rotation_matrix().into_inner();
                 CovariancePose {
                     t_ns: gt.poses[k].t_ns,
-                    T_world_body: Isometry3::from_parts(
-                        Translation3::from(truth.translation.vector - e.fixed_rows::<3>(0)),
-                        UnitQuaternion::from_matrix(&r_est),
-                    ),
+                    T_world_body: with_error(&gt.poses[k].T_world_body, &e),
                     covariance: PoseCovariance {
                         matrix: published,
                         origin_t_ns: gt.poses[0].t_ns,
