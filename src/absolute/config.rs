@@ -169,6 +169,12 @@ pub struct AbsoluteConfig {
     /// None: every landmark in view corrects. None here; the `[absolute]`
     /// settings turn it on in stereo-inertial (`correction_gate`).
     pub correction_gate_chi2: Option<f64>,
+    /// Add to the published position covariance the error the relative
+    /// stage's attitude puts in the robot's position: the landmarks were
+    /// mapped through the attitude of their frames, the robot sees them
+    /// through that of now (`mapping_attitude`; nothing where the
+    /// relative stage gives no pose covariance).
+    pub mapping_attitude_covariance: bool,
 }
 
 impl Default for AbsoluteConfig {
@@ -196,6 +202,7 @@ impl Default for AbsoluteConfig {
             orientation_sigma_rad_per_sqrt_s: DEFAULT_ORIENTATION_SIGMA_RAD_PER_SQRT_S,
             scale_sigma_per_sqrt_s: DEFAULT_SCALE_SIGMA_PER_SQRT_S,
             correction_gate_chi2: None,
+            mapping_attitude_covariance: false,
         }
     }
 }

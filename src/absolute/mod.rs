@@ -14,7 +14,9 @@
 //! an offset the map's landmarks measure ([`orientation_filter`]); and the
 //! robot position is corrected with the Kalman filter of eq. 60-71
 //! ([`position_filter`], checked by [`nees`]), whose cross-covariance
-//! with the map's errors [`map_cross_covariance`] keeps between solves.
+//! with the map's errors [`map_cross_covariance`] keeps between solves;
+//! what the relative stage's attitude at mapping time puts in the map is
+//! added to the published covariance by `mapping_attitude`.
 //! What the stage is built with is [`config`], read from the settings
 //! file's table by [`settings`]. A map outlives the run through
 //! [`map_file`]; [`localise`] places a robot in a saved map.
@@ -29,6 +31,7 @@ mod map_builder;
 pub mod map_cross_covariance;
 pub mod map_file;
 pub mod map_worker;
+mod mapping_attitude;
 pub mod nees;
 mod node_places;
 pub mod orientation_filter;

@@ -134,6 +134,16 @@ pub struct AbsoluteSettings {
     /// position covariance counts the same repetition (the gain does
     /// not).
     pub count_window_once: bool,
+    /// The published map-frame covariance adds what the relative stage's
+    /// attitude error puts in the robot's position: the map's landmarks
+    /// were placed through the heading of their mapping frames, turned
+    /// about wherever the robot was when that heading error grew, and the
+    /// robot sees them through the heading of now (a heading sigma that
+    /// grew by s rad while the robot was d metres from where it is now
+    /// places it about d*s off). It comes from the relative stage's
+    /// published rotation covariance; without it the covariance knows
+    /// only the landmarks' measured noise and the filter's.
+    pub mapping_attitude_covariance: bool,
     /// A landmark joined to this many frame nodes counts as mapped; a
     /// frame whose landmarks are mostly mapped adds no node, so a robot
     /// that keeps revisiting the same room stops growing its map (0:
@@ -237,6 +247,7 @@ impl Default for AbsoluteSettings {
             odometry_edges: config.odometry_edges,
             odometry_sigma_per_sqrt_m: config.odometry_sigma_per_sqrt_m,
             count_window_once: config.count_window_once,
+            mapping_attitude_covariance: config.mapping_attitude_covariance,
             frame_node_saturation: config.frame_node_saturation,
             node_passes_per_place: config.node_passes_per_place,
             orientation_sigma_rad_per_sqrt_s: config.orientation_sigma_rad_per_sqrt_s,
@@ -456,6 +467,7 @@ impl AbsoluteSettings {
             odometry_edges: self.odometry_edges,
             odometry_sigma_per_sqrt_m: odometry_sigma,
             count_window_once: self.count_window_once,
+            mapping_attitude_covariance: self.mapping_attitude_covariance,
             frame_node_saturation: self.frame_node_saturation,
             node_passes_per_place: self.node_passes_per_place,
             orientation_sigma_rad_per_sqrt_s: orientation,
@@ -542,6 +554,10 @@ mod tests {
             stage.odometry_sigma_per_sqrt_m
         );
         assert_eq!(config.count_window_once, stage.count_window_once);
+        assert_eq!(
+            config.mapping_attitude_covariance,
+            stage.mapping_attitude_covariance
+        );
         assert_eq!(config.frame_node_saturation, stage.frame_node_saturation);
         assert_eq!(config.node_passes_per_place, stage.node_passes_per_place);
         assert_eq!(
@@ -698,10 +714,12 @@ mod tests {
             recognition_confirm_frames: 4,
             recognition_new_landmark_after_frames: 6,
             count_window_once: false,
+            mapping_attitude_covariance: false,
             ..Default::default()
         };
         let config = settings.to_config().expect("valid");
         assert!(!config.count_window_once);
+        assert!(!config.mapping_attitude_covariance);
         assert_eq!(config.translation_sigma_per_sqrt_m, 0.07);
         assert_eq!(config.odometry_sigma_per_sqrt_m, 0.009);
         assert_eq!(config.landmark_covariance_scale, 3.5);

@@ -9,7 +9,7 @@
 
 use std::collections::HashMap;
 
-use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Rotation3, Translation3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -17,7 +17,7 @@ use rand_distr::{Distribution, StandardNormal};
 use crate::features::orb::Descriptor;
 use crate::imu::ImuBiases;
 use crate::relative::types::{
-    BodyLandmark, LandmarkId, RelativeOutput, TrackingState, WindowSupport,
+    BodyLandmark, LandmarkId, PoseCovariance, RelativeOutput, TrackingState, WindowSupport,
 };
 
 /// Parameters of a simulated run.
@@ -66,6 +66,14 @@ pub struct RoomRunOptions {
     /// and increments with it, as a gyroscope's uncorrected bias turns a
     /// visual-inertial odometry's heading.
     pub rotation_drift_rad_per_m: Vector3<f64>,
+    /// A random walk of the relative stage's heading (about the vertical),
+    /// rad per sqrt(m) travelled, on top of `rotation_drift_rad_per_m`;
+    /// when positive each frame also hands on the pose covariance a
+    /// relative stage would publish for it: heading variance
+    /// `walk² · distance`, exact roll and pitch, and position `sigma² ·
+    /// distance · I` from the increments' noise alone (what the heading
+    /// adds to the position is left out).
+    pub heading_walk_rad_per_sqrt_m: f64,
     /// The room (landmarks and their appearance) comes from `seed`; the
     /// noise of the drive from this seed when given, so that two drives
     /// through the same room differ (a map made in one, localised in by
@@ -117,6 +125,7 @@ impl Default for RoomRunOptions {
             undescribed_share: 0.0,
             drift_per_m: Vector3::zeros(),
             rotation_drift_rad_per_m: Vector3::zeros(),
+            heading_walk_rad_per_sqrt_m: 0.0,
             noise_seed: None,
             seed: 0,
             window: None,
@@ -220,6 +229,12 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
     // first (window runs only).
     let mut window_draws: HashMap<usize, std::collections::VecDeque<Vector3<f64>>> = HashMap::new();
     let mut keyframe: u64 = 0;
+    // The heading's random walk draws from its own generator, so that
+    // runs without it are what they always were.
+    let mut walk_rng =
+        ChaCha8Rng::seed_from_u64(options.noise_seed.unwrap_or(options.seed) ^ 0x6865_6164_696e_67);
+    let mut heading_rad = 0.0;
+    let walking = options.heading_walk_rad_per_sqrt_m > 0.0;
     while angle <= end_angle {
         let frame_index = outputs.len();
         let p = position_at(angle);
@@ -233,12 +248,34 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
                 let true_delta: Vector3<f64> = p - prev;
                 let sigma = options.sigma_translation_per_sqrt_m * true_delta.norm().sqrt();
                 travelled_m += true_delta.norm();
+                if walking {
+                    let step: f64 = StandardNormal.sample(&mut walk_rng);
+                    heading_rad +=
+                        step * options.heading_walk_rad_per_sqrt_m * true_delta.norm().sqrt();
+                }
                 true_delta + options.drift_per_m * true_delta.norm() + normal3(&mut rng) * sigma
             }
         };
         // The relative stage's world frame, turned by its drift so far.
-        let turned = (options.rotation_drift_rad_per_m != Vector3::zeros()).then(|| {
+        let turned = (options.rotation_drift_rad_per_m != Vector3::zeros() || walking).then(|| {
             UnitQuaternion::from_scaled_axis(options.rotation_drift_rad_per_m * travelled_m)
+                * UnitQuaternion::from_scaled_axis(Vector3::z() * heading_rad)
+        });
+        let pose_covariance = walking.then(|| {
+            let mut matrix = Matrix6::zeros();
+            matrix
+                .fixed_view_mut::<3, 3>(0, 0)
+                .fill_diagonal(options.sigma_translation_per_sqrt_m.powi(2) * travelled_m);
+            matrix[(5, 5)] = options.heading_walk_rad_per_sqrt_m.powi(2) * travelled_m;
+            PoseCovariance {
+                matrix,
+                origin_t_ns: 0,
+                T_world_origin: Isometry3::translation(
+                    position_at(0.0).x,
+                    position_at(0.0).y,
+                    position_at(0.0).z,
+                ),
+            }
         });
         let (amplitude, period_m) = options.scale_wander;
         let window_scale =
@@ -353,7 +390,7 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
             biases: ImuBiases::default(),
             delta_translation_world_m: delta,
             landmarks,
-            pose_covariance: None,
+            pose_covariance,
         });
         truth_position_m.push(p);
         truth_orientation.push(UnitQuaternion::from_rotation_matrix(&rotation));

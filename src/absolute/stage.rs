@@ -71,6 +71,7 @@ pub use super::solve_schedule::SolveMode;
 use super::map_builder::MapBuilder;
 use super::map_cross_covariance::MapCrossCovariance;
 use super::map_worker::{MapSolveRequest, MapSolveWorker, SolvedMap};
+use super::mapping_attitude::MappingAttitude;
 use super::orientation_filter::{OrientationFilter, OrientationUpdate};
 use super::position_filter::{LandmarkFix, PositionFilter};
 use super::recogniser::Recogniser;
@@ -279,6 +280,13 @@ pub struct AbsoluteStage {
     /// drifted to by then, so the published map-frame covariance adds it
     /// (zero for a map anchored at the relative stage's origin).
     anchor_covariance_m2: Matrix3<f64>,
+    /// Per map landmark, the relative stage's attitude covariance when
+    /// it was mapped ([`super::mapping_attitude`]).
+    mapping_attitude: MappingAttitude,
+    /// What those attitudes add to the position corrected against the
+    /// last correction's landmarks, m² (zero when
+    /// [`AbsoluteConfig::mapping_attitude_covariance`] is off).
+    attitude_covariance_m2: Matrix3<f64>,
     /// None when the orientation is taken as the relative stage gives it.
     orientation: Option<OrientationFilter>,
     map: Option<SolvedMap>,
@@ -323,6 +331,8 @@ impl AbsoluteStage {
             config,
             filter: None,
             anchor_covariance_m2: Matrix3::zeros(),
+            mapping_attitude: MappingAttitude::default(),
+            attitude_covariance_m2: Matrix3::zeros(),
             map: None,
             map_cross: None,
             correction_shares: WindowShares::default(),
@@ -389,7 +399,7 @@ impl AbsoluteStage {
                     * delta.norm();
                 (
                     f.position_world_m() + delta,
-                    Some(f.published_covariance_m2() + self.anchor_covariance_m2 + q),
+                    Some(self.map_frame_covariance_m2(f) + q),
                 )
             }
             None => (output.T_world_body.translation.vector, None),
@@ -537,6 +547,7 @@ impl AbsoluteStage {
             self.builder.fuse(output, &rotation, &position_m, |track| {
                 recogniser.is_some_and(|r| r.is_pending(track))
             });
+            self.note_mapping_attitude(output, &position_m);
             self.note_in_view(output);
             self.stats.frame_nodes = self.builder.frame_nodes();
             self.stats.frames_saturated = self.builder.frames_saturated();
@@ -553,10 +564,7 @@ impl AbsoluteStage {
             self.request_solve();
         }
         let (translation, covariance) = match &self.filter {
-            Some(f) => (
-                f.position_world_m(),
-                Some(f.published_covariance_m2() + self.anchor_covariance_m2),
-            ),
+            Some(f) => (f.position_world_m(), Some(self.map_frame_covariance_m2(f))),
             None => (output.T_world_body.translation.vector, None),
         };
         let offset = self.orientation_offset();
@@ -581,6 +589,14 @@ impl AbsoluteStage {
             map_version: self.map.as_ref().map_or(0, |m| m.version),
             nis: report.as_ref().map_or(0.0, |r| r.nis),
         }
+    }
+
+    /// The published position covariance, m²: the filter's (the robot
+    /// against the map's anchor), the anchor's own, and what the mapping
+    /// frames' attitude errors put in the landmarks it was corrected
+    /// against.
+    fn map_frame_covariance_m2(&self, filter: &PositionFilter) -> Matrix3<f64> {
+        filter.published_covariance_m2() + self.anchor_covariance_m2 + self.attitude_covariance_m2
     }
 
     /// `R_o`: turns the relative stage's world frame into the map's
@@ -761,6 +777,30 @@ impl AbsoluteStage {
                 .submit(version, self.builder.edges_mut(), previous_m, covariance_of)
         {
             self.install(result);
+        }
+    }
+
+    /// Takes the frame's attitude covariance into the mapping attitude's
+    /// sums and notes the landmarks it mapped first (see
+    /// [`super::mapping_attitude`]).
+    fn note_mapping_attitude(&mut self, output: &RelativeOutput, position_m: &Vector3<f64>) {
+        if !self.config.mapping_attitude_covariance {
+            return;
+        }
+        let (Some(pose), Some(anchor)) = (
+            output.pose_covariance.as_ref(),
+            self.builder.anchor_world_m(),
+        ) else {
+            return;
+        };
+        let robot = position_m - anchor;
+        self.mapping_attitude
+            .advance(&pose.matrix.fixed_view::<3, 3>(3, 3).into_owned(), &robot);
+        let registry = self.builder.registry();
+        for l in &output.landmarks {
+            if let Some(id) = registry.map_id_of(l.id) {
+                self.mapping_attitude.note_mapped(id);
+            }
         }
     }
 
@@ -949,6 +989,16 @@ impl AbsoluteStage {
                 }
                 for (&id, &support) in ids.iter().zip(&supports) {
                     self.correction_shares.note_used(id, support);
+                }
+                if self.config.mapping_attitude_covariance {
+                    let landmarks: Vec<(u32, Vector3<f64>)> = ids
+                        .iter()
+                        .zip(&fixes)
+                        .map(|(&id, fix)| (id, fix.offset_world_m))
+                        .collect();
+                    self.attitude_covariance_m2 = self
+                        .mapping_attitude
+                        .position_covariance_m2(&landmarks, &(filter.position_world_m() - anchor));
                 }
                 self.stats.corrections += 1;
                 self.stats.nis_sum += report.nis;

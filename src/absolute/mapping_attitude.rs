@@ -1,0 +1,326 @@
+//! The map's error from its origin that the relative stage's attitude
+//! puts in it.
+//!
+//! The map is solved from differences between landmarks seen in the same
+//! frame, turned into the world frame with the relative stage's
+//! orientation of that frame. Its translation drift cancels in those
+//! differences; its attitude error does not, and the map's own
+//! covariance (from the landmarks' measured noise) has none of it, so a
+//! robot corrected against those landmarks is placed with that error
+//! and a covariance that does not know it.
+//!
+//! The model: the relative stage's attitude error grows by independent
+//! steps `w_j` (its rotation covariance `Σθ`, world axes, grows by
+//! `Q_j`), and a step taken with the robot at `p_j` turns everything
+//! mapped after it about `p_j`: a landmark mapped at `x` is off by
+//! `Σ_j w_j × (x − p_j)` over the steps before its mapping. A robot at
+//! `p` that sees it at `b = x − p` through the relative stage's attitude
+//! of now (off by all the steps, `Σ_j w_j × b`) is placed off by the
+//! difference: `Σ_j w_j × (p − p_j)` over the steps before the mapping
+//! (covariance `Σ_j [p − p_j]× Q_j [p − p_j]×ᵀ`: the heading error turned
+//! the map about where the robot was when it grew, and a robot far from
+//! there is placed as far off), and `−Σ_j w_j × b` over the steps since
+//! (`[b]× (Σ Q_now − Σ Q_mapped) [b]×ᵀ`). Three running sums give the
+//! first for any `p` (`Σ Q_j`, `Σ [p_j]× Q_j`, `Σ [p_j]× Q_j [p_j]×ᵀ`),
+//! kept as they were in each frame that mapped a landmark. The
+//! orientation filter ([`super::orientation_filter`]) would take the
+//! steps since out where it follows them; it lets its offset wander by a
+//! fraction of what a relative stage's heading does (a simulated room
+//! with a heading that walks 0.1 deg per sqrt(m) is consistent with the
+//! second term and twice too sure without it), so they stay.
+//!
+//! Positions are from the map's anchor; the anchor's own attitude
+//! covariance is the first step, taken there. `Q_j` is the part of the
+//! published `Σθ` beyond what the sums hold already (its positive part:
+//! roll and pitch, which gravity bounds, add nothing once their sigma
+//! stops growing).
+//!
+//! A position corrected against several landmarks carries the mean of
+//! their covariances: their errors come from one drifting attitude, so
+//! they are taken as fully correlated (a mean of covariances, not the
+//! covariance of a mean). A landmark first mapped on a later pass,
+//! placed by the map against landmarks mapped before, takes the larger
+//! sums of then: that leans to the cautious side.
+
+use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+
+/// `Σ Q_j`, `Σ [p_j]× Q_j` and `Σ [p_j]× Q_j [p_j]×ᵀ` up to a frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Sums {
+    /// rad².
+    steps: Matrix3<f64>,
+    /// m rad².
+    first_moment: Matrix3<f64>,
+    /// m² rad².
+    second_moment: Matrix3<f64>,
+}
+
+impl Sums {
+    /// `Σ_j [p − p_j]× Q_j [p − p_j]×ᵀ`, m².
+    fn covariance_at(&self, p_m: &Vector3<f64>) -> Matrix3<f64> {
+        let p = p_m.cross_matrix();
+        let c = p * self.steps * p.transpose()
+            - p * self.first_moment.transpose()
+            - self.first_moment * p.transpose()
+            + self.second_moment;
+        (c + c.transpose()) * 0.5
+    }
+}
+
+/// The running sums, and per map landmark the sums of its first
+/// mapping frame.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct MappingAttitude {
+    now: Sums,
+    /// The sums of frames that mapped a landmark first, in order.
+    snapshots: Vec<Sums>,
+    /// Whether the last snapshot is `now`.
+    snapshot_current: bool,
+    /// Per map id: 1 + its mapping frame's index in `snapshots`, 0 when
+    /// not mapped yet.
+    by_id: Vec<u32>,
+}
+
+impl MappingAttitude {
+    /// Takes the relative stage's rotation covariance of a frame (rad²,
+    /// world axes) with the robot at `position_m` from the map's anchor:
+    /// its growth beyond the sums is a step taken there. A covariance or
+    /// position that is not finite, or a covariance that is not
+    /// symmetric, is ignored.
+    pub(crate) fn advance(
+        &mut self,
+        rotation_covariance: &Matrix3<f64>,
+        position_m: &Vector3<f64>,
+    ) {
+        let usable = rotation_covariance.iter().all(|v| v.is_finite())
+            && position_m.iter().all(|v| v.is_finite())
+            && (rotation_covariance - rotation_covariance.transpose()).amax()
+                <= 1e-9 * rotation_covariance.amax().max(1e-300);
+        if !usable {
+            return;
+        }
+        let growth = SymmetricEigen::new(rotation_covariance - self.now.steps);
+        if growth.eigenvalues.iter().all(|&v| v <= 0.0) {
+            return;
+        }
+        let step = growth.eigenvectors
+            * Matrix3::from_diagonal(&growth.eigenvalues.map(|v| v.max(0.0)))
+            * growth.eigenvectors.transpose();
+        let step = (step + step.transpose()) * 0.5;
+        let lever = position_m.cross_matrix();
+        self.now.steps += step;
+        self.now.first_moment += lever * step;
+        self.now.second_moment += lever * step * lever.transpose();
+        self.snapshot_current = false;
+    }
+
+    /// Notes map landmark `id` as mapped now, unless it was before (its
+    /// first mapping frame keeps it).
+    pub(crate) fn note_mapped(&mut self, id: u32) {
+        let k = id as usize;
+        if self.by_id.len() <= k {
+            self.by_id.resize(k + 1, 0);
+        }
+        if self.by_id[k] != 0 {
+            return;
+        }
+        if !self.snapshot_current || self.snapshots.is_empty() {
+            self.snapshots.push(self.now);
+            self.snapshot_current = true;
+        }
+        self.by_id[k] = self.snapshots.len() as u32;
+    }
+
+    fn mapped_sums(&self, id: u32) -> Option<&Sums> {
+        let slot = *self.by_id.get(id as usize)?;
+        self.snapshots.get((slot as usize).checked_sub(1)?)
+    }
+
+    /// The covariance (m²) the relative stage's attitude errors put in a
+    /// robot at `robot_m` from the map's anchor corrected against
+    /// `landmarks`, each with its offset from the robot (world axes): the
+    /// mean over those noted. Zero when none is.
+    pub(crate) fn position_covariance_m2(
+        &self,
+        landmarks: &[(u32, Vector3<f64>)],
+        robot_m: &Vector3<f64>,
+    ) -> Matrix3<f64> {
+        let mut sum = Matrix3::zeros();
+        let mut count = 0usize;
+        for (id, offset) in landmarks {
+            let Some(sums) = self.mapped_sums(*id) else {
+                continue;
+            };
+            let b = offset.cross_matrix();
+            sum += sums.covariance_at(robot_m) + b * (self.now.steps - sums.steps) * b.transpose();
+            count += 1;
+        }
+        if count == 0 {
+            return Matrix3::zeros();
+        }
+        let mean = sum / count as f64;
+        (mean + mean.transpose()) * 0.5
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::UnitQuaternion;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, StandardNormal};
+
+    use super::*;
+
+    fn heading(variance: f64) -> Matrix3<f64> {
+        Matrix3::from_diagonal(&Vector3::new(0.0, 0.0, variance))
+    }
+
+    #[test]
+    fn a_heading_step_turns_the_map_about_where_it_was_taken() {
+        // A heading step of variance s² at the anchor, a landmark mapped
+        // then: a robot 5 m along x is placed 5 s off along y, whatever
+        // the landmark's offset from it (it saw it with the same
+        // heading error the map was built with).
+        let s2 = 1e-4;
+        let mut attitude = MappingAttitude::default();
+        attitude.advance(&heading(s2), &Vector3::zeros());
+        attitude.note_mapped(4);
+        let robot = Vector3::new(5.0, 0.0, 0.0);
+        let c = attitude.position_covariance_m2(&[(4, Vector3::new(0.0, 2.0, 1.0))], &robot);
+        let expected = Matrix3::from_diagonal(&Vector3::new(0.0, 25.0 * s2, 0.0));
+        assert!((c - expected).amax() < 1e-15, "{c}");
+        // A second step, taken at the robot after the mapping: it turns
+        // the robot's view of the landmark (3 m along y: off along x),
+        // not the map about the robot.
+        attitude.advance(&heading(3.0 * s2), &robot);
+        let b = Vector3::new(0.0, 3.0, 0.0);
+        let c = attitude.position_covariance_m2(&[(4, b)], &robot);
+        let expected = Matrix3::from_diagonal(&Vector3::new(9.0 * 2.0 * s2, 25.0 * s2, 0.0));
+        assert!((c - expected).amax() < 1e-15, "{c}");
+        // A landmark mapped after both steps, seen from the anchor: only
+        // the second step, taken 5 m away, places the robot off.
+        attitude.note_mapped(5);
+        let c = attitude.position_covariance_m2(&[(5, b)], &Vector3::zeros());
+        let expected = Matrix3::from_diagonal(&Vector3::new(0.0, 25.0 * 2.0 * s2, 0.0));
+        assert!((c - expected).amax() < 1e-15, "{c}");
+    }
+
+    #[test]
+    fn the_model_matches_a_drifting_dead_reckoning_drawn_many_times() {
+        // Independent reference: a relative stage whose attitude error
+        // walks by full 3-D steps integrates its path and places a
+        // landmark through rotations, and the robot, later, through the
+        // rotation of then; the error of the robot's position over many
+        // draws against the model's covariance.
+        let path: Vec<Vector3<f64>> = (0..30)
+            .map(|k| {
+                let t = k as f64 * 0.2;
+                Vector3::new(4.0 * t.sin(), 3.0 * (1.0 - t.cos()), 0.1 * t)
+            })
+            .collect();
+        let landmark = Vector3::new(6.0, 4.0, 1.5);
+        let (mapped_at, robot_at) = (10, 24);
+        let q = Matrix3::new(2.0, 0.3, 0.1, 0.3, 1.0, -0.2, 0.1, -0.2, 5.0) * 1e-6;
+        let l = q.cholesky().expect("positive definite").l();
+        let mut attitude = MappingAttitude::default();
+        for (k, p) in path.iter().enumerate().take(robot_at + 1) {
+            attitude.advance(&(q * (k + 1) as f64), &(p - path[0]));
+            if k == mapped_at {
+                attitude.note_mapped(0);
+            }
+        }
+        let robot = path[robot_at] - path[0];
+        let model = attitude.position_covariance_m2(&[(0, landmark - path[robot_at])], &robot);
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let draws = 40_000;
+        let mut drawn = Matrix3::zeros();
+        for _ in 0..draws {
+            let mut error = Vector3::zeros();
+            let mut estimate = path[0];
+            let mut seen = Vector3::zeros();
+            let mut robot_estimate = Vector3::zeros();
+            for k in 0..=robot_at {
+                let w = l * Vector3::from_fn(|_, _| StandardNormal.sample(&mut rng));
+                error += w;
+                let turn = UnitQuaternion::from_scaled_axis(error);
+                if k == mapped_at {
+                    seen = estimate + turn * (landmark - path[k]);
+                }
+                if k == robot_at {
+                    robot_estimate = seen - turn * (landmark - path[k]);
+                }
+                if k + 1 < path.len() {
+                    estimate += turn * (path[k + 1] - path[k]);
+                }
+            }
+            let e = robot_estimate - path[robot_at];
+            drawn += e * e.transpose();
+        }
+        drawn /= draws as f64;
+        assert!(
+            (drawn - model).amax() < 0.03 * model.amax(),
+            "drawn {drawn} model {model}"
+        );
+    }
+
+    #[test]
+    fn a_bounded_tilt_adds_no_step_once_it_stops_growing() {
+        // Roll and pitch: gravity holds them, their variance rises then
+        // falls; only the rise is a step. The heading keeps growing.
+        let mut attitude = MappingAttitude::default();
+        let p = Vector3::new(1.0, 0.0, 0.0);
+        attitude.advance(&Matrix3::from_diagonal(&Vector3::new(4e-6, 4e-6, 1e-6)), &p);
+        attitude.advance(&Matrix3::from_diagonal(&Vector3::new(1e-6, 1e-6, 2e-6)), &p);
+        let expected = Matrix3::from_diagonal(&Vector3::new(4e-6, 4e-6, 2e-6));
+        assert!(
+            (attitude.now.steps - expected).amax() < 1e-18,
+            "{}",
+            attitude.now.steps
+        );
+        // A covariance that shrinks everywhere adds nothing at all.
+        let before = attitude.now;
+        attitude.advance(&(Matrix3::identity() * 1e-7), &p);
+        assert_eq!(attitude.now, before);
+    }
+
+    #[test]
+    fn unusable_inputs_leave_the_sums_alone() {
+        let mut attitude = MappingAttitude::default();
+        attitude.advance(&heading(1e-6), &Vector3::zeros());
+        let before = attitude.now;
+        let mut nan = heading(2e-6);
+        nan[(0, 1)] = f64::NAN;
+        attitude.advance(&nan, &Vector3::zeros());
+        let mut skew = heading(2e-6);
+        skew[(0, 1)] = 1e-7;
+        attitude.advance(&skew, &Vector3::zeros());
+        attitude.advance(&heading(2e-6), &Vector3::new(f64::INFINITY, 0.0, 0.0));
+        assert_eq!(attitude.now, before);
+    }
+
+    #[test]
+    fn a_landmark_keeps_its_first_mapping_and_the_correction_averages() {
+        let mut attitude = MappingAttitude::default();
+        attitude.advance(&heading(1e-6), &Vector3::zeros());
+        attitude.note_mapped(1);
+        attitude.advance(&heading(9e-6), &Vector3::zeros());
+        attitude.note_mapped(1);
+        attitude.note_mapped(2);
+        // Two landmarks mapped in one frame share its sums.
+        attitude.note_mapped(3);
+        assert_eq!(attitude.snapshots.len(), 2);
+        let robot = Vector3::new(1.0, 0.0, 0.0);
+        let at = |ids: &[u32]| {
+            let landmarks: Vec<_> = ids.iter().map(|&id| (id, Vector3::zeros())).collect();
+            attitude.position_covariance_m2(&landmarks, &robot)[(1, 1)]
+        };
+        assert!((at(&[1]) - 1e-6).abs() < 1e-18);
+        assert!((at(&[2]) - 9e-6).abs() < 1e-18);
+        assert!((at(&[1, 2]) - 5e-6).abs() < 1e-18);
+        // Landmarks never noted are left out, not counted as zero.
+        assert!((at(&[1, 7]) - 1e-6).abs() < 1e-18);
+        assert_eq!(at(&[7]), 0.0);
+        assert_eq!(at(&[]), 0.0);
+    }
+}
