@@ -202,7 +202,7 @@ impl Default for AbsoluteConfig {
             orientation_sigma_rad_per_sqrt_s: DEFAULT_ORIENTATION_SIGMA_RAD_PER_SQRT_S,
             scale_sigma_per_sqrt_s: DEFAULT_SCALE_SIGMA_PER_SQRT_S,
             correction_gate_chi2: None,
-            mapping_attitude_covariance: false,
+            mapping_attitude_covariance: true,
         }
     }
 }

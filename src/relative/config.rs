@@ -200,11 +200,13 @@ pub struct RelativeConfig {
     /// consecutive window solves share (a prior centred on the last
     /// solve's estimate is wrong the way this solve's own measurements
     /// are), and the gravity prior's sensitivity from the prior the solve
-    /// weighed. Consistent on data with exactly the declared noise, but
-    /// on the renderings, whose features are better than the declared
-    /// pixel sigma, the published covariance is then too cautious and
-    /// the map frame's too sure, so off by default
-    /// (docs/results/pose-covariance-shared-measurements-2026-12-06.md).
+    /// weighed. Consistent on data with exactly the declared noise (off,
+    /// the poses from the origin are too sure and the gravity too
+    /// cautious there). On the renderings, whose features are better than
+    /// the declared pixel sigma, it is cautious by about that much, with
+    /// sigmas 2-10 times closer to the errors than off; the map frame
+    /// needs `[absolute] mapping_attitude_covariance` with it
+    /// (docs/results/map-attitude-covariance-2026-12-07.md).
     pub covariance_shared_measurements: bool,
     /// How quickly the level follows the gravity estimate, s (a
     /// first-order filter; 0 follows at once). Slow enough that the
@@ -247,7 +249,7 @@ impl Default for RelativeConfig {
             camera_imu_hold_until_tested: true,
             camera_imu_held_keyframes_follow: HeldKeyframesFollow::InFlight,
             level_poses: true,
-            covariance_shared_measurements: false,
+            covariance_shared_measurements: true,
             level_time_constant_s: 20.0,
         }
     }

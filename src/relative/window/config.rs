@@ -84,7 +84,7 @@ pub struct WindowConfig {
     pub gravity_prior_weight: f64,
     /// Carry the published covariance with the measurements consecutive
     /// solves share ([`super::propagated_covariance`]) and the gravity
-    /// prior's sensitivity read from the prior the solve weighed \[false\].
+    /// prior's sensitivity read from the prior the solve weighed \[true\].
     /// Off, the sensitivity is read from the next, tighter prior, which
     /// inflates the carried gravity covariance about as much as counting
     /// shared measurements as new shrinks it.
@@ -128,7 +128,7 @@ impl Default for WindowConfig {
             boundary_pose_covariance_scale: 4.0,
             boundary_prior_memory_s: 10.0,
             gravity_prior_weight: 0.5,
-            covariance_shared_measurements: false,
+            covariance_shared_measurements: true,
             min_track_inliers: 12,
             track_max_iterations: 8,
             noise_adaptation: NoiseAdaptationConfig::default(),
