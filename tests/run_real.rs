@@ -508,7 +508,7 @@ fn a_saved_map_is_localised_in_again() {
     let text = std::fs::read_to_string(&map).expect("map written");
     let header = text.lines().next().expect("header");
     let count: usize = header
-        .strip_prefix("# rigslam map v2 landmarks ")
+        .strip_prefix("# rigslam map v3 landmarks ")
         .and_then(|n| n.parse().ok())
         .unwrap_or_else(|| panic!("header {header}"));
     assert!(count > 50, "{count} landmarks");
@@ -520,6 +520,12 @@ fn a_saved_map_is_localised_in_again() {
             .is_some_and(|l| l.starts_with("# crc32 ")),
         "the map ends with its checksum"
     );
+    // The stereo-inertial run publishes its attitude covariance: every
+    // landmark keeps what its mapping frame's attitude error put in it
+    // (21 numbers after the descriptor), for a later run localising in it.
+    for row in text.lines().filter(|l| !l.starts_with('#')) {
+        assert_eq!(row.split_whitespace().count(), 32, "{row}");
+    }
     let localised = dir.path().join("loc.tum");
     let out = succeeds(
         rigslam_run()

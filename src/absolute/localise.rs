@@ -43,6 +43,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::map_file::SavedMap;
+use super::mapping_attitude::AttitudeMoments;
 use super::orientation_filter::{OrientationFilter, OrientationUpdate};
 use super::position_filter::{LandmarkFix, PositionFilter};
 use super::recognition::{
@@ -292,6 +293,9 @@ pub struct MapLocaliser {
     config: LocaliseConfig,
     positions_m: Vec<Vector3<f64>>,
     covariances_m2: Vec<Matrix3<f64>>,
+    /// Per landmark, what the mapping run's attitude error put in it
+    /// ([`super::mapping_attitude`]), when the map says.
+    attitudes: Vec<Option<AttitudeMoments>>,
     descriptors: Vec<Option<Descriptor>>,
     index: LandmarkIndex,
     state: Option<Localised>,
@@ -318,6 +322,7 @@ impl MapLocaliser {
             rng: ChaCha8Rng::seed_from_u64(config.seed),
             config,
             covariances_m2: map.landmarks.iter().map(|l| l.covariance_m2).collect(),
+            attitudes: map.landmarks.iter().map(|l| l.attitude).collect(),
             descriptors: map.landmarks.iter().map(|l| l.descriptor).collect(),
             positions_m,
             index,
@@ -330,6 +335,43 @@ impl MapLocaliser {
             candidates: Vec::new(),
             candidate: None,
         }
+    }
+
+    /// The map's own error at a robot at `robot_m` (map frame) placed
+    /// against `landmarks`: the mean over them of the saved covariance
+    /// and what the mapping run's attitude error put there
+    /// ([`super::mapping_attitude`]: the heading error turned the map
+    /// about where the mapping robot was when it grew).
+    fn map_error_m2(
+        &self,
+        landmarks: impl Iterator<Item = u32>,
+        robot_m: &Vector3<f64>,
+    ) -> Matrix3<f64> {
+        Self::map_error_at(
+            &self.covariances_m2,
+            &self.attitudes,
+            &self.positions_m,
+            landmarks,
+            robot_m,
+        )
+    }
+
+    /// [`Self::map_error_m2`] on the map's parts (borrowed apart from
+    /// the state being corrected).
+    fn map_error_at(
+        covariances_m2: &[Matrix3<f64>],
+        attitudes: &[Option<AttitudeMoments>],
+        positions_m: &[Vector3<f64>],
+        landmarks: impl Iterator<Item = u32>,
+        robot_m: &Vector3<f64>,
+    ) -> Matrix3<f64> {
+        mean_of(landmarks.map(|m| {
+            let m = m as usize;
+            let attitude = attitudes[m].map_or_else(Matrix3::zeros, |a| {
+                a.covariance_at(&(robot_m - positions_m[m]))
+            });
+            covariances_m2[m] + attitude
+        }))
     }
 
     /// Counters so far.
@@ -523,11 +565,7 @@ impl MapLocaliser {
                 )
             }),
             held: false,
-            map_error_m2: mean_of(
-                fit.inliers
-                    .iter()
-                    .map(|&(_, m)| self.covariances_m2[m as usize]),
-            ),
+            map_error_m2: self.map_error_m2(fit.inliers.iter().map(|&(_, m)| m), &position),
         });
         self.stats.relocalisations += 1;
     }
@@ -919,10 +957,12 @@ impl MapLocaliser {
                 );
             }
         }
-        state.map_error_m2 = mean_of(
-            fixes
-                .iter()
-                .map(|f| self.covariances_m2[f.landmark as usize]),
+        state.map_error_m2 = Self::map_error_at(
+            &self.covariances_m2,
+            &self.attitudes,
+            &self.positions_m,
+            fixes.iter().map(|f| f.landmark),
+            &x,
         );
         match state.filter.correct(&fixes, &covariance, None) {
             Ok(report) => {

@@ -261,6 +261,7 @@ impl MapBuilder {
                         position_m: anchor + (*p)?,
                         covariance_m2: 0.5 * (covariance_m2 + covariance_m2.transpose()),
                         descriptor: descriptors.get(map_id).copied().flatten(),
+                        attitude: None,
                     })
                 })
                 .collect(),

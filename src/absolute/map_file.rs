@@ -6,8 +6,8 @@
 //! Text, one landmark per line between a header line and a checksum line:
 //!
 //! ```text
-//! # rigslam map v2 landmarks N
-//! id x y z c00 c01 c02 c11 c12 c22 descriptor
+//! # rigslam map v3 landmarks N
+//! id x y z c00 c01 c02 c11 c12 c22 descriptor attitude
 //! # crc32 1a2b3c4d
 //! ```
 //!
@@ -22,7 +22,14 @@
 //! big-endian) or `-` when the landmark has none. The covariance is the
 //! landmark's given its neighbours in the map (the inverse of its diagonal
 //! block of A): the local precision a robot localising against nearby
-//! landmarks relies on, not the drift from the map's reference.
+//! landmarks relies on, not the drift from the map's reference. The
+//! attitude is what the mapping run's attitude error put in the landmark
+//! ([`super::mapping_attitude`]): 21 numbers, the upper triangle of
+//! `Σ Q_j` (rad²), the nine entries of `Σ [p_j]× Q_j` row by row (m rad²)
+//! and the upper triangle of `Σ [p_j]× Q_j [p_j]×ᵀ` (m² rad²), positions
+//! from the landmark; or `-` when the run published no attitude
+//! covariance. Maps of the second version (no attitude field) are read
+//! without it.
 
 use std::fmt::Write as _;
 use std::io::{BufRead, BufReader};
@@ -30,9 +37,12 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::{Matrix3, Vector3};
 
+use super::mapping_attitude::AttitudeMoments;
 use crate::features::orb::Descriptor;
 
-const HEADER: &str = "# rigslam map v2 landmarks";
+const HEADER: &str = "# rigslam map v3 landmarks";
+/// The header of maps written before the attitude field.
+const HEADER_V2: &str = "# rigslam map v2 landmarks";
 /// The header of maps written before the checksum.
 const HEADER_V1: &str = "# rigslam map v1 landmarks";
 /// The start of the last line of a map: the checksum of what precedes it.
@@ -52,6 +62,10 @@ pub struct MapLandmark {
     pub covariance_m2: Matrix3<f64>,
     /// ORB descriptor for recognition, when the landmark has one.
     pub descriptor: Option<Descriptor>,
+    /// What the mapping run's attitude error put in the landmark, its
+    /// positions from the landmark (None when the run published no
+    /// attitude covariance, or the map predates it).
+    pub attitude: Option<AttitudeMoments>,
 }
 
 /// A saved map.
@@ -103,6 +117,47 @@ fn parse_hex(text: &str) -> Option<Descriptor> {
     Some(d)
 }
 
+/// Numbers of a landmark's attitude field.
+const ATTITUDE_FIELDS: usize = 21;
+
+/// The attitude field's numbers: the upper triangle of the steps, the
+/// first moment row by row, the upper triangle of the second.
+fn attitude_fields(a: &AttitudeMoments) -> [f64; ATTITUDE_FIELDS] {
+    let (s, f, m) = (&a.steps_rad2, &a.first_m_rad2, &a.second_m2_rad2);
+    [
+        s[(0, 0)],
+        s[(0, 1)],
+        s[(0, 2)],
+        s[(1, 1)],
+        s[(1, 2)],
+        s[(2, 2)],
+        f[(0, 0)],
+        f[(0, 1)],
+        f[(0, 2)],
+        f[(1, 0)],
+        f[(1, 1)],
+        f[(1, 2)],
+        f[(2, 0)],
+        f[(2, 1)],
+        f[(2, 2)],
+        m[(0, 0)],
+        m[(0, 1)],
+        m[(0, 2)],
+        m[(1, 1)],
+        m[(1, 2)],
+        m[(2, 2)],
+    ]
+}
+
+fn attitude_from_fields(v: &[f64; ATTITUDE_FIELDS]) -> AttitudeMoments {
+    let symmetric = |u: &[f64]| Matrix3::new(u[0], u[1], u[2], u[1], u[3], u[4], u[2], u[4], u[5]);
+    AttitudeMoments {
+        steps_rad2: symmetric(&v[0..6]),
+        first_m_rad2: Matrix3::from_row_slice(&v[6..15]),
+        second_m2_rad2: symmetric(&v[15..21]),
+    }
+}
+
 impl SavedMap {
     /// Writes the map to `path` in the text format above, atomically:
     /// a reader (or the next start after a crash) finds the old file or
@@ -122,12 +177,12 @@ impl SavedMap {
         let _ = writeln!(out, "{HEADER} {}", self.landmarks.len());
         let _ = writeln!(
             out,
-            "# id x y z c00 c01 c02 c11 c12 c22 descriptor (m, m^2, 64 hex digits or -)"
+            "# id x y z c00 c01 c02 c11 c12 c22 descriptor attitude (m, m^2, 64 hex digits or -, 21 numbers or -)"
         );
         for l in &self.landmarks {
             let (p, c) = (&l.position_m, &l.covariance_m2);
             // `{:e}` of an f64 round-trips exactly.
-            let _ = writeln!(
+            let _ = write!(
                 out,
                 "{} {:e} {:e} {:e} {:e} {:e} {:e} {:e} {:e} {:e} {}",
                 l.id,
@@ -142,6 +197,15 @@ impl SavedMap {
                 c[(2, 2)],
                 l.descriptor.as_ref().map_or_else(|| "-".to_string(), hex)
             );
+            match &l.attitude {
+                None => out.push_str(" -"),
+                Some(a) => {
+                    for v in attitude_fields(a) {
+                        let _ = write!(out, " {v:e}");
+                    }
+                }
+            }
+            out.push('\n');
         }
         let crc = crc32fast::hash(out.as_bytes());
         let _ = writeln!(out, "{CHECKSUM}{crc:08x}");
@@ -181,11 +245,12 @@ impl SavedMap {
         }
         crc.update(raw.as_bytes());
         let first = raw.trim_end();
-        let (expected, checksummed): (usize, bool) = match first
+        let (expected, version): (usize, u8) = match first
             .strip_prefix(HEADER)
-            .map(|n| (n, true))
-            .or_else(|| first.strip_prefix(HEADER_V1).map(|n| (n, false)))
-            .and_then(|(n, v2)| Some((n.trim().parse().ok()?, v2)))
+            .map(|n| (n, 3))
+            .or_else(|| first.strip_prefix(HEADER_V2).map(|n| (n, 2)))
+            .or_else(|| first.strip_prefix(HEADER_V1).map(|n| (n, 1)))
+            .and_then(|(n, version)| Some((n.trim().parse().ok()?, version)))
         {
             Some(header) => header,
             None => {
@@ -218,13 +283,20 @@ impl SavedMap {
                 continue;
             }
             let fields: Vec<&str> = text.split_whitespace().collect();
-            if fields.len() != 11 {
+            let expected_fields: &[usize] = if version >= 3 {
+                &[12, 11 + ATTITUDE_FIELDS]
+            } else {
+                &[11]
+            };
+            if !expected_fields.contains(&fields.len()) {
+                let what = if version >= 3 {
+                    "12 or 32 (id, 3 position, 6 covariance, descriptor, attitude: - or 21)"
+                } else {
+                    "11 (id, 3 position, 6 covariance, descriptor)"
+                };
                 return Err(parse(
                     number,
-                    format!(
-                        "{} fields, expected 11 (id, 3 position, 6 covariance, descriptor)",
-                        fields.len()
-                    ),
+                    format!("{} fields, expected {what}", fields.len()),
                 ));
             }
             let id: u32 = fields[0].parse().map_err(|_| {
@@ -265,11 +337,51 @@ impl SavedMap {
                     )
                 })?),
             };
+            let attitude = match &fields[11..] {
+                [] | ["-"] => None,
+                numbers if numbers.len() == ATTITUDE_FIELDS => {
+                    let mut a = [0.0f64; ATTITUDE_FIELDS];
+                    for (k, slot) in a.iter_mut().enumerate() {
+                        *slot = numbers[k]
+                            .parse::<f64>()
+                            .ok()
+                            .filter(|x| x.is_finite())
+                            .ok_or_else(|| {
+                                parse(
+                                    number,
+                                    format!(
+                                        "field {} `{}` is not a finite number",
+                                        k + 12,
+                                        numbers[k]
+                                    ),
+                                )
+                            })?;
+                    }
+                    let moments = attitude_from_fields(&a);
+                    if !moments.is_usable() {
+                        return Err(parse(
+                            number,
+                            format!("the attitude sums of landmark {id} are not covariances"),
+                        ));
+                    }
+                    Some(moments)
+                }
+                other => {
+                    return Err(parse(
+                        number,
+                        format!(
+                            "attitude field `{}` is not - or 21 numbers",
+                            other.join(" ")
+                        ),
+                    ))
+                }
+            };
             landmarks.push(MapLandmark {
                 id,
                 position_m: Vector3::new(v[0], v[1], v[2]),
                 covariance_m2,
                 descriptor,
+                attitude,
             });
         }
         if landmarks.len() != expected {
@@ -281,7 +393,7 @@ impl SavedMap {
                 ),
             ));
         }
-        if checksummed {
+        if version >= 2 {
             let computed = format!("{:08x}", crc.finalize());
             match stated_crc {
                 None => {
@@ -318,12 +430,30 @@ mod tests {
                     covariance_m2: Matrix3::new(2.0, 0.1, 0.0, 0.1, 1.0, -0.2, 0.0, -0.2, 0.5)
                         * 1e-4,
                     descriptor: Some([u64::MAX, 0, 0x0123_4567_89ab_cdef, 42]),
+                    attitude: Some(AttitudeMoments {
+                        steps_rad2: Matrix3::new(3.0, 0.2, 0.1, 0.2, 2.0, -0.3, 0.1, -0.3, 9.0)
+                            * 1e-7,
+                        first_m_rad2: Matrix3::new(
+                            1.0,
+                            -2.0,
+                            3.0,
+                            0.5,
+                            0.25,
+                            -7.0,
+                            4.0,
+                            1.0 / 3.0,
+                            0.0,
+                        ) * 1e-6,
+                        second_m2_rad2: Matrix3::new(5.0, 1.0, 0.0, 1.0, 4.0, 0.5, 0.0, 0.5, 2.0)
+                            * 1e-5,
+                    }),
                 },
                 MapLandmark {
                     id: 7,
                     position_m: Vector3::new(0.1, 0.2, 0.3),
                     covariance_m2: Matrix3::identity() * 0.01,
                     descriptor: None,
+                    attitude: None,
                 },
             ],
         }
@@ -336,6 +466,17 @@ mod tests {
         let map = sample();
         map.write(&path).expect("write");
         assert_eq!(SavedMap::read(&path).expect("read"), map);
+    }
+
+    /// A version 3 line of landmark 0 whose attitude field starts with
+    /// `first` (the rest a valid diagonal).
+    fn attitude_line(first: &str) -> String {
+        let mut fields = vec!["0"; 21];
+        fields[0] = first;
+        for k in [3, 5, 15, 18, 20] {
+            fields[k] = "1e-6";
+        }
+        format!("0 1 2 3 1 0 0 1 0 1 - {}", fields.join(" "))
     }
 
     #[test]
@@ -357,15 +498,40 @@ mod tests {
             ("hello\n".to_string(), ":1:", "expected"),
             (lines[..3].join("\n"), ":1:", "truncated"),
             (with_line3("0 1 2 3"), ":3:", "4 fields"),
-            (with_line3("0 1 2 nan 1 0 0 1 0 1 -"), ":3:", "not a finite"),
             (
-                with_line3("0 1 2 3 1 0 0 -1 0 1 -"),
+                with_line3("0 1 2 nan 1 0 0 1 0 1 - -"),
+                ":3:",
+                "not a finite",
+            ),
+            (
+                with_line3("0 1 2 3 1 0 0 -1 0 1 - -"),
                 ":3:",
                 "not positive definite",
             ),
-            (with_line3("0 1 2 3 1 0 0 1 0 1 abc"), ":3:", "64 hex"),
-            (with_line3("x 1 2 3 1 0 0 1 0 1 -"), ":3:", "not a number"),
+            (with_line3("0 1 2 3 1 0 0 1 0 1 abc -"), ":3:", "64 hex"),
+            (with_line3("x 1 2 3 1 0 0 1 0 1 - -"), ":3:", "not a number"),
             (with_line(3, &duplicate), ":4:", "twice"),
+            (
+                with_line3("0 1 2 3 1 0 0 1 0 1 - 1 2"),
+                ":3:",
+                "13 fields, expected 12 or 32",
+            ),
+            (with_line3(&attitude_line("nan")), ":3:", "field 12 `nan`"),
+            (
+                with_line3(&attitude_line("-1")),
+                ":3:",
+                "attitude sums of landmark 0 are not covariances",
+            ),
+            (
+                with_line3(&format!("0 1 2 3 1 0 0 1 0 1 - {}", ["0"; 20].join(" "))),
+                ":3:",
+                "31 fields",
+            ),
+            (
+                with_line3("0 1 2 3 1 0 0 1 0 1 - x"),
+                ":3:",
+                "not - or 21 numbers",
+            ),
         ];
         for (text, line, why) in cases {
             std::fs::write(&path, &text).expect("write");
@@ -403,14 +569,41 @@ mod tests {
             e.contains("not a rigslam map") && e.contains("%YAML"),
             "{e}"
         );
-        // A map of the first version (no checksum) is still read.
-        let v1: String = text
-            .replace(HEADER, HEADER_V1)
+        // Maps of the earlier versions (no attitude field; the first
+        // without a checksum) are still read, without the attitude.
+        let without_attitude = SavedMap {
+            landmarks: sample()
+                .landmarks
+                .into_iter()
+                .map(|l| MapLandmark {
+                    attitude: None,
+                    ..l
+                })
+                .collect(),
+        };
+        let old_lines: Vec<String> = without_attitude
+            .to_text()
             .lines()
             .filter(|l| !l.starts_with("# crc32"))
-            .map(|l| format!("{l}\n"))
+            .map(|l| l.strip_suffix(" -").unwrap_or(l).to_string())
             .collect();
-        assert_eq!(read(&v1).expect("v1"), sample());
+        let v1: String = old_lines
+            .iter()
+            .map(|l| format!("{}\n", l.replace(HEADER, HEADER_V1)))
+            .collect();
+        assert_eq!(read(&v1).expect("v1"), without_attitude);
+        let mut v2: String = old_lines
+            .iter()
+            .map(|l| format!("{}\n", l.replace(HEADER, HEADER_V2)))
+            .collect();
+        let crc = crc32fast::hash(v2.as_bytes());
+        v2.push_str(&format!("{CHECKSUM}{crc:08x}\n"));
+        assert_eq!(read(&v2).expect("v2"), without_attitude);
+        // A version 2 line with an attitude field is not version 2.
+        let e = read(&text.replace(HEADER, HEADER_V2))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("expected 11"), "{e}");
     }
 
     /// A map of `n` landmarks whose every number depends on `seed`.
@@ -422,6 +615,7 @@ mod tests {
                     position_m: Vector3::new(seed, f64::from(id), -seed * f64::from(id)),
                     covariance_m2: Matrix3::identity() * (1e-4 + 1e-9 * f64::from(id)),
                     descriptor: Some([u64::from(id), seed.to_bits(), 7, 9]),
+                    attitude: None,
                 })
                 .collect(),
         }
@@ -491,7 +685,7 @@ mod tests {
     #[test]
     fn a_huge_landmark_count_is_an_error_not_an_allocation() {
         for count in ["1152921504606846976", "16777216", "18446744073709551615"] {
-            let text = format!("{HEADER} {count}\n0 1 2 3 1 0 0 1 0 1 -\n");
+            let text = format!("{HEADER} {count}\n0 1 2 3 1 0 0 1 0 1 - -\n");
             let err = SavedMap::read_from(text.as_bytes(), Path::new("huge.map"))
                 .unwrap_err()
                 .to_string();

@@ -44,26 +44,68 @@
 
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 
-/// `Σ Q_j`, `Σ [p_j]× Q_j` and `Σ [p_j]× Q_j [p_j]×ᵀ` up to a frame.
+/// The attitude steps up to a frame and where they were taken:
+/// `Σ Q_j`, `Σ [p_j]× Q_j` and `Σ [p_j]× Q_j [p_j]×ᵀ`, positions `p_j` from
+/// a point of the map (the anchor while mapping; a saved map keeps them
+/// about each landmark's own position).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-struct Sums {
-    /// rad².
-    steps: Matrix3<f64>,
-    /// m rad².
-    first_moment: Matrix3<f64>,
-    /// m² rad².
-    second_moment: Matrix3<f64>,
+pub struct AttitudeMoments {
+    /// `Σ Q_j`, rad².
+    pub steps_rad2: Matrix3<f64>,
+    /// `Σ [p_j]× Q_j`, m rad².
+    pub first_m_rad2: Matrix3<f64>,
+    /// `Σ [p_j]× Q_j [p_j]×ᵀ`, m² rad².
+    pub second_m2_rad2: Matrix3<f64>,
 }
 
-impl Sums {
-    /// `Σ_j [p − p_j]× Q_j [p − p_j]×ᵀ`, m².
-    fn covariance_at(&self, p_m: &Vector3<f64>) -> Matrix3<f64> {
+impl AttitudeMoments {
+    /// `Σ_j [p − p_j]× Q_j [p − p_j]×ᵀ`, m²: what the steps put in a robot
+    /// at `p_m` (from the same point) placed against what was mapped
+    /// after them, its attitude taken from the map.
+    pub fn covariance_at(&self, p_m: &Vector3<f64>) -> Matrix3<f64> {
         let p = p_m.cross_matrix();
-        let c = p * self.steps * p.transpose()
-            - p * self.first_moment.transpose()
-            - self.first_moment * p.transpose()
-            + self.second_moment;
+        let c = p * self.steps_rad2 * p.transpose()
+            - p * self.first_m_rad2.transpose()
+            - self.first_m_rad2 * p.transpose()
+            + self.second_m2_rad2;
         (c + c.transpose()) * 0.5
+    }
+
+    /// The same steps with positions from `x_m` instead (`p_j − x`).
+    pub fn about(&self, x_m: &Vector3<f64>) -> Self {
+        let x = x_m.cross_matrix();
+        let second = self.second_m2_rad2
+            - x * self.first_m_rad2.transpose()
+            - self.first_m_rad2 * x.transpose()
+            + x * self.steps_rad2 * x.transpose();
+        Self {
+            steps_rad2: self.steps_rad2,
+            first_m_rad2: self.first_m_rad2 - x * self.steps_rad2,
+            second_m2_rad2: (second + second.transpose()) * 0.5,
+        }
+    }
+
+    /// The same steps in a frame turned by `r` (new = `r` old).
+    pub fn rotated(&self, r: &Matrix3<f64>) -> Self {
+        Self {
+            steps_rad2: r * self.steps_rad2 * r.transpose(),
+            first_m_rad2: r * self.first_m_rad2 * r.transpose(),
+            second_m2_rad2: r * self.second_m2_rad2 * r.transpose(),
+        }
+    }
+
+    /// Whether every entry is finite, the two covariance-like sums
+    /// symmetric with a non-negative diagonal (what a file may hold).
+    pub fn is_usable(&self) -> bool {
+        let symmetric_psd_diagonal = |m: &Matrix3<f64>| {
+            (m - m.transpose()).amax() <= 1e-9 * m.amax().max(1e-300)
+                && (0..3).all(|i| m[(i, i)] >= 0.0)
+        };
+        [self.steps_rad2, self.first_m_rad2, self.second_m2_rad2]
+            .iter()
+            .all(|m| m.iter().all(|v| v.is_finite()))
+            && symmetric_psd_diagonal(&self.steps_rad2)
+            && symmetric_psd_diagonal(&self.second_m2_rad2)
     }
 }
 
@@ -71,9 +113,9 @@ impl Sums {
 /// mapping frame.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct MappingAttitude {
-    now: Sums,
+    now: AttitudeMoments,
     /// The sums of frames that mapped a landmark first, in order.
-    snapshots: Vec<Sums>,
+    snapshots: Vec<AttitudeMoments>,
     /// Whether the last snapshot is `now`.
     snapshot_current: bool,
     /// Per map id: 1 + its mapping frame's index in `snapshots`, 0 when
@@ -99,7 +141,7 @@ impl MappingAttitude {
         if !usable {
             return;
         }
-        let growth = SymmetricEigen::new(rotation_covariance - self.now.steps);
+        let growth = SymmetricEigen::new(rotation_covariance - self.now.steps_rad2);
         if growth.eigenvalues.iter().all(|&v| v <= 0.0) {
             return;
         }
@@ -108,9 +150,9 @@ impl MappingAttitude {
             * growth.eigenvectors.transpose();
         let step = (step + step.transpose()) * 0.5;
         let lever = position_m.cross_matrix();
-        self.now.steps += step;
-        self.now.first_moment += lever * step;
-        self.now.second_moment += lever * step * lever.transpose();
+        self.now.steps_rad2 += step;
+        self.now.first_m_rad2 += lever * step;
+        self.now.second_m2_rad2 += lever * step * lever.transpose();
         self.snapshot_current = false;
     }
 
@@ -131,7 +173,9 @@ impl MappingAttitude {
         self.by_id[k] = self.snapshots.len() as u32;
     }
 
-    fn mapped_sums(&self, id: u32) -> Option<&Sums> {
+    /// The sums as they were when map landmark `id` was mapped
+    /// (positions from the map's anchor), if it was noted.
+    pub(crate) fn mapped_moments(&self, id: u32) -> Option<&AttitudeMoments> {
         let slot = *self.by_id.get(id as usize)?;
         self.snapshots.get((slot as usize).checked_sub(1)?)
     }
@@ -148,11 +192,12 @@ impl MappingAttitude {
         let mut sum = Matrix3::zeros();
         let mut count = 0usize;
         for (id, offset) in landmarks {
-            let Some(sums) = self.mapped_sums(*id) else {
+            let Some(sums) = self.mapped_moments(*id) else {
                 continue;
             };
             let b = offset.cross_matrix();
-            sum += sums.covariance_at(robot_m) + b * (self.now.steps - sums.steps) * b.transpose();
+            sum += sums.covariance_at(robot_m)
+                + b * (self.now.steps_rad2 - sums.steps_rad2) * b.transpose();
             count += 1;
         }
         if count == 0 {
@@ -265,6 +310,41 @@ mod tests {
     }
 
     #[test]
+    fn moments_moved_to_another_point_give_the_same_covariance() {
+        // Steps at three places; the sums about a landmark (as a saved
+        // map keeps them) must give every robot position's covariance
+        // as the sums about the anchor do.
+        let mut attitude = MappingAttitude::default();
+        let q = Matrix3::new(2.0, 0.3, 0.1, 0.3, 1.0, -0.2, 0.1, -0.2, 5.0) * 1e-6;
+        for (k, p) in [
+            Vector3::new(0.0, 0.0, 0.0),
+            Vector3::new(3.0, -1.0, 0.2),
+            Vector3::new(6.0, 2.0, 0.5),
+        ]
+        .iter()
+        .enumerate()
+        {
+            attitude.advance(&(q * (k + 1) as f64), p);
+        }
+        let at_anchor = attitude.now;
+        let landmark = Vector3::new(4.0, 5.0, 1.5);
+        let about = at_anchor.about(&landmark);
+        for robot in [
+            Vector3::new(1.0, 2.0, 0.0),
+            Vector3::new(-3.0, 0.5, 1.0),
+            landmark,
+        ] {
+            let direct = at_anchor.covariance_at(&robot);
+            let moved = about.covariance_at(&(robot - landmark));
+            assert!(
+                (direct - moved).amax() < 1e-12 * direct.amax(),
+                "{direct} {moved}"
+            );
+        }
+        assert!(about.is_usable() && at_anchor.is_usable());
+    }
+
+    #[test]
     fn a_bounded_tilt_adds_no_step_once_it_stops_growing() {
         // Roll and pitch: gravity holds them, their variance rises then
         // falls; only the rise is a step. The heading keeps growing.
@@ -274,9 +354,9 @@ mod tests {
         attitude.advance(&Matrix3::from_diagonal(&Vector3::new(1e-6, 1e-6, 2e-6)), &p);
         let expected = Matrix3::from_diagonal(&Vector3::new(4e-6, 4e-6, 2e-6));
         assert!(
-            (attitude.now.steps - expected).amax() < 1e-18,
+            (attitude.now.steps_rad2 - expected).amax() < 1e-18,
             "{}",
-            attitude.now.steps
+            attitude.now.steps_rad2
         );
         // A covariance that shrinks everywhere adds nothing at all.
         let before = attitude.now;

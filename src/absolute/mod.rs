@@ -31,7 +31,7 @@ mod map_builder;
 pub mod map_cross_covariance;
 pub mod map_file;
 pub mod map_worker;
-mod mapping_attitude;
+pub mod mapping_attitude;
 pub mod nees;
 mod node_places;
 pub mod orientation_filter;

@@ -460,15 +460,24 @@ impl AbsoluteStage {
             self.request_solve();
             self.wait_for_solve();
         }
-        let landmarks = self.builder.saved_landmarks(self.map.as_ref()?)?;
-        Some(super::map_file::SavedMap { landmarks })
+        self.solved_map()
     }
 
     /// The landmarks of the last solved map for saving, as
     /// [`Self::finish_map`] gives them but without solving again (so
     /// without the edges fused since that solve). None before a solve.
     pub fn solved_map(&self) -> Option<super::map_file::SavedMap> {
-        let landmarks = self.builder.saved_landmarks(self.map.as_ref()?)?;
+        let mut landmarks = self.builder.saved_landmarks(self.map.as_ref()?)?;
+        if let Some(anchor) = self.builder.anchor_world_m() {
+            // Each landmark keeps the attitude sums of its mapping frame,
+            // about its own position.
+            for l in &mut landmarks {
+                l.attitude = self
+                    .mapping_attitude
+                    .mapped_moments(l.id)
+                    .map(|m| m.about(&(l.position_m - anchor)));
+            }
+        }
         Some(super::map_file::SavedMap { landmarks })
     }
 

@@ -53,6 +53,7 @@ pub(super) fn map_into_published_world(
             .transform_point(&l.position_m.into())
             .coords;
         l.covariance_m2 = r * l.covariance_m2 * r.transpose();
+        l.attitude = l.attitude.map(|a| a.rotated(&r));
     }
     map
 }
@@ -65,6 +66,7 @@ fn rotation(isometry: &Isometry3<f64>) -> Matrix3<f64> {
 mod tests {
     use super::*;
     use crate::absolute::map_file::MapLandmark;
+    use crate::absolute::mapping_attitude::AttitudeMoments;
     use crate::relative::types::PoseCovariance;
     use nalgebra::{Matrix6, Translation3, UnitQuaternion, Vector3};
 
@@ -178,12 +180,18 @@ mod tests {
         let l = levelling();
         let p = Vector3::new(3.0, 1.0, -0.5);
         let c = Matrix3::from_diagonal(&Vector3::new(1e-4, 4e-4, 9e-4));
+        let attitude = AttitudeMoments {
+            steps_rad2: Matrix3::from_diagonal(&Vector3::new(1e-7, 2e-7, 5e-6)),
+            first_m_rad2: Matrix3::new(0.0, 1.0, 2.0, -1.0, 0.0, 3.0, 0.5, 0.0, 1.0) * 1e-6,
+            second_m2_rad2: Matrix3::from_diagonal(&Vector3::new(2e-5, 3e-5, 1e-5)),
+        };
         let map = SavedMap {
             landmarks: vec![MapLandmark {
                 id: 4,
                 position_m: p,
                 covariance_m2: c,
                 descriptor: None,
+                attitude: Some(attitude),
             }],
         };
         let levelled = map_into_published_world(map, &l);
@@ -192,5 +200,13 @@ mod tests {
         let r = rotation(&l);
         assert!((m.covariance_m2 - r * c * r.transpose()).norm() < 1e-15);
         assert_eq!(m.id, 4);
+        // What the attitude puts in a robot 2 m away turns with the map.
+        let d = Vector3::new(2.0, -1.0, 0.5);
+        let turned = m.attitude.expect("kept").covariance_at(&(r * d));
+        let expected = r * attitude.covariance_at(&d) * r.transpose();
+        assert!(
+            (turned - expected).amax() < 1e-12 * expected.amax(),
+            "{turned} {expected}"
+        );
     }
 }
