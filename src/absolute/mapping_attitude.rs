@@ -33,7 +33,9 @@
 //! covariance is the first step, taken there. `Q_j` is the part of the
 //! published `Σθ` beyond what the sums hold already (its positive part:
 //! roll and pitch, which gravity bounds, add nothing once their sigma
-//! stops growing).
+//! stops growing). A relative stage that starts over publishes its
+//! covariance from a new origin, from zero again: the steps are then
+//! counted from what the sums held when the origin moved.
 //!
 //! A position corrected against several landmarks carries the mean of
 //! their covariances: their errors come from one drifting attitude, so
@@ -121,17 +123,25 @@ pub(crate) struct MappingAttitude {
     /// Per map id: 1 + its mapping frame's index in `snapshots`, 0 when
     /// not mapped yet.
     by_id: Vec<u32>,
+    /// The stamp of the origin the relative stage's covariance is taken
+    /// from, and the steps held when it moved there: a relative stage
+    /// that starts over (after a loss) publishes its covariance from a
+    /// new origin, growing from zero again, and only what it adds beyond
+    /// that origin is a step.
+    origin: Option<(i64, Matrix3<f64>)>,
 }
 
 impl MappingAttitude {
     /// Takes the relative stage's rotation covariance of a frame (rad²,
-    /// world axes) with the robot at `position_m` from the map's anchor:
-    /// its growth beyond the sums is a step taken there. A covariance or
+    /// world axes), from the origin stamped `origin_t_ns`, with the robot
+    /// at `position_m` from the map's anchor: its growth beyond what the
+    /// sums hold since that origin is a step taken there. A covariance or
     /// position that is not finite, or a covariance that is not
     /// symmetric, is ignored.
     pub(crate) fn advance(
         &mut self,
         rotation_covariance: &Matrix3<f64>,
+        origin_t_ns: i64,
         position_m: &Vector3<f64>,
     ) {
         let usable = rotation_covariance.iter().all(|v| v.is_finite())
@@ -141,7 +151,21 @@ impl MappingAttitude {
         if !usable {
             return;
         }
-        let growth = SymmetricEigen::new(rotation_covariance - self.now.steps_rad2);
+        let held_at_origin = match self.origin {
+            Some((stamp, held)) if stamp == origin_t_ns => held,
+            _ => {
+                // The first origin is the anchor's world: nothing held.
+                let held = if self.origin.is_some() {
+                    self.now.steps_rad2
+                } else {
+                    Matrix3::zeros()
+                };
+                self.origin = Some((origin_t_ns, held));
+                held
+            }
+        };
+        let growth =
+            SymmetricEigen::new(rotation_covariance - (self.now.steps_rad2 - held_at_origin));
         if growth.eigenvalues.iter().all(|&v| v <= 0.0) {
             return;
         }
@@ -229,7 +253,7 @@ mod tests {
         // heading error the map was built with).
         let s2 = 1e-4;
         let mut attitude = MappingAttitude::default();
-        attitude.advance(&heading(s2), &Vector3::zeros());
+        attitude.advance(&heading(s2), 0, &Vector3::zeros());
         attitude.note_mapped(4);
         let robot = Vector3::new(5.0, 0.0, 0.0);
         let c = attitude.position_covariance_m2(&[(4, Vector3::new(0.0, 2.0, 1.0))], &robot);
@@ -238,7 +262,7 @@ mod tests {
         // A second step, taken at the robot after the mapping: it turns
         // the robot's view of the landmark (3 m along y: off along x),
         // not the map about the robot.
-        attitude.advance(&heading(3.0 * s2), &robot);
+        attitude.advance(&heading(3.0 * s2), 0, &robot);
         let b = Vector3::new(0.0, 3.0, 0.0);
         let c = attitude.position_covariance_m2(&[(4, b)], &robot);
         let expected = Matrix3::from_diagonal(&Vector3::new(9.0 * 2.0 * s2, 25.0 * s2, 0.0));
@@ -270,7 +294,7 @@ mod tests {
         let l = q.cholesky().expect("positive definite").l();
         let mut attitude = MappingAttitude::default();
         for (k, p) in path.iter().enumerate().take(robot_at + 1) {
-            attitude.advance(&(q * (k + 1) as f64), &(p - path[0]));
+            attitude.advance(&(q * (k + 1) as f64), 0, &(p - path[0]));
             if k == mapped_at {
                 attitude.note_mapped(0);
             }
@@ -324,7 +348,7 @@ mod tests {
         .iter()
         .enumerate()
         {
-            attitude.advance(&(q * (k + 1) as f64), p);
+            attitude.advance(&(q * (k + 1) as f64), 0, p);
         }
         let at_anchor = attitude.now;
         let landmark = Vector3::new(4.0, 5.0, 1.5);
@@ -350,8 +374,16 @@ mod tests {
         // falls; only the rise is a step. The heading keeps growing.
         let mut attitude = MappingAttitude::default();
         let p = Vector3::new(1.0, 0.0, 0.0);
-        attitude.advance(&Matrix3::from_diagonal(&Vector3::new(4e-6, 4e-6, 1e-6)), &p);
-        attitude.advance(&Matrix3::from_diagonal(&Vector3::new(1e-6, 1e-6, 2e-6)), &p);
+        attitude.advance(
+            &Matrix3::from_diagonal(&Vector3::new(4e-6, 4e-6, 1e-6)),
+            0,
+            &p,
+        );
+        attitude.advance(
+            &Matrix3::from_diagonal(&Vector3::new(1e-6, 1e-6, 2e-6)),
+            0,
+            &p,
+        );
         let expected = Matrix3::from_diagonal(&Vector3::new(4e-6, 4e-6, 2e-6));
         assert!(
             (attitude.now.steps_rad2 - expected).amax() < 1e-18,
@@ -360,31 +392,49 @@ mod tests {
         );
         // A covariance that shrinks everywhere adds nothing at all.
         let before = attitude.now;
-        attitude.advance(&(Matrix3::identity() * 1e-7), &p);
+        attitude.advance(&(Matrix3::identity() * 1e-7), 0, &p);
         assert_eq!(attitude.now, before);
+    }
+
+    #[test]
+    fn a_relative_stage_that_starts_over_adds_steps_from_its_new_origin() {
+        // The heading variance grows to 4e-6, the relative stage starts
+        // over (a new origin) and publishes from zero again: 1e-6 there is
+        // a step of 1e-6, not nothing (below the 4e-6 held), and the
+        // attitude error held before stays.
+        let mut attitude = MappingAttitude::default();
+        let p = Vector3::zeros();
+        attitude.advance(&heading(4e-6), 0, &p);
+        attitude.advance(&heading(1e-6), 5, &p);
+        assert!((attitude.now.steps_rad2[(2, 2)] - 5e-6).abs() < 1e-18);
+        attitude.advance(&heading(3e-6), 5, &p);
+        assert!((attitude.now.steps_rad2[(2, 2)] - 7e-6).abs() < 1e-18);
+        // The same origin again: nothing new below what it published.
+        attitude.advance(&heading(2e-6), 5, &p);
+        assert!((attitude.now.steps_rad2[(2, 2)] - 7e-6).abs() < 1e-18);
     }
 
     #[test]
     fn unusable_inputs_leave_the_sums_alone() {
         let mut attitude = MappingAttitude::default();
-        attitude.advance(&heading(1e-6), &Vector3::zeros());
+        attitude.advance(&heading(1e-6), 0, &Vector3::zeros());
         let before = attitude.now;
         let mut nan = heading(2e-6);
         nan[(0, 1)] = f64::NAN;
-        attitude.advance(&nan, &Vector3::zeros());
+        attitude.advance(&nan, 0, &Vector3::zeros());
         let mut skew = heading(2e-6);
         skew[(0, 1)] = 1e-7;
-        attitude.advance(&skew, &Vector3::zeros());
-        attitude.advance(&heading(2e-6), &Vector3::new(f64::INFINITY, 0.0, 0.0));
+        attitude.advance(&skew, 0, &Vector3::zeros());
+        attitude.advance(&heading(2e-6), 0, &Vector3::new(f64::INFINITY, 0.0, 0.0));
         assert_eq!(attitude.now, before);
     }
 
     #[test]
     fn a_landmark_keeps_its_first_mapping_and_the_correction_averages() {
         let mut attitude = MappingAttitude::default();
-        attitude.advance(&heading(1e-6), &Vector3::zeros());
+        attitude.advance(&heading(1e-6), 0, &Vector3::zeros());
         attitude.note_mapped(1);
-        attitude.advance(&heading(9e-6), &Vector3::zeros());
+        attitude.advance(&heading(9e-6), 0, &Vector3::zeros());
         attitude.note_mapped(1);
         attitude.note_mapped(2);
         // Two landmarks mapped in one frame share its sums.

@@ -803,8 +803,11 @@ impl AbsoluteStage {
             return;
         };
         let robot = position_m - anchor;
-        self.mapping_attitude
-            .advance(&pose.matrix.fixed_view::<3, 3>(3, 3).into_owned(), &robot);
+        self.mapping_attitude.advance(
+            &pose.matrix.fixed_view::<3, 3>(3, 3).into_owned(),
+            pose.origin_t_ns,
+            &robot,
+        );
         let registry = self.builder.registry();
         for l in &output.landmarks {
             if let Some(id) = registry.map_id_of(l.id) {
