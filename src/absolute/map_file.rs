@@ -421,6 +421,31 @@ impl SavedMap {
 mod tests {
     use super::*;
 
+    /// The sums of two attitude steps taken at two places.
+    fn two_steps() -> AttitudeMoments {
+        let steps = [
+            (
+                Matrix3::new(3.0, 0.2, 0.1, 0.2, 2.0, -0.3, 0.1, -0.3, 9.0) * 1e-7,
+                Vector3::new(1.0 / 3.0, -2.0, 0.5),
+            ),
+            (
+                Matrix3::from_diagonal(&Vector3::new(1e-8, 2e-8, 4e-6)),
+                Vector3::new(4.0, 1.0, -0.25),
+            ),
+        ];
+        let mut sums = AttitudeMoments::default();
+        for (q, p) in steps {
+            let x = p.cross_matrix();
+            sums.steps_rad2 += q;
+            sums.first_m_rad2 += x * q;
+            sums.second_m2_rad2 += x * q * x.transpose();
+        }
+        // The file holds the upper triangle: exactly symmetric, as read.
+        sums.second_m2_rad2 = (sums.second_m2_rad2 + sums.second_m2_rad2.transpose()) * 0.5;
+        assert!(sums.is_usable());
+        sums
+    }
+
     fn sample() -> SavedMap {
         SavedMap {
             landmarks: vec![
@@ -430,23 +455,7 @@ mod tests {
                     covariance_m2: Matrix3::new(2.0, 0.1, 0.0, 0.1, 1.0, -0.2, 0.0, -0.2, 0.5)
                         * 1e-4,
                     descriptor: Some([u64::MAX, 0, 0x0123_4567_89ab_cdef, 42]),
-                    attitude: Some(AttitudeMoments {
-                        steps_rad2: Matrix3::new(3.0, 0.2, 0.1, 0.2, 2.0, -0.3, 0.1, -0.3, 9.0)
-                            * 1e-7,
-                        first_m_rad2: Matrix3::new(
-                            1.0,
-                            -2.0,
-                            3.0,
-                            0.5,
-                            0.25,
-                            -7.0,
-                            4.0,
-                            1.0 / 3.0,
-                            0.0,
-                        ) * 1e-6,
-                        second_m2_rad2: Matrix3::new(5.0, 1.0, 0.0, 1.0, 4.0, 0.5, 0.0, 0.5, 2.0)
-                            * 1e-5,
-                    }),
+                    attitude: Some(two_steps()),
                 },
                 MapLandmark {
                     id: 7,
@@ -519,6 +528,16 @@ mod tests {
             (with_line3(&attitude_line("nan")), ":3:", "field 12 `nan`"),
             (
                 with_line3(&attitude_line("-1")),
+                ":3:",
+                "attitude sums of landmark 0 are not covariances",
+            ),
+            (
+                // A first moment no steps can give with these two sums.
+                with_line3(&attitude_line("1e-6").replacen(
+                    " 0 0 0 0 0 0 0 0 0 1e-6",
+                    " 5 0 0 0 0 0 0 0 0 1e-6",
+                    1,
+                )),
                 ":3:",
                 "attitude sums of landmark 0 are not covariances",
             ),

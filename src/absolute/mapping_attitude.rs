@@ -44,7 +44,7 @@
 //! placed by the map against landmarks mapped before, takes the larger
 //! sums of then: that leans to the cautious side.
 
-use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+use nalgebra::{Matrix3, Matrix6, SymmetricEigen, Vector3};
 
 /// The attitude steps up to a frame and where they were taken:
 /// `Σ Q_j`, `Σ [p_j]× Q_j` and `Σ [p_j]× Q_j [p_j]×ᵀ`, positions `p_j` from
@@ -96,18 +96,37 @@ impl AttitudeMoments {
         }
     }
 
-    /// Whether every entry is finite, the two covariance-like sums
-    /// symmetric with a non-negative diagonal (what a file may hold).
+    /// Whether the sums can be steps at all (what a file may hold): every
+    /// entry finite, and `Σ [I; [p_j]×] Q_j [I; [p_j]×]ᵀ`, the 6x6 matrix
+    /// `[[ΣQ, (Σ[p]×Q)ᵀ], [Σ[p]×Q, Σ[p]×Q[p]×ᵀ]]` they make, symmetric and
+    /// positive semi-definite: then the covariance they give at any
+    /// position is one too.
     pub fn is_usable(&self) -> bool {
-        let symmetric_psd_diagonal = |m: &Matrix3<f64>| {
-            (m - m.transpose()).amax() <= 1e-9 * m.amax().max(1e-300)
-                && (0..3).all(|i| m[(i, i)] >= 0.0)
-        };
-        [self.steps_rad2, self.first_m_rad2, self.second_m2_rad2]
+        if ![self.steps_rad2, self.first_m_rad2, self.second_m2_rad2]
             .iter()
             .all(|m| m.iter().all(|v| v.is_finite()))
-            && symmetric_psd_diagonal(&self.steps_rad2)
-            && symmetric_psd_diagonal(&self.second_m2_rad2)
+        {
+            return false;
+        }
+        let mut joint = Matrix6::zeros();
+        joint
+            .fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(&self.steps_rad2);
+        joint
+            .fixed_view_mut::<3, 3>(0, 3)
+            .copy_from(&self.first_m_rad2.transpose());
+        joint
+            .fixed_view_mut::<3, 3>(3, 0)
+            .copy_from(&self.first_m_rad2);
+        joint
+            .fixed_view_mut::<3, 3>(3, 3)
+            .copy_from(&self.second_m2_rad2);
+        let size = joint.amax().max(1e-300);
+        if (joint - joint.transpose()).amax() > 1e-9 * size {
+            return false;
+        }
+        let joint = (joint + joint.transpose()) * 0.5;
+        SymmetricEigen::new(joint).eigenvalues.min() >= -1e-9 * size
     }
 }
 
@@ -366,6 +385,25 @@ mod tests {
             );
         }
         assert!(about.is_usable() && at_anchor.is_usable());
+        // Sums no steps can make: each block fine alone, the first moment
+        // too large for the other two (a covariance that would go
+        // negative at some position).
+        let impossible = AttitudeMoments {
+            first_m_rad2: at_anchor.first_m_rad2 * 1e3,
+            ..at_anchor
+        };
+        assert!(!impossible.is_usable());
+        let robot = Vector3::new(50.0, -20.0, 3.0);
+        assert!(
+            SymmetricEigen::new(impossible.covariance_at(&robot))
+                .eigenvalues
+                .min()
+                < 0.0
+                || SymmetricEigen::new(impossible.covariance_at(&-robot))
+                    .eigenvalues
+                    .min()
+                    < 0.0
+        );
     }
 
     #[test]
