@@ -308,19 +308,25 @@ impl SavedMap {
             if !seen.insert(id) {
                 return Err(parse(number, format!("landmark {id} appears twice")));
             }
+            // Fields `first..first + out.len()` (0-based) as finite numbers.
+            let finite = |first: usize, out: &mut [f64]| {
+                for (k, slot) in out.iter_mut().enumerate() {
+                    let text = fields[first + k];
+                    *slot = text
+                        .parse::<f64>()
+                        .ok()
+                        .filter(|x| x.is_finite())
+                        .ok_or_else(|| {
+                            parse(
+                                number,
+                                format!("field {} `{text}` is not a finite number", first + k + 1),
+                            )
+                        })?;
+                }
+                Ok(())
+            };
             let mut v = [0.0f64; 9];
-            for (k, slot) in v.iter_mut().enumerate() {
-                *slot = fields[k + 1]
-                    .parse::<f64>()
-                    .ok()
-                    .filter(|x| x.is_finite())
-                    .ok_or_else(|| {
-                        parse(
-                            number,
-                            format!("field {} `{}` is not a finite number", k + 2, fields[k + 1]),
-                        )
-                    })?;
-            }
+            finite(1, &mut v)?;
             let covariance_m2 = Matrix3::new(v[3], v[4], v[5], v[4], v[6], v[7], v[5], v[7], v[8]);
             if covariance_m2.cholesky().is_none() {
                 return Err(parse(
@@ -341,22 +347,7 @@ impl SavedMap {
                 [] | ["-"] => None,
                 numbers if numbers.len() == ATTITUDE_FIELDS => {
                     let mut a = [0.0f64; ATTITUDE_FIELDS];
-                    for (k, slot) in a.iter_mut().enumerate() {
-                        *slot = numbers[k]
-                            .parse::<f64>()
-                            .ok()
-                            .filter(|x| x.is_finite())
-                            .ok_or_else(|| {
-                                parse(
-                                    number,
-                                    format!(
-                                        "field {} `{}` is not a finite number",
-                                        k + 12,
-                                        numbers[k]
-                                    ),
-                                )
-                            })?;
-                    }
+                    finite(11, &mut a)?;
                     let moments = attitude_from_fields(&a);
                     if !moments.is_usable() {
                         return Err(parse(
