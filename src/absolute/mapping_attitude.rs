@@ -229,13 +229,13 @@ impl MappingAttitude {
     /// mean over those noted. Zero when none is.
     pub(crate) fn position_covariance_m2(
         &self,
-        landmarks: &[(u32, Vector3<f64>)],
+        landmarks: impl IntoIterator<Item = (u32, Vector3<f64>)>,
         robot_m: &Vector3<f64>,
     ) -> Matrix3<f64> {
         let mut sum = Matrix3::zeros();
         let mut count = 0usize;
         for (id, offset) in landmarks {
-            let Some(sums) = self.mapped_moments(*id) else {
+            let Some(sums) = self.mapped_moments(id) else {
                 continue;
             };
             let b = offset.cross_matrix();
@@ -275,7 +275,7 @@ mod tests {
         attitude.advance(&heading(s2), 0, &Vector3::zeros());
         attitude.note_mapped(4);
         let robot = Vector3::new(5.0, 0.0, 0.0);
-        let c = attitude.position_covariance_m2(&[(4, Vector3::new(0.0, 2.0, 1.0))], &robot);
+        let c = attitude.position_covariance_m2([(4, Vector3::new(0.0, 2.0, 1.0))], &robot);
         let expected = Matrix3::from_diagonal(&Vector3::new(0.0, 25.0 * s2, 0.0));
         assert!((c - expected).amax() < 1e-15, "{c}");
         // A second step, taken at the robot after the mapping: it turns
@@ -283,13 +283,13 @@ mod tests {
         // not the map about the robot.
         attitude.advance(&heading(3.0 * s2), 0, &robot);
         let b = Vector3::new(0.0, 3.0, 0.0);
-        let c = attitude.position_covariance_m2(&[(4, b)], &robot);
+        let c = attitude.position_covariance_m2([(4, b)], &robot);
         let expected = Matrix3::from_diagonal(&Vector3::new(9.0 * 2.0 * s2, 25.0 * s2, 0.0));
         assert!((c - expected).amax() < 1e-15, "{c}");
         // A landmark mapped after both steps, seen from the anchor: only
         // the second step, taken 5 m away, places the robot off.
         attitude.note_mapped(5);
-        let c = attitude.position_covariance_m2(&[(5, b)], &Vector3::zeros());
+        let c = attitude.position_covariance_m2([(5, b)], &Vector3::zeros());
         let expected = Matrix3::from_diagonal(&Vector3::new(0.0, 25.0 * 2.0 * s2, 0.0));
         assert!((c - expected).amax() < 1e-15, "{c}");
     }
@@ -319,7 +319,7 @@ mod tests {
             }
         }
         let robot = path[robot_at] - path[0];
-        let model = attitude.position_covariance_m2(&[(0, landmark - path[robot_at])], &robot);
+        let model = attitude.position_covariance_m2([(0, landmark - path[robot_at])], &robot);
         let mut rng = ChaCha8Rng::seed_from_u64(7);
         let draws = 40_000;
         let mut drawn = Matrix3::zeros();
@@ -480,8 +480,8 @@ mod tests {
         assert_eq!(attitude.snapshots.len(), 2);
         let robot = Vector3::new(1.0, 0.0, 0.0);
         let at = |ids: &[u32]| {
-            let landmarks: Vec<_> = ids.iter().map(|&id| (id, Vector3::zeros())).collect();
-            attitude.position_covariance_m2(&landmarks, &robot)[(1, 1)]
+            let landmarks = ids.iter().map(|&id| (id, Vector3::zeros()));
+            attitude.position_covariance_m2(landmarks, &robot)[(1, 1)]
         };
         assert!((at(&[1]) - 1e-6).abs() < 1e-18);
         assert!((at(&[2]) - 9e-6).abs() < 1e-18);

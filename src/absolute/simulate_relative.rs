@@ -270,11 +270,7 @@ pub fn simulate_room_run(options: &RoomRunOptions) -> RoomRun {
             PoseCovariance {
                 matrix,
                 origin_t_ns: 0,
-                T_world_origin: Isometry3::translation(
-                    position_at(0.0).x,
-                    position_at(0.0).y,
-                    position_at(0.0).z,
-                ),
+                T_world_origin: Translation3::from(position_at(0.0)).into(),
             }
         });
         let (amplitude, period_m) = options.scale_wander;

@@ -280,8 +280,9 @@ pub struct AbsoluteStage {
     /// drifted to by then, so the published map-frame covariance adds it
     /// (zero for a map anchored at the relative stage's origin).
     anchor_covariance_m2: Matrix3<f64>,
-    /// Per map landmark, the relative stage's attitude covariance when
-    /// it was mapped ([`super::mapping_attitude`]).
+    /// The relative stage's attitude steps and where they were taken,
+    /// as they stood when each map landmark was mapped
+    /// ([`super::mapping_attitude`]).
     mapping_attitude: MappingAttitude,
     /// What those attitudes add to the position corrected against the
     /// last correction's landmarks, m² (zero when
@@ -1003,14 +1004,13 @@ impl AbsoluteStage {
                     self.correction_shares.note_used(id, support);
                 }
                 if self.config.mapping_attitude_covariance {
-                    let landmarks: Vec<(u32, Vector3<f64>)> = ids
+                    let landmarks = ids
                         .iter()
                         .zip(&fixes)
-                        .map(|(&id, fix)| (id, fix.offset_world_m))
-                        .collect();
+                        .map(|(&id, fix)| (id, fix.offset_world_m));
                     self.attitude_covariance_m2 = self
                         .mapping_attitude
-                        .position_covariance_m2(&landmarks, &(filter.position_world_m() - anchor));
+                        .position_covariance_m2(landmarks, &(filter.position_world_m() - anchor));
                 }
                 self.stats.corrections += 1;
                 self.stats.nis_sum += report.nis;
