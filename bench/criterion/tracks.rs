@@ -48,6 +48,8 @@ fn main() -> anyhow::Result<()> {
     let config = TrackerConfig {
         target_features: relative.features,
         klt_affine: relative.klt_affine,
+        first_patch: relative.track_first_patch
+            || std::env::var_os("RIGSLAM_TRACK_FIRST_PATCH").is_some(),
         ..TrackerConfig::default()
     };
     let mut tracker = Tracker::new(config, &rig.cameras[..2], true)?;

@@ -81,6 +81,14 @@ pub struct RelativeConfig {
     /// frame on one core (docs/results/klt-affine-default-2026-12-05.md).
     /// Off: the shift-only fit.
     pub klt_affine: bool,
+    /// At each keyframe, move every track to where the patch it started
+    /// from aligns (affine warp, gain and offset), when that is within a
+    /// pixel of where it was followed: a track followed from frame to
+    /// frame gathers each frame's error (0.04 px after one frame, 0.17-0.20
+    /// px after 64 on the renderings), its first patch does not (0.04-0.05
+    /// px at every age; docs/results/track-error-2026-12-07.md). Off by
+    /// default until measured on every set.
+    pub track_first_patch: bool,
     /// Keyframes kept in the window (L).
     pub window_keyframes: usize,
     /// Newest keyframes optimised (M); the oldest L-M are held fixed.
@@ -221,6 +229,7 @@ impl Default for RelativeConfig {
         Self {
             features: 150,
             klt_affine: true,
+            track_first_patch: false,
             window_keyframes: 10,
             window_free: 7,
             pixel_sigma_px: 1.0,

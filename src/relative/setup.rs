@@ -37,6 +37,7 @@ pub(super) fn front_end(
     let tracker_config = TrackerConfig {
         target_features: config.features,
         klt_affine: config.klt_affine,
+        first_patch: config.track_first_patch,
         ..TrackerConfig::default()
     };
     let tracker = Tracker::new(tracker_config, &cameras, mode.uses_stereo())

@@ -38,8 +38,13 @@ use crate::features::{
 use crate::rig::CameraCalibration;
 use crate::two_view::{estimate_relative_pose, RelativePoseConfig};
 
+use self::first_patch::FirstPatch;
 use super::estimator::FrameInput;
 use super::types::{LandmarkId, Observation, TrackedFrame};
+
+/// Farthest a track is moved to where its first patch aligned, px: more
+/// is a different place of the texture, not the track's drift.
+const MAX_FIRST_PATCH_MOVE_PX: f32 = 1.0;
 
 /// Settings of the tracker (defaults in brackets).
 #[derive(Debug, Clone, PartialEq)]
@@ -59,6 +64,10 @@ pub struct TrackerConfig {
     /// which a track adds up. Not used for the stereo match, made afresh
     /// every frame.
     pub klt_affine: bool,
+    /// At each keyframe, align every track's first patch into the image
+    /// from where KLT followed it, and move the track there
+    /// ([`first_patch`]) \[false\].
+    pub first_patch: bool,
     /// Pyramid levels including the image \[3\].
     pub pyramid_levels: usize,
     /// Forward-backward agreement, px [1.0].
@@ -100,6 +109,7 @@ impl Default for TrackerConfig {
             min_distance_px: 15.0,
             klt_half_window_px: 7,
             klt_affine: false,
+            first_patch: false,
             pyramid_levels: 3,
             fb_threshold_px: 1.0,
             ransac_threshold_px: 1.0,
@@ -185,6 +195,10 @@ pub struct TrackerStats {
     pub stereo_refused_residual: u64,
     /// Times every track was dropped after lost tracking.
     pub resets: u64,
+    /// Tracks moved to where their first patch aligned (`first_patch`).
+    pub first_patch_aligned: u64,
+    /// Tracks whose first patch was refused and started again.
+    pub first_patch_restarted: u64,
 }
 
 /// The front end. Buffers are owned and reused frame to frame.
@@ -212,6 +226,9 @@ pub struct Tracker {
     descriptors: Vec<Option<Descriptor>>,
     describer: OrbExtractor,
     points: Vec<[f32; 2]>,
+    /// First patch of each track, aligned with `ids` (`first_patch` on;
+    /// None where it did not fit in the image).
+    first_patches: Vec<Option<FirstPatch>>,
     /// Right-image positions of the previous frame, by id.
     right_points: HashMap<LandmarkId, [f32; 2]>,
     next_id: LandmarkId,
@@ -375,6 +392,7 @@ impl Tracker {
             describer: OrbExtractor::new(OrbConfig::default())
                 .map_err(|e| TrackerError::Image(e.to_string()))?,
             points: Vec::new(),
+            first_patches: Vec::new(),
             right_points: HashMap::new(),
             next_id: 0,
             last_t_ns: None,
@@ -418,6 +436,7 @@ impl Tracker {
         self.ids.clear();
         self.descriptors.clear();
         self.points.clear();
+        self.first_patches.clear();
         self.right_points.clear();
         self.keyframe_points.clear();
         self.keyframe_t_ns = None;
@@ -487,9 +506,13 @@ impl Tracker {
             self.ids.clear();
             self.descriptors.clear();
             self.points.clear();
+            self.first_patches.clear();
         }
         if let Some(r) = R_camprev_camcur.filter(|_| had_previous) {
             self.rotation_since_keyframe *= *r;
+        }
+        if self.config.first_patch && had_previous && self.keyframe_wanted(frame.t_ns) {
+            self.align_first_patches();
         }
         self.detect_new();
 
@@ -547,6 +570,7 @@ impl Tracker {
                 self.ids[write] = self.ids[i];
                 self.descriptors[write] = self.descriptors[i];
                 self.points[write] = self.scratch_tracked[i];
+                self.first_patches.swap(write, i);
                 write += 1;
             } else {
                 self.stats.lost_klt += 1;
@@ -555,6 +579,7 @@ impl Tracker {
         self.ids.truncate(write);
         self.descriptors.truncate(write);
         self.points.truncate(write);
+        self.first_patches.truncate(write);
         self.stats.tracked += write as u64;
         self.reject_outliers(&kept_prev);
         self.scratch.kept_prev = kept_prev;
@@ -617,6 +642,7 @@ impl Tracker {
                 self.ids[write] = self.ids[i];
                 self.descriptors[write] = self.descriptors[i];
                 self.points[write] = self.points[i];
+                self.first_patches.swap(write, i);
                 write += 1;
             } else {
                 self.stats.rejected_ransac += 1;
@@ -625,6 +651,27 @@ impl Tracker {
         self.ids.truncate(write);
         self.descriptors.truncate(write);
         self.points.truncate(write);
+        self.first_patches.truncate(write);
+    }
+
+    /// Each track to where its first patch aligns, when it aligns within
+    /// a pixel of where KLT followed it; a track whose patch is refused
+    /// starts a new one where it is ([`first_patch`]).
+    fn align_first_patches(&mut self) {
+        let image = self.cur.level(0);
+        for (point, patch) in self.points.iter_mut().zip(self.first_patches.iter_mut()) {
+            let aligned = patch.as_mut().and_then(|p| p.align(image, *point));
+            match aligned {
+                Some(q) if (q[0] - point[0]).hypot(q[1] - point[1]) < MAX_FIRST_PATCH_MOVE_PX => {
+                    *point = q;
+                    self.stats.first_patch_aligned += 1;
+                }
+                _ => {
+                    *patch = FirstPatch::capture(image, *point);
+                    self.stats.first_patch_restarted += 1;
+                }
+            }
+        }
     }
 
     /// New corners up to the target count, away from the tracked ones.
@@ -649,6 +696,12 @@ impl Tracker {
             self.ids.push(self.next_id);
             self.next_id += 1;
             self.points.push([c.x as f32, c.y as f32]);
+            self.first_patches.push(
+                self.config
+                    .first_patch
+                    .then(|| FirstPatch::capture(self.cur.level(0), [c.x as f32, c.y as f32]))
+                    .flatten(),
+            );
         }
         let mut described = std::mem::take(&mut self.scratch.described);
         self.describer
@@ -890,6 +943,8 @@ fn positive_depth(
     let d1 = (ata * rhs_b - atb * rhs_a) / det;
     d0 > 0.0 && d1 > 0.0
 }
+
+pub mod first_patch;
 
 #[cfg(test)]
 mod tests;

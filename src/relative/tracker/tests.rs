@@ -658,3 +658,21 @@ fn frame_to_frame_tracks_do_not_drift_from_the_truth() {
         "affine {affine:?} against shift only {shift:?}"
     );
 }
+
+#[test]
+fn tracks_moved_to_their_first_patch_do_not_gather_the_frames_errors() {
+    // Followed from frame to frame a track keeps each frame's error; the
+    // patch it started from, aligned at each keyframe, does not drift.
+    let with = |first_patch| TrackerConfig {
+        klt_affine: true,
+        first_patch,
+        ..TrackerConfig::default()
+    };
+    let drift = drift_by_age(&[with(true), with(false)]);
+    let (first, followed) = (drift[0], drift[1]);
+    println!("median error, px, ages 1-5 / 6-20 / 21-40 frames: first patch {first:.3?}, followed {followed:.3?}");
+    assert!(
+        first[1] < 0.7 * followed[1] && first[2] < 0.6 * followed[2],
+        "first patch {first:?} against followed {followed:?}"
+    );
+}
