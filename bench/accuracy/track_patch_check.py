@@ -25,7 +25,7 @@ except ImportError:
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import track_truth as tt  # noqa: E402
-from landmark_truth import cast, groundtruth, load_scene  # noqa: E402
+from landmark_truth import groundtruth, load_scene  # noqa: E402
 
 MARGIN_PX = 6
 AGES = [(1, 8), (8, 16), (16, 32), (32, 64), (64, None)]
@@ -67,25 +67,17 @@ def main():
             images[t] = im.astype(np.float32)
         return images[t]
 
-    def camera_pose(t):
-        pose = tt.true_pose(t_gt, p_gt, q_gt, t)
-        if pose is None:
-            return None
-        r_wb, p_wb = pose
-        return r_wb @ T[:3, :3], p_wb + r_wb @ T[:3, 3]
-
     first = {}
     rows = []  # age, tracked error, aligned error, |tracked - aligned|
     for row in a[np.argsort(a[:, 0], kind="stable")]:
         t, track, uv = int(row[0]), int(row[1]), row[3:5]
-        pose = camera_pose(t)
+        pose = tt.camera_in_world(t_gt, p_gt, q_gt, T, t)
         if pose is None:
             continue
         r_wc, o_wc = pose
         if track not in first:
-            ray = r_wc @ tt.unproject(k, d, uv)
-            depth = cast(room, boxes, o_wc, ray)
-            first[track] = (t, uv.copy(), o_wc + depth * ray) if np.isfinite(depth) else None
+            x = tt.surface_point(room, boxes, k, d, r_wc, o_wc, uv)
+            first[track] = None if x is None else (t, uv.copy(), x)
             continue
         if first[track] is None or t not in keyframes:
             continue

@@ -99,6 +99,23 @@ def true_pose(t_gt, p_gt, q_gt, t):
     return rotation_wxyz((1 - w) * q0 + w * q1), (1 - w) * p_gt[k - 1] + w * p_gt[k]
 
 
+def camera_in_world(t_gt, p_gt, q_gt, t_bs, t):
+    """Camera rotation and centre in the world at `t` (`t_bs` the
+    camera's pose in the body); None outside the ground truth."""
+    pose = true_pose(t_gt, p_gt, q_gt, t)
+    if pose is None:
+        return None
+    r_wb, p_wb = pose
+    return r_wb @ t_bs[:3, :3], p_wb + r_wb @ t_bs[:3, 3]
+
+
+def surface_point(room, boxes, k, d, r_wc, o_wc, uv):
+    """The scene point pixel `uv` sees; None when its ray meets nothing."""
+    ray = r_wc @ unproject(k, d, uv)
+    depth = cast(room, boxes, o_wc, ray)
+    return o_wc + depth * ray if np.isfinite(depth) else None
+
+
 def errors(dataset, csv):
     room, boxes = load_scene(dataset)
     t_gt, p_gt, q_gt = groundtruth(dataset)
@@ -112,19 +129,17 @@ def errors(dataset, csv):
     out = []  # track, age, camera, error u, error v, keyframe
     for row in a[np.argsort(a[:, 0], kind="stable")]:
         t, track, c = int(row[0]), int(row[1]), int(row[2])
-        pose = true_pose(t_gt, p_gt, q_gt, t)
+        T, k, d = cams[c]
+        pose = camera_in_world(t_gt, p_gt, q_gt, T, t)
         if pose is None:
             continue  # outside the ground truth
-        r_wb, p_wb = pose
-        T, k, d = cams[c]
-        r_wc, o_wc = r_wb @ T[:3, :3], p_wb + r_wb @ T[:3, 3]
+        r_wc, o_wc = pose
         f = int(np.searchsorted(frames, t))
         if track not in start:
             if c != 0:
                 continue
-            ray = r_wc @ unproject(k, d, row[3:5])
-            depth = cast(room, boxes, o_wc, ray)
-            start[track] = (o_wc + depth * ray, f) if np.isfinite(depth) else None
+            x = surface_point(room, boxes, k, d, r_wc, o_wc, row[3:5])
+            start[track] = None if x is None else (x, f)
             continue
         if start[track] is None:
             continue

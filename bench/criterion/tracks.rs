@@ -4,7 +4,9 @@
 //! stereo pair, with the default settings and no rotation prediction, its
 //! keyframe suggestions taken as keyframes.
 //!
-//! `cargo bench -p rigslam --bench tracks -- DATASET OUT.csv [MAX_FRAMES]`
+//! `cargo bench -p rigslam --bench tracks -- DATASET OUT.csv [MAX_FRAMES]
+//! [--first-patch]` (`--first-patch`: tracks moved at keyframes to their
+//! first patch, `[relative] track_first_patch`)
 //!
 //! CSV: `t_ns,id,camera,u,v,keyframe` (distorted pixels as measured;
 //! camera 0 left, 1 right; keyframe 1 on the frames the tracker suggested
@@ -20,14 +22,16 @@ use rigslam::run::dataset_run::rig_of;
 
 fn main() -> anyhow::Result<()> {
     // `cargo bench` passes `--bench` to every bench target.
-    let args: Vec<String> = std::env::args()
+    let mut args: Vec<String> = std::env::args()
         .skip(1)
         .filter(|a| a != "--bench")
         .collect();
+    let first_patch_flag = args.iter().any(|a| a == "--first-patch");
+    args.retain(|a| a != "--first-patch");
     let (dataset_dir, out) = match &args[..] {
         [d, o] | [d, o, _] => (d, o),
         _ => anyhow::bail!(
-            "usage: cargo bench -p rigslam --bench tracks -- DATASET OUT.csv [MAX_FRAMES]"
+            "usage: cargo bench -p rigslam --bench tracks -- DATASET OUT.csv [MAX_FRAMES] [--first-patch]"
         ),
     };
     let max_frames = match args.get(2) {
@@ -48,8 +52,7 @@ fn main() -> anyhow::Result<()> {
     let config = TrackerConfig {
         target_features: relative.features,
         klt_affine: relative.klt_affine,
-        first_patch: relative.track_first_patch
-            || std::env::var_os("RIGSLAM_TRACK_FIRST_PATCH").is_some(),
+        first_patch: relative.track_first_patch || first_patch_flag,
         ..TrackerConfig::default()
     };
     let mut tracker = Tracker::new(config, &rig.cameras[..2], true)?;
