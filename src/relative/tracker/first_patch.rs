@@ -13,13 +13,19 @@
 //!
 //! Model: `I(t + A x) = g P(x) + b` over the `PATCH_SIDE`² samples `x`
 //! of the first patch `P` (offsets from its centre), solved for the
-//! centre `t`, the warp `A`, the gain `g` and the offset `b` by
-//! Gauss-Newton (image gradients by central differences of bilinear
-//! samples). The alignment is refused when it does not converge, leaves
-//! the image, turns degenerate (`det A` outside [0.6, 1.6], gain outside
-//! [0.5, 2]) or leaves a residual over a quarter of the patch's own
-//! contrast: the view has changed too much, and the track starts a new
-//! first patch where it is.
+//! centre `t`, the warp `A`, the gain `g` and the offset `b` by inverse
+//! compositional Gauss-Newton: each step is solved in the patch's own
+//! frame (`g P(x + dA x + dt) + b` against the image sampled through the
+//! current warp) and the current warp is composed with the step's
+//! inverse. The patch's gradients and its normal matrix are computed
+//! once, when it is captured; the gain enters the step's geometric
+//! columns as a scale (`D H D` with `D = diag(g, .., g, 1, 1)`), so an
+//! iteration costs one image sample and eight products per pixel. The
+//! alignment is refused when it does not converge, leaves the image,
+//! turns degenerate (`det A` outside [0.6, 1.6], gain outside [0.5, 2])
+//! or leaves a residual over a quarter of the patch's own contrast: the
+//! view has changed too much, and the track starts a new first patch
+//! where it is.
 
 use nalgebra::{SMatrix, SVector};
 
@@ -29,6 +35,7 @@ use crate::features::GreyImage;
 pub const PATCH_HALF: usize = 10;
 /// Side of the patch, px (21).
 pub const PATCH_SIDE: usize = 2 * PATCH_HALF + 1;
+const SAMPLES: usize = PATCH_SIDE * PATCH_SIDE;
 const MAX_ITERATIONS: usize = 30;
 /// Converged when the centre moves less than this, px ...
 const CENTRE_STEP_PX: f64 = 1e-3;
@@ -37,27 +44,61 @@ const WARP_STEP: f64 = 1e-4;
 /// Largest residual RMS against the patch's own standard deviation.
 const MAX_RESIDUAL_SHARE: f64 = 0.25;
 
-/// A track's first patch and the warp it was last aligned with.
+/// A track's first patch, what its alignment needs of it, and the warp
+/// it was last aligned with.
 #[derive(Debug, Clone)]
 pub struct FirstPatch {
     samples: Vec<f32>,
+    /// The patch's gradients along x and y at each sample.
+    gradient_x: Vec<f32>,
+    gradient_y: Vec<f32>,
+    /// Inverse of the normal matrix at gain 1 (columns: the warp's four
+    /// entries, the centre's two, gain, offset).
+    normal_inverse: SMatrix<f64, 8, 8>,
     contrast: f64,
     /// Row-major 2x2 warp of the last alignment.
     warp: [f64; 4],
 }
 
+/// Offset of sample `k` from the patch's centre, px.
+fn offset(k: usize) -> (f64, f64) {
+    (
+        (k % PATCH_SIDE) as f64 - PATCH_HALF as f64,
+        (k / PATCH_SIDE) as f64 - PATCH_HALF as f64,
+    )
+}
+
 impl FirstPatch {
     /// The patch centred on `centre` (None when it does not fit in the
-    /// image).
+    /// image or has no texture to align).
     pub fn capture(image: &GreyImage, centre: [f32; 2]) -> Option<Self> {
-        let mut samples = Vec::with_capacity(PATCH_SIDE * PATCH_SIDE);
-        for j in 0..PATCH_SIDE {
-            for i in 0..PATCH_SIDE {
-                let (u, v) = (i as f32 - PATCH_HALF as f32, j as f32 - PATCH_HALF as f32);
-                samples.push(bilinear(image, centre[0] + u, centre[1] + v)?);
-            }
+        let mut samples = Vec::with_capacity(SAMPLES);
+        let mut gradient_x = Vec::with_capacity(SAMPLES);
+        let mut gradient_y = Vec::with_capacity(SAMPLES);
+        let mut normal = SMatrix::<f64, 8, 8>::zeros();
+        for k in 0..SAMPLES {
+            let (u, v) = offset(k);
+            let (x, y) = (centre[0] + u as f32, centre[1] + v as f32);
+            let p = bilinear(image, x, y)?;
+            let gx = bilinear(image, x + 0.5, y)? - bilinear(image, x - 0.5, y)?;
+            let gy = bilinear(image, x, y + 0.5)? - bilinear(image, x, y - 0.5)?;
+            let (dx, dy) = (f64::from(gx), f64::from(gy));
+            let row = SVector::<f64, 8>::from([
+                dx * u,
+                dx * v,
+                dy * u,
+                dy * v,
+                dx,
+                dy,
+                f64::from(p),
+                1.0,
+            ]);
+            normal += row * row.transpose();
+            samples.push(p);
+            gradient_x.push(gx);
+            gradient_y.push(gy);
         }
-        let n = samples.len() as f64;
+        let n = SAMPLES as f64;
         let mean = samples.iter().map(|&s| f64::from(s)).sum::<f64>() / n;
         let contrast = (samples
             .iter()
@@ -65,8 +106,12 @@ impl FirstPatch {
             .sum::<f64>()
             / n)
             .sqrt();
+        let normal_inverse = normal.cholesky()?.inverse();
         Some(Self {
             samples,
+            gradient_x,
+            gradient_y,
+            normal_inverse,
             contrast,
             warp: [1.0, 0.0, 0.0, 1.0],
         })
@@ -78,41 +123,79 @@ impl FirstPatch {
     pub fn align(&mut self, image: &GreyImage, start: [f32; 2]) -> Option<[f32; 2]> {
         let mut a = self.warp;
         let mut t = [f64::from(start[0]), f64::from(start[1])];
-        let (mut gain, mut offset) = (1.0f64, 0.0f64);
+        let (mut gain, mut offset_b) = (1.0f64, 0.0f64);
         let mut rms = f64::INFINITY;
         let mut converged = false;
+        let half = PATCH_HALF as f64;
         for _ in 0..MAX_ITERATIONS {
-            let mut h = SMatrix::<f64, 8, 8>::zeros();
-            let mut g = SVector::<f64, 8>::zeros();
+            // An affine warp of the square lies inside the image when its
+            // four corners do.
+            let inside = [(-half, -half), (half, -half), (-half, half), (half, half)]
+                .iter()
+                .all(|&(u, v)| {
+                    let x = t[0] + a[0] * u + a[1] * v;
+                    let y = t[1] + a[2] * u + a[3] * v;
+                    x >= 0.0
+                        && y >= 0.0
+                        && x + 1.0 < image.width as f64
+                        && y + 1.0 < image.height as f64
+                });
+            if !inside {
+                return None;
+            }
+            let mut sums = [0.0f64; 8];
             let mut squares = 0.0;
-            for j in 0..PATCH_SIDE {
-                let v = j as f64 - PATCH_HALF as f64;
-                for i in 0..PATCH_SIDE {
-                    let u = i as f64 - PATCH_HALF as f64;
-                    let x = (t[0] + a[0] * u + a[1] * v) as f32;
-                    let y = (t[1] + a[2] * u + a[3] * v) as f32;
-                    let value = f64::from(bilinear(image, x, y)?);
-                    let dx = f64::from(bilinear(image, x + 0.5, y)? - bilinear(image, x - 0.5, y)?);
-                    let dy = f64::from(bilinear(image, x, y + 0.5)? - bilinear(image, x, y - 0.5)?);
-                    let p = f64::from(self.samples[j * PATCH_SIDE + i]);
-                    let r = value - (gain * p + offset);
-                    let jac =
-                        SVector::<f64, 8>::from([dx * u, dx * v, dy * u, dy * v, dx, dy, -p, -1.0]);
-                    h += jac * jac.transpose();
-                    g += jac * r;
-                    squares += r * r;
-                }
+            for k in 0..SAMPLES {
+                let (u, v) = offset(k);
+                let x = (t[0] + a[0] * u + a[1] * v) as f32;
+                let y = (t[1] + a[2] * u + a[3] * v) as f32;
+                let value = f64::from(bilinear_inside(image, x, y));
+                let p = f64::from(self.samples[k]);
+                let e = value - (gain * p + offset_b);
+                let (ex, ey) = (
+                    f64::from(self.gradient_x[k]) * e,
+                    f64::from(self.gradient_y[k]) * e,
+                );
+                sums[0] += ex * u;
+                sums[1] += ex * v;
+                sums[2] += ey * u;
+                sums[3] += ey * v;
+                sums[4] += ex;
+                sums[5] += ey;
+                sums[6] += p * e;
+                sums[7] += e;
+                squares += e * e;
             }
-            rms = (squares / (PATCH_SIDE * PATCH_SIDE) as f64).sqrt();
-            let step = h.cholesky()?.solve(&(-g));
-            for (k, entry) in a.iter_mut().enumerate() {
-                *entry += step[k];
+            rms = (squares / SAMPLES as f64).sqrt();
+            // The step of `J d = e` with `J = J0 D`: `d = D^-1 H0^-1 J0' e`.
+            let mut step = self.normal_inverse * SVector::<f64, 8>::from(sums);
+            for entry in step.iter_mut().take(6) {
+                *entry /= gain;
             }
-            t[0] += step[4];
-            t[1] += step[5];
+            // Compose with the step's inverse: A' = A (I + dA)^-1,
+            // t' = t - A' dt.
+            let m = [1.0 + step[0], step[1], step[2], 1.0 + step[3]];
+            let det_m = m[0] * m[3] - m[1] * m[2];
+            if det_m.abs() < 1e-6 {
+                return None;
+            }
+            let m_inv = [m[3] / det_m, -m[1] / det_m, -m[2] / det_m, m[0] / det_m];
+            a = [
+                a[0] * m_inv[0] + a[1] * m_inv[2],
+                a[0] * m_inv[1] + a[1] * m_inv[3],
+                a[2] * m_inv[0] + a[3] * m_inv[2],
+                a[2] * m_inv[1] + a[3] * m_inv[3],
+            ];
+            let moved = [
+                a[0] * step[4] + a[1] * step[5],
+                a[2] * step[4] + a[3] * step[5],
+            ];
+            t[0] -= moved[0];
+            t[1] -= moved[1];
             gain += step[6];
-            offset += step[7];
-            if step[4].hypot(step[5]) < CENTRE_STEP_PX && step.fixed_rows::<4>(0).norm() < WARP_STEP
+            offset_b += step[7];
+            if moved[0].hypot(moved[1]) < CENTRE_STEP_PX
+                && step.fixed_rows::<4>(0).norm() < WARP_STEP
             {
                 converged = true;
                 break;
@@ -130,6 +213,20 @@ impl FirstPatch {
         self.warp = a;
         Some([t[0] as f32, t[1] as f32])
     }
+}
+
+/// Bilinear sample at a point known to lie inside the image (its pixel
+/// and the next row and column exist).
+#[inline]
+fn bilinear_inside(image: &GreyImage, x: f32, y: f32) -> f32 {
+    let (ix, iy) = (x as usize, y as usize);
+    let (fx, fy) = (x - ix as f32, y - iy as f32);
+    let w = image.width;
+    let d = &image.data[iy * w + ix..];
+    let at = |k: usize| f32::from(d[k]);
+    let top = at(0) + (at(1) - at(0)) * fx;
+    let bottom = at(w) + (at(w + 1) - at(w)) * fx;
+    top + (bottom - top) * fy
 }
 
 /// Bilinear sample at `(x, y)` (pixel centres at integer coordinates, as
