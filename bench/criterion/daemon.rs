@@ -13,11 +13,12 @@
 //!
 //! `cargo bench -p rigslam --bench daemon -- [--dataset DIR] [--minutes M]
 //! [--mode MODE] [--relative-only] [--map] [--cpu N] [--tum-dir DIR]
-//! [--daemon PATH] [--absolute-set KEY=VALUE]`
+//! [--daemon PATH] [--absolute-set KEY=VALUE] [--relative-set KEY=VALUE]`
 //! (default: `../shared/data/euroc/V1_01_micro` played once at recorded
 //! pace, both stages as the daemon runs them by default).
 //! `--relative-only` sets `[slam.absolute] enabled = false` (`--absolute-set KEY=VALUE`
-//! sets any other key of that table); `--map` gives the daemon a map file
+//! sets any other key of that table, `--relative-set KEY=VALUE` one of
+//! `[slam.relative]`, e.g. `track_first_patch=false`); `--map` gives the daemon a map file
 //! saved every 60 s of sensor time, and the map's size at each save
 //! (landmarks, unknowns of the last solve, from the daemon's log) is
 //! reported over time; `--cpu N` pins the daemon and its threads to core N
@@ -44,6 +45,8 @@ struct Args {
     daemon: Option<PathBuf>,
     /// `KEY = VALUE` lines for `[slam.absolute]`.
     absolute_settings: Vec<String>,
+    /// `KEY = VALUE` lines for `[slam.relative]`.
+    relative_settings: Vec<String>,
 }
 
 fn args() -> Args {
@@ -60,6 +63,7 @@ fn args() -> Args {
         tum_dir: None,
         daemon: None,
         absolute_settings: Vec::new(),
+        relative_settings: Vec::new(),
     };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
@@ -91,6 +95,13 @@ fn args() -> Args {
                 let kv = it.next().expect("--absolute-set KEY=VALUE");
                 let (k, v) = kv.split_once('=').expect("--absolute-set KEY=VALUE");
                 a.absolute_settings
+                    .push(format!("{} = {}", k.trim(), v.trim()));
+            }
+            // A setting of the relative stage, e.g. `track_first_patch=false`.
+            "--relative-set" => {
+                let kv = it.next().expect("--relative-set KEY=VALUE");
+                let (k, v) = kv.split_once('=').expect("--relative-set KEY=VALUE");
+                a.relative_settings
                     .push(format!("{} = {}", k.trim(), v.trim()));
             }
             // cargo bench passes --bench.
@@ -237,6 +248,11 @@ fn main() {
     } else {
         format!("[slam.absolute]\n{}\n", absolute_lines.join("\n"))
     };
+    let relative = if a.relative_settings.is_empty() {
+        String::new()
+    } else {
+        format!("[slam.relative]\n{}\n", a.relative_settings.join("\n"))
+    };
     let map_path = dir.path().join("map.txt");
     let map = if a.map {
         format!(
@@ -250,7 +266,7 @@ fn main() {
         &config,
         format!(
             "[camera]\nsource = \"replay\"\n[imu]\nsource = \"replay\"\n\
-             [replay]\ndataset = {:?}\nloops = {loops}\n{mode}{absolute}\
+             [replay]\ndataset = {:?}\nloops = {loops}\n{mode}{relative}{absolute}\
              [publish]\nservice_prefix = {prefix:?}\nroot_path = {:?}\n{map}",
             dataset.display().to_string(),
             root.display().to_string()

@@ -1,12 +1,13 @@
 //! Every observation the front end makes on a dataset, for studying the
 //! tracker offline (with `bench/accuracy/track_truth.py`, against the
 //! scene of a rendering): the relative stage's tracker driven alone on the
-//! stereo pair, with the default settings and no rotation prediction, its
-//! keyframe suggestions taken as keyframes.
+//! stereo pair, with the stereo-inertial mode's default settings and no
+//! rotation prediction, its keyframe suggestions taken as keyframes.
 //!
 //! `cargo bench -p rigslam --bench tracks -- DATASET OUT.csv [MAX_FRAMES]
-//! [--first-patch]` (`--first-patch`: tracks moved at keyframes to their
-//! first patch, `[relative] track_first_patch`)
+//! [--first-patch | --no-first-patch]` (tracks moved at keyframes to their
+//! first patch or not, `[relative] track_first_patch`; default: as the
+//! stereo-inertial mode, on)
 //!
 //! CSV: `t_ns,id,camera,u,v,keyframe` (distorted pixels as measured;
 //! camera 0 left, 1 right; keyframe 1 on the frames the tracker suggested
@@ -27,11 +28,12 @@ fn main() -> anyhow::Result<()> {
         .filter(|a| a != "--bench")
         .collect();
     let first_patch_flag = args.iter().any(|a| a == "--first-patch");
-    args.retain(|a| a != "--first-patch");
+    let no_first_patch_flag = args.iter().any(|a| a == "--no-first-patch");
+    args.retain(|a| a != "--first-patch" && a != "--no-first-patch");
     let (dataset_dir, out) = match &args[..] {
         [d, o] | [d, o, _] => (d, o),
         _ => anyhow::bail!(
-            "usage: cargo bench -p rigslam --bench tracks -- DATASET OUT.csv [MAX_FRAMES] [--first-patch]"
+            "usage: cargo bench -p rigslam --bench tracks -- DATASET OUT.csv [MAX_FRAMES] [--first-patch | --no-first-patch]"
         ),
     };
     let max_frames = match args.get(2) {
@@ -52,7 +54,11 @@ fn main() -> anyhow::Result<()> {
     let config = TrackerConfig {
         target_features: relative.features,
         klt_affine: relative.klt_affine,
-        first_patch: relative.track_first_patch || first_patch_flag,
+        first_patch: (relative
+            .track_first_patch
+            .enabled_in(rigslam::relative::SensorMode::StereoInertial)
+            || first_patch_flag)
+            && !no_first_patch_flag,
         ..TrackerConfig::default()
     };
     let mut tracker = Tracker::new(config, &rig.cameras[..2], true)?;

@@ -26,30 +26,7 @@ pub const DEFAULT_WAIT_ACCEL_BIAS_MAX_S: f64 = 10.0;
 /// estimate by default, s ([`AbsoluteSettings::level_time_constant_s`]).
 pub const DEFAULT_LEVEL_TIME_CONSTANT_S: f64 = 40.0;
 
-/// Which modes a behaviour of the second stage is on in
-/// (`[absolute] correction_gate`, `wait_accel_bias`); each key says why its
-/// `auto` is what it is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum ModeSwitch {
-    /// Stereo-inertial only.
-    Auto,
-    /// Every mode it applies to.
-    On,
-    /// No mode.
-    Off,
-}
-
-impl ModeSwitch {
-    /// Whether it is on in `mode`.
-    pub fn enabled_in(self, mode: SensorMode) -> bool {
-        match self {
-            ModeSwitch::Off => false,
-            ModeSwitch::On => true,
-            ModeSwitch::Auto => mode == SensorMode::StereoInertial,
-        }
-    }
-}
+pub use crate::relative::ModeSwitch;
 
 /// The `[absolute]` table.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]

@@ -3,6 +3,7 @@
 //! the file itself is [`crate::slam_config`]): TOML with defaults for
 //! every key, checked once into the typed configs of the parts.
 
+use crate::relative::estimator::ModeSwitch;
 use crate::relative::window::{
     CameraImuRefinementConfig, HeldKeyframesFollow, NoiseAdaptationConfig, NoiseScale,
 };
@@ -86,9 +87,14 @@ pub struct RelativeConfig {
     /// pixel of where it was followed: a track followed from frame to
     /// frame gathers each frame's error (0.04 px after one frame, 0.17-0.20
     /// px after 64 on the renderings), its first patch does not (0.04-0.05
-    /// px at every age; docs/results/track-error-2026-12-07.md). Off by
-    /// default until measured on every set.
-    pub track_first_patch: bool,
+    /// px at every age; docs/results/track-error-2026-12-07.md). `auto`
+    /// (the default): stereo-inertial only. There, pooled over four copies
+    /// of every accuracy set, both stages' ATE falls 16-35 % on the
+    /// consistent-IMU and held-apart sets; mono-inertial gains on the
+    /// development set but its held-apart scale is worse on every copy
+    /// (docs/results/first-patch-modes-2026-12-07.md). About 2 ms a frame
+    /// on one core.
+    pub track_first_patch: ModeSwitch,
     /// Keyframes kept in the window (L).
     pub window_keyframes: usize,
     /// Newest keyframes optimised (M); the oldest L-M are held fixed.
@@ -229,7 +235,7 @@ impl Default for RelativeConfig {
         Self {
             features: 150,
             klt_affine: true,
-            track_first_patch: false,
+            track_first_patch: ModeSwitch::Auto,
             window_keyframes: 10,
             window_free: 7,
             pixel_sigma_px: 1.0,

@@ -12,6 +12,56 @@ use crate::sensors::{Image, ImuSample};
 
 use super::types::RelativeOutput;
 
+/// Which modes a behaviour is on in (`[relative] track_first_patch`,
+/// `[absolute] correction_gate`, `wait_accel_bias`); each key says why its
+/// `auto` is what it is. A settings file may also give `true` (`on`) or
+/// `false` (`off`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ModeSwitch {
+    /// Stereo-inertial only.
+    Auto,
+    /// Every mode it applies to.
+    On,
+    /// No mode.
+    Off,
+}
+
+impl ModeSwitch {
+    /// Whether it is on in `mode`.
+    pub fn enabled_in(self, mode: SensorMode) -> bool {
+        match self {
+            ModeSwitch::Off => false,
+            ModeSwitch::On => true,
+            ModeSwitch::Auto => mode == SensorMode::StereoInertial,
+        }
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for ModeSwitch {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        struct Visitor;
+        impl serde::de::Visitor<'_> for Visitor {
+            type Value = ModeSwitch;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("\"auto\", \"on\" or \"off\" (or true / false)")
+            }
+            fn visit_bool<E: serde::de::Error>(self, on: bool) -> Result<ModeSwitch, E> {
+                Ok(if on { ModeSwitch::On } else { ModeSwitch::Off })
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<ModeSwitch, E> {
+                match v {
+                    "auto" => Ok(ModeSwitch::Auto),
+                    "on" => Ok(ModeSwitch::On),
+                    "off" => Ok(ModeSwitch::Off),
+                    other => Err(E::unknown_variant(other, &["auto", "on", "off"])),
+                }
+            }
+        }
+        deserializer.deserialize_any(Visitor)
+    }
+}
+
 /// Which sensors the stage uses (`rigslam run --mode`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
@@ -259,6 +309,25 @@ mod tests {
         }
         let err = "stereo_inertial".parse::<SensorMode>().unwrap_err();
         assert!(err.contains("stereo-inertial"), "{err}");
+    }
+
+    #[test]
+    fn mode_switches_read_as_a_settings_file_writes_them() {
+        #[derive(serde::Deserialize)]
+        struct Table {
+            switch: ModeSwitch,
+        }
+        let read = |text: &str| toml::from_str::<Table>(text).map(|t| t.switch);
+        assert_eq!(read("switch = \"auto\"").ok(), Some(ModeSwitch::Auto));
+        assert_eq!(read("switch = \"on\"").ok(), Some(ModeSwitch::On));
+        assert_eq!(read("switch = \"off\"").ok(), Some(ModeSwitch::Off));
+        // A key that was a boolean keeps its meaning.
+        assert_eq!(read("switch = true").ok(), Some(ModeSwitch::On));
+        assert_eq!(read("switch = false").ok(), Some(ModeSwitch::Off));
+        for wrong in ["switch = \"sometimes\"", "switch = 3"] {
+            let error = read(wrong).expect_err(wrong).to_string();
+            assert!(error.contains("auto"), "{wrong}: {error}");
+        }
     }
 
     #[test]

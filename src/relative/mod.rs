@@ -31,7 +31,9 @@ pub use config::{
     CameraImuRefinement, ConfigError, EstimatorKind, FullWindowAlignment, InertialModes,
     RelativeConfig,
 };
-pub use estimator::{FrameInput, FrameTimings, RelativeEstimator, RigError, RigModel, SensorMode};
+pub use estimator::{
+    FrameInput, FrameTimings, ModeSwitch, RelativeEstimator, RigError, RigModel, SensorMode,
+};
 pub use factory::build_estimator;
 pub use odometry::WindowOdometry;
 pub use setup::OdometryError;

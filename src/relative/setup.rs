@@ -37,7 +37,7 @@ pub(super) fn front_end(
     let tracker_config = TrackerConfig {
         target_features: config.features,
         klt_affine: config.klt_affine,
-        first_patch: config.track_first_patch,
+        first_patch: config.track_first_patch.enabled_in(mode),
         ..TrackerConfig::default()
     };
     let tracker = Tracker::new(tracker_config, &cameras, mode.uses_stereo())
@@ -51,4 +51,40 @@ pub(super) fn front_end(
         },
     };
     Ok((used, tracker))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::relative::ModeSwitch;
+    use crate::rig::euroc::{euroc_cam0, euroc_cam1, euroc_imu0};
+
+    #[test]
+    fn the_first_patch_switch_reaches_the_tracker_of_the_modes_it_names() {
+        let rig = RigModel {
+            cameras: vec![euroc_cam0(), euroc_cam1()],
+            imu: Some(euroc_imu0()),
+        };
+        let first_patch = |switch, mode| {
+            let config = RelativeConfig {
+                track_first_patch: switch,
+                ..RelativeConfig::default()
+            };
+            front_end(mode, &rig, &config)
+                .expect("a front end")
+                .1
+                .config()
+                .first_patch
+        };
+        assert_eq!(
+            RelativeConfig::default().track_first_patch,
+            ModeSwitch::Auto
+        );
+        for mode in SensorMode::ALL {
+            let auto = mode == SensorMode::StereoInertial;
+            assert_eq!(first_patch(ModeSwitch::Auto, mode), auto, "{mode:?}");
+            assert!(first_patch(ModeSwitch::On, mode), "{mode:?}");
+            assert!(!first_patch(ModeSwitch::Off, mode), "{mode:?}");
+        }
+    }
 }
