@@ -92,7 +92,7 @@ pub struct RelativeConfig {
     /// of every accuracy set, both stages' ATE falls 16-35 % on the
     /// consistent-IMU and held-apart sets; mono-inertial gains on the
     /// development set but its held-apart scale is worse on every copy,
-    /// and stereo without the IMU lost track on three of 23 runs with it
+    /// and stereo without the IMU re-initialised on three of 23 runs with it
     /// (docs/results/first-patch-modes-2026-12-07.md). About 2 ms a frame
     /// on one core.
     pub track_first_patch: ModeSwitch,
