@@ -216,10 +216,14 @@ impl FirstPatch {
 }
 
 /// Bilinear sample at a point known to lie inside the image (its pixel
-/// and the next row and column exist).
+/// and the next row and column exist). The caller checks the patch's
+/// corners in f64; a sample rounded to f32 may land on the last column
+/// or row, so the cell is clamped to the last one inside (the sample is
+/// then its far corner, fraction 1: the same value).
 #[inline]
 fn bilinear_inside(image: &GreyImage, x: f32, y: f32) -> f32 {
-    let (ix, iy) = (x as usize, y as usize);
+    let ix = (x as usize).min(image.width - 2);
+    let iy = (y as usize).min(image.height - 2);
     let (fx, fy) = (x - ix as f32, y - iy as f32);
     let w = image.width;
     let d = &image.data[iy * w + ix..];
@@ -314,5 +318,17 @@ mod tests {
         assert!(FirstPatch::capture(&image, [f32::NAN, 60.0]).is_none());
         let mut patch = FirstPatch::capture(&image, [70.0, 60.0]).expect("inside");
         assert_eq!(patch.align(&image, [155.0, 60.0]), None);
+    }
+
+    #[test]
+    fn a_patch_whose_corner_rounds_onto_the_last_row_is_sampled_inside() {
+        // The corners pass the check in f64 (just inside the last row);
+        // the bottom row of samples rounds onto it in f32.
+        let image = render([70.0, 60.0], [1.0, 0.0, 0.0, 1.0], 1.0, 0.0);
+        let mut patch = FirstPatch::capture(&image, [70.0, 60.0]).expect("inside");
+        patch.warp = [1.0, 0.0, 0.0, 1.0 - 1e-9];
+        let last_centre = (image.height - 1 - PATCH_HALF) as f32;
+        // Any answer will do; reading past the image would panic.
+        let _ = patch.align(&image, [70.0, last_centre]);
     }
 }
