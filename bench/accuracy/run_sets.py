@@ -18,7 +18,7 @@ are at the end; with `stereo` among the modes, each inertial run is also
 compared with the same cameras without the IMU.
 
 usage: bench/accuracy/run_sets.py SETS_DIR [--modes stereo-inertial mono-inertial stereo]
-       [--config C.toml] [--sets dev eval synth] [--jobs 2] [--out rows.json]
+       [--config C.toml] [--sets dev eval synth] [--match TEXT] [--jobs 2] [--out rows.json]
 """
 import argparse, json, os, subprocess, sys, tempfile
 from concurrent.futures import ThreadPoolExecutor
@@ -121,10 +121,13 @@ def main():
     ap.add_argument("--sets", nargs="+", default=["dev", "eval"], choices=list(SETS))
     ap.add_argument("--config")
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--match", help="only the sequences whose name holds this text (e.g. flight, rest, V1_01)")
     ap.add_argument("--out")
     ap.add_argument("--bin", default=os.environ.get("RIGSLAM", "target/release/rigslam"))
     a = ap.parse_args()
-    seqs = [(s, seq) for s in a.sets for seq in SETS[s]]
+    seqs = [(s, seq) for s in a.sets for seq in SETS[s] if not a.match or a.match in seq[0]]
+    if not seqs:
+        sys.exit(f"no sequence of {' '.join(a.sets)} is named with {a.match!r}")
     for _, (_, folder, _, _) in seqs:
         if not os.path.isdir(os.path.join(a.root, folder)):
             sys.exit(f"{os.path.join(a.root, folder)} is missing: render it with bench/accuracy/render_sets.sh")
