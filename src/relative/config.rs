@@ -195,6 +195,14 @@ pub struct RelativeConfig {
     /// file refined at once swung by up to 1.6 deg in the first seconds
     /// and cost 7-12 % of the ATE (`relative/window/camera_imu.rs`).
     pub camera_imu_hold_until_tested: bool,
+    /// After a start in flight, when the test releases the calibration,
+    /// the window forgets what its boundary prior says of the gyroscope
+    /// bias (back to `gyro_bias_prior_sigma_rad_s`): the visual-inertial
+    /// alignment in motion read the gyroscope through the file's rotation,
+    /// and the bias it found holds a wrong rotation short of the truth.
+    /// Off by default: it costs a correct file where the images disagree
+    /// with the IMU (docs/results/camera-imu-bias-release-2026-12-07.md).
+    pub camera_imu_release_frees_gyro_bias: bool,
     /// When the held keyframes' body poses follow the refined
     /// calibration, their cameras staying where their images put them
     /// (`relative/window/held_cameras.rs`): "in-flight" (after a start in
@@ -263,6 +271,7 @@ impl Default for RelativeConfig {
             camera_imu_stereo_rotation_sigma_deg: 0.2,
             camera_imu_carry_weight: 0.9,
             camera_imu_hold_until_tested: true,
+            camera_imu_release_frees_gyro_bias: false,
             camera_imu_held_keyframes_follow: HeldKeyframesFollow::InFlight,
             level_poses: true,
             covariance_shared_measurements: true,
@@ -417,6 +426,7 @@ impl RelativeConfig {
             stereo_rotation_sigma_deg: self.camera_imu_stereo_rotation_sigma_deg,
             carry_weight: self.camera_imu_carry_weight,
             hold_until_tested: self.camera_imu_hold_until_tested,
+            release_frees_gyro_bias: self.camera_imu_release_frees_gyro_bias,
             held_keyframes_follow: self.camera_imu_held_keyframes_follow,
             ..CameraImuRefinementConfig::default()
         }

@@ -90,6 +90,20 @@ impl Window {
         }
         report.free_keyframes = n - n_fixed;
         self.refresh_velocity_prior(n_fixed);
+        // The calibration was released after a start in flight and the
+        // settings say to free the gyroscope bias then
+        // (`camera_imu_release_frees_gyro_bias`): the boundary's bias came
+        // from an alignment that read the gyroscope through the file's
+        // wrong rotation, and held about as tight as it found it, it kept
+        // the calibration short of the truth (0.2-0.3 deg on consistent-IMU
+        // renderings with a file 1 deg off). Back to the configured
+        // sigma, the window's data decide it again with the calibration.
+        if std::mem::take(&mut self.widen_gyro_bias_next_solve) {
+            let sigma = self.config.gyro_bias_prior_sigma_rad_s;
+            if let Some(prior) = self.velocity_prior.as_mut() {
+                prior.widen_gyro_bias(sigma);
+            }
+        }
         // As in ORB-SLAM's local bundle adjustment: half the iterations
         // with every observation under the robust kernel, then the
         // outliers out and the rest without them.
@@ -755,6 +769,9 @@ impl Window {
                 cov.as_ref()
                     .map(|m| m.fixed_view::<CALIB_DIM, CALIB_DIM>(oc, oc).into_owned()),
             );
+            if c.take_release_in_flight() {
+                self.widen_gyro_bias_next_solve = true;
+            }
             let e = c.estimate();
             tracing::trace!(
                 t_ns = self.keyframes.back().map_or(0, |k| k.state.t_ns),

@@ -171,6 +171,9 @@ pub struct Window {
     rejected: HashSet<LandmarkId>,
     gravity_dir: Vector3<f64>,
     velocity_prior: Option<OldestFreePrior>,
+    /// The next solve's boundary prior forgets the gyroscope bias
+    /// ([`CameraImuState::take_release_in_flight`]).
+    widen_gyro_bias_next_solve: bool,
     /// Gyroscope bias sigma of the first boundary prior when the states
     /// came with one (the alignment's), rad/s; else the configured sigma.
     start_gyro_bias_sigma_rad_s: Option<f64>,
@@ -234,6 +237,7 @@ impl Window {
             rejected: HashSet::new(),
             gravity_dir: down,
             velocity_prior: None,
+            widen_gyro_bias_next_solve: false,
             start_gyro_bias_sigma_rad_s: None,
             hold_oldest_only_once: false,
             scale_anchor: None,
@@ -538,6 +542,7 @@ impl Window {
         }
         self.restart_covariance_chain();
         self.velocity_prior = None;
+        self.widen_gyro_bias_next_solve = false;
         self.start_gyro_bias_sigma_rad_s = None;
         Ok(())
     }
@@ -607,6 +612,7 @@ impl Window {
             kf.state_marginal = None;
         }
         self.velocity_prior = None;
+        self.widen_gyro_bias_next_solve = false;
         Ok(())
     }
 
@@ -651,6 +657,7 @@ impl Window {
             sqrt_info: g.sqrt_info,
         };
         self.velocity_prior = None;
+        self.widen_gyro_bias_next_solve = false;
         if let Some(a) = self.scale_anchor.as_mut() {
             a.distance *= scale;
         }
@@ -699,6 +706,7 @@ impl Window {
         }
         self.use_imu = on;
         self.velocity_prior = None;
+        self.widen_gyro_bias_next_solve = false;
         self.state_covariance = None;
         Ok(())
     }

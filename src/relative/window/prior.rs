@@ -86,6 +86,31 @@ impl OldestFreePrior {
         })
     }
 
+    /// Forgets what the prior says of the gyroscope bias down to about
+    /// `sigma_rad_s`: its covariance's gyroscope block grows by
+    /// `sigma_rad_s^2 I` (the rest and the mean stay). Unchanged when the
+    /// result is not a valid information.
+    pub fn widen_gyro_bias(&mut self, sigma_rad_s: f64) {
+        let info = self.sqrt_info.transpose() * self.sqrt_info;
+        let Some(mut cov) = info.cholesky().map(|c| c.inverse()) else {
+            return;
+        };
+        for k in 3..6 {
+            cov[(k, k)] += sigma_rad_s * sigma_rad_s;
+        }
+        let sym = (cov + cov.transpose()) * 0.5;
+        let Some(widened) = sym.cholesky().map(|c| c.inverse()) else {
+            return;
+        };
+        let sym = (widened + widened.transpose()) * 0.5;
+        if let Some(c) = sym.cholesky() {
+            let sqrt_info = c.l().transpose();
+            if sqrt_info.iter().all(|v| v.is_finite()) {
+                self.sqrt_info = sqrt_info;
+            }
+        }
+    }
+
     /// Whitened residual and its Jacobian with respect to `[dv, dbg, dba]`.
     pub fn factor(&self, state: &KeyframeState) -> (Vector9, Matrix9) {
         (
@@ -192,6 +217,55 @@ impl ScaleAnchor {
 mod tests {
     use super::*;
     use crate::relative::window::inertial::update_direction;
+
+    /// The widened prior's covariance is the old one plus `sigma^2` on
+    /// the gyroscope bias's diagonal and nothing else: checked against
+    /// the inverse of its information, with cross terms between the
+    /// gyroscope bias and the velocity kept; the mean does not move.
+    #[test]
+    fn widening_the_gyro_bias_adds_its_variance_and_keeps_the_rest() {
+        let mut cov = Matrix9::zeros();
+        for k in 0..9 {
+            cov[(k, k)] = [1e-3, 2e-3, 3e-3, 1e-7, 2e-7, 4e-7, 1e-4, 1e-4, 2e-4][k];
+        }
+        // A correlation of 0.5 between vx and bgx, and 0.3 between bgy and bay.
+        let c = 0.5 * (cov[(0, 0)] * cov[(3, 3)]).sqrt();
+        cov[(0, 3)] = c;
+        cov[(3, 0)] = c;
+        let c = 0.3 * (cov[(4, 4)] * cov[(7, 7)]).sqrt();
+        cov[(4, 7)] = c;
+        cov[(7, 4)] = c;
+        let state = KeyframeState {
+            t_ns: 0,
+            T_world_body: nalgebra::Isometry3::identity(),
+            velocity_world_m_s: Vector3::new(0.7, -0.2, 0.3),
+            biases: crate::imu::ImuBiases::default(),
+        };
+        let mut prior = OldestFreePrior::from_covariance(3, &state, &cov, 1.0).expect("valid");
+        let mean = prior.mean;
+        let sigma = 0.01;
+        prior.widen_gyro_bias(sigma);
+        let info = prior.sqrt_info.transpose() * prior.sqrt_info;
+        let got = info.try_inverse().expect("invertible");
+        let mut want = cov;
+        for k in 3..6 {
+            want[(k, k)] += sigma * sigma;
+        }
+        for r in 0..9 {
+            for k in 0..9 {
+                let scale = (want[(r, r)] * want[(k, k)]).sqrt();
+                assert!(
+                    (got[(r, k)] - want[(r, k)]).abs() < 1e-9 * scale,
+                    "({r}, {k}): {} against {}",
+                    got[(r, k)],
+                    want[(r, k)]
+                );
+            }
+        }
+        assert_eq!(prior.mean, mean);
+        // The gyroscope bias is now held at about sigma, not at 0.3 mrad/s.
+        assert!((got[(3, 3)].sqrt() / sigma - 1.0) < 1e-2);
+    }
 
     #[test]
     fn the_gravity_prior_holds_each_tilt_axis_as_its_marginal_says() {
