@@ -770,6 +770,10 @@ impl Window {
                     .map(|m| m.fixed_view::<CALIB_DIM, CALIB_DIM>(oc, oc).into_owned()),
             );
             if c.take_release_in_flight() {
+                tracing::info!(
+                    "camera-IMU calibration released after a start in flight: the gyroscope bias the alignment found through the file's rotation is freed to {} rad/s (camera_imu_release_frees_gyro_bias)",
+                    self.config.gyro_bias_prior_sigma_rad_s
+                );
                 self.widen_gyro_bias_next_solve = true;
             }
             let e = c.estimate();
