@@ -49,6 +49,15 @@ struct Args {
     relative_settings: Vec<String>,
 }
 
+/// The `KEY = VALUE` line of a `FLAG KEY=VALUE` argument.
+fn setting_line(it: &mut impl Iterator<Item = String>, flag: &str) -> String {
+    let kv = it.next().unwrap_or_else(|| panic!("{flag} KEY=VALUE"));
+    let (k, v) = kv
+        .split_once('=')
+        .unwrap_or_else(|| panic!("{flag} KEY=VALUE, not {kv:?}"));
+    format!("{} = {}", k.trim(), v.trim())
+}
+
 fn args() -> Args {
     let mut a = Args {
         dataset: PathBuf::from(concat!(
@@ -91,19 +100,9 @@ fn args() -> Args {
             // comparison in the same run.
             "--daemon" => a.daemon = Some(it.next().expect("--daemon PATH").into()),
             // A setting of the absolute stage, e.g. `solve_every_frames=10`.
-            "--absolute-set" => {
-                let kv = it.next().expect("--absolute-set KEY=VALUE");
-                let (k, v) = kv.split_once('=').expect("--absolute-set KEY=VALUE");
-                a.absolute_settings
-                    .push(format!("{} = {}", k.trim(), v.trim()));
-            }
+            "--absolute-set" => a.absolute_settings.push(setting_line(&mut it, &arg)),
             // A setting of the relative stage, e.g. `track_first_patch=false`.
-            "--relative-set" => {
-                let kv = it.next().expect("--relative-set KEY=VALUE");
-                let (k, v) = kv.split_once('=').expect("--relative-set KEY=VALUE");
-                a.relative_settings
-                    .push(format!("{} = {}", k.trim(), v.trim()));
-            }
+            "--relative-set" => a.relative_settings.push(setting_line(&mut it, &arg)),
             // cargo bench passes --bench.
             _ => {}
         }

@@ -36,6 +36,14 @@ pub(crate) struct OldestFreePrior {
     pub sqrt_info: Matrix9,
 }
 
+/// The upper factor `U` (`U^T U = info`) of a symmetric positive-definite
+/// information, symmetrised first; None when it is not one.
+fn upper_factor(info: &Matrix9) -> Option<Matrix9> {
+    let sym = (info + info.transpose()) * 0.5;
+    let sqrt_info = sym.cholesky()?.l().transpose();
+    sqrt_info.iter().all(|v| v.is_finite()).then_some(sqrt_info)
+}
+
 fn stacked(s: &KeyframeState) -> Vector9 {
     let mut x = Vector9::zeros();
     x.fixed_rows_mut::<3>(0).copy_from(&s.velocity_world_m_s);
@@ -77,9 +85,7 @@ impl OldestFreePrior {
 
     /// Centred on `state` with the information matrix `info`.
     pub fn from_information(seq: u64, state: &KeyframeState, info: &Matrix9) -> Option<Self> {
-        let sym = (info + info.transpose()) * 0.5;
-        let sqrt_info = sym.cholesky()?.l().transpose();
-        sqrt_info.iter().all(|v| v.is_finite()).then_some(Self {
+        upper_factor(info).map(|sqrt_info| Self {
             seq,
             mean: stacked(state),
             sqrt_info,
@@ -99,15 +105,8 @@ impl OldestFreePrior {
             cov[(k, k)] += sigma_rad_s * sigma_rad_s;
         }
         let sym = (cov + cov.transpose()) * 0.5;
-        let Some(widened) = sym.cholesky().map(|c| c.inverse()) else {
-            return;
-        };
-        let sym = (widened + widened.transpose()) * 0.5;
-        if let Some(c) = sym.cholesky() {
-            let sqrt_info = c.l().transpose();
-            if sqrt_info.iter().all(|v| v.is_finite()) {
-                self.sqrt_info = sqrt_info;
-            }
+        if let Some(sqrt_info) = sym.cholesky().and_then(|c| upper_factor(&c.inverse())) {
+            self.sqrt_info = sqrt_info;
         }
     }
 
