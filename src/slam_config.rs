@@ -145,6 +145,9 @@ mod tests {
             ("imu_noise_adaptation_joined_links = 0\n", "joined_links"),
             ("imu_noise_adaptation_joined_links = 40\n", "joined_links"),
             ("level_time_constant_s = -1.0\n", "level_time_constant_s"),
+            ("covariance_pixel_gain = 0.0\n", "covariance_pixel_gain"),
+            ("covariance_pixel_floor = -0.5\n", "covariance_pixel_floor"),
+            ("covariance_pixel_floor = inf\n", "covariance_pixel_floor"),
         ] {
             let e = err(&format!("[relative]\n{text}"));
             assert!(e.contains(key), "{text}: {e}");

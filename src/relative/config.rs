@@ -231,6 +231,16 @@ pub struct RelativeConfig {
     /// needs `[absolute] mapping_attitude_covariance` with it
     /// (docs/results/map-attitude-covariance-2026-12-07.md).
     pub covariance_shared_measurements: bool,
+    /// The pixel sigma the inertial modes' published covariance is
+    /// computed with, on `pixel_sigma_px`: `max(gain * estimate, floor)`,
+    /// the estimate being what the window's residuals show. The residuals
+    /// show only the white part of a feature's error; what is slow along
+    /// a track moves its landmark, not its residuals, and reaches the
+    /// poses all the same.
+    pub covariance_pixel_gain: f64,
+    /// See `covariance_pixel_gain`; 1 publishes at no less than the
+    /// declared sigma.
+    pub covariance_pixel_floor: f64,
     /// How quickly the level follows the gravity estimate, s (a
     /// first-order filter; 0 follows at once). Slow enough that the
     /// estimate's jitter between solves (tenths of a degree) does not bend
@@ -275,6 +285,8 @@ impl Default for RelativeConfig {
             camera_imu_held_keyframes_follow: HeldKeyframesFollow::InFlight,
             level_poses: true,
             covariance_shared_measurements: true,
+            covariance_pixel_gain: 1.0,
+            covariance_pixel_floor: 1.0,
             level_time_constant_s: 20.0,
         }
     }
@@ -394,6 +406,18 @@ impl RelativeConfig {
                 && (0.0..=100.0).contains(&self.published_correction_m_s),
             self.published_correction_m_s.to_string(),
             "0 to 100",
+        )?;
+        range(
+            "covariance_pixel_gain",
+            self.covariance_pixel_gain.is_finite() && self.covariance_pixel_gain > 0.0,
+            self.covariance_pixel_gain.to_string(),
+            "a positive number",
+        )?;
+        range(
+            "covariance_pixel_floor",
+            self.covariance_pixel_floor.is_finite() && self.covariance_pixel_floor >= 0.0,
+            self.covariance_pixel_floor.to_string(),
+            "a number >= 0",
         )?;
         range(
             "level_time_constant_s",

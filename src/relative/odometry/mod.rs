@@ -226,6 +226,8 @@ impl WindowOdometry {
             noise_adaptation: config.noise_adaptation(),
             camera_imu: config.camera_imu_refinement(mode),
             covariance_shared_measurements: config.covariance_shared_measurements,
+            covariance_pixel_gain: config.covariance_pixel_gain,
+            covariance_pixel_floor: config.covariance_pixel_floor,
             ..WindowConfig::default()
         };
         let window = Window::new(window_config.clone(), &used)

@@ -89,6 +89,13 @@ pub struct WindowConfig {
     /// inflates the carried gravity covariance about as much as counting
     /// shared measurements as new shrinks it.
     pub covariance_shared_measurements: bool,
+    /// The pixel sigma the published covariance of an inertial mode is
+    /// computed with, on the declared `pixel_sigma`: `max(gain *
+    /// estimate, floor)`, the estimate being the noise adaptation's pixel
+    /// scale \[gain 1, floor 1\] ([`super::Window::covariance_pixel_scale`]).
+    pub covariance_pixel_gain: f64,
+    /// See `covariance_pixel_gain`.
+    pub covariance_pixel_floor: f64,
     /// Inliers for [`super::Window::track_frame`] to call a pose good \[12\].
     pub min_track_inliers: usize,
     /// LM iterations of [`super::Window::track_frame`] \[8\].
@@ -129,6 +136,8 @@ impl Default for WindowConfig {
             boundary_prior_memory_s: 10.0,
             gravity_prior_weight: 0.5,
             covariance_shared_measurements: true,
+            covariance_pixel_gain: 1.0,
+            covariance_pixel_floor: 1.0,
             min_track_inliers: 12,
             track_max_iterations: 8,
             noise_adaptation: NoiseAdaptationConfig::default(),
@@ -259,11 +268,19 @@ impl WindowConfig {
                 "boundary_pose_covariance_scale",
                 self.boundary_pose_covariance_scale,
             ),
+            ("covariance_pixel_gain", self.covariance_pixel_gain),
         ];
         for (key, v) in positive {
             if !(v.is_finite() && v > 0.0) {
                 return bad(key, v.to_string(), "a finite number > 0");
             }
+        }
+        if !(self.covariance_pixel_floor.is_finite() && self.covariance_pixel_floor >= 0.0) {
+            return bad(
+                "covariance_pixel_floor",
+                self.covariance_pixel_floor.to_string(),
+                "a finite number >= 0",
+            );
         }
         if self.boundary_prior_memory_s.is_nan() || self.boundary_prior_memory_s <= 0.0 {
             return bad(

@@ -123,6 +123,7 @@ impl Window {
             return out;
         }
         let gravity = self.gravity_world_m_s2();
+        let covariance_scale = self.covariance_pixel_scale();
         let rows = &mut self.track.rows;
         rows.clear();
         for o in &frame.observations {
@@ -362,7 +363,7 @@ impl Window {
             // ([`Window::covariance_pixel_scale`]).
             let published = Weights {
                 vision_weight: if self.use_imu {
-                    let s = super::covariance_pixel_scale(scale.pixel);
+                    let s = covariance_scale;
                     1.0 / (s * s)
                 } else {
                     1.0

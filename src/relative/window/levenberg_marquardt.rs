@@ -23,7 +23,7 @@ use super::prior::{GravityPrior, OldestFreePrior};
 use super::reprojection::{reproject, reprojection_error, GATE_SQ};
 use super::schur::{self, Chunk, LandmarkBlock, ObservationRow};
 use super::state::{apply_update, BG, FULL_DIM, POSE_DIM, VEL};
-use super::{covariance_pixel_scale, held_cameras, Window};
+use super::{held_cameras, Window};
 use crate::imu::so3::hat;
 use crate::relative::types::{BodyLandmark, WindowSupport};
 
@@ -337,6 +337,7 @@ impl Window {
     /// Evaluates the cost at the current estimate; with `build`, also
     /// linearises every term into the normal equations.
     pub(super) fn linearize(&mut self, build: bool) -> f64 {
+        let covariance_scale = self.covariance_pixel_scale();
         let p = &mut self.problem;
         let keyframes = &self.keyframes;
         // Whitened with the pixel sigma the features show
@@ -347,7 +348,7 @@ impl Window {
         let pixel_scale = match (self.use_imu, p.covariance_pixels) {
             (false, _) => 1.0,
             (true, false) => self.noise.scale().pixel,
-            (true, true) => covariance_pixel_scale(self.noise.scale().pixel),
+            (true, true) => covariance_scale,
         };
         let walk_scale = self.noise.scale();
         let sigma = self.config.pixel_sigma * pixel_scale;

@@ -198,11 +198,6 @@ pub struct Window {
     track: frame_pose::TrackBuffers,
 }
 
-/// [`Window::covariance_pixel_scale`] from the estimated scale.
-pub(crate) fn covariance_pixel_scale(estimated: f64) -> f64 {
-    estimated.max(1.0)
-}
-
 impl Window {
     /// An empty window; fails when a setting is out of range, the rig has no camera, or `use_imu`
     /// is set and the rig has no IMU.
@@ -798,6 +793,20 @@ impl Window {
         }
     }
 
+    /// The pixel sigma (on the declared one) the published covariance
+    /// of an inertial mode is computed with: `max(gain * estimate,
+    /// floor)` (`covariance_pixel_gain`, `covariance_pixel_floor`). The
+    /// estimate comes from the residuals' redundancy, which shows only
+    /// the white part of a feature's error: what is slow along a track
+    /// moves its landmark and not its residuals, and reaches the poses
+    /// all the same. The floor stands for that part: the estimate may
+    /// raise the sigma (images noisier than declared) but not take it
+    /// below the floor.
+    pub(super) fn covariance_pixel_scale(&self) -> f64 {
+        (self.config.covariance_pixel_gain * self.noise.scale().pixel)
+            .max(self.config.covariance_pixel_floor)
+    }
+
     /// What a marginal of the last solve is multiplied by to be in the
     /// pixel noise the features show. With the IMU the solve is already
     /// whitened with it (1); without, the solve keeps the declared pixel
@@ -805,18 +814,6 @@ impl Window {
     /// on every term moves no estimate, and leaving it out keeps the
     /// vision-only trajectories exactly as they were) and only the
     /// published covariance takes the estimate: `(pixel scale)^2`.
-    /// The pixel sigma (on the declared one) the published covariance
-    /// of an inertial mode is computed with: the estimate, but never
-    /// below the declared sigma. The estimate comes from the residuals'
-    /// redundancy, which shows only the white part of a feature's error:
-    /// what is slow along a track moves its landmark and not its
-    /// residuals, and reaches the poses all the same. The declared sigma
-    /// is the user's statement of the whole error, so the estimate may
-    /// raise it (images noisier than declared) but not lower it.
-    pub(super) fn covariance_pixel_scale(&self) -> f64 {
-        covariance_pixel_scale(self.noise.scale().pixel)
-    }
-
     pub(super) fn vision_only_covariance_factor(&self) -> f64 {
         if self.use_imu {
             1.0

@@ -1267,6 +1267,64 @@ fn vision_only_covariance_takes_the_measured_pixel_noise() {
     );
 }
 
+/// With the IMU the published covariance is computed with the pixel
+/// sigma `max(gain * estimate, floor)` (on the declared one) and the
+/// estimate never moves with it. Features three times sharper than the
+/// declared 1 px: the default floor publishes at the declared sigma; a
+/// lower floor or a gain on the estimate publish surer, in order.
+#[test]
+fn inertial_covariance_pixel_sigma_is_gain_times_estimate_above_the_floor() {
+    let run = |gain: f64, floor: f64| {
+        let mut r = rng(21);
+        let scene = Scene::new(&mut r, 2000, 6.0);
+        let cfg = WindowConfig {
+            covariance_pixel_gain: gain,
+            covariance_pixel_floor: floor,
+            ..config(true)
+        };
+        let mut w = filled_window(&scene, cfg, 10, 3, true, 0.3, 0.0, &mut r);
+        w.optimize();
+        w.optimize();
+        let states: Vec<_> = w.keyframes().cloned().collect();
+        let (_, covariance) = w.newest_pose_covariance().expect("a covariance");
+        let published = w.covariance_pixel_scale();
+        (
+            states,
+            covariance.trace(),
+            published,
+            w.noise_adaptation().scale().pixel,
+        )
+    };
+    let (states, declared, scale_declared, estimate) = run(1.0, 1.0);
+    assert!(
+        (0.2..0.5).contains(&estimate),
+        "pixel scale {estimate} for 0.3 px features"
+    );
+    assert_eq!(scale_declared, 1.0);
+    let mut traces = vec![declared];
+    for (gain, floor, expected) in [
+        (2.0, 0.0, 2.0 * estimate),
+        (1.0, 0.0, estimate),
+        (1.0, 0.1, estimate),
+    ] {
+        let (s, trace, scale, _) = run(gain, floor);
+        assert_eq!(s, states, "gain {gain}, floor {floor}: the estimate moved");
+        assert!(
+            (scale - expected).abs() < 1e-12,
+            "gain {gain}, floor {floor}: published at {scale}, expected {expected}"
+        );
+        traces.push(trace);
+    }
+    println!("pixel scale {estimate:.3}; pose covariance traces {traces:?}");
+    // Declared, twice the estimate, the estimate: surer in that order; the
+    // floor below the estimate changes nothing.
+    assert!(
+        traces[0] > traces[1] && traces[1] > traces[2],
+        "traces {traces:?}"
+    );
+    assert_eq!(traces[2], traces[3]);
+}
+
 /// NEES per dof over a synthetic sliding run (white 1 px pixel noise, an
 /// IMU with exactly the declared noise, the pipeline's IMU-predicted
 /// guesses), after the first 12 keyframes: of the newest keyframe's chained
