@@ -605,7 +605,9 @@ fn datasheet_noise_is_corrected_online() {
     // noise, 3.1 with the estimated one; 2026-12-02, with the propagated
     // covariance and its pixel sigma floored at the declared one
     // (docs/results/pose-covariance-2026-12-02.md): 10.0 and 1.24, inside
-    // the target of 0.5-2.
+    // the target of 0.5-2; 2026-12-07, the floor at half the declared
+    // sigma (docs/results/covariance-pixel-floor-2026-12-07.md): 2.51 and
+    // 0.77.
     let nees = nees.expect("a covariance on the tracked frames");
     let nees_declared = nees_declared.expect("a covariance on the tracked frames");
     assert!(nees.poses > 500 && nees.origins == 1, "{nees:?}");

@@ -92,7 +92,7 @@ pub struct WindowConfig {
     /// The pixel sigma the published covariance of an inertial mode is
     /// computed with, on the declared `pixel_sigma`: `max(gain *
     /// estimate, floor)`, the estimate being the noise adaptation's pixel
-    /// scale \[gain 1, floor 1\] ([`super::Window::covariance_pixel_scale`]).
+    /// scale \[gain 1, floor 0.5\] ([`super::Window::covariance_pixel_scale`]).
     pub covariance_pixel_gain: f64,
     /// See `covariance_pixel_gain`.
     pub covariance_pixel_floor: f64,
@@ -137,7 +137,7 @@ impl Default for WindowConfig {
             gravity_prior_weight: 0.5,
             covariance_shared_measurements: true,
             covariance_pixel_gain: 1.0,
-            covariance_pixel_floor: 1.0,
+            covariance_pixel_floor: 0.5,
             min_track_inliers: 12,
             track_max_iterations: 8,
             noise_adaptation: NoiseAdaptationConfig::default(),
