@@ -363,22 +363,10 @@ impl RelativeConfig {
             "1 to window_keyframes - 1",
         )?;
         range(
-            "pixel_sigma_px",
-            self.pixel_sigma_px.is_finite() && self.pixel_sigma_px > 0.0,
-            self.pixel_sigma_px.to_string(),
-            "a positive number",
-        )?;
-        range(
             "init_keyframes",
             (3..=self.window_keyframes).contains(&self.init_keyframes),
             self.init_keyframes.to_string(),
             "3 to window_keyframes",
-        )?;
-        range(
-            "init_min_span_s",
-            self.init_min_span_s.is_finite() && self.init_min_span_s >= 0.0,
-            self.init_min_span_s.to_string(),
-            "a number >= 0",
         )?;
         range(
             "init_max_scale_rel_std",
@@ -393,42 +381,37 @@ impl RelativeConfig {
             "1 to 100",
         )?;
         range(
-            "imu_only_max_s",
-            self.imu_only_max_s.is_finite() && self.imu_only_max_s >= 0.0,
-            self.imu_only_max_s.to_string(),
-            "a number >= 0",
-        )?;
-        range(
-            "imu_only_after_rest_max_s",
-            self.imu_only_after_rest_max_s.is_finite() && self.imu_only_after_rest_max_s >= 0.0,
-            self.imu_only_after_rest_max_s.to_string(),
-            "a number >= 0",
-        )?;
-        range(
             "published_correction_m_s",
             self.published_correction_m_s.is_finite()
                 && (0.0..=100.0).contains(&self.published_correction_m_s),
             self.published_correction_m_s.to_string(),
             "0 to 100",
         )?;
-        range(
-            "covariance_pixel_gain",
-            self.covariance_pixel_gain.is_finite() && self.covariance_pixel_gain > 0.0,
-            self.covariance_pixel_gain.to_string(),
-            "a positive number",
-        )?;
-        range(
-            "covariance_pixel_floor",
-            self.covariance_pixel_floor.is_finite() && self.covariance_pixel_floor >= 0.0,
-            self.covariance_pixel_floor.to_string(),
-            "a number >= 0",
-        )?;
-        range(
-            "level_time_constant_s",
-            self.level_time_constant_s.is_finite() && self.level_time_constant_s >= 0.0,
-            self.level_time_constant_s.to_string(),
-            "a number >= 0",
-        )?;
+        for (key, v) in [
+            ("pixel_sigma_px", self.pixel_sigma_px),
+            ("covariance_pixel_gain", self.covariance_pixel_gain),
+        ] {
+            range(
+                key,
+                v.is_finite() && v > 0.0,
+                v.to_string(),
+                "a positive number",
+            )?;
+        }
+        for (key, v) in [
+            ("init_min_span_s", self.init_min_span_s),
+            ("imu_only_max_s", self.imu_only_max_s),
+            ("imu_only_after_rest_max_s", self.imu_only_after_rest_max_s),
+            ("covariance_pixel_floor", self.covariance_pixel_floor),
+            ("level_time_constant_s", self.level_time_constant_s),
+        ] {
+            range(
+                key,
+                v.is_finite() && v >= 0.0,
+                v.to_string(),
+                "a number >= 0",
+            )?;
+        }
         if let Err(message) = self.noise_adaptation().validate() {
             return Err(ConfigError::Invalid(message));
         }

@@ -363,8 +363,7 @@ impl Window {
             // ([`Window::covariance_pixel_scale`]).
             let published = Weights {
                 vision_weight: if self.use_imu {
-                    let s = covariance_scale;
-                    1.0 / (s * s)
+                    1.0 / (covariance_scale * covariance_scale)
                 } else {
                     1.0
                 },
