@@ -22,7 +22,7 @@ use super::marginalise::{marginalise_boundary, LinkEnd};
 use super::prior::{GravityPrior, OldestFreePrior};
 use super::reprojection::{reproject, reprojection_error, GATE_SQ};
 use super::schur::{self, Chunk, LandmarkBlock, ObservationRow};
-use super::state::{apply_update, BG, FULL_DIM, POSE_DIM, VEL};
+use super::state::{apply_update, inertially_linked, BG, FULL_DIM, POSE_DIM, VEL};
 use super::{held_cameras, Window};
 use crate::imu::so3::hat;
 use crate::relative::types::{BodyLandmark, WindowSupport};
@@ -364,8 +364,24 @@ impl Window {
         let mut cost = 0.0;
         let calib = p.calib_offset.and(self.camera_imu.as_ref());
         let follow = calib.is_some_and(|c| c.held_keyframes_follow());
+        // The published covariance's floor is for keyframes an inertial
+        // link reaches. A stereo start in flight keeps the keyframes the
+        // window had on the images alone unlinked until they leave; their
+        // observations take the estimate (times the gain), as a
+        // vision-only window's covariance does: at the floor those first
+        // keyframes were 3-10 times as uncertain as their errors, and the
+        // chain carried that to every later pose.
+        let image_only_scale = (self.use_imu && p.covariance_pixels)
+            .then(|| self.config.covariance_pixel_gain * self.noise.scale().pixel);
         for row in p.rows.iter_mut() {
             let kf = &keyframes[row.kf];
+            let (inv_sigma, to_declared, k) = match image_only_scale {
+                Some(s) if !inertially_linked(keyframes, row.kf) => {
+                    let sigma = self.config.pixel_sigma * s;
+                    (1.0 / sigma, s * s, self.config.huber_px / sigma)
+                }
+                _ => (inv_sigma, to_declared, k),
+            };
             let obs = &kf.observations[row.obs_index];
             let camera = &self.cameras[row.camera as usize];
             let point = p.landmarks[row.landmark].position_world_m;

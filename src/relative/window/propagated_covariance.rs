@@ -50,7 +50,7 @@ use nalgebra::{DMatrix, Matrix6};
 use super::camera_imu::CALIB_DIM;
 use super::inertial::{inertial_factor, GRAVITY_COL};
 use super::schur::Matrix6x3;
-use super::state::{FULL_DIM, VEL};
+use super::state::{inertially_linked, FULL_DIM, VEL};
 use super::Window;
 
 /// Which estimate a block of the joint covariance is.
@@ -460,13 +460,10 @@ impl Window {
         // mean's covariance and made every pose after a start in flight
         // uncertain by metres; left out, the prior's own covariance (what
         // the alignment declared) stands in for it.
-        let linked = |i: usize| {
-            keyframes[i].imu.is_some() || keyframes.get(i + 1).is_some_and(|k| k.imu.is_some())
-        };
         for (i, kf) in keyframes.iter().enumerate().skip(nf) {
             let slot = i - nf;
             outputs.push((Block::Pose(kf.seq), slot * sd));
-            if self.use_imu && linked(i) {
+            if self.use_imu && inertially_linked(keyframes, i) {
                 outputs.push((Block::Rest(kf.seq), slot * sd + VEL));
             }
         }

@@ -6,6 +6,8 @@
 //! perturbation, as in [`crate::imu::residual`]), `p <- p + dp` and
 //! `v <- v + dv` in the world frame, biases additive.
 
+use std::collections::VecDeque;
+
 use nalgebra::{Matrix6, SMatrix, UnitQuaternion, Vector2, Vector3, Vector6};
 
 use super::inertial_link::InertialLink;
@@ -63,6 +65,13 @@ pub(crate) struct Keyframe {
     /// Angular rate of the body at the keyframe (gyroscope less bias),
     /// for the time offset ([`super::camera_imu`]).
     pub omega_body_rad_s: Vector3<f64>,
+}
+
+/// True when an inertial link reaches keyframe `i` (from the one before
+/// or to the one after). A stereo start in flight keeps the keyframes
+/// the window had on the images alone unlinked until they leave.
+pub(crate) fn inertially_linked(keyframes: &VecDeque<Keyframe>, i: usize) -> bool {
+    keyframes[i].imu.is_some() || keyframes.get(i + 1).is_some_and(|k| k.imu.is_some())
 }
 
 pub(crate) fn nav_state(s: &KeyframeState) -> NavState {

@@ -1535,6 +1535,78 @@ fn held_keyframes_make_the_pose_marginal_overconfident() {
 }
 
 #[test]
+fn the_covariance_floor_does_not_reach_keyframes_no_inertial_link_reaches() {
+    // A stereo start in flight: the first inertial solve has only the
+    // keyframes the window had on the images alone, none linked. Their
+    // published covariance takes the pixel estimate (here the declared
+    // sigma: adaptation off), whatever the floor; once inertial links
+    // reach the free keyframes, the floor does.
+    let run = |floor: f64| {
+        let cfg = WindowConfig {
+            noise_adaptation: NoiseAdaptationConfig {
+                enabled: false,
+                ..NoiseAdaptationConfig::default()
+            },
+            covariance_pixel_floor: floor,
+            ..config(true)
+        };
+        let mut r = rng(97);
+        let scene = Scene::new(&mut r, 1500, keyframe_time(20) as f64 * 1e-9 + 1.0);
+        let mut w = Window::new(cfg, &scene.rig).expect("valid");
+        w.enable_imu(false).expect("valid");
+        let unlinked = 10;
+        for k in 0..unlinked {
+            let t = keyframe_time(k);
+            let frame = scene.frame(t, true, 1.0, 0.0, &mut r);
+            w.push_keyframe(scene.truth(t), &frame, None)
+                .expect("valid");
+            w.optimize();
+        }
+        let states: Vec<KeyframeState> = w.keyframes().map(|s| scene.truth(s.t_ns)).collect();
+        w.set_states(&states).expect("same count");
+        w.set_gravity(Vector3::new(0.0, 0.0, -GRAVITY_M_S2), 0.01)
+            .expect("valid");
+        w.enable_imu(true).expect("valid");
+        w.optimize();
+        assert!(
+            w.keyframes.iter().all(|k| k.imu.is_none()),
+            "the first inertial solve has no link"
+        );
+        let (_, image_only) = w.newest_pose_covariance().expect("a covariance");
+        let free_linked = |w: &Window| {
+            (w.fixed_count()..w.keyframe_count())
+                .all(|i| super::state::inertially_linked(&w.keyframes, i))
+        };
+        for k in unlinked..20 {
+            slide_keyframe(&mut w, &scene, k, |t| scene.truth(t), true, &mut r);
+            if free_linked(&w) {
+                break;
+            }
+        }
+        assert!(free_linked(&w), "ten slides link every free keyframe");
+        let (_, linked) = w.newest_pose_covariance().expect("a covariance");
+        (image_only, linked)
+    };
+    let (image_only_at_estimate, linked_at_estimate) = run(0.0);
+    let (image_only_floored, linked_floored) = run(3.0);
+    let relative = |a: &Matrix6<f64>, b: &Matrix6<f64>| (a - b).norm() / b.norm();
+    assert!(
+        relative(&image_only_floored, &image_only_at_estimate) < 1e-9,
+        "image-only keyframes moved with the floor: {:e} against {:e}",
+        image_only_floored.trace(),
+        image_only_at_estimate.trace()
+    );
+    // Linked, three times the pixel sigma weighs on what the images
+    // alone know (the IMU's share is untouched): the covariance grows,
+    // by less than nine times.
+    let growth = linked_floored.trace() / linked_at_estimate.trace();
+    assert!(
+        (1.5..9.0).contains(&growth),
+        "linked keyframes with the floor at 3x: trace grew {growth:.2}x"
+    );
+}
+
+#[test]
 fn keyframes_no_inertial_link_reaches_carry_no_velocity_covariance() {
     // A stereo start in flight: the window runs on the images alone, the
     // alignment hands over velocities and biases, and the keyframes it
