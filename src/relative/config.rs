@@ -244,6 +244,9 @@ pub struct RelativeConfig {
     /// 1; at 1 the covariance was 2-3 times too cautious on every set, at
     /// the measured sigma alone 2-10 times too sure), then checked on the
     /// held-apart set (docs/results/covariance-pixel-floor-2026-12-07.md).
+    /// Only on keyframes an inertial link reaches: a stereo start in
+    /// flight's image-only keyframes are weighed at the estimate
+    /// (docs/results/covariance-image-only-keyframes-2026-12-07.md).
     pub covariance_pixel_floor: f64,
     /// How quickly the level follows the gravity estimate, s (a
     /// first-order filter; 0 follows at once). Slow enough that the

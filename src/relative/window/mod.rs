@@ -801,7 +801,9 @@ impl Window {
     /// moves its landmark and not its residuals, and reaches the poses
     /// all the same. The floor stands for that part: the estimate may
     /// raise the sigma (images noisier than declared) but not take it
-    /// below the floor.
+    /// below the floor. Keyframes no inertial link reaches (a stereo
+    /// start in flight's first ones) take `gain * estimate` without the
+    /// floor (`linearize`).
     pub(super) fn covariance_pixel_scale(&self) -> f64 {
         (self.config.covariance_pixel_gain * self.noise.scale().pixel)
             .max(self.config.covariance_pixel_floor)
