@@ -367,10 +367,12 @@ impl Window {
         // The published covariance's floor is for keyframes an inertial
         // link reaches. A stereo start in flight keeps the keyframes the
         // window had on the images alone unlinked until they leave; their
-        // observations take the estimate (times the gain), as a
-        // vision-only window's covariance does: at the floor those first
-        // keyframes were 3-10 times as uncertain as their errors, and the
-        // chain carried that to every later pose.
+        // observations take the estimate (times the gain) without the
+        // floor. At the floor a fast start's carried covariance was 3-10
+        // times its errors for the whole run; at the estimate well-tied
+        // image-only keyframes are about three times too sure, so this
+        // trades one error for a smaller one
+        // (docs/results/covariance-image-only-keyframes-2026-12-07.md).
         let image_only_scale = (self.use_imu && p.covariance_pixels)
             .then(|| self.config.covariance_pixel_gain * self.noise.scale().pixel);
         for row in p.rows.iter_mut() {
