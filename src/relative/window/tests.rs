@@ -1534,6 +1534,38 @@ fn held_keyframes_make_the_pose_marginal_overconfident() {
     );
 }
 
+/// Keyframes [`started_in_flight`] runs on the images alone.
+const IN_FLIGHT_UNLINKED: usize = 10;
+
+/// Keyframes a stereo start in flight hands to the IMU: the window runs
+/// on the images alone for `IN_FLIGHT_UNLINKED` stereo keyframes (1 px
+/// noise, true poses), is given the true states and gravity, and turns
+/// the IMU on with those keyframes unlinked, as the alignment leaves
+/// them. The scene lasts `keyframes` keyframes (and a second).
+fn started_in_flight(
+    cfg: WindowConfig,
+    seed: u64,
+    keyframes: usize,
+) -> (Scene, Window, ChaCha8Rng) {
+    let mut r = rng(seed);
+    let scene = Scene::new(&mut r, 1500, keyframe_time(keyframes) as f64 * 1e-9 + 1.0);
+    let mut w = Window::new(cfg, &scene.rig).expect("valid");
+    w.enable_imu(false).expect("valid");
+    for k in 0..IN_FLIGHT_UNLINKED {
+        let t = keyframe_time(k);
+        let frame = scene.frame(t, true, 1.0, 0.0, &mut r);
+        w.push_keyframe(scene.truth(t), &frame, None)
+            .expect("valid");
+        w.optimize();
+    }
+    let states: Vec<KeyframeState> = w.keyframes().map(|s| scene.truth(s.t_ns)).collect();
+    w.set_states(&states).expect("same count");
+    w.set_gravity(Vector3::new(0.0, 0.0, -GRAVITY_M_S2), 0.01)
+        .expect("valid");
+    w.enable_imu(true).expect("valid");
+    (scene, w, r)
+}
+
 #[test]
 fn the_covariance_floor_does_not_reach_keyframes_no_inertial_link_reaches() {
     // A stereo start in flight: the first inertial solve has only the
@@ -1550,23 +1582,7 @@ fn the_covariance_floor_does_not_reach_keyframes_no_inertial_link_reaches() {
             covariance_pixel_floor: floor,
             ..config(true)
         };
-        let mut r = rng(97);
-        let scene = Scene::new(&mut r, 1500, keyframe_time(20) as f64 * 1e-9 + 1.0);
-        let mut w = Window::new(cfg, &scene.rig).expect("valid");
-        w.enable_imu(false).expect("valid");
-        let unlinked = 10;
-        for k in 0..unlinked {
-            let t = keyframe_time(k);
-            let frame = scene.frame(t, true, 1.0, 0.0, &mut r);
-            w.push_keyframe(scene.truth(t), &frame, None)
-                .expect("valid");
-            w.optimize();
-        }
-        let states: Vec<KeyframeState> = w.keyframes().map(|s| scene.truth(s.t_ns)).collect();
-        w.set_states(&states).expect("same count");
-        w.set_gravity(Vector3::new(0.0, 0.0, -GRAVITY_M_S2), 0.01)
-            .expect("valid");
-        w.enable_imu(true).expect("valid");
+        let (scene, mut w, mut r) = started_in_flight(cfg, 97, 20);
         w.optimize();
         assert!(
             w.keyframes.iter().all(|k| k.imu.is_none()),
@@ -1577,7 +1593,7 @@ fn the_covariance_floor_does_not_reach_keyframes_no_inertial_link_reaches() {
             (w.fixed_count()..w.keyframe_count())
                 .all(|i| super::state::inertially_linked(&w.keyframes, i))
         };
-        for k in unlinked..20 {
+        for k in IN_FLIGHT_UNLINKED..20 {
             slide_keyframe(&mut w, &scene, k, |t| scene.truth(t), true, &mut r);
             if free_linked(&w) {
                 break;
@@ -1624,26 +1640,10 @@ fn keyframes_no_inertial_link_reaches_carry_no_velocity_covariance() {
         },
         ..config(true)
     };
-    let mut r = rng(83);
-    let scene = Scene::new(&mut r, 1500, keyframe_time(24) as f64 * 1e-9 + 1.0);
-    let mut w = Window::new(cfg, &scene.rig).expect("valid");
-    w.enable_imu(false).expect("valid");
-    let unlinked = 10;
-    for k in 0..unlinked {
-        let t = keyframe_time(k);
-        let frame = scene.frame(t, true, 1.0, 0.0, &mut r);
-        w.push_keyframe(scene.truth(t), &frame, None)
-            .expect("valid");
-        w.optimize();
-    }
-    let states: Vec<KeyframeState> = w.keyframes().map(|s| scene.truth(s.t_ns)).collect();
-    w.set_states(&states).expect("same count");
-    w.set_gravity(Vector3::new(0.0, 0.0, -GRAVITY_M_S2), 0.01)
-        .expect("valid");
-    w.enable_imu(true).expect("valid");
+    let (scene, mut w, mut r) = started_in_flight(cfg, 83, 24);
     let unlinked_seqs: Vec<u64> = w.keyframes.iter().map(|k| k.seq).collect();
     let mut solves = 0;
-    for k in unlinked..24 {
+    for k in IN_FLIGHT_UNLINKED..24 {
         slide_keyframe(&mut w, &scene, k, |t| scene.truth(t), true, &mut r);
         let j = w.joint_covariance.as_ref().expect("joint covariance");
         for kf in w.keyframes.iter() {
