@@ -24,6 +24,8 @@ use nalgebra::{Matrix2, Matrix6, Rotation3, Vector2, Vector6};
 const AFFINE_ITERATIONS: usize = 5;
 
 use crate::camera::CameraModel;
+#[cfg(target_arch = "x86_64")]
+use crate::features::gathered_corners::gathered_corners;
 use crate::features::pyramid::{GreyImage, Pyramid};
 use crate::features::FeatureError;
 
@@ -105,6 +107,13 @@ pub struct KltTracker {
     template_inner: Vec<f32>,
     /// One interpolated window row, padded likewise.
     row_values: Vec<f32>,
+    /// Each column's offset from the window centre, `i - h`, padded
+    /// likewise with the last column's: where the gathered affine rows
+    /// place the padding's samples (inside the window, so they never fail
+    /// the image check).
+    sample_offsets: Vec<f32>,
+    /// All bits set for a column of the window, zero for the padding.
+    sample_lanes: Vec<f32>,
     back_points: Vec<[f32; 2]>,
     back_status: Vec<TrackStatus>,
     /// Standard deviation of I - T over the window in the last iteration
@@ -142,6 +151,12 @@ impl KltTracker {
             grad_y: vec![0.0; inner * padded(inner)],
             template_inner: vec![0.0; inner * padded(inner)],
             row_values: vec![0.0; padded(inner)],
+            sample_offsets: (0..padded(inner))
+                .map(|i| i.min(inner - 1) as f32 - config.half_window_px as f32)
+                .collect(),
+            sample_lanes: (0..padded(inner))
+                .map(|i| f32::from_bits(if i < inner { u32::MAX } else { 0 }))
+                .collect(),
             back_points: Vec::new(),
             back_status: Vec::new(),
             last_residual_ratio: 0.0,
@@ -413,44 +428,61 @@ impl KltTracker {
         Some([t[0], t[1]])
     }
 
-    /// sum of SD^T e over the window warped by (A, t) about `p`.
+    /// sum of SD^T e over the window warped by (A, t) about `p`. Each row
+    /// is sampled first, eight samples at a time with gathers where the
+    /// CPU has AVX2 ([`Self::sample_affine_row_avx2`]), then summed one
+    /// sample after the other: the same numbers whichever way it was
+    /// sampled.
     #[inline(always)]
     fn affine_residual_products(
-        &self,
+        &mut self,
         image: &GreyImage,
         p: [f32; 2],
         a: &Matrix2<f32>,
         t: &Vector2<f32>,
     ) -> Option<(Vector6<f32>, f32)> {
+        #[cfg(target_arch = "x86_64")]
+        let gathers = std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("fma");
+        #[cfg(not(target_arch = "x86_64"))]
+        let gathers = false;
+        self.affine_residual_products_with(image, p, a, t, gathers)
+    }
+
+    /// [`Self::affine_residual_products`], the rows gathered or not.
+    #[inline(always)]
+    fn affine_residual_products_with(
+        &mut self,
+        image: &GreyImage,
+        p: [f32; 2],
+        a: &Matrix2<f32>,
+        t: &Vector2<f32>,
+        gathers: bool,
+    ) -> Option<(Vector6<f32>, f32)> {
         let h = self.config.half_window_px as f32;
         let n = self.config.half_window_px * 2 + 1;
-        let (w, hh) = (image.width as f32, image.height as f32);
+        let np = padded(n);
         let mut acc = [0f32; 6];
         let (mut e_sum, mut e2_sum) = (0f32, 0f32);
-        let stride = image.width;
-        let data = &image.data;
         for j in 0..n {
             let v = j as f32 - h;
+            let mut sampled = None;
+            #[cfg(target_arch = "x86_64")]
+            if gathers {
+                // SAFETY: `gathers` is set only when the CPU has AVX2 and FMA.
+                sampled = unsafe { self.sample_affine_row_avx2(image, p, a, t, v) };
+            }
+            let inside = match sampled {
+                Some(inside) => inside,
+                None => self.sample_affine_row(image, p, a, t, v),
+            };
+            if !inside {
+                return None;
+            }
             for i in 0..n {
                 let u = i as f32 - h;
-                // Each sample placed and checked on its own: checking only
-                // the window's corners let a sample on an edge between two
-                // of them round past the last pixel.
-                let x = p[0] + a[(0, 0)] * u + a[(0, 1)] * v + t[0];
-                let y = p[1] + a[(1, 0)] * u + a[(1, 1)] * v + t[1];
-                if !(x >= 0.0 && y >= 0.0 && x < w - 1.0 && y < hh - 1.0) {
-                    return None;
-                }
-                // 0 <= x < w - 1: truncation is floor, and ix + 1 is in the row.
-                let (ix, iy) = (x as usize, y as usize);
-                let (ax, ay) = (x - ix as f32, y - iy as f32);
-                let o = iy * stride + ix;
-                let value = (1.0 - ay)
-                    * ((1.0 - ax) * f32::from(data[o]) + ax * f32::from(data[o + 1]))
-                    + ay * ((1.0 - ax) * f32::from(data[o + stride])
-                        + ax * f32::from(data[o + stride + 1]));
-                let k = j * padded(n) + i;
-                let e = value - self.template_inner[k];
+                let k = j * np + i;
+                let e = self.row_values[i] - self.template_inner[k];
                 e_sum += e;
                 e2_sum += e * e;
                 let (ex, ey) = (e * self.grad_x[k], e * self.grad_y[k]);
@@ -463,6 +495,128 @@ impl KltTracker {
             }
         }
         Some((Vector6::from(acc), spread(e_sum, e2_sum, (n * n) as f32)))
+    }
+
+    /// Row `v` of the window warped by (A, t) about `p` into
+    /// `row_values`, one bilinear sample at a time; false when a sample
+    /// leaves the image.
+    #[inline(always)]
+    fn sample_affine_row(
+        &mut self,
+        image: &GreyImage,
+        p: [f32; 2],
+        a: &Matrix2<f32>,
+        t: &Vector2<f32>,
+        v: f32,
+    ) -> bool {
+        let h = self.config.half_window_px as f32;
+        let n = self.config.half_window_px * 2 + 1;
+        let (w, hh) = (image.width as f32, image.height as f32);
+        let stride = image.width;
+        let data = &image.data;
+        for (i, value) in self.row_values[..n].iter_mut().enumerate() {
+            let u = i as f32 - h;
+            // Each sample placed and checked on its own: checking only
+            // the window's corners let a sample on an edge between two
+            // of them round past the last pixel.
+            let x = p[0] + a[(0, 0)] * u + a[(0, 1)] * v + t[0];
+            let y = p[1] + a[(1, 0)] * u + a[(1, 1)] * v + t[1];
+            if !(x >= 0.0 && y >= 0.0 && x < w - 1.0 && y < hh - 1.0) {
+                return false;
+            }
+            // 0 <= x < w - 1: truncation is floor, and ix + 1 is in the row.
+            let (ix, iy) = (x as usize, y as usize);
+            let (ax, ay) = (x - ix as f32, y - iy as f32);
+            let o = iy * stride + ix;
+            *value = (1.0 - ay) * ((1.0 - ax) * f32::from(data[o]) + ax * f32::from(data[o + 1]))
+                + ay * ((1.0 - ax) * f32::from(data[o + stride])
+                    + ax * f32::from(data[o + stride + 1]));
+        }
+        true
+    }
+
+    /// [`Self::sample_affine_row`] eight samples at a time: places, image
+    /// check and weights in vectors, the four grey levels around each
+    /// sample by two gathers ([`gathered_corners`]), every sample computed
+    /// as the scalar code computes it (the same bits). `None` when a
+    /// gather would read past the image's last bytes (the caller samples
+    /// the row one by one); the padding's lanes are left at zero.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn sample_affine_row_avx2(
+        &mut self,
+        image: &GreyImage,
+        p: [f32; 2],
+        a: &Matrix2<f32>,
+        t: &Vector2<f32>,
+        v: f32,
+    ) -> Option<bool> {
+        use std::arch::x86_64::*;
+        let n = self.config.half_window_px * 2 + 1;
+        let np = padded(n);
+        let stride = image.width;
+        let (x_end, y_end) = (
+            _mm256_set1_ps(image.width as f32 - 1.0),
+            _mm256_set1_ps(image.height as f32 - 1.0),
+        );
+        let zero = _mm256_setzero_ps();
+        let one = _mm256_set1_ps(1.0);
+        // x = p + a00 u + a01 v + t, added in the scalar code's order.
+        let (x0, xv, xt) = (
+            _mm256_set1_ps(p[0]),
+            _mm256_set1_ps(a[(0, 1)] * v),
+            _mm256_set1_ps(t[0]),
+        );
+        let (y0, yv, yt) = (
+            _mm256_set1_ps(p[1]),
+            _mm256_set1_ps(a[(1, 1)] * v),
+            _mm256_set1_ps(t[1]),
+        );
+        let (a00, a10) = (_mm256_set1_ps(a[(0, 0)]), _mm256_set1_ps(a[(1, 0)]));
+        for c in (0..np).step_by(LANES) {
+            // The padding's lanes repeat the row's last sample (inside
+            // whenever the row is).
+            let u = _mm256_loadu_ps(self.sample_offsets[c..c + LANES].as_ptr());
+            let x = _mm256_add_ps(
+                _mm256_add_ps(_mm256_add_ps(x0, _mm256_mul_ps(a00, u)), xv),
+                xt,
+            );
+            let y = _mm256_add_ps(
+                _mm256_add_ps(_mm256_add_ps(y0, _mm256_mul_ps(a10, u)), yv),
+                yt,
+            );
+            let inside = _mm256_and_ps(
+                _mm256_and_ps(
+                    _mm256_cmp_ps::<_CMP_GE_OQ>(x, zero),
+                    _mm256_cmp_ps::<_CMP_GE_OQ>(y, zero),
+                ),
+                _mm256_and_ps(
+                    _mm256_cmp_ps::<_CMP_LT_OQ>(x, x_end),
+                    _mm256_cmp_ps::<_CMP_LT_OQ>(y, y_end),
+                ),
+            );
+            if _mm256_movemask_ps(inside) != 0xff {
+                return Some(false);
+            }
+            // 0 <= x < w - 1: truncation is floor.
+            let (ix, iy) = (_mm256_cvttps_epi32(x), _mm256_cvttps_epi32(y));
+            let ax = _mm256_sub_ps(x, _mm256_cvtepi32_ps(ix));
+            let ay = _mm256_sub_ps(y, _mm256_cvtepi32_ps(iy));
+            let offsets =
+                _mm256_add_epi32(_mm256_mullo_epi32(iy, _mm256_set1_epi32(stride as i32)), ix);
+            // SAFETY: AVX2 is on; the offsets are of pixels inside the image.
+            let [d0, d1, d2, d3] = unsafe { gathered_corners(&image.data, stride, offsets) }?;
+            let (bx, by) = (_mm256_sub_ps(one, ax), _mm256_sub_ps(one, ay));
+            let top = _mm256_add_ps(_mm256_mul_ps(bx, d0), _mm256_mul_ps(ax, d1));
+            let bottom = _mm256_add_ps(_mm256_mul_ps(bx, d2), _mm256_mul_ps(ax, d3));
+            let value = _mm256_add_ps(_mm256_mul_ps(by, top), _mm256_mul_ps(ay, bottom));
+            let value = _mm256_and_ps(
+                value,
+                _mm256_loadu_ps(self.sample_lanes[c..c + LANES].as_ptr()),
+            );
+            _mm256_storeu_ps(self.row_values[c..c + LANES].as_mut_ptr(), value);
+        }
+        Some(true)
     }
 
     /// Gauss-Newton at one level from displacement `d`.

@@ -12,6 +12,7 @@
 pub mod brief_pattern;
 pub mod corners;
 pub mod fast;
+pub mod gathered_corners;
 pub mod grid;
 pub mod klt;
 pub mod matching;

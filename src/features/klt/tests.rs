@@ -102,6 +102,17 @@ fn tracking_errors_with(
     errors
 }
 
+/// Uniform numbers in [0, 1) from a xorshift generator seeded with `seed`.
+fn uniform(seed: u64) -> impl FnMut() -> f32 {
+    let mut z = seed;
+    move || {
+        z ^= z << 13;
+        z ^= z >> 7;
+        z ^= z << 17;
+        (z >> 40) as f32 / (1u64 << 24) as f32
+    }
+}
+
 fn mean(v: &[f64]) -> f64 {
     v.iter().sum::<f64>() / v.len() as f64
 }
@@ -415,19 +426,13 @@ fn an_affine_window_ending_on_the_image_edge_is_refused_not_read_past() {
     let (w, h) = (64usize, 48usize);
     let pyramid = render(w, h, texture);
     let image = pyramid.level(0);
-    let tracker = KltTracker::new(KltConfig {
+    let mut tracker = KltTracker::new(KltConfig {
         affine_refinement: true,
         ..KltConfig::default()
     })
     .unwrap();
     let half = tracker.config().half_window_px as f32;
-    let mut z = 0x2545_F491_4F6C_DD1Du64;
-    let mut next = || {
-        z ^= z << 13;
-        z ^= z >> 7;
-        z ^= z << 17;
-        (z >> 40) as f32 / (1u64 << 24) as f32
-    };
+    let mut next = uniform(0x2545_F491_4F6C_DD1D);
     let (mut sampled, mut refused) = (0, 0);
     for k in 0..20_000 {
         let a = Matrix2::new(
@@ -462,5 +467,74 @@ fn an_affine_window_ending_on_the_image_edge_is_refused_not_read_past() {
     assert!(
         sampled > 0 && refused > 0,
         "{sampled} sampled, {refused} refused"
+    );
+}
+
+#[cfg(target_arch = "x86_64")]
+#[test]
+fn gathered_affine_sums_are_the_scalar_ones_to_the_bit() {
+    // Rows sampled eight at a time with gathers against one sample at a
+    // time: the same samples, the same sums to the bit, the same
+    // refusals at the image's edge (windows near every border, the last
+    // bytes included, where the gathers hand the row back).
+    if !(std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma"))
+    {
+        return;
+    }
+    let (w, h) = (96usize, 72usize);
+    let pyramid = render(w, h, texture);
+    let image = pyramid.level(0);
+    let mut tracker = KltTracker::new(KltConfig {
+        affine_refinement: true,
+        ..KltConfig::default()
+    })
+    .unwrap();
+    let n = 2 * tracker.config().half_window_px + 1;
+    let np = padded(n);
+    let mut next = uniform(0x9E37_79B9_7F4A_7C15);
+    // A template and gradients of any values (the padding stays zero).
+    for j in 0..n {
+        for i in 0..n {
+            tracker.template_inner[j * np + i] = 255.0 * next();
+            tracker.grad_x[j * np + i] = 40.0 * (next() - 0.5);
+            tracker.grad_y[j * np + i] = 40.0 * (next() - 0.5);
+        }
+    }
+    let (mut compared, mut refused) = (0, 0);
+    let half = tracker.config().half_window_px as f32;
+    for k in 0..5000 {
+        let a = Matrix2::new(
+            0.8 + 0.4 * next(),
+            0.3 * (next() - 0.5),
+            0.3 * (next() - 0.5),
+            0.8 + 0.4 * next(),
+        );
+        let p = [w as f32 * next(), h as f32 * next()];
+        let t = if k % 4 == 0 {
+            // The window's bottom-right corner a hair inside the last pixel.
+            let target = Vector2::new(
+                w as f32 - 1.0 - 1e-4 * next(),
+                h as f32 - 1.0 - 1e-4 * next(),
+            );
+            target - Vector2::new(p[0], p[1]) - a * Vector2::new(half, half)
+        } else {
+            Vector2::new(4.0 * (next() - 0.5), 4.0 * (next() - 0.5))
+        };
+        let scalar = tracker.affine_residual_products_with(image, p, &a, &t, false);
+        let gathered = tracker.affine_residual_products_with(image, p, &a, &t, true);
+        match (scalar, gathered) {
+            (None, None) => refused += 1,
+            (Some((bs, rs)), Some((bg, rg))) => {
+                let bits = |b: &Vector6<f32>| b.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&bs), bits(&bg), "sums {bs:?} against {bg:?}");
+                assert_eq!(rs.to_bits(), rg.to_bits(), "spread {rs} against {rg}");
+                compared += 1;
+            }
+            (s, g) => panic!("scalar {s:?}, gathered {g:?} at p {p:?}, a {a:?}, t {t:?}"),
+        }
+    }
+    assert!(
+        compared > 500 && refused > 100,
+        "{compared} compared, {refused} refused"
     );
 }
