@@ -691,6 +691,33 @@ pub fn pose_at_exposure(
     )
 }
 
+/// What every observation of one keyframe shares in
+/// [`reproject_refined`]: the pose at exposure, its rotation matrix and
+/// the turn back to the stamp (two rotations from an axis-angle each: per
+/// observation they were a good part of the window's time).
+#[derive(Debug, Clone, Copy)]
+pub struct Exposure {
+    /// [`pose_at_exposure`].
+    pub pose: Isometry3<f64>,
+    /// The exposure's rotation as a matrix, `R_world_body`.
+    pub rotation: Matrix3<f64>,
+    /// `Exp(-omega td)`: from the exposure back to the stamp.
+    pub back: Matrix3<f64>,
+}
+
+impl Exposure {
+    /// The keyframe at `T_world_body` moving by `motion`, imaged `td` after its stamp.
+    #[allow(non_snake_case)]
+    pub fn new(T_world_body: &Isometry3<f64>, motion: &BodyMotion, td: f64) -> Self {
+        let pose = pose_at_exposure(T_world_body, motion, td);
+        Self {
+            pose,
+            rotation: pose.rotation.to_rotation_matrix().into_inner(),
+            back: exp(&(-motion.omega_body_rad_s * td)),
+        }
+    }
+}
+
 /// The reprojection through the pose at exposure, with the body and point
 /// Jacobians ([`reproject`]'s, chained to the keyframe's own pose) and
 /// the Jacobian with respect to the calibration step. `camera` holds the
@@ -706,12 +733,36 @@ pub fn reproject_refined(
     point_world_m: &Vector3<f64>,
     pixel: &Vector2<f64>,
 ) -> Option<(Reprojection, Matrix2xCalib)> {
-    let exposed = pose_at_exposure(T_world_body, motion, td);
-    let mut r = reproject(camera, &exposed, point_world_m, pixel)?;
-    let r_wb: Matrix3<f64> = exposed.rotation.to_rotation_matrix().into_inner();
+    let exposure = Exposure::new(T_world_body, motion, td);
+    reproject_exposed(
+        camera,
+        camera_index,
+        T_cam0_cam,
+        &exposure,
+        motion,
+        point_world_m,
+        pixel,
+    )
+}
+
+/// [`reproject_refined`] with the keyframe's [`Exposure`] computed once
+/// for all its observations (the same numbers).
+#[allow(non_snake_case)]
+pub fn reproject_exposed(
+    camera: &RigCamera,
+    camera_index: usize,
+    T_cam0_cam: &Isometry3<f64>,
+    exposure: &Exposure,
+    motion: &BodyMotion,
+    point_world_m: &Vector3<f64>,
+    pixel: &Vector2<f64>,
+) -> Option<(Reprojection, Matrix2xCalib)> {
+    let exposed = &exposure.pose;
+    let mut r = reproject(camera, exposed, point_world_m, pixel)?;
+    let r_wb = exposure.rotation;
     // d error / d p_body = d_point R' (d_point = d_px R_cb R'^T).
     let d_body = r.d_point * r_wb;
-    let back = exp(&(-motion.omega_body_rad_s * td));
+    let back = exposure.back;
     let d_rot = r.d_pose.fixed_view::<2, 3>(0, 0) * back;
     r.d_pose.fixed_view_mut::<2, 3>(0, 0).copy_from(&d_rot);
     let p_body = r_wb.transpose() * (point_world_m - exposed.translation.vector);

@@ -14,7 +14,7 @@ use std::time::Instant;
 
 use nalgebra::{Matrix6, SMatrix, SVector, Vector2, Vector3};
 
-use super::camera_imu::{reproject_refined, reprojection_error_refined, BodyMotion};
+use super::camera_imu::{reproject_exposed, BodyMotion, Exposure};
 use super::inertial_link::{whitening, Matrix9};
 use super::reprojection::{reproject, reprojection_error, GATE_SQ};
 use super::state::{apply_update, nav_state, state_is_finite, FULL_DIM, POS, ROT, VEL};
@@ -187,46 +187,39 @@ impl Window {
             omega_body_rad_s: *omega,
             velocity_world_m_s: s.velocity_world_m_s,
         };
-        let project = |s: &KeyframeState, r: &TrackRow| match &exposure {
-            Some((td, t_c0c, omega)) => {
-                let motion = motion(s, omega);
-                reproject_refined(
-                    &cameras[r.camera as usize],
-                    r.camera as usize,
-                    &t_c0c[r.camera as usize],
-                    &s.T_world_body,
-                    &motion,
-                    *td,
-                    &r.point_world_m,
-                    &r.pixel,
-                )
-                .map(|(p, _)| p)
-            }
-            None => reproject(
+        // The pose at exposure of a state, shared by all its rows.
+        let exposed = |s: &KeyframeState| {
+            exposure
+                .as_ref()
+                .map(|(td, _, omega)| Exposure::new(&s.T_world_body, &motion(s, omega), *td))
+        };
+        let project = |s: &KeyframeState, at: Option<&Exposure>, r: &TrackRow| match (&exposure, at)
+        {
+            (Some((_, t_c0c, omega)), Some(at)) => reproject_exposed(
+                &cameras[r.camera as usize],
+                r.camera as usize,
+                &t_c0c[r.camera as usize],
+                at,
+                &motion(s, omega),
+                &r.point_world_m,
+                &r.pixel,
+            )
+            .map(|(p, _)| p),
+            _ => reproject(
                 &cameras[r.camera as usize],
                 &s.T_world_body,
                 &r.point_world_m,
                 &r.pixel,
             ),
         };
-        let error = |s: &KeyframeState, r: &TrackRow| match &exposure {
-            Some((td, _, omega)) => {
-                let motion = motion(s, omega);
-                reprojection_error_refined(
-                    &cameras[r.camera as usize],
-                    &s.T_world_body,
-                    &motion,
-                    *td,
-                    &r.point_world_m,
-                    &r.pixel,
-                )
-            }
-            None => reprojection_error(
+        let error = |s: &KeyframeState, at: Option<&Exposure>, r: &TrackRow| {
+            let pose = at.map_or(&s.T_world_body, |at| &at.pose);
+            reprojection_error(
                 &cameras[r.camera as usize],
-                &s.T_world_body,
+                pose,
                 &r.point_world_m,
                 &r.pixel,
-            ),
+            )
         };
 
         // Cost and (optionally) normal equations of the frame's pose.
@@ -241,9 +234,10 @@ impl Window {
             let mut h = Matrix9x9::zeros();
             let mut b = Vector9::zeros();
             let build = normal.is_some();
+            let at = exposed(s);
             for r in rows.iter().filter(|r| r.active) {
                 if build {
-                    let Some(p) = project(s, r).filter(|p| p.depth_m > 0.0) else {
+                    let Some(p) = project(s, at.as_ref(), r).filter(|p| p.depth_m > 0.0) else {
                         cost += 0.5 * vw * kernel.evaluate(GATE_SQ, k).0;
                         continue;
                     };
@@ -256,7 +250,7 @@ impl Window {
                     let mut bp = b.fixed_rows_mut::<6>(0);
                     bp -= j.transpose() * e * (w * vw);
                 } else {
-                    match error(s, r) {
+                    match error(s, at.as_ref(), r) {
                         Some((e, depth)) if depth > 0.0 => {
                             cost += 0.5 * vw * kernel.evaluate((e * inv_sigma).norm_squared(), k).0
                         }
@@ -337,9 +331,10 @@ impl Window {
             // Drop the outliers and refine once.
             let chi2 = self.config.outlier_chi2;
             let mut dropped = 0;
+            let at = exposed(&state);
             for r in rows.iter_mut().filter(|r| r.active) {
                 let keep = matches!(
-                    error(&state, r),
+                    error(&state, at.as_ref(), r),
                     Some((e, depth)) if depth > 0.0 && (e * inv_sigma).norm_squared() <= chi2
                 );
                 if !keep {

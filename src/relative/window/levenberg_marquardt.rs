@@ -12,9 +12,7 @@ use std::time::Instant;
 
 use nalgebra::{DMatrix, Matrix2, SMatrix, SVector, Vector2, Vector3};
 
-use super::camera_imu::{
-    reproject_refined, reprojection_error_refined, BodyMotion, CALIB_DIM, CALIB_STEREO,
-};
+use super::camera_imu::{reproject_exposed, BodyMotion, Exposure, CALIB_DIM, CALIB_STEREO};
 use super::inertial::{
     bias_walk_factor, inertial_factor, tangent_basis, update_direction, GRAVITY_COL, INERTIAL_COLS,
 };
@@ -22,7 +20,7 @@ use super::marginalise::{marginalise_boundary, LinkEnd};
 use super::prior::{GravityPrior, OldestFreePrior};
 use super::reprojection::{reproject, reprojection_error, GATE_SQ};
 use super::schur::{self, Chunk, LandmarkBlock, ObservationRow};
-use super::state::{apply_update, inertially_linked, BG, FULL_DIM, POSE_DIM, VEL};
+use super::state::{apply_update, inertially_linked, Keyframe, BG, FULL_DIM, POSE_DIM, VEL};
 use super::{held_cameras, Window};
 use crate::imu::so3::hat;
 use crate::relative::types::{BodyLandmark, WindowSupport};
@@ -375,6 +373,20 @@ impl Window {
         // (docs/results/covariance-image-only-keyframes-2026-12-07.md).
         let image_only_scale = (self.use_imu && p.covariance_pixels)
             .then(|| self.config.covariance_pixel_gain * self.noise.scale().pixel);
+        // Each keyframe's pose at exposure, shared by its observations.
+        let exposures: Vec<Exposure> = match calib {
+            Some(c) => keyframes
+                .iter()
+                .map(|kf| {
+                    Exposure::new(
+                        &kf.state.T_world_body,
+                        &keyframe_motion(kf),
+                        c.time_offset_s,
+                    )
+                })
+                .collect(),
+            None => Vec::new(),
+        };
         for row in p.rows.iter_mut() {
             let kf = &keyframes[row.kf];
             let (inv_sigma, to_declared, k) = match image_only_scale {
@@ -388,19 +400,15 @@ impl Window {
             let camera = &self.cameras[row.camera as usize];
             let point = p.landmarks[row.landmark].position_world_m;
             let error = if let Some(c) = calib {
-                let motion = BodyMotion {
-                    omega_body_rad_s: kf.omega_body_rad_s,
-                    velocity_world_m_s: kf.state.velocity_world_m_s,
-                };
-                let td = c.time_offset_s;
+                let motion = keyframe_motion(kf);
+                let exposure = &exposures[row.kf];
                 if build {
-                    reproject_refined(
+                    reproject_exposed(
                         camera,
                         row.camera as usize,
                         &c.T_cam0_cam[row.camera as usize],
-                        &kf.state.T_world_body,
+                        exposure,
                         &motion,
-                        td,
                         &point,
                         &obs.pixel,
                     )
@@ -417,16 +425,9 @@ impl Window {
                         r.error_px
                     })
                 } else {
-                    reprojection_error_refined(
-                        camera,
-                        &kf.state.T_world_body,
-                        &motion,
-                        td,
-                        &point,
-                        &obs.pixel,
-                    )
-                    .filter(|(_, depth)| *depth > 0.0)
-                    .map(|(e, _)| e)
+                    reprojection_error(camera, &exposure.pose, &point, &obs.pixel)
+                        .filter(|(_, depth)| *depth > 0.0)
+                        .map(|(e, _)| e)
                 }
             } else if build {
                 reproject(camera, &kf.state.T_world_body, &point, &obs.pixel)
@@ -945,6 +946,14 @@ impl Window {
             }
         }
         self.problem.z_buffer = z;
+    }
+}
+
+/// The body's motion at keyframe `kf`, for its pose at exposure.
+fn keyframe_motion(kf: &Keyframe) -> BodyMotion {
+    BodyMotion {
+        omega_body_rad_s: kf.omega_body_rad_s,
+        velocity_world_m_s: kf.state.velocity_world_m_s,
     }
 }
 
