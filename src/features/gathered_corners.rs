@@ -13,10 +13,11 @@ use std::arch::x86_64::*;
 /// `(top-left, top-right, bottom-left, bottom-right)` grey levels of the
 /// eight pixels at byte `offsets` of a row-major image with `stride`
 /// bytes a row, as f32 lanes; `None` when a lane's four-byte reads would
-/// pass the end of `data` (the caller samples those one by one).
+/// pass the end of `data` or start before it (the caller samples those
+/// one by one).
 ///
 /// # Safety
-/// The CPU must have AVX2, and every offset must be non-negative.
+/// The CPU must have AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
@@ -27,9 +28,10 @@ pub unsafe fn gathered_corners(
 ) -> Option<[__m256; 4]> {
     let mut lanes = [0i32; 8];
     _mm256_storeu_si256(lanes.as_mut_ptr().cast(), offsets);
+    let first = lanes.iter().copied().min().unwrap_or(0);
     let last = lanes.iter().copied().max().unwrap_or(0);
     // The lower read starts `stride` further on and takes four bytes.
-    if last < 0 || last as usize + stride + 4 > data.len() {
+    if first < 0 || last as usize + stride + 4 > data.len() {
         return None;
     }
     let base = data.as_ptr().cast::<i32>();
@@ -59,7 +61,7 @@ mod tests {
             .collect();
         let pixels = [0usize, 5, 12, 14, 30, 44, 60, 71];
         let offsets: Vec<i32> = pixels.iter().map(|&k| k as i32).collect();
-        // SAFETY: AVX2 checked above; offsets non-negative.
+        // SAFETY: AVX2 checked above.
         let corners = unsafe {
             let v = _mm256_loadu_si256(offsets.as_ptr().cast());
             gathered_corners(&data, width, v).expect("inside")
@@ -84,14 +86,16 @@ mod tests {
             );
         }
         // The last pixel whose right and lower neighbours exist reads two
-        // bytes past the end with a four-byte gather: refused.
+        // bytes past the end with a four-byte gather, and a negative offset
+        // before the start: both refused.
         let last = (height - 2) * width + width - 2;
-        let offsets = [last as i32; 8];
-        // SAFETY: AVX2 checked above; offsets non-negative.
-        let refused = unsafe {
-            let v = _mm256_loadu_si256(offsets.as_ptr().cast());
-            gathered_corners(&data, width, v)
-        };
-        assert!(refused.is_none());
+        for offsets in [[last as i32; 8], [0, 1, 2, -1, 4, 5, 6, 7]] {
+            // SAFETY: AVX2 checked above.
+            let refused = unsafe {
+                let v = _mm256_loadu_si256(offsets.as_ptr().cast());
+                gathered_corners(&data, width, v)
+            };
+            assert!(refused.is_none(), "{offsets:?}");
+        }
     }
 }
